@@ -1,0 +1,3 @@
+from fgins.cli import main
+
+raise SystemExit(main())

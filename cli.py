@@ -1,0 +1,3 @@
+def main() -> int:
+    print("fgins")
+    return 0

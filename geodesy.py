@@ -1,0 +1,120 @@
+"""Geodesy and attitude helpers (WGS-84, local ENU), numpy only."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+import pymap3d
+
+if TYPE_CHECKING:
+    from fgins.types import Origin
+
+WGS84_A = 6378137.0
+WGS84_F = 1.0 / 298.257223563
+WGS84_E2 = WGS84_F * (2.0 - WGS84_F)
+EARTH_RATE = 7.292115e-5  # rad/s
+
+
+def lla_to_enu(lla: np.ndarray, origin: Origin) -> np.ndarray:
+    """Geodetic (deg, deg, ellipsoidal m) rows -> local ENU metres at ``origin``."""
+    lla = np.atleast_2d(lla)
+    e, n, u = pymap3d.geodetic2enu(
+        lla[:, 0], lla[:, 1], lla[:, 2], origin.lat, origin.lon, origin.alt
+    )
+    return np.column_stack([e, n, u])
+
+
+def enu_to_lla(enu: np.ndarray, origin: Origin) -> np.ndarray:
+    """Local ENU metres at ``origin`` -> geodetic (deg, deg, ellipsoidal m) rows."""
+    enu = np.atleast_2d(enu)
+    lat, lon, alt = pymap3d.enu2geodetic(
+        enu[:, 0], enu[:, 1], enu[:, 2], origin.lat, origin.lon, origin.alt
+    )
+    return np.column_stack([lat, lon, alt])
+
+
+def normal_gravity(lat_deg: float, height_m: float = 0.0) -> float:
+    """WGS-84 normal gravity magnitude (Somigliana, with the free-air height correction)."""
+    s2 = np.sin(np.radians(lat_deg)) ** 2
+    g0 = 9.7803253359 * (1 + 0.00193185265241 * s2) / np.sqrt(1 - WGS84_E2 * s2)
+    # Second-order free-air correction (Moritz / NIMA TR8350.2).
+    return float(
+        g0
+        * (
+            1
+            - 2 / WGS84_A * (1 + WGS84_F + 0.00344978650684 - 2 * WGS84_F * s2) * height_m
+            + 3 / WGS84_A**2 * height_m**2
+        )
+    )
+
+
+def earth_rate_enu(lat_deg: float) -> np.ndarray:
+    """Earth rotation rate expressed in the local ENU frame (rad/s)."""
+    lat = np.radians(lat_deg)
+    return EARTH_RATE * np.array([0.0, np.cos(lat), np.sin(lat)])
+
+
+def rotation_to_roll_pitch_heading(rotation: np.ndarray) -> np.ndarray:
+    """Body-to-ENU rotations (N,3,3) -> roll, pitch, heading in degrees (N,3).
+
+    Body axes x forward, y left, z up. Roll is positive right side down, pitch positive nose
+    up, heading from north clockwise in [0, 360).
+    """
+    r = np.asarray(rotation).reshape(-1, 3, 3)
+    roll = np.degrees(np.arctan2(r[:, 2, 1], r[:, 2, 2]))
+    pitch = np.degrees(np.arcsin(np.clip(r[:, 2, 0], -1.0, 1.0)))
+    yaw = np.degrees(np.arctan2(r[:, 1, 0], r[:, 0, 0]))
+    heading = np.mod(90.0 - yaw, 360.0)
+    return np.column_stack([roll, pitch, heading])
+
+
+def roll_pitch_heading_to_rotation(
+    roll_deg: float, pitch_deg: float, heading_deg: float
+) -> np.ndarray:
+    """Inverse of :func:`rotation_to_roll_pitch_heading` for one attitude (3,3)."""
+    roll, pitch, yaw = np.radians([roll_deg, -pitch_deg, 90.0 - heading_deg])
+    cr, sr, cp, sp, cy, sy = (
+        np.cos(roll),
+        np.sin(roll),
+        np.cos(pitch),
+        np.sin(pitch),
+        np.cos(yaw),
+        np.sin(yaw),
+    )
+    rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
+    ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+    rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    return rz @ ry @ rx
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """Cross-product matrix of a 3-vector."""
+    return np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+
+
+def so3_exp(phi: np.ndarray) -> np.ndarray:
+    """Rodrigues' formula, vectorised over leading axes: (..., 3) -> (..., 3, 3)."""
+    phi = np.asarray(phi, dtype=float)
+    angle = np.linalg.norm(phi, axis=-1)[..., None, None]
+    k = np.zeros((*phi.shape[:-1], 3, 3))
+    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -phi[..., 2], phi[..., 1], -phi[..., 0]
+    k[..., 1, 0], k[..., 2, 0], k[..., 2, 1] = phi[..., 2], -phi[..., 1], phi[..., 0]
+    small = angle < 1e-8
+    safe = np.where(small, 1.0, angle)
+    a = np.where(small, 1.0 - angle**2 / 6.0, np.sin(safe) / safe)
+    b = np.where(small, 0.5 - angle**2 / 24.0, (1.0 - np.cos(safe)) / safe**2)
+    return np.eye(3) + a * k + b * (k @ k)
+
+
+def so3_log(r: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) -> rotation vectors (..., 3) (angles below pi)."""
+    r = np.asarray(r, dtype=float)
+    cos = np.clip((np.trace(r, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
+    angle = np.arccos(cos)
+    v = np.stack(
+        [r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0], r[..., 1, 0] - r[..., 0, 1]], -1
+    )
+    s = np.sin(angle)
+    factor = np.where(angle < 1e-8, 0.5, angle / (2.0 * np.where(angle < 1e-8, 1.0, s)))
+    return v * factor[..., None]

@@ -1,0 +1,268 @@
+"""Core data model: plain dataclasses over numpy arrays, validated on construction.
+
+Conventions (see DESIGN.md): SI units, float seconds on one monotonic time base per
+dataset, local ENU navigation frame at ``Dataset.origin``, heights ellipsoidal (WGS-84).
+Every method (factor graph or Kalman baseline) consumes a :class:`Dataset` and returns a
+:class:`Trajectory`, so comparisons run on identical inputs and outputs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+class FginsError(Exception):
+    """An error with a one-line message meant for the user (what, where, what to do)."""
+
+
+class InputError(FginsError):
+    """The input data is unusable as given."""
+
+
+def _as_float_array(name: str, value: object, shape_tail: tuple[int, ...]) -> np.ndarray:
+    array = np.asarray(value, dtype=float)
+    if array.ndim != 1 + len(shape_tail) or array.shape[1:] != shape_tail:
+        expected = "(N" + "".join(f", {d}" for d in shape_tail) + ")"
+        raise InputError(f"{name}: expected shape {expected}, got {array.shape}")
+    return array
+
+
+def _check_time(name: str, t: np.ndarray) -> None:
+    if t.size and not np.all(np.isfinite(t)):
+        raise InputError(f"{name}: non-finite timestamps")
+    if t.size > 1 and np.any(np.diff(t) <= 0):
+        bad = int(np.argmax(np.diff(t) <= 0)) + 1
+        raise InputError(
+            f"{name}: timestamps not strictly increasing at row {bad} "
+            f"(t={t[bad - 1]:.6f} then {t[bad]:.6f}); sort or de-duplicate the input"
+        )
+
+
+def _optional(name: str, value: object, n: int, tail: tuple[int, ...] = ()) -> np.ndarray:
+    """An optional per-epoch column: NaN-filled when absent."""
+    if value is None:
+        return np.full((n, *tail), np.nan)
+    array = _as_float_array(name, value, tail)
+    if array.shape[0] != n:
+        raise InputError(f"{name}: {array.shape[0]} rows for {n} epochs")
+    return array
+
+
+@dataclass
+class ImuData:
+    """Strapdown IMU samples in the IMU's own axes.
+
+    ``gyro`` is angular rate (rad/s) and ``accel`` specific force (m/s^2), both (N, 3).
+    ``suspect`` lists [start, end) time intervals whose samples are not genuine (lost samples
+    filled by interpolation, gaps); the smoother integrates across them with inflated noise.
+    """
+
+    t: np.ndarray
+    gyro: np.ndarray
+    accel: np.ndarray
+    suspect: list[tuple[float, float]] = field(default_factory=list)
+    frame: str = "imu"
+
+    def __post_init__(self) -> None:
+        self.t = _as_float_array("imu.t", self.t, ())
+        self.gyro = _as_float_array("imu.gyro", self.gyro, (3,))
+        self.accel = _as_float_array("imu.accel", self.accel, (3,))
+        n = self.t.shape[0]
+        if self.gyro.shape[0] != n or self.accel.shape[0] != n:
+            raise InputError("imu: t, gyro and accel must have the same number of rows")
+        if n < 2:
+            raise InputError(f"imu: need at least 2 samples, got {n}")
+        _check_time("imu.t", self.t)
+        if not (np.all(np.isfinite(self.gyro)) and np.all(np.isfinite(self.accel))):
+            raise InputError("imu: NaN or infinite samples; drop or repair those rows first")
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+    @property
+    def rate_hz(self) -> float:
+        """Nominal sample rate from the median sample interval."""
+        return float(1.0 / np.median(np.diff(self.t)))
+
+
+@dataclass
+class GnssData:
+    """GNSS fixes. Positions geodetic (deg, deg, ellipsoidal m); optional columns are NaN.
+
+    ``velocity`` is ENU (m/s); ``std`` is the 1-sigma east/north/up position error (m) when the
+    source gives it (GST, covariance); DOPs as reported; ``fix_quality`` uses the NMEA GGA codes
+    (0 invalid, 1 autonomous, 2 DGPS, 4 RTK fixed, 5 RTK float, 6 dead reckoning).
+    ``speed`` (m/s over ground) and ``course`` (deg from north) come from RMC/VTG-like sources.
+    """
+
+    t: np.ndarray
+    lla: np.ndarray
+    velocity: np.ndarray | None = None
+    std: np.ndarray | None = None
+    velocity_std: np.ndarray | None = None
+    hdop: np.ndarray | None = None
+    vdop: np.ndarray | None = None
+    pdop: np.ndarray | None = None
+    fix_quality: np.ndarray | None = None
+    num_sats: np.ndarray | None = None
+    speed: np.ndarray | None = None
+    course: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        self.t = _as_float_array("gnss.t", self.t, ())
+        n = self.t.shape[0]
+        self.lla = _as_float_array("gnss.lla", self.lla, (3,))
+        if self.lla.shape[0] != n:
+            raise InputError("gnss: t and lla must have the same number of rows")
+        _check_time("gnss.t", self.t)
+        self.velocity = _optional("gnss.velocity", self.velocity, n, (3,))
+        self.std = _optional("gnss.std", self.std, n, (3,))
+        self.velocity_std = _optional("gnss.velocity_std", self.velocity_std, n, (3,))
+        for name in ("hdop", "vdop", "pdop", "speed", "course"):
+            setattr(self, name, _optional(f"gnss.{name}", getattr(self, name), n))
+        quality = _optional("gnss.fix_quality", self.fix_quality, n)
+        self.fix_quality = np.where(np.isfinite(quality), quality, 1).astype(int)
+        sats = _optional("gnss.num_sats", self.num_sats, n)
+        self.num_sats = np.where(np.isfinite(sats), sats, -1).astype(int)
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+    def subset(self, mask: np.ndarray) -> GnssData:
+        """The epochs where ``mask`` is true."""
+        return GnssData(
+            t=self.t[mask],
+            lla=self.lla[mask],
+            velocity=self.velocity[mask],
+            std=self.std[mask],
+            velocity_std=self.velocity_std[mask],
+            hdop=self.hdop[mask],
+            vdop=self.vdop[mask],
+            pdop=self.pdop[mask],
+            fix_quality=self.fix_quality[mask],
+            num_sats=self.num_sats[mask],
+            speed=self.speed[mask],
+            course=self.course[mask],
+        )
+
+
+@dataclass
+class BaroData:
+    """Barometer: pressure (Pa) or, where the source already converted it, height (m)."""
+
+    t: np.ndarray
+    pressure: np.ndarray | None = None
+    height: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        self.t = _as_float_array("baro.t", self.t, ())
+        _check_time("baro.t", self.t)
+        n = self.t.shape[0]
+        self.pressure = _optional("baro.pressure", self.pressure, n)
+        self.height = _optional("baro.height", self.height, n)
+
+
+@dataclass
+class Origin:
+    """Local ENU tangent-plane origin (deg, deg, ellipsoidal m)."""
+
+    lat: float
+    lon: float
+    alt: float
+
+
+@dataclass
+class Dataset:
+    """Everything one run consumes: sensors, the local frame origin and metadata.
+
+    ``imu_noise`` and ``gnss_noise`` hold sensor settings that come with the data (KITTI's
+    metadata file, a simulator's ``config.toml``) as datasheet-unit config dicts; the user's
+    config overrides them. ``warnings`` collects counted, non-fatal findings of the readers.
+    """
+
+    imu: ImuData
+    gnss: GnssData
+    origin: Origin
+    baro: BaroData | None = None
+    name: str = ""
+    imu_config: dict[str, object] = field(default_factory=dict)
+    gnss_config: dict[str, object] = field(default_factory=dict)
+    vehicle: str | None = None
+    warnings: list[str] = field(default_factory=list)
+    metadata: dict[str, object] = field(default_factory=dict)
+
+    @property
+    def t0(self) -> float:
+        """Time of the first GNSS epoch: the reference of outage windows."""
+        if len(self.gnss) == 0:
+            raise InputError(f"{self.name or 'dataset'}: no GNSS epochs at all")
+        return float(self.gnss.t[0])
+
+    def gnss_enu(self) -> np.ndarray:
+        """GNSS positions in the local ENU frame (M, 3)."""
+        from fgins.geodesy import lla_to_enu
+
+        return lla_to_enu(self.gnss.lla, self.origin)
+
+
+@dataclass
+class Trajectory:
+    """An estimated (or true) trajectory in the local ENU frame.
+
+    ``rotation`` holds body-to-ENU rotation matrices (N, 3, 3); ``position_cov`` the ENU
+    position covariance (N, 3, 3) or NaN where unknown. ``timings`` maps stage names to wall
+    seconds; ``info`` carries method-specific counts (rejected epochs, iterations, ...).
+    """
+
+    t: np.ndarray
+    position: np.ndarray
+    velocity: np.ndarray
+    rotation: np.ndarray
+    origin: Origin
+    method: str = ""
+    gyro_bias: np.ndarray | None = None
+    accel_bias: np.ndarray | None = None
+    position_cov: np.ndarray | None = None
+    velocity_cov: np.ndarray | None = None
+    attitude_cov: np.ndarray | None = None
+    timings: dict[str, float] = field(default_factory=dict)
+    info: dict[str, object] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.t = _as_float_array("trajectory.t", self.t, ())
+        n = self.t.shape[0]
+        self.position = _as_float_array("trajectory.position", self.position, (3,))
+        self.velocity = _as_float_array("trajectory.velocity", self.velocity, (3,))
+        self.rotation = _as_float_array("trajectory.rotation", self.rotation, (3, 3))
+        for name in ("position", "velocity", "rotation"):
+            if getattr(self, name).shape[0] != n:
+                raise InputError(f"trajectory.{name}: {getattr(self, name).shape[0]} rows for {n}")
+        self.gyro_bias = _optional("trajectory.gyro_bias", self.gyro_bias, n, (3,))
+        self.accel_bias = _optional("trajectory.accel_bias", self.accel_bias, n, (3,))
+        self.position_cov = _optional("trajectory.position_cov", self.position_cov, n, (3, 3))
+        self.velocity_cov = _optional("trajectory.velocity_cov", self.velocity_cov, n, (3, 3))
+        self.attitude_cov = _optional("trajectory.attitude_cov", self.attitude_cov, n, (3, 3))
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+    @property
+    def position_std(self) -> np.ndarray:
+        """1-sigma ENU position error (N, 3), NaN where unknown."""
+        return np.sqrt(np.clip(np.diagonal(self.position_cov, axis1=1, axis2=2), 0, None))
+
+    def roll_pitch_heading_deg(self) -> np.ndarray:
+        """Roll, pitch (deg) and heading (deg from north, clockwise) of the body x axis (N, 3).
+
+        Body axes are taken as x forward, y left, z up (the IMU's axes after the
+        IMU-to-vehicle rotation); for an ENU frame, heading = 90 deg - yaw.
+        """
+        from fgins.geodesy import rotation_to_roll_pitch_heading
+
+        return rotation_to_roll_pitch_heading(self.rotation)
+
+    def at(self, t: np.ndarray) -> np.ndarray:
+        """Position interpolated to times ``t`` (linear), (len(t), 3)."""
+        return np.column_stack([np.interp(t, self.t, self.position[:, i]) for i in range(3)])
