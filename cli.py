@@ -1,3 +1,376 @@
-def main() -> int:
-    print("fgins")
+"""The ``fgins`` command: smooth, demo, sim, convert, inspect.
+
+Every failure is one line on stderr and a non-zero exit; outputs are written atomically.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from fgins import __version__
+from fgins.config import IMU_PRESETS, RunConfig, load_config
+from fgins.outages import outage_mask, parse_windows
+from fgins.pipeline import METHODS, run_method
+from fgins.types import Dataset, FginsError, Trajectory
+
+OUTPUT_SUFFIXES = (".csv", ".geojson", ".kml", ".mcap")
+
+
+def _add_sensor_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--config", type=Path, help="run configuration TOML ([imu], [gnss], [smoother])"
+    )
+    parser.add_argument("--imu-preset", choices=sorted(IMU_PRESETS), help="IMU grade preset")
+    parser.add_argument(
+        "--vehicle", choices=["car", "aircraft", "uav", "pedestrian", "other"],
+        help="vehicle type (land-vehicle constraints apply to car)",
+    )  # fmt: skip
+    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="fgins", description="GNSS/INS factor-graph smoothing (GTSAM) with Kalman baselines."
+    )
+    parser.add_argument("--version", action="version", version=f"fgins {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show tracebacks of internal errors")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    smooth = sub.add_parser("smooth", help="estimate the trajectory of a recorded drive")
+    smooth.add_argument(
+        "inputs", nargs="+", metavar="INPUT",
+        help="demo:kitti | FILE.mcap | NMEA + imu.csv | imu.csv gnss.csv | folder from 'fgins sim'",
+    )  # fmt: skip
+    smooth.add_argument("--method", choices=METHODS, default="batch")
+    smooth.add_argument(
+        "--gnss-outage", metavar="A:B[,C:D...]",
+        help="withhold GNSS epochs with A <= t - t0 < B (seconds after the first GNSS epoch)",
+    )  # fmt: skip
+    smooth.add_argument(
+        "-o", "--output", type=Path, required=True, help="OUT.csv|.geojson|.kml|.mcap"
+    )
+    smooth.add_argument(
+        "--online", action="store_true",
+        help="with --method isam2: write the online (filtered) estimate instead of the final one",
+    )  # fmt: skip
+    smooth.add_argument("--plot", type=Path, help="also write a PNG: track and error vs time")
+    smooth.add_argument(
+        "--time-offset", type=float, default=0.0, help="seconds added to NMEA times"
+    )
+    smooth.add_argument("--imu-topic", help="MCAP: IMU topic (default: chosen by schema)")
+    smooth.add_argument("--gnss-topic", help="MCAP: GNSS topic (default: chosen by schema)")
+    smooth.add_argument(
+        "--with-input", action="store_true", help="MCAP output: copy input channels"
+    )
+    _add_sensor_options(smooth)
+
+    demo = sub.add_parser("demo", help="smooth the built-in KITTI drive with one 30 s GNSS outage")
+    demo.add_argument("-o", "--output-dir", type=Path, default=Path("out"))
+    demo.add_argument("--method", choices=METHODS, default="batch")
+    demo.add_argument("--gnss-outage", default="150:180")
+    _add_sensor_options(demo)
+
+    sim = sub.add_parser(
+        "sim", help="simulate a scenario: imu.csv, gnss.csv, config.toml, truth.csv"
+    )
+    sim.add_argument("scenario", help="scenario name ('fgins sim list' lists them)")
+    sim.add_argument("-o", "--output-dir", type=Path)
+    sim.add_argument("--seed", type=int, default=0)
+    sim.add_argument("--duration", type=float, help="shorten the scenario (seconds)")
+    sim.add_argument(
+        "--set", action="append", default=[], metavar="KEY=VALUE", help="scenario option"
+    )
+
+    convert = sub.add_parser("convert", help="write GNSS fixes of a log as gnss.csv/.geojson/.kml")
+    convert.add_argument("input", type=Path)
+    convert.add_argument("-o", "--output", type=Path, required=True)
+    convert.add_argument("--time-offset", type=float, default=0.0)
+
+    inspect = sub.add_parser("inspect", help="summarise what a log (NMEA, MCAP, CSV) contains")
+    inspect.add_argument("input", type=Path)
+    return parser
+
+
+def _progress(args: argparse.Namespace) -> bool:
+    return not getattr(args, "no_progress", False) and sys.stderr.isatty()
+
+
+def _config_for(dataset: Dataset, args: argparse.Namespace) -> RunConfig:
+    config = load_config(
+        args.config,
+        dataset_imu=dataset.imu_config,
+        dataset_gnss=dataset.gnss_config,
+        imu_preset=args.imu_preset,
+    )
+    vehicle = args.vehicle or dataset.vehicle
+    if vehicle:
+        config.smoother.vehicle = vehicle
+    return config
+
+
+def write_output(
+    trajectory: Trajectory, path: Path, dataset: Dataset, with_input: str | None = None
+) -> None:
+    suffix = path.suffix.lower()
+    if suffix == ".csv":
+        from fgins.io.trajectory_csv import write_trajectory_csv
+
+        write_trajectory_csv(trajectory, path)
+    elif suffix in (".geojson", ".kml"):
+        from fgins.io.trajectory_geo import write_trajectory_geo
+
+        write_trajectory_geo(trajectory, path)
+    elif suffix == ".mcap":
+        from fgins.io.mcap import write_mcap
+
+        write_mcap(trajectory, path, gnss=dataset.gnss, input_path=with_input)
+    else:
+        raise FginsError(f"{path}: output format must be one of {', '.join(OUTPUT_SUFFIXES)}")
+
+
+def _report(dataset: Dataset, trajectory: Trajectory) -> None:
+    for warning in dataset.warnings:
+        print(f"warning: {warning}", file=sys.stderr)
+    for key in ("gnss_gating",):
+        if key in trajectory.info:
+            print(trajectory.info[key], file=sys.stderr)
+
+
+def cmd_smooth(args: argparse.Namespace) -> int:
+    if args.output.suffix.lower() not in OUTPUT_SUFFIXES:
+        raise FginsError(
+            f"{args.output}: output format must be one of {', '.join(OUTPUT_SUFFIXES)}"
+        )
+    windows = parse_windows(args.gnss_outage)
+    from fgins.io.inputs import load_dataset
+
+    dataset = load_dataset(
+        args.inputs, time_offset_s=args.time_offset, imu_topic=args.imu_topic,
+        gnss_topic=args.gnss_topic, progress=_progress(args),
+    )  # fmt: skip
+    config = _config_for(dataset, args)
+    method = "isam2-online" if (args.online and args.method == "isam2") else args.method
+    mask = outage_mask(dataset, windows)
+    started = time.perf_counter()
+    trajectory = run_method(dataset, config, method, gnss_mask=mask, progress=_progress(args))
+    elapsed = time.perf_counter() - started
+    write_output(trajectory, args.output, dataset, str(args.inputs[0]) if args.with_input else None)
+    _report(dataset, trajectory)
+    print(
+        f"{method}: {len(trajectory)} states over {trajectory.t[-1] - trajectory.t[0]:.1f} s "
+        f"in {elapsed:.2f} s ({len(dataset.imu) / max(elapsed, 1e-9):,.0f} IMU samples/s) "
+        f"-> {args.output}",
+        file=sys.stderr,
+    )
+    if args.plot:
+        _plot(trajectory, dataset, windows, args.plot)
     return 0
+
+
+def _plot(trajectory: Trajectory, dataset: Dataset, windows, path: Path):
+    from fgins.bench.metrics import errors_against
+    from fgins.bench.plots import plot_track_and_errors
+
+    gnss_enu = dataset.gnss_enu()
+    errors = errors_against(trajectory, dataset.gnss.t, gnss_enu, dataset.t0, windows)
+    plot_track_and_errors(
+        trajectory, dataset.gnss.t, gnss_enu, dataset.t0, windows, errors, path,
+        title=f"{dataset.name}: {trajectory.method}",
+    )  # fmt: skip
+    return errors
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from fgins.io.kitti import read_kitti
+    from fgins.io.trajectory_csv import write_trajectory_csv
+
+    windows = parse_windows(args.gnss_outage)
+    dataset = read_kitti()
+    config = _config_for(dataset, args)
+    mask = outage_mask(dataset, windows)
+    started = time.perf_counter()
+    trajectory = run_method(dataset, config, args.method, gnss_mask=mask, progress=_progress(args))
+    elapsed = time.perf_counter() - started
+    out_csv = args.output_dir / f"kitti_{args.method}.csv"
+    out_png = args.output_dir / f"kitti_{args.method}.png"
+    write_trajectory_csv(trajectory, out_csv)
+    errors = _plot(trajectory, dataset, windows, out_png)
+    summary = errors.summary()
+    print(
+        f"fgins demo: KITTI drive ({len(dataset.imu)} IMU samples, {len(dataset.gnss)} GNSS epochs, "
+        f"{dataset.imu.t[-1] - dataset.imu.t[0]:.0f} s), method {args.method}"
+    )
+    for warning in dataset.warnings:
+        print(f"  note: {warning}")
+    print(
+        f"  GNSS withheld in {', '.join(f'{a:g}-{b:g} s' for a, b in windows)} after the first epoch"
+    )
+    print(
+        f"  horizontal error inside the outage vs withheld GNSS: RMS {summary['h_rms_outage']:.2f} m, "
+        f"max {summary['h_max_outage']:.2f} m"
+    )
+    print(f"  horizontal RMS at GNSS epochs used: {summary['h_rms_aided']:.3f} m")
+    if "within_3sigma_outage" in summary:
+        print(
+            f"  outage epochs inside the reported 3-sigma: {100 * summary['within_3sigma_outage']:.0f}%"
+        )
+    print(f"  wall time {elapsed:.2f} s ({len(dataset.imu) / elapsed:,.0f} IMU samples/s)")
+    print(f"  wrote {out_csv} and {out_png}")
+    return 0
+
+
+def cmd_sim(args: argparse.Namespace) -> int:
+    try:
+        from fgins.sim.scenarios import SCENARIOS
+        from fgins.sim.writer import write_sim_dir
+    except ImportError:
+        raise FginsError("the simulator is not available in this build") from None
+    if args.scenario == "list":
+        for name, function in SCENARIOS.items():
+            doc = (function.__doc__ or "").strip().splitlines()
+            print(f"{name:18s} {doc[0] if doc else ''}")
+        return 0
+    if args.scenario not in SCENARIOS:
+        raise FginsError(
+            f"unknown scenario {args.scenario!r}; choose one of {', '.join(SCENARIOS)}"
+        )
+    if args.output_dir is None:
+        raise FginsError("fgins sim: -o DIR is required")
+    options: dict[str, object] = {}
+    for item in args.set:
+        key, _, value = item.partition("=")
+        if not _:
+            raise FginsError(f"--set {item!r}: expected KEY=VALUE")
+        options[key.strip()] = _parse_value(value.strip())
+    if args.duration is not None:
+        options["duration_s"] = args.duration
+    try:
+        run = SCENARIOS[args.scenario](seed=args.seed, **options)
+    except TypeError as exc:
+        raise FginsError(f"scenario {args.scenario}: {exc}") from None
+    write_sim_dir(run, args.output_dir)
+    print(
+        f"{args.scenario}: wrote {args.output_dir} ({len(run.dataset.imu)} IMU samples, "
+        f"{len(run.dataset.gnss)} GNSS epochs)"
+    )
+    return 0
+
+
+def _parse_value(text: str) -> object:
+    for convert in (int, float):
+        try:
+            return convert(text)
+        except ValueError:
+            pass
+    if text.lower() in ("true", "false"):
+        return text.lower() == "true"
+    return text
+
+
+def cmd_convert(args: argparse.Namespace) -> int:
+    from fgins.io.gnss_export import write_gnss
+
+    gnss, warnings = _read_gnss_only(args.input, args.time_offset)
+    write_gnss(gnss, args.output)
+    for warning in warnings:
+        print(f"warning: {warning}", file=sys.stderr)
+    print(f"wrote {len(gnss)} fixes to {args.output}", file=sys.stderr)
+    return 0
+
+
+def _read_gnss_only(path: Path, time_offset: float):
+    if not path.exists():
+        raise FginsError(f"{path}: no such file")
+    if path.suffix.lower() == ".mcap":
+        from fgins.io.mcap import read_mcap
+
+        result = read_mcap(path, progress=False)
+        return result.dataset.gnss, result.warnings
+    from fgins.io.csv_pair import csv_kind, read_gnss_csv
+
+    if path.suffix.lower() == ".csv" and csv_kind(path) == "gnss":
+        warnings: list[str] = []
+        return read_gnss_csv(path, warnings), warnings
+    from fgins.io.nmea import read_nmea
+
+    result = read_nmea(path, time_offset_s=time_offset)
+    return result.gnss, result.warnings
+
+
+def cmd_inspect(args: argparse.Namespace) -> int:
+    path: Path = args.input
+    if not path.exists():
+        raise FginsError(f"{path}: no such file")
+    if path.suffix.lower() == ".mcap":
+        from fgins.io.mcap import summarize_mcap
+
+        print(summarize_mcap(path))
+        return 0
+    if path.suffix.lower() == ".csv":
+        print(_summarize_csv(path))
+        return 0
+    from fgins.io.nmea import summarize_nmea
+
+    print(summarize_nmea(path))
+    return 0
+
+
+def _summarize_csv(path: Path) -> str:
+    from fgins.io.csv_pair import csv_kind, read_gnss_csv, read_imu_csv
+
+    kind = csv_kind(path)
+    warnings: list[str] = []
+    if kind == "imu":
+        imu = read_imu_csv(path, warnings)
+        lines = [
+            f"{path}: IMU, {len(imu)} samples, {imu.rate_hz:.1f} Hz, {imu.t[-1] - imu.t[0]:.1f} s",
+            f"  gyro mean {np.round(imu.gyro.mean(axis=0), 5)} rad/s, accel mean "
+            f"{np.round(imu.accel.mean(axis=0), 3)} m/s^2",
+        ]
+    elif kind == "gnss":
+        gnss = read_gnss_csv(path, warnings)
+        rate = 1 / np.median(np.diff(gnss.t)) if len(gnss) > 1 else float("nan")
+        lines = [f"{path}: GNSS, {len(gnss)} fixes, {rate:.2f} Hz, {gnss.t[-1] - gnss.t[0]:.1f} s"]
+    else:
+        raise FginsError(f"{path}: not an imu.csv or gnss.csv (unrecognised header)")
+    lines += [f"  warning: {w}" for w in warnings]
+    return "\n".join(lines)
+
+
+COMMANDS = {
+    "smooth": cmd_smooth,
+    "demo": cmd_demo,
+    "sim": cmd_sim,
+    "convert": cmd_convert,
+    "inspect": cmd_inspect,
+}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return COMMANDS[args.command](args)
+    except FginsError as exc:
+        print(f"fgins: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("fgins: interrupted", file=sys.stderr)
+        return 130
+    except MemoryError:
+        print("fgins: error: out of memory", file=sys.stderr)
+        return 1
+    except Exception as exc:  # the promise is one line, not a traceback
+        if args.debug:
+            raise
+        print(
+            f"fgins: internal error: {type(exc).__name__}: {str(exc).strip().splitlines()[0] if str(exc).strip() else ''}"
+            " (rerun with --debug for the traceback; please report it)",
+            file=sys.stderr,
+        )
+        return 1

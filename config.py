@@ -190,6 +190,9 @@ class SmootherConfig:
 
     outage_keyframe_interval_s: float = 1.0
     max_keyframe_interval_s: float = 1.0
+    # GNSS faster than this is decimated: very short IMU factors carry a near-singular bias
+    # random-walk block, and high-rate GNSS errors are strongly time-correlated anyway.
+    min_keyframe_interval_s: float = 0.2
     suspect_noise_factor: float = 30.0
     initial_heading_deg: float | None = None
     vehicle: str = "car"

@@ -1,0 +1,163 @@
+"""Initial alignment: attitude, velocity and position at the start of a log (numpy only).
+
+Identity rotation is not an initialisation. Two cases:
+
+* at rest (GNSS speed below ``moving_speed``): roll/pitch from the averaged accelerometer
+  (it measures -g in the body frame); heading from GNSS velocity at the first epoch where the
+  vehicle moves, carried back to the start with the integrated gyro yaw rate, or a configured
+  heading;
+* in motion (the KITTI drive starts at ~9 m/s): a quadratic fit to the first seconds of GNSS
+  positions gives velocity and acceleration; the accelerometer average then measures
+  R^T (a - g), and the velocity direction gives the body x axis (forward) in the navigation
+  frame. TRIAD on these two vector pairs, with the gravity-dominated pair as the primary,
+  gives the full attitude.
+
+Used by the factor graph and by every Kalman baseline, so all methods start from the same
+state and the same uncertainty.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from fgins.geodesy import normal_gravity, roll_pitch_heading_to_rotation
+from fgins.types import Dataset, InputError
+
+
+@dataclass
+class Alignment:
+    """Initial navigation state at time ``t`` with 1-sigma uncertainties."""
+
+    t: float
+    rotation: np.ndarray  # body -> ENU
+    velocity: np.ndarray
+    position: np.ndarray
+    attitude_sigma_rad: np.ndarray  # roll, pitch, yaw
+    velocity_sigma: float
+    position_sigma: float
+    moving: bool
+
+
+def _triad(
+    body_a: np.ndarray, body_b: np.ndarray, nav_a: np.ndarray, nav_b: np.ndarray
+) -> np.ndarray:
+    """Rotation body->nav matching a exactly and b as well as possible."""
+
+    def frame(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        e1 = a / np.linalg.norm(a)
+        e2 = np.cross(a, b)
+        e2 /= np.linalg.norm(e2)
+        return np.column_stack([e1, e2, np.cross(e1, e2)])
+
+    return frame(nav_a, nav_b) @ frame(body_a, body_b).T
+
+
+def _gnss_fit(
+    t: np.ndarray, enu: np.ndarray, t_eval: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Position, velocity and acceleration at ``t_eval`` from a quadratic fit."""
+    dt = t - t_eval
+    degree = 2 if len(t) >= 4 else 1
+    coeffs = np.polynomial.polynomial.polyfit(dt, enu, degree)
+    position = coeffs[0]
+    velocity = coeffs[1]
+    acceleration = 2 * coeffs[2] if degree == 2 else np.zeros(3)
+    return position, velocity, acceleration
+
+
+def initial_alignment(
+    dataset: Dataset,
+    gnss_mask: np.ndarray | None = None,
+    *,
+    heading_deg: float | None = None,
+    moving_speed: float = 2.0,
+    fit_window_s: float = 6.0,
+) -> Alignment:
+    """Initial state at the first IMU sample (see module docstring)."""
+    imu = dataset.imu
+    mask = np.ones(len(dataset.gnss), dtype=bool) if gnss_mask is None else gnss_mask
+    gnss_t = dataset.gnss.t[mask]
+    gnss_enu = dataset.gnss_enu()[mask]
+    if len(gnss_t) < 2:
+        raise InputError("alignment needs at least 2 usable GNSS fixes")
+    t0 = float(imu.t[0])
+    g = normal_gravity(dataset.origin.lat, dataset.origin.alt)
+    gravity = np.array([0.0, 0.0, -g])
+
+    window = gnss_t <= max(gnss_t[0], t0) + fit_window_s
+    if window.sum() < 3:
+        window = np.arange(len(gnss_t)) < 3
+    position, velocity, acceleration = _gnss_fit(gnss_t[window], gnss_enu[window], t0)
+    speed = float(np.linalg.norm(velocity[:2]))
+    # Accelerometer average over the first second of IMU data.
+    first = imu.t <= t0 + 1.0
+    first[: min(len(first), 10)] = True
+    specific_force = imu.accel[first].mean(axis=0)
+
+    if speed >= moving_speed:
+        nav_force = acceleration - gravity
+        forward = np.array([velocity[0], velocity[1], velocity[2]])
+        rotation = _triad(specific_force, np.array([1.0, 0.0, 0.0]), nav_force, forward)
+        if heading_deg is not None:
+            rotation = _with_heading(rotation, heading_deg)
+        return Alignment(
+            t=t0,
+            rotation=rotation,
+            velocity=velocity,
+            position=position,
+            attitude_sigma_rad=np.radians([2.0, 2.0, 5.0 if heading_deg is None else 2.0]),
+            velocity_sigma=1.0,
+            position_sigma=2.0,
+            moving=True,
+        )
+
+    # At rest: level from gravity; heading from the first motion (or the configuration).
+    up_body = specific_force / np.linalg.norm(specific_force)
+    if heading_deg is None:
+        heading_deg, known = _heading_from_first_motion(dataset, gnss_t, gnss_enu, moving_speed)
+    else:
+        known = True
+    level = _triad(
+        up_body, np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0])
+    )
+    rotation = _with_heading(level, heading_deg)
+    return Alignment(
+        t=t0,
+        rotation=rotation,
+        velocity=np.zeros(3) if speed < 0.5 else velocity,
+        position=position,
+        attitude_sigma_rad=np.radians([2.0, 2.0, 10.0 if known else 180.0]),
+        velocity_sigma=0.5,
+        position_sigma=2.0,
+        moving=False,
+    )
+
+
+def _with_heading(rotation: np.ndarray, heading_deg: float) -> np.ndarray:
+    """Replace the heading of ``rotation`` keeping its roll and pitch."""
+    from fgins.geodesy import rotation_to_roll_pitch_heading
+
+    roll, pitch, _ = rotation_to_roll_pitch_heading(rotation[None])[0]
+    return roll_pitch_heading_to_rotation(roll, pitch, heading_deg)
+
+
+def _heading_from_first_motion(
+    dataset: Dataset, gnss_t: np.ndarray, gnss_enu: np.ndarray, moving_speed: float
+) -> tuple[float, bool]:
+    """Heading at the start: GNSS course once moving, minus the yaw turned since the start."""
+    dt = np.diff(gnss_t)
+    velocity = np.diff(gnss_enu, axis=0) / dt[:, None]
+    speed = np.linalg.norm(velocity[:, :2], axis=1)
+    moving = np.flatnonzero((speed >= moving_speed) & (dt < 3.0))
+    if moving.size == 0:
+        return 0.0, False
+    k = int(moving[0])
+    t_move = 0.5 * (gnss_t[k] + gnss_t[k + 1])
+    heading = float(np.degrees(np.arctan2(velocity[k, 0], velocity[k, 1])))
+    imu = dataset.imu
+    span = imu.t <= t_move
+    # Yaw rate about the local vertical, approximated by the body z rate (near level at rest).
+    yaw_turned = float(np.sum(imu.gyro[span][:-1, 2] * np.diff(imu.t[span])))
+    return float(np.mod(heading + np.degrees(yaw_turned), 360.0)), True

@@ -1,0 +1,67 @@
+"""Plots people look at: the track with outages highlighted, and error versus time."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+
+from fgins.bench.metrics import Errors
+from fgins.io.atomic import atomic_path
+from fgins.outages import in_windows
+from fgins.types import Trajectory
+
+
+def plot_track_and_errors(
+    trajectory: Trajectory,
+    gnss_t: np.ndarray,
+    gnss_enu: np.ndarray,
+    t0: float,
+    windows: list[tuple[float, float]],
+    errors: Errors | None,
+    path: str | Path,
+    title: str = "",
+) -> None:
+    """Left: ENU track, GNSS fixes, withheld fixes in red. Right: horizontal error vs time
+    with outage windows shaded and the reported 3-sigma band."""
+    withheld = in_windows(gnss_t, t0, windows)
+    fig, (ax_track, ax_err) = plt.subplots(1, 2, figsize=(14, 6))
+    ax_track.plot(
+        trajectory.position[:, 0], trajectory.position[:, 1], "b-", lw=1, label=trajectory.method
+    )
+    ax_track.plot(gnss_enu[~withheld, 0], gnss_enu[~withheld, 1], "k.", ms=2, label="GNSS used")
+    if withheld.any():
+        ax_track.plot(
+            gnss_enu[withheld, 0], gnss_enu[withheld, 1], "r.", ms=4, label="GNSS withheld"
+        )
+        inside = in_windows(trajectory.t, t0, windows)
+        ax_track.plot(
+            np.where(inside, trajectory.position[:, 0], np.nan),
+            np.where(inside, trajectory.position[:, 1], np.nan),
+            "m-", lw=2, label="bridged by IMU",
+        )  # fmt: skip
+    ax_track.set_xlabel("east (m)")
+    ax_track.set_ylabel("north (m)")
+    ax_track.axis("equal")
+    ax_track.grid(True, alpha=0.3)
+    ax_track.legend(loc="best", fontsize=8)
+    if errors is not None:
+        rel = errors.t - t0
+        ax_err.plot(rel, errors.horizontal, "b.-", ms=2, lw=0.8, label="horizontal error")
+        ax_err.plot(rel, 3 * errors.horizontal_std, "g--", lw=0.8, label="reported 3 sigma")
+        for start, end in windows:
+            ax_err.axvspan(start, end, color="red", alpha=0.12)
+        ax_err.set_xlabel("time since first GNSS epoch (s)")
+        ax_err.set_ylabel("horizontal error vs GNSS (m)")
+        ax_err.set_yscale("symlog", linthresh=0.5)
+        ax_err.grid(True, alpha=0.3)
+        ax_err.legend(loc="upper left", fontsize=8)
+    fig.suptitle(title)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format=Path(path).suffix.lstrip(".") or "png")
+    plt.close(fig)

@@ -1,0 +1,131 @@
+"""GNSS measurement model: per-epoch sigmas (data, GST, UERE x DOP), gating, GTSAM factors.
+
+The numpy half (:func:`position_sigmas`, :func:`velocity_sigmas`, :func:`gate_epochs`) is the
+one GNSS noise model of the project: the factor graph and every Kalman baseline call it, so a
+comparison isolates the estimator.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from fgins.config import GnssConfig
+from fgins.types import GnssData
+
+# NMEA GGA fix-quality codes -> UERE table key.
+QUALITY_UERE_KEY = {1: "autonomous", 2: "dgps", 9: "dgps", 4: "rtk_fixed", 5: "rtk_float"}
+
+
+def position_sigmas(gnss: GnssData, config: GnssConfig) -> np.ndarray:
+    """1-sigma east/north/up position error per epoch (M, 3).
+
+    Priority: a constant configured ``sigma_m``; the data's own sigmas (covariance, GST);
+    UERE x HDOP horizontally and UERE x VDOP vertically (PDOP when VDOP is absent; HDOP
+    alone: vertical = 1.5 x horizontal, the usual geometry ratio); ``default_sigma_m``.
+    """
+    n = len(gnss)
+    if config.sigma_m is not None:
+        return np.tile(np.asarray(config.sigma_m, dtype=float), (n, 1))
+    sigma = np.tile(np.asarray(config.default_sigma_m, dtype=float), (n, 1))
+    uere = np.array(
+        [
+            config.uere_m.get(
+                QUALITY_UERE_KEY.get(int(q), "autonomous"), config.uere_m["autonomous"]
+            )
+            for q in gnss.fix_quality
+        ]
+    )
+    hdop, vdop, pdop = gnss.hdop, gnss.vdop, gnss.pdop
+    has_h = np.isfinite(hdop)
+    # The low-cost UAV study's convention, per axis: sigma_E = sigma_N = UERE x HDOP. (Strictly
+    # HDOP bounds sqrt(sE^2 + sN^2), so this is conservative by sqrt(2); receivers' HDOP
+    # underestimates multipath, which that margin absorbs.)
+    sigma[has_h, 0] = sigma[has_h, 1] = uere[has_h] * hdop[has_h]
+    vertical_dop = np.where(np.isfinite(vdop), vdop, pdop)
+    vertical_dop = np.where(np.isfinite(vertical_dop), vertical_dop, 1.5 * hdop)
+    has_v = np.isfinite(vertical_dop)
+    sigma[has_v, 2] = uere[has_v] * vertical_dop[has_v]
+    data_sigma = gnss.std
+    has_data = np.isfinite(data_sigma)
+    sigma[has_data] = data_sigma[has_data]
+    return np.maximum(sigma, config.min_sigma_m)
+
+
+def velocity_sigmas(gnss: GnssData, config: GnssConfig) -> np.ndarray:
+    """1-sigma east/north/up velocity error per epoch (M, 3); NaN where there is no velocity."""
+    n = len(gnss)
+    sigma = np.full((n, 3), np.nan)
+    has_velocity = np.all(np.isfinite(gnss.velocity[:, :2]), axis=1)
+    if config.velocity_sigma_m_per_s is not None:
+        sigma[has_velocity] = config.velocity_sigma_m_per_s
+    else:
+        data = gnss.velocity_std
+        # Doppler velocity is typically ~0.1 m/s x DOP; without data sigmas use that.
+        hdop = np.where(np.isfinite(gnss.hdop), gnss.hdop, 1.0)
+        fallback = np.column_stack([0.1 * hdop, 0.1 * hdop, 0.2 * hdop])
+        sigma[has_velocity] = np.where(np.isfinite(data), data, fallback)[has_velocity]
+    no_up = ~np.isfinite(gnss.velocity[:, 2])
+    sigma[no_up, 2] = np.nan
+    return sigma
+
+
+@dataclass
+class GateResult:
+    """Which epochs are used, and why the others are not."""
+
+    usable: np.ndarray
+    rejected_pdop: int
+    rejected_quality: int
+
+    def summary(self) -> str:
+        return (
+            f"GNSS gating: {int(self.usable.sum())} epochs used, {self.rejected_pdop} rejected "
+            f"for PDOP, {self.rejected_quality} for fix quality"
+        )
+
+
+def gate_epochs(gnss: GnssData, config: GnssConfig) -> GateResult:
+    """PDOP and fix-quality gates (the MEMS study rejects PDOP > 5); gated epochs are outages."""
+    quality_ok = (gnss.fix_quality >= config.min_fix_quality) & (gnss.fix_quality != 6)
+    pdop_ok = np.ones(len(gnss), dtype=bool)
+    if config.pdop_max is not None:
+        pdop_ok = ~(np.isfinite(gnss.pdop) & (gnss.pdop > config.pdop_max))
+    return GateResult(
+        usable=quality_ok & pdop_ok,
+        rejected_pdop=int((quality_ok & ~pdop_ok).sum()),
+        rejected_quality=int((~quality_ok).sum()),
+    )
+
+
+def position_noise_model(sigma: np.ndarray, huber_k: float | None):  # -> gtsam noise model
+    """Diagonal GTSAM noise model, wrapped in a Huber kernel when ``huber_k`` is set."""
+    import gtsam
+
+    base = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigma, dtype=float))
+    if huber_k is None:
+        return base
+    return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(huber_k), base)
+
+
+def position_factor(
+    pose_key: int, position_enu: np.ndarray, sigma: np.ndarray, config: GnssConfig
+):  # -> gtsam.NonlinearFactor
+    """GNSS antenna position factor on a pose, with the lever arm when it is not zero."""
+    import gtsam
+
+    noise = position_noise_model(sigma, config.huber_k)
+    lever_arm = np.asarray(config.lever_arm_m, dtype=float)
+    if np.any(lever_arm != 0):
+        return gtsam.GPSFactorArm(pose_key, position_enu, lever_arm, noise)
+    return gtsam.GPSFactor(pose_key, position_enu, noise)
+
+
+def velocity_factor(velocity_key: int, velocity_enu: np.ndarray, sigma: np.ndarray):
+    """Prior on the navigation-frame velocity key (GNSS Doppler velocity)."""
+    import gtsam
+
+    return gtsam.PriorFactorVector(
+        velocity_key, np.asarray(velocity_enu, dtype=float), gtsam.noiseModel.Diagonal.Sigmas(sigma)
+    )

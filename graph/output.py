@@ -1,0 +1,146 @@
+"""Keyframe estimates -> states at every IMU sample (numpy, vectorised over keyframe intervals).
+
+Between keyframes the state is predicted from the earlier keyframe with its estimated bias,
+using the same discrete mechanization as the preintegration. For a smoother the small
+mismatch with the next keyframe's estimate is spread linearly over the interval, so the
+IMU-rate output is continuous and ends exactly on every keyframe; a filter's (online) output
+is the pure forward prediction, which uses no future data.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from fgins.geodesy import skew, so3_exp, so3_log
+from fgins.graph.keyframes import Segments
+
+
+@dataclass
+class KeyframeStates:
+    """Estimated states at keyframes (K rows)."""
+
+    rotation: np.ndarray  # (K, 3, 3) body -> ENU
+    velocity: np.ndarray  # (K, 3)
+    position: np.ndarray  # (K, 3)
+    accel_bias: np.ndarray  # (K, 3)
+    gyro_bias: np.ndarray  # (K, 3)
+    position_cov: np.ndarray  # (K, 3, 3) ENU
+    velocity_cov: np.ndarray  # (K, 3, 3)
+    attitude_cov: np.ndarray  # (K, 3, 3)
+
+
+@dataclass
+class DenseStates:
+    t: np.ndarray
+    rotation: np.ndarray
+    velocity: np.ndarray
+    position: np.ndarray
+    accel_bias: np.ndarray
+    gyro_bias: np.ndarray
+    position_cov: np.ndarray
+    velocity_cov: np.ndarray
+    attitude_cov: np.ndarray
+
+
+def densify(
+    segments: Segments,
+    accel: np.ndarray,
+    gyro: np.ndarray,
+    states: KeyframeStates,
+    gravity: np.ndarray,
+    omega_earth: np.ndarray,
+    *,
+    close_to_next: bool,
+) -> DenseStates:
+    """States at every segment start plus the last keyframe (see module docstring)."""
+    n_int = len(segments.times) - 1
+    counts = np.diff(segments.bounds)
+    n_max = int(counts.max())
+    first = segments.bounds[:-1]
+    n_seg = len(segments.start)
+
+    d_rot = np.tile(np.eye(3), (n_int, 1, 1))
+    d_vel = np.zeros((n_int, 3))
+    d_pos = np.zeros((n_int, 3))
+    d_t = np.zeros(n_int)
+    seg_rot = np.empty((n_seg, 3, 3))
+    seg_vel = np.empty((n_seg, 3))
+    seg_pos = np.empty((n_seg, 3))
+    seg_t = np.empty(n_seg)
+    ba, bg = states.accel_bias[:-1], states.gyro_bias[:-1]
+    for m in range(n_max):
+        active = m < counts
+        idx = np.where(active, first + m, 0)
+        seg_rot[idx[active]] = d_rot[active]
+        seg_vel[idx[active]] = d_vel[active]
+        seg_pos[idx[active]] = d_pos[active]
+        seg_t[idx[active]] = d_t[active]
+        dt = np.where(active, segments.dt[idx], 0.0)
+        a = accel[segments.sample[idx]] - ba
+        w = gyro[segments.sample[idx]] - bg
+        rotated = np.einsum("nij,nj->ni", d_rot, a)
+        d_pos += d_vel * dt[:, None] + 0.5 * rotated * dt[:, None] ** 2
+        d_vel += rotated * dt[:, None]
+        d_rot = d_rot @ so3_exp(w * dt[:, None])
+        d_t += dt
+
+    def predict(rot_i, vel_i, pos_i, dr, dv, dp, dtt):
+        """Navigation state after (dr, dv, dp) over dtt from keyframe state i."""
+        w_cross = skew(omega_earth)
+        earth_turn = so3_exp(-omega_earth[None, :] * dtt[:, None])
+        rotation = earth_turn @ rot_i @ dr
+        coriolis = vel_i @ w_cross.T  # omega x v
+        velocity = vel_i + gravity * dtt[:, None] + np.einsum("nij,nj->ni", rot_i, dv)
+        velocity -= 2.0 * coriolis * dtt[:, None]
+        position = pos_i + vel_i * dtt[:, None] + 0.5 * gravity * dtt[:, None] ** 2
+        position += np.einsum("nij,nj->ni", rot_i, dp) - coriolis * dtt[:, None] ** 2
+        return rotation, velocity, position
+
+    interval_of = np.repeat(np.arange(n_int), counts)
+    rot, vel, pos = predict(
+        states.rotation[interval_of],
+        states.velocity[interval_of],
+        states.position[interval_of],
+        seg_rot,
+        seg_vel,
+        seg_pos,
+        seg_t,
+    )
+    if close_to_next:
+        end_rot, end_vel, end_pos = predict(
+            states.rotation[:-1],
+            states.velocity[:-1],
+            states.position[:-1],
+            d_rot,
+            d_vel,
+            d_pos,
+            d_t,
+        )
+        err_pos = states.position[1:] - end_pos
+        err_vel = states.velocity[1:] - end_vel
+        err_rot = so3_log(np.swapaxes(end_rot, 1, 2) @ states.rotation[1:])
+        share = seg_t / np.maximum(d_t[interval_of], 1e-12)
+        pos = pos + share[:, None] * err_pos[interval_of]
+        vel = vel + share[:, None] * err_vel[interval_of]
+        rot = rot @ so3_exp(share[:, None] * err_rot[interval_of])
+
+    def interpolate(values: np.ndarray) -> np.ndarray:
+        """Linear interpolation between keyframe values (used for biases and covariances)."""
+        share = seg_t / np.maximum(d_t[interval_of], 1e-12)
+        share = share.reshape(-1, *([1] * (values.ndim - 1)))
+        out = (1 - share) * values[:-1][interval_of] + share * values[1:][interval_of]
+        return np.concatenate([out, values[-1:]])
+
+    return DenseStates(
+        t=np.append(segments.start, segments.times[-1]),
+        rotation=np.concatenate([rot, states.rotation[-1:]]),
+        velocity=np.concatenate([vel, states.velocity[-1:]]),
+        position=np.concatenate([pos, states.position[-1:]]),
+        accel_bias=interpolate(states.accel_bias),
+        gyro_bias=interpolate(states.gyro_bias),
+        position_cov=interpolate(states.position_cov),
+        velocity_cov=interpolate(states.velocity_cov),
+        attitude_cov=interpolate(states.attitude_cov),
+    )

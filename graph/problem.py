@@ -1,0 +1,183 @@
+"""The factor-graph problem shared by the batch and iSAM2 smoothers.
+
+Keyframes, preintegrated IMU between them, GNSS position/velocity factors at their epochs,
+priors from the initial alignment, and an initial guess for every keyframe.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import B, V, X
+from tqdm import tqdm
+
+from fgins.alignment import Alignment, initial_alignment
+from fgins.config import ImuNoise, RunConfig
+from fgins.factors import gnss as gnss_model
+from fgins.factors import imu as imu_model
+from fgins.geodesy import earth_rate_enu, normal_gravity
+from fgins.graph.keyframes import Segments, build_segments, keyframe_times
+from fgins.types import Dataset, InputError
+
+
+@dataclass
+class Problem:
+    dataset: Dataset
+    config: RunConfig
+    noise: ImuNoise
+    segments: Segments
+    pims: list[gtsam.PreintegratedCombinedMeasurements]
+    gnss_at: np.ndarray  # (K,) index into the usable GNSS epochs, -1 where none
+    gnss_enu: np.ndarray  # usable epochs, ENU
+    gnss_sigma: np.ndarray
+    gnss_velocity: np.ndarray
+    gnss_velocity_sigma: np.ndarray
+    alignment: Alignment
+    gravity: np.ndarray
+    omega_earth: np.ndarray
+    info: dict[str, object] = field(default_factory=dict)
+
+    @property
+    def n_keyframes(self) -> int:
+        return len(self.segments.times)
+
+    def prior_factors(self) -> gtsam.NonlinearFactorGraph:
+        """Priors on the first keyframe's pose, velocity and bias from the alignment."""
+        align = self.alignment
+        graph = gtsam.NonlinearFactorGraph()
+        pose = gtsam.Pose3(gtsam.Rot3(align.rotation), align.position)
+        pose_sigma = np.concatenate([align.attitude_sigma_rad, [align.position_sigma] * 3])
+        graph.add(gtsam.PriorFactorPose3(X(0), pose, gtsam.noiseModel.Diagonal.Sigmas(pose_sigma)))
+        graph.add(
+            gtsam.PriorFactorVector(
+                V(0), align.velocity, gtsam.noiseModel.Isotropic.Sigma(3, align.velocity_sigma)
+            )
+        )
+        graph.add(
+            gtsam.PriorFactorConstantBias(
+                B(0),
+                gtsam.imuBias.ConstantBias(),
+                gtsam.noiseModel.Diagonal.Sigmas(imu_model.bias_prior_sigmas(self.noise)),
+            )
+        )
+        return graph
+
+    def keyframe_factors(self, k: int) -> gtsam.NonlinearFactorGraph:
+        """Factors that arrive with keyframe k: the IMU factor from k-1 and k's GNSS."""
+        graph = gtsam.NonlinearFactorGraph()
+        if k > 0:
+            graph.add(imu_model.combined_imu_factor(k - 1, k, self.pims[k - 1]))
+        g = int(self.gnss_at[k])
+        if g >= 0:
+            graph.add(
+                gnss_model.position_factor(
+                    X(k), self.gnss_enu[g], self.gnss_sigma[g], self.config.gnss
+                )
+            )
+            if self.config.gnss.use_velocity and np.all(np.isfinite(self.gnss_velocity[g, :2])):
+                velocity = self.gnss_velocity[g].copy()
+                sigma = self.gnss_velocity_sigma[g].copy()
+                if not np.isfinite(velocity[2]):
+                    # Horizontal-only velocity (speed + course): leave the vertical free.
+                    velocity[2], sigma[2] = 0.0, 1e3
+                graph.add(gnss_model.velocity_factor(V(k), velocity, sigma))
+        return graph
+
+    def predict(
+        self, k: int, state: gtsam.NavState, bias: gtsam.imuBias.ConstantBias
+    ) -> gtsam.NavState:
+        """State at keyframe k+1 predicted from keyframe k."""
+        return self.pims[k].predict(state, bias)
+
+
+def usable_gnss(dataset: Dataset, config: RunConfig) -> tuple[np.ndarray, str]:
+    gate = gnss_model.gate_epochs(dataset.gnss, config.gnss)
+    return gate.usable, gate.summary()
+
+
+def build_problem(
+    dataset: Dataset, config: RunConfig, gnss_mask: np.ndarray | None = None, progress: bool = True
+) -> Problem:
+    """Keyframes, preintegration and GNSS assignment. ``gnss_mask`` withholds epochs (outages)."""
+    usable, gate_summary = usable_gnss(dataset, config)
+    if gnss_mask is not None:
+        usable = usable & gnss_mask
+    imu = dataset.imu
+    in_span = (dataset.gnss.t >= imu.t[0]) & (dataset.gnss.t <= imu.t[-1])
+    if not np.any(usable & in_span):
+        raise InputError(
+            f"{dataset.name or 'input'}: no usable GNSS epoch within the IMU time span "
+            f"({imu.t[0]:.3f}-{imu.t[-1]:.3f} s); check the time bases (--time-offset)"
+        )
+    usable &= in_span
+    noise = config.imu_noise()
+    gnss = dataset.gnss.subset(usable)
+    enu = dataset.gnss_enu()[usable]
+    sigma = gnss_model.position_sigmas(gnss, config.gnss)
+    velocity_sigma = gnss_model.velocity_sigmas(gnss, config.gnss)
+    alignment = initial_alignment(dataset, usable, heading_deg=config.smoother.initial_heading_deg)
+
+    decimated = _decimate(gnss.t, config.smoother.min_keyframe_interval_s)
+    times = keyframe_times(
+        imu, gnss.t[decimated], config.smoother.max_keyframe_interval_s,
+        config.smoother.min_keyframe_interval_s,
+    )  # fmt: skip
+    segments = build_segments(imu, times)
+    gnss_at = np.full(len(times), -1)
+    position = np.searchsorted(times, gnss.t)
+    position = np.clip(position, 0, len(times) - 1)
+    matched = np.isclose(times[position], gnss.t, rtol=0, atol=1e-9) & decimated
+    gnss_at[position[matched]] = np.flatnonzero(matched)
+
+    params = imu_model.preintegration_params(noise, dataset.origin)
+    suspect_params = imu_model.preintegration_params(
+        noise.scaled(config.smoother.suspect_noise_factor), dataset.origin
+    )
+    accel = imu.accel[segments.sample]
+    gyro = imu.gyro[segments.sample]
+    pims = []
+    zero_bias = gtsam.imuBias.ConstantBias()
+    for i in tqdm(
+        range(len(times) - 1), desc="preintegrating", unit="kf", disable=not progress, leave=False
+    ):
+        pim = gtsam.PreintegratedCombinedMeasurements(
+            suspect_params if segments.suspect[i] else params, zero_bias
+        )
+        span = segments.interval(i)
+        imu_model.integrate(pim, accel[span], gyro[span], segments.dt[span])
+        pims.append(pim)
+    return Problem(
+        dataset=dataset,
+        config=config,
+        noise=noise,
+        segments=segments,
+        pims=pims,
+        gnss_at=gnss_at,
+        gnss_enu=enu,
+        gnss_sigma=sigma,
+        gnss_velocity=gnss.velocity,
+        gnss_velocity_sigma=velocity_sigma,
+        alignment=alignment,
+        gravity=np.array([0.0, 0.0, -normal_gravity(dataset.origin.lat, dataset.origin.alt)]),
+        omega_earth=earth_rate_enu(dataset.origin.lat),
+        info={
+            "gnss_gating": gate_summary,
+            "gnss_epochs_used": int(matched.sum()),
+            "gnss_epochs_decimated": int((~decimated).sum()),
+            "keyframes": len(times),
+            "suspect_intervals": int(segments.suspect.sum()),
+        },
+    )
+
+
+def _decimate(t: np.ndarray, min_interval: float) -> np.ndarray:
+    """Keep epochs at least ``min_interval`` after the previously kept one."""
+    keep = np.zeros(len(t), dtype=bool)
+    last = -np.inf
+    for i, ti in enumerate(t):
+        if ti - last >= min_interval - 1e-9:
+            keep[i] = True
+            last = ti
+    return keep

@@ -1,0 +1,267 @@
+"""Batch (Levenberg-Marquardt) and incremental (iSAM2) smoothing of a dataset.
+
+Entry point: :func:`smooth`. Both methods share the same problem (keyframes, factors,
+priors); iSAM2 also yields the online estimate: each keyframe's state as it was right after
+its own update, i.e. what a real-time system would have had.
+"""
+
+from __future__ import annotations
+
+import time
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import B, V, X
+from tqdm import tqdm
+
+from fgins.config import RunConfig
+from fgins.graph.output import KeyframeStates, densify
+from fgins.graph.problem import Problem, build_problem
+from fgins.types import Dataset, FginsError, Trajectory
+
+
+def initial_values(problem: Problem) -> gtsam.Values:
+    """A guess for every keyframe: IMU prediction, reset to GNSS where a fix exists.
+
+    Velocity is reset from GNSS too (its own velocity, else central differences of the fixes
+    around the epoch), so accelerometer bias cannot run the guess away over a long drive.
+    """
+    align = problem.alignment
+    values = gtsam.Values()
+    state = gtsam.NavState(gtsam.Rot3(align.rotation), align.position, align.velocity)
+    bias = gtsam.imuBias.ConstantBias()
+    fd_velocity = _finite_difference_velocity(problem)
+    for k in range(problem.n_keyframes):
+        if k > 0:
+            state = problem.predict(k - 1, state, bias)
+            g = int(problem.gnss_at[k])
+            if g >= 0:
+                velocity = state.velocity()
+                if np.all(np.isfinite(fd_velocity[g])):
+                    velocity = fd_velocity[g]
+                state = gtsam.NavState(state.attitude(), problem.gnss_enu[g], velocity)
+        values.insert(X(k), state.pose())
+        values.insert(V(k), state.velocity())
+        values.insert(B(k), bias)
+    return values
+
+
+def _finite_difference_velocity(problem: Problem) -> np.ndarray:
+    """GNSS velocity where given, else central differences over neighbours <= 2.5 s away."""
+    gnss_t = problem.dataset.gnss.t
+    # The usable epochs are the keyframes that carry GNSS, in order.
+    keyed = problem.gnss_at[problem.gnss_at >= 0]
+    t = np.empty(len(problem.gnss_enu))
+    t[keyed] = problem.segments.times[problem.gnss_at >= 0]
+    enu = problem.gnss_enu
+    out = problem.gnss_velocity.copy()
+    del gnss_t
+    for g in range(len(enu)):
+        if np.all(np.isfinite(out[g])):
+            continue
+        lo, hi = max(g - 1, 0), min(g + 1, len(enu) - 1)
+        if hi > lo and t[hi] - t[lo] <= 5.0:
+            out[g] = (enu[hi] - enu[lo]) / (t[hi] - t[lo])
+        else:
+            out[g] = np.nan
+    return out
+
+
+def _states_from_values(
+    problem: Problem, values: gtsam.Values, covariances: dict[str, np.ndarray]
+) -> KeyframeStates:
+    n = problem.n_keyframes
+    rotation = np.empty((n, 3, 3))
+    position = np.empty((n, 3))
+    velocity = np.empty((n, 3))
+    accel_bias = np.empty((n, 3))
+    gyro_bias = np.empty((n, 3))
+    for k in range(n):
+        pose = values.atPose3(X(k))
+        rotation[k] = pose.rotation().matrix()
+        position[k] = pose.translation()
+        velocity[k] = values.atVector(V(k))
+        bias = values.atConstantBias(B(k))
+        accel_bias[k] = bias.accelerometer()
+        gyro_bias[k] = bias.gyroscope()
+    return KeyframeStates(
+        rotation=rotation,
+        velocity=velocity,
+        position=position,
+        accel_bias=accel_bias,
+        gyro_bias=gyro_bias,
+        position_cov=covariances["position"],
+        velocity_cov=covariances["velocity"],
+        attitude_cov=covariances["attitude"],
+    )
+
+
+def _nav_covariances(pose_cov: np.ndarray, rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """GTSAM's Pose3 covariance is in the body frame (rotation first): rotate into ENU."""
+    attitude = rotation @ pose_cov[:3, :3] @ rotation.T
+    position = rotation @ pose_cov[3:, 3:] @ rotation.T
+    return attitude, position
+
+
+def _marginal_covariances(
+    problem: Problem, marginal_pose, marginal_velocity, values: gtsam.Values, progress: bool
+) -> dict[str, np.ndarray]:
+    n = problem.n_keyframes
+    out = {name: np.full((n, 3, 3), np.nan) for name in ("position", "velocity", "attitude")}
+    for k in tqdm(range(n), desc="covariances", unit="kf", disable=not progress, leave=False):
+        rotation = values.atPose3(X(k)).rotation().matrix()
+        out["attitude"][k], out["position"][k] = _nav_covariances(marginal_pose(X(k)), rotation)
+        out["velocity"][k] = marginal_velocity(V(k))
+    return out
+
+
+def _to_trajectory(
+    problem: Problem, states: KeyframeStates, method: str, *, smoothed: bool
+) -> Trajectory:
+    imu = problem.dataset.imu
+    dense = densify(
+        problem.segments,
+        imu.accel[problem.segments.sample],
+        imu.gyro[problem.segments.sample],
+        states,
+        problem.gravity,
+        problem.omega_earth,
+        close_to_next=smoothed,
+    )
+    # Rows at the IMU sample times (segment starts also include keyframe cuts).
+    rows = np.searchsorted(dense.t, imu.t)
+    rows = np.clip(rows, 0, len(dense.t) - 1)
+    return Trajectory(
+        t=imu.t,
+        position=dense.position[rows],
+        velocity=dense.velocity[rows],
+        rotation=dense.rotation[rows],
+        origin=problem.dataset.origin,
+        method=method,
+        gyro_bias=dense.gyro_bias[rows],
+        accel_bias=dense.accel_bias[rows],
+        position_cov=dense.position_cov[rows],
+        velocity_cov=dense.velocity_cov[rows],
+        attitude_cov=dense.attitude_cov[rows],
+        info=dict(problem.info),
+    )
+
+
+def smooth_batch(problem: Problem, progress: bool = True) -> Trajectory:
+    """Levenberg-Marquardt over the whole drive, covariances from the marginals."""
+    started = time.perf_counter()
+    graph = problem.prior_factors()
+    for k in range(problem.n_keyframes):
+        graph.push_back(problem.keyframe_factors(k))
+    initial = initial_values(problem)
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(problem.config.smoother.batch_max_iterations)
+    params.setRelativeErrorTol(1e-6)
+    params.setAbsoluteErrorTol(1e-6)
+    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
+    result = optimizer.optimize()
+    solved = time.perf_counter()
+    marginals = gtsam.Marginals(graph, result)
+    covariances = _marginal_covariances(
+        problem, marginals.marginalCovariance, marginals.marginalCovariance, result, progress
+    )
+    states = _states_from_values(problem, result, covariances)
+    trajectory = _to_trajectory(problem, states, "batch", smoothed=True)
+    trajectory.timings.update(
+        {"optimize": solved - started, "covariance": time.perf_counter() - solved}
+    )
+    trajectory.info.update(
+        {
+            "iterations": optimizer.iterations(),
+            "initial_error": graph.error(initial),
+            "final_error": graph.error(result),
+        }
+    )
+    return trajectory
+
+
+def smooth_isam2(problem: Problem, progress: bool = True) -> tuple[Trajectory, Trajectory]:
+    """One iSAM2 update per keyframe. Returns (final smoothed, online filtered) trajectories."""
+    started = time.perf_counter()
+    params = gtsam.ISAM2Params()
+    params.setRelinearizeThreshold(problem.config.smoother.isam2_relinearize_threshold)
+    params.relinearizeSkip = 1
+    # QR: Cholesky declares the first IMU updates indeterminate when the bias random walk
+    # is tight relative to the bias priors (the conditioning, not the problem, is at fault).
+    params.setFactorization("QR")
+    isam = gtsam.ISAM2(params)
+    n = problem.n_keyframes
+    online = {name: np.full((n, 3, 3), np.nan) for name in ("position", "velocity", "attitude")}
+    online_values = gtsam.Values()
+    align = problem.alignment
+    state = gtsam.NavState(gtsam.Rot3(align.rotation), align.position, align.velocity)
+    bias = gtsam.imuBias.ConstantBias()
+    for k in tqdm(range(n), desc="iSAM2", unit="kf", disable=not progress, leave=False):
+        graph = problem.prior_factors() if k == 0 else gtsam.NonlinearFactorGraph()
+        graph.push_back(problem.keyframe_factors(k))
+        new_values = gtsam.Values()
+        if k > 0:
+            state = problem.predict(k - 1, state, bias)
+        new_values.insert(X(k), state.pose())
+        new_values.insert(V(k), state.velocity())
+        new_values.insert(B(k), bias)
+        try:
+            isam.update(graph, new_values)
+        except RuntimeError as exc:
+            raise FginsError(f"iSAM2 update at keyframe {k} failed: {exc}") from None
+        pose = isam.calculateEstimatePose3(X(k))
+        velocity = isam.calculateEstimateVector(V(k))
+        bias = isam.calculateEstimateConstantBias(B(k))
+        state = gtsam.NavState(pose, velocity)
+        online_values.insert(X(k), pose)
+        online_values.insert(V(k), velocity)
+        online_values.insert(B(k), bias)
+        attitude, position = _nav_covariances(
+            isam.marginalCovariance(X(k)), pose.rotation().matrix()
+        )
+        online["attitude"][k], online["position"][k] = attitude, position
+        online["velocity"][k] = isam.marginalCovariance(V(k))
+    incremental = time.perf_counter()
+    # A few extra relinearisation passes let the final estimate settle like the batch one.
+    for _ in range(3):
+        isam.update()
+    result = isam.calculateEstimate()
+    covariances = _marginal_covariances(
+        problem, isam.marginalCovariance, isam.marginalCovariance, result, progress
+    )
+    final = _to_trajectory(
+        problem, _states_from_values(problem, result, covariances), "isam2", smoothed=True
+    )
+    filtered = _to_trajectory(
+        problem, _states_from_values(problem, online_values, online), "isam2-online", smoothed=False
+    )
+    final.timings.update(
+        {"incremental": incremental - started, "final": time.perf_counter() - incremental}
+    )
+    filtered.timings.update({"incremental": incremental - started})
+    return final, filtered
+
+
+def smooth(
+    dataset: Dataset,
+    config: RunConfig,
+    method: str = "batch",
+    *,
+    gnss_mask: np.ndarray | None = None,
+    progress: bool = True,
+) -> Trajectory:
+    """Smooth ``dataset`` with ``method`` ('batch', 'isam2' or 'isam2-online')."""
+    started = time.perf_counter()
+    problem = build_problem(dataset, config, gnss_mask, progress=progress)
+    built = time.perf_counter()
+    if method == "batch":
+        trajectory = smooth_batch(problem, progress)
+    elif method in ("isam2", "isam2-online"):
+        final, filtered = smooth_isam2(problem, progress)
+        trajectory = final if method == "isam2" else filtered
+        trajectory.info["online"] = filtered if method == "isam2" else final
+    else:
+        raise FginsError(f"unknown factor-graph method {method!r}")
+    trajectory.timings["build"] = built - started
+    trajectory.timings["total"] = time.perf_counter() - started
+    return trajectory

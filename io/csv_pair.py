@@ -1,0 +1,261 @@
+"""The canonical CSV inputs of DESIGN.md: ``imu.csv``, ``gnss.csv`` (and ``baro.csv``).
+
+Files are recognised by their header, not their name, so ``imu.csv gnss.csv`` may come in
+any order. A folder written by ``fgins sim`` holds them plus ``config.toml`` (sensor settings
+and the frame origin); ``truth.csv`` in it is never read here.
+"""
+
+from __future__ import annotations
+
+import csv
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fgins.io.atomic import atomic_path
+from fgins.io.imu_checks import clean_imu
+from fgins.types import BaroData, Dataset, GnssData, ImuData, InputError, Origin
+
+IMU_COLUMNS = ["time", "gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z"]
+GNSS_REQUIRED = ["time", "lat", "lon", "alt"]
+GNSS_OPTIONAL = [
+    "vel_east", "vel_north", "vel_up", "std_east", "std_north", "std_up",
+    "hdop", "vdop", "pdop", "fix_quality", "num_sats", "speed", "course",
+]  # fmt: skip
+BARO_COLUMNS = ["time", "pressure_pa"]
+
+
+def read_header(path: Path) -> list[str]:
+    try:
+        with path.open(newline="") as handle:
+            first = handle.readline()
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: not a text CSV file") from None
+    return [name.strip().lower() for name in first.strip().split(",")]
+
+
+def csv_kind(path: Path) -> str | None:
+    """'imu', 'gnss', 'baro' or None, from the header line."""
+    header = set(read_header(path))
+    if {"gyro_x", "accel_x"} <= header:
+        return "imu"
+    if {"lat", "lon"} <= header:
+        return "gnss"
+    if {"pressure_pa"} <= header or {"baro_height"} <= header:
+        return "baro"
+    return None
+
+
+def _read_columns(path: Path, warnings: list[str]) -> dict[str, np.ndarray]:
+    """Numeric columns by header name; empty cells are NaN, malformed rows dropped (counted)."""
+    header = read_header(path)
+    rows: list[list[float]] = []
+    bad = 0
+    with path.open(newline="") as handle:
+        reader = csv.reader(handle)
+        next(reader, None)
+        for row in reader:
+            if not row or all(not cell.strip() for cell in row):
+                continue
+            if len(row) != len(header):
+                bad += 1
+                continue
+            try:
+                rows.append([float(cell) if cell.strip() else np.nan for cell in row])
+            except ValueError:
+                bad += 1
+    if bad:
+        warnings.append(f"{path.name}: dropped {bad} malformed row(s)")
+    if not rows:
+        raise InputError(f"{path}: no data rows")
+    table = np.array(rows, dtype=float)
+    return {name: table[:, i] for i, name in enumerate(header)}
+
+
+def read_imu_csv(path: str | Path, warnings: list[str] | None = None) -> ImuData:
+    path = Path(path)
+    warnings = [] if warnings is None else warnings
+    columns = _read_columns(path, warnings)
+    missing = [c for c in IMU_COLUMNS if c not in columns]
+    if missing:
+        raise InputError(f"{path}: missing IMU column(s) {', '.join(missing)}")
+    gyro = np.column_stack([columns[f"gyro_{a}"] for a in "xyz"])
+    accel = np.column_stack([columns[f"accel_{a}"] for a in "xyz"])
+    return clean_imu(columns["time"], gyro, accel, source=path.name, warnings=warnings)
+
+
+def read_gnss_csv(path: str | Path, warnings: list[str] | None = None) -> GnssData:
+    path = Path(path)
+    warnings = [] if warnings is None else warnings
+    columns = _read_columns(path, warnings)
+    missing = [c for c in GNSS_REQUIRED if c not in columns]
+    if missing:
+        raise InputError(f"{path}: missing GNSS column(s) {', '.join(missing)}")
+    t = columns["time"]
+    lla = np.column_stack([columns["lat"], columns["lon"], columns["alt"]])
+    keep = np.isfinite(t) & np.all(np.isfinite(lla), axis=1)
+    if not keep.all():
+        warnings.append(f"{path.name}: dropped {int((~keep).sum())} fix(es) without a position")
+    order = np.argsort(t[keep], kind="stable")
+    if np.any(np.diff(t[keep]) < 0):
+        warnings.append(f"{path.name}: fixes were out of time order; sorted")
+    index = np.flatnonzero(keep)[order]
+    t_sorted = t[index]
+    duplicate = np.concatenate([[False], np.diff(t_sorted) == 0])
+    if duplicate.any():
+        warnings.append(f"{path.name}: dropped {int(duplicate.sum())} fix(es) with repeated time")
+        index = index[~duplicate]
+
+    def column(name: str) -> np.ndarray | None:
+        return columns[name][index] if name in columns else None
+
+    def triple(names: list[str]) -> np.ndarray | None:
+        if not any(n in columns for n in names):
+            return None
+        return np.column_stack(
+            [columns[n][index] if n in columns else np.full(len(index), np.nan) for n in names]
+        )
+
+    return GnssData(
+        t=t[index],
+        lla=lla[index],
+        velocity=triple(["vel_east", "vel_north", "vel_up"]),
+        std=triple(["std_east", "std_north", "std_up"]),
+        hdop=column("hdop"),
+        vdop=column("vdop"),
+        pdop=column("pdop"),
+        fix_quality=column("fix_quality"),
+        num_sats=column("num_sats"),
+        speed=column("speed"),
+        course=column("course"),
+    )
+
+
+def read_baro_csv(path: str | Path, warnings: list[str] | None = None) -> BaroData:
+    path = Path(path)
+    warnings = [] if warnings is None else warnings
+    columns = _read_columns(path, warnings)
+    t = columns["time"]
+    pressure = columns.get("pressure_pa")
+    height = columns.get("baro_height")
+    values = pressure if pressure is not None else height
+    keep = np.isfinite(t) & np.isfinite(values)
+    if not keep.all():
+        warnings.append(f"{path.name}: dropped {int((~keep).sum())} barometer row(s) with NaN")
+    return BaroData(
+        t=t[keep],
+        pressure=None if pressure is None else pressure[keep],
+        height=None if height is None else height[keep],
+    )
+
+
+def _write_table(path: str | Path, header: list[str], table: np.ndarray, fmts: list[str]) -> None:
+    with atomic_path(path) as tmp, tmp.open("w", newline="") as handle:
+        handle.write(",".join(header) + "\n")
+        for row in table:
+            handle.write(
+                ",".join(
+                    "" if not np.isfinite(v) else f % v for f, v in zip(fmts, row, strict=True)
+                )
+                + "\n"
+            )
+
+
+def write_imu_csv(imu: ImuData, path: str | Path) -> None:
+    """Write the canonical ``imu.csv``."""
+    table = np.column_stack([imu.t, imu.gyro, imu.accel])
+    with atomic_path(path) as tmp:
+        np.savetxt(
+            tmp, table, delimiter=",", header=",".join(IMU_COLUMNS), comments="",
+            fmt=["%.6f"] + ["%.10e"] * 6,
+        )  # fmt: skip
+
+
+def write_gnss_csv(gnss: GnssData, path: str | Path) -> None:
+    """Write the canonical ``gnss.csv`` (empty cells where a value is unknown)."""
+    quality = gnss.fix_quality.astype(float)
+    sats = np.where(gnss.num_sats >= 0, gnss.num_sats, np.nan).astype(float)
+    table = np.column_stack(
+        [
+            gnss.t, gnss.lla, gnss.velocity, gnss.std, gnss.hdop, gnss.vdop, gnss.pdop,
+            quality, sats, gnss.speed, gnss.course,
+        ]
+    )  # fmt: skip
+    fmts = ["%.6f", "%.9f", "%.9f", "%.4f"] + ["%.4f"] * 9 + ["%d", "%d", "%.4f", "%.3f"]
+    _write_table(path, GNSS_REQUIRED + GNSS_OPTIONAL, table, fmts)
+
+
+def write_baro_csv(baro: BaroData, path: str | Path) -> None:
+    table = np.column_stack([baro.t, baro.pressure])
+    _write_table(path, BARO_COLUMNS, table, ["%.6f", "%.3f"])
+
+
+def _read_sim_config(folder: Path) -> dict[str, Any]:
+    path = folder / "config.toml"
+    if not path.exists():
+        return {}
+    try:
+        return tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"{path}: {exc}") from None
+
+
+def read_csv_dataset(paths: list[Path]) -> Dataset:
+    """Build a :class:`Dataset` from CSV files (recognised by header) or one ``fgins sim`` folder."""
+    warnings: list[str] = []
+    config: dict[str, Any] = {}
+    files: list[Path] = []
+    name = ""
+    for path in paths:
+        if path.is_dir():
+            config = _read_sim_config(path)
+            name = path.name
+            files.extend(p for p in sorted(path.glob("*.csv")) if p.name != "truth.csv")
+        else:
+            files.append(path)
+    by_kind: dict[str, Path] = {}
+    for path in files:
+        if not path.exists():
+            raise InputError(f"{path}: no such file")
+        kind = csv_kind(path)
+        if kind is None:
+            if path.name == "truth.csv":
+                continue
+            raise InputError(
+                f"{path}: unrecognised CSV header; expected imu.csv ({','.join(IMU_COLUMNS)}) "
+                f"or gnss.csv ({','.join(GNSS_REQUIRED)},...)"
+            )
+        if kind in by_kind:
+            raise InputError(f"two {kind} files given: {by_kind[kind]} and {path}")
+        by_kind[kind] = path
+    if "imu" not in by_kind:
+        raise InputError("no IMU CSV among the inputs (header time,gyro_x,...,accel_z)")
+    if "gnss" not in by_kind:
+        raise InputError("no GNSS CSV among the inputs (header time,lat,lon,alt,...)")
+    imu = read_imu_csv(by_kind["imu"], warnings)
+    gnss = read_gnss_csv(by_kind["gnss"], warnings)
+    baro = read_baro_csv(by_kind["baro"], warnings) if "baro" in by_kind else None
+    if len(gnss) == 0:
+        raise InputError(f"{by_kind['gnss']}: no GNSS fix with a position")
+    origin_table = config.get("origin")
+    if origin_table:
+        origin = Origin(
+            float(origin_table["lat"]), float(origin_table["lon"]), float(origin_table["alt"])
+        )
+    else:
+        origin = Origin(*map(float, gnss.lla[0]))
+    return Dataset(
+        imu=imu,
+        gnss=gnss,
+        baro=baro,
+        origin=origin,
+        name=name or by_kind["imu"].parent.name,
+        imu_config=dict(config.get("imu", {})),
+        gnss_config=dict(config.get("gnss", {})),
+        vehicle=config.get("scenario", {}).get("vehicle"),
+        warnings=warnings,
+    )

@@ -1,0 +1,85 @@
+"""Open whatever the user gave as INPUT... and return one :class:`Dataset`.
+
+``demo:kitti``; an MCAP file; an NMEA file plus an IMU CSV; the CSV pair ``imu.csv gnss.csv``
+(any order, recognised by header); or a folder written by ``fgins sim``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from fgins.types import Dataset, InputError
+
+NMEA_SUFFIXES = {".nmea", ".log", ".txt", ".gps", ".ubx_nmea"}
+
+
+def _looks_like_nmea(path: Path) -> bool:
+    try:
+        with path.open("rb") as handle:
+            head = handle.read(4096)
+    except OSError:
+        return False
+    return b"$GP" in head or b"$GN" in head or b"$GL" in head or b"$GB" in head or b"$BD" in head
+
+
+def load_dataset(
+    inputs: list[str],
+    *,
+    time_offset_s: float = 0.0,
+    imu_topic: str | None = None,
+    gnss_topic: str | None = None,
+    progress: bool = True,
+) -> Dataset:
+    if not inputs:
+        raise InputError("no input given")
+    if inputs == ["demo:kitti"]:
+        from fgins.io.kitti import read_kitti
+
+        return read_kitti()
+    if any(item.startswith("demo:") for item in inputs):
+        raise InputError(f"unknown built-in input among {inputs}; the demo input is demo:kitti")
+    paths = [Path(item) for item in inputs]
+    for path in paths:
+        if not path.exists():
+            raise InputError(f"{path}: no such file or folder")
+    if len(paths) == 1 and paths[0].suffix.lower() == ".mcap":
+        from fgins.io.mcap import read_mcap
+
+        result = read_mcap(paths[0], imu_topic=imu_topic, gnss_topic=gnss_topic, progress=progress)
+        result.dataset.warnings.extend(result.warnings)
+        result.dataset.metadata["mcap_report"] = result.report
+        return result.dataset
+    nmea = [p for p in paths if p.is_file() and _looks_like_nmea(p)]
+    if nmea:
+        return _nmea_with_imu(nmea, [p for p in paths if p not in nmea], time_offset_s)
+    from fgins.io.csv_pair import read_csv_dataset
+
+    return read_csv_dataset(paths)
+
+
+def _nmea_with_imu(nmea: list[Path], others: list[Path], time_offset_s: float) -> Dataset:
+    from fgins.io.csv_pair import csv_kind, read_imu_csv
+    from fgins.io.nmea import read_nmea
+    from fgins.types import Origin
+
+    if len(nmea) > 1:
+        raise InputError(f"give one NMEA file, got {len(nmea)}")
+    imu_files = [p for p in others if p.is_file() and csv_kind(p) == "imu"]
+    if len(imu_files) != 1:
+        raise InputError(
+            f"{nmea[0]}: an NMEA file needs exactly one IMU CSV beside it "
+            "(header time,gyro_x,gyro_y,gyro_z,accel_x,accel_y,accel_z)"
+        )
+    warnings: list[str] = []
+    result = read_nmea(nmea[0], time_offset_s=time_offset_s)
+    warnings.extend(result.warnings)
+    imu = read_imu_csv(imu_files[0], warnings)
+    gnss = result.gnss
+    return Dataset(
+        imu=imu,
+        gnss=gnss,
+        origin=Origin(*map(float, gnss.lla[0])),
+        name=nmea[0].stem,
+        warnings=warnings,
+        metadata={"nmea_counts": result.counts},
+    )

@@ -1,0 +1,47 @@
+"""GNSS outage windows: parsing ``A:B[,C:D...]`` and withholding epochs (IMU untouched)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fgins.types import Dataset, FginsError
+
+
+def parse_windows(text: str | None) -> list[tuple[float, float]]:
+    """``"60:90,150:180"`` -> [(60.0, 90.0), (150.0, 180.0)] (seconds relative to t0)."""
+    if not text:
+        return []
+    windows = []
+    for part in text.split(","):
+        part = part.strip()
+        if not part:
+            continue
+        try:
+            start_text, end_text = part.split(":")
+            start, end = float(start_text), float(end_text)
+        except ValueError:
+            raise FginsError(
+                f"--gnss-outage: {part!r} is not START:END in seconds (e.g. 60:90)"
+            ) from None
+        if not (np.isfinite(start) and np.isfinite(end)) or end <= start:
+            raise FginsError(f"--gnss-outage: window {part!r} must have START < END")
+        windows.append((start, end))
+    return windows
+
+
+def outage_mask(dataset: Dataset, windows: list[tuple[float, float]]) -> np.ndarray:
+    """True for GNSS epochs kept; epochs with A <= t - t0 < B are withheld."""
+    relative = dataset.gnss.t - dataset.t0
+    keep = np.ones(len(dataset.gnss), dtype=bool)
+    for start, end in windows:
+        keep &= ~((relative >= start) & (relative < end))
+    return keep
+
+
+def in_windows(t: np.ndarray, t0: float, windows: list[tuple[float, float]]) -> np.ndarray:
+    """True where ``t`` (absolute) lies inside any window."""
+    relative = np.asarray(t) - t0
+    inside = np.zeros(relative.shape, dtype=bool)
+    for start, end in windows:
+        inside |= (relative >= start) & (relative < end)
+    return inside

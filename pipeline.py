@@ -1,0 +1,43 @@
+"""One call from a dataset to a trajectory, whatever the method (factor graph or baseline)."""
+
+from __future__ import annotations
+
+import importlib
+
+import numpy as np
+
+from fgins.config import RunConfig
+from fgins.types import Dataset, FginsError, Trajectory
+
+GRAPH_METHODS = ("batch", "isam2", "isam2-online")
+# Kalman baselines: method name -> "module:function" taking (dataset, config, gnss_mask=...,
+# progress=...) and returning a Trajectory. Modules are imported only when asked for.
+BASELINE_METHODS = {
+    "ekf": "fgins.baseline.ekf:run_ekf",
+    "ekf-rts": "fgins.baseline.ekf:run_ekf_rts",
+    "ukf": "fgins.baseline.ukf:run_ukf",
+    "planar-kf": "fgins.baseline.planar_kf:run_planar_kf",
+}
+METHODS = GRAPH_METHODS + tuple(BASELINE_METHODS)
+
+
+def run_method(
+    dataset: Dataset,
+    config: RunConfig,
+    method: str,
+    *,
+    gnss_mask: np.ndarray | None = None,
+    progress: bool = True,
+) -> Trajectory:
+    if method in GRAPH_METHODS:
+        from fgins.graph.smoother import smooth
+
+        return smooth(dataset, config, method, gnss_mask=gnss_mask, progress=progress)
+    if method in BASELINE_METHODS:
+        module_name, function_name = BASELINE_METHODS[method].split(":")
+        try:
+            function = getattr(importlib.import_module(module_name), function_name)
+        except (ImportError, AttributeError):
+            raise FginsError(f"method {method!r} is not available in this build") from None
+        return function(dataset, config, gnss_mask=gnss_mask, progress=progress)
+    raise FginsError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
