@@ -68,6 +68,10 @@ def velocity_sigmas(gnss: GnssData, config: GnssConfig) -> np.ndarray:
         sigma[has_velocity] = np.where(np.isfinite(data), data, fallback)[has_velocity]
     no_up = ~np.isfinite(gnss.velocity[:, 2])
     sigma[no_up, 2] = np.nan
+    # Horizontal-only velocity comes from speed + course (RMC/VTG): course is noise at walking
+    # speed, so those epochs give no velocity factor below the threshold.
+    speed = np.linalg.norm(np.nan_to_num(gnss.velocity[:, :2]), axis=1)
+    sigma[no_up & (speed < config.course_min_speed_m_per_s)] = np.nan
     return sigma
 
 

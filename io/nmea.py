@@ -1,0 +1,593 @@
+"""NMEA 0183 reader: real receiver logs -> :class:`fgins.types.GnssData`.
+
+Sentences are split out of the raw bytes (leading junk, binary noise, CR/LF variants
+tolerated), checked and tokenised by pynmea2, then merged into fix epochs by their time of day
+(sentences of one fix arrive in any order; some receivers send no GGA). Sentences without a
+time (GSA, VTG) belong to the epoch of the latest timed sentence, as in gpsd.
+
+Time (the ``gnss.csv`` convention of DESIGN.md): POSIX UTC seconds when the log carries a
+date (RMC/ZDA), else seconds since the UTC midnight of the first epoch; monotonic across
+midnight either way. Dates are used as logged (old week-rollover dates are not "fixed").
+
+Heights are ellipsoidal: MSL altitude + geoid separation; where the receiver leaves the
+separation empty the EGM2008 grid of :mod:`fgins.io.geoid` supplies it (counted).
+Fixes without an altitude (RMC/GLL-only epochs, 2D fixes) get NaN height.
+"""
+
+from __future__ import annotations
+
+import calendar
+import math
+import re
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pynmea2
+
+from fgins.io.geoid import GEOID_MODEL_NAME, geoid_undulation
+from fgins.types import GnssData, InputError
+
+KNOT_M_S = 1852.0 / 3600.0
+KMH_M_S = 1.0 / 3.6
+
+# One sentence candidate: '$', address, fields, optional '*HH'. Stops at the next '$'.
+# '!' starts AIS encapsulation sentences: counted, never decoded.
+_SENTENCE_RE = re.compile(r"[$!]([A-Z0-9]{3,12}),([^$!*\r\n]*)(\*[0-9A-Fa-f]{2})?")
+
+# Field counts of complete sentences: a sentence without checksum is accepted only when it has
+# at least this many fields, so a line cut short is counted as corrupt instead of half-read.
+_MIN_FIELDS = {"GGA": 14, "RMC": 11, "GSA": 17, "GST": 8, "VTG": 8, "ZDA": 6, "GNS": 12, "GLL": 6}
+
+# Mode indicators (RMC/GLL/VTG field 'mode', GNS per-constellation characters) -> GGA codes.
+_MODE_TO_QUALITY = {"N": 0, "A": 1, "D": 2, "P": 3, "R": 4, "F": 5, "E": 6, "M": 7, "S": 8}
+# Best first, for GNS strings with one character per constellation ("RN", "AD"...).
+_MODE_RANK = "RFPDAEMSN"
+
+# Position sources, best first: GGA and GNS carry altitude and quality, RMC/GLL only 2D.
+_POSITION_PRIORITY = ("GGA", "GNS", "RMC", "GLL")
+
+
+@dataclass
+class NmeaResult:
+    """What :func:`read_nmea` found in one log.
+
+    ``gnss`` holds one row per fix epoch with a usable position; ``counts`` the number of
+    well-formed sentences per type ("GGA", "RMC", ..., proprietary ones as "P...");
+    ``talkers`` the same per talker ("GP", "GN", ...). ``geoid_modelled`` marks the rows of
+    ``gnss`` whose height used the geoid model (their number is ``geoid_from_model``).
+    ``epochs_without_fix`` counts epochs with a time but no usable position.
+    """
+
+    gnss: GnssData
+    counts: dict[str, int]
+    corrupt_lines: int
+    checksum_failures: int
+    warnings: list[str]
+    has_date: bool
+    geoid_from_model: int
+    talkers: dict[str, int] = field(default_factory=dict)
+    epochs_without_fix: int = 0
+    geoid_modelled: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    epoch_quality_histogram: dict[int, int] = field(default_factory=dict)
+
+
+class _Epoch:
+    """Everything the sentences of one time of day said."""
+
+    __slots__ = (
+        "course",
+        "date",
+        "dops",
+        "gga_hdop",
+        "gsa_sats",
+        "num_sats",
+        "positions",
+        "speed",
+        "std",
+        "tod",
+    )
+
+    def __init__(self, tod: float) -> None:
+        self.tod = tod
+        # source -> (lat, lon, alt_msl, geoid_sep, quality, valid)
+        self.positions: dict[str, tuple[float, float, float, float, int, bool]] = {}
+        self.date: tuple[int, int, int] | None = None
+        self.dops: tuple[float, float, float] | None = None  # pdop, hdop, vdop from GSA
+        self.gga_hdop = math.nan
+        self.num_sats = -1
+        self.gsa_sats = 0
+        self.std: tuple[float, float, float] | None = None
+        self.speed = math.nan
+        self.course = math.nan
+
+
+def _num(text: str) -> float:
+    """A numeric field; NaN when empty or malformed."""
+    try:
+        value = float(text)
+    except ValueError:
+        return math.nan
+    return value if math.isfinite(value) else math.nan
+
+
+def _time_of_day(text: str) -> float:
+    """'hhmmss[.ss]' -> seconds since midnight; ValueError when malformed."""
+    if len(text) < 6 or not text[:6].isdigit():
+        raise ValueError(f"bad time field {text!r}")
+    hours, minutes = int(text[0:2]), int(text[2:4])
+    seconds = float(text[4:])
+    if hours > 23 or minutes > 59 or not 0 <= seconds < 61:
+        raise ValueError(f"bad time field {text!r}")
+    return hours * 3600 + minutes * 60 + seconds
+
+
+def _angle(text: str, hemisphere: str, degree_digits: int) -> float:
+    """'dddmm.mmmm' + hemisphere -> signed degrees; NaN when empty or malformed."""
+    if len(text) <= degree_digits or hemisphere not in "NSEW" or not hemisphere:
+        return math.nan
+    try:
+        degrees = int(text[:degree_digits])
+        minutes = float(text[degree_digits:])
+    except ValueError:
+        return math.nan
+    if not (0 <= minutes < 60 and math.isfinite(minutes)):
+        return math.nan
+    value = degrees + minutes / 60.0
+    limit = 90.0 if degree_digits == 2 else 180.0
+    if value > limit:
+        return math.nan
+    return -value if hemisphere in "SW" else value
+
+
+def _lat_lon(fields: list[str], start: int) -> tuple[float, float]:
+    return _angle(fields[start], fields[start + 1], 2), _angle(
+        fields[start + 2], fields[start + 3], 3
+    )
+
+
+def _field(fields: list[str], index: int) -> str:
+    return fields[index].strip() if index < len(fields) else ""
+
+
+def _mode_quality(mode: str) -> int:
+    """Best quality among mode characters ('A', 'D', 'RR', 'AN'...); -1 when absent."""
+    present = [c for c in mode.upper() if c in _MODE_TO_QUALITY]
+    if not present:
+        return -1
+    best = min(present, key=_MODE_RANK.index)
+    return _MODE_TO_QUALITY[best]
+
+
+def _checksum_ok(sentence: str) -> bool:
+    """True when the '*HH' checksum matches or is absent (some old receivers send none)."""
+    body, star, given = sentence[1:].partition("*")
+    if not star:
+        return True
+    computed = 0
+    for char in body:
+        computed ^= ord(char)
+    return given.upper() == f"{computed:02X}"
+
+
+def _split_sentences(line: str) -> tuple[list[str], bool]:
+    """Sentence candidates in one line, and whether the line held anything else but noise."""
+    found = [m.group(0) for m in _SENTENCE_RE.finditer(line)]
+    return found, bool(found)
+
+
+class _Reader:
+    """Stateful pass over the lines of one log."""
+
+    def __init__(self) -> None:
+        self.counts: Counter[str] = Counter()
+        self.talkers: Counter[str] = Counter()
+        self.corrupt = 0
+        self.checksum_failures = 0
+        self.epochs: dict[int, _Epoch] = {}
+        self.current: _Epoch | None = None
+        self.day = 0
+        self.last_tod: float | None = None
+        self.untimed_before_first = 0
+        self.backward_jumps = 0
+
+    # -- line level -------------------------------------------------------------------------
+    def feed_line(self, line: str) -> None:
+        # '|' is reserved in NMEA 0183; gpsd's logs use it to mark TCP segment boundaries
+        # inside a sentence. Dropping it is safe: the checksum still guards the sentence.
+        stripped = line.replace("|", "").strip()
+        if not stripped:
+            return
+        candidates, _ = _split_sentences(stripped)
+        if not candidates:
+            # '#' lines are comments (gpsd log headers); anything else without a sentence is
+            # noise. A '#' glued to a real sentence is noise before '$', handled above.
+            self.corrupt += not stripped.startswith("#")
+            return
+        for sentence in candidates:
+            self.feed_sentence(sentence)
+
+    def feed_sentence(self, sentence: str) -> None:
+        address = sentence[1:].split(",", 1)[0].upper()
+        kind = address[2:] if not address.startswith("P") and len(address) == 5 else ""
+        if kind not in _MIN_FIELDS:
+            # Not decoded here (proprietary, AIS, GSV...): only its checksum matters.
+            if _checksum_ok(sentence):
+                self._count(sentence)
+            else:
+                self.checksum_failures += 1
+            return
+        try:
+            message = pynmea2.parse(sentence)
+        except pynmea2.ChecksumError:
+            self.checksum_failures += 1
+            return
+        except pynmea2.SentenceTypeError:
+            self._count(sentence)  # well-formed, just a type pynmea2 does not know
+            return
+        except Exception:  # pynmea2 raises ParseError, ValueError, AttributeError...
+            self.corrupt += 1
+            return
+        fields = [str(f) for f in message.data]
+        if "*" not in sentence and len(fields) < _MIN_FIELDS.get(kind, 0):
+            self.corrupt += 1  # no checksum and too short: a truncated line
+            return
+        handler = getattr(self, f"_on_{kind.lower()}", None)
+        if handler is not None:
+            try:
+                handler(fields)
+            except (ValueError, IndexError):
+                self.corrupt += 1
+                return
+        self._count(sentence)
+
+    def _count(self, sentence: str) -> None:
+        address = sentence[1:].split(",", 1)[0].upper()
+        if sentence.startswith("!"):
+            self.counts["AIS"] += 1
+        elif address.startswith("P"):
+            self.counts[address[:4]] += 1
+            self.talkers["P"] += 1
+        else:
+            self.counts[address[2:]] += 1
+            self.talkers[address[:2]] += 1
+
+    # -- epoch bookkeeping ------------------------------------------------------------------
+    def _epoch_at(self, tod_text: str) -> _Epoch:
+        tod = _time_of_day(tod_text)
+        day = self.day
+        if self.last_tod is None:
+            self.last_tod = tod
+        elif tod < self.last_tod - 43200.0:  # passed midnight
+            self.day += 1
+            day = self.day
+            self.last_tod = tod
+        elif tod > self.last_tod + 43200.0 and self.day > 0:  # a late sentence of yesterday
+            day = self.day - 1
+        else:
+            if tod < self.last_tod - 1.5:
+                self.backward_jumps += 1
+            self.last_tod = max(self.last_tod, tod)
+        key = day * 86_400_000 + round(tod * 1000)
+        epoch = self.epochs.get(key)
+        if epoch is None:
+            epoch = self.epochs[key] = _Epoch(day * 86400.0 + tod)
+        self.current = epoch
+        return epoch
+
+    def _untimed_epoch(self) -> _Epoch | None:
+        if self.current is None:
+            self.untimed_before_first += 1
+        return self.current
+
+    # -- sentence handlers (fields as strings; IndexError/ValueError -> corrupt) -------------
+    def _on_gga(self, f: list[str]) -> None:
+        if not f[0]:
+            return
+        epoch = self._epoch_at(f[0])
+        lat, lon = _lat_lon(f, 1)
+        # An empty quality field with a position present is a fix (as gpsd reads it); only an
+        # explicit 0 marks the position invalid.
+        quality_text = f[5].strip()
+        quality = int(quality_text) if quality_text.isdigit() else (1 if not quality_text else 0)
+        sats = _field(f, 6)
+        if sats.isdigit():
+            epoch.num_sats = int(sats)
+        epoch.gga_hdop = _num(_field(f, 7))
+        alt = _num(_field(f, 8))
+        sep = _num(_field(f, 10))
+        valid = quality > 0 and math.isfinite(lat) and math.isfinite(lon)
+        epoch.positions["GGA"] = (lat, lon, alt, sep, quality, valid)
+
+    def _on_gns(self, f: list[str]) -> None:
+        if not f[0]:
+            return
+        epoch = self._epoch_at(f[0])
+        lat, lon = _lat_lon(f, 1)
+        quality = max(_mode_quality(_field(f, 5)), 0)
+        sats = _field(f, 6)
+        if sats.isdigit() and epoch.num_sats < 0:
+            epoch.num_sats = int(sats)
+        if not math.isfinite(epoch.gga_hdop):
+            epoch.gga_hdop = _num(_field(f, 7))
+        valid = quality > 0 and math.isfinite(lat) and math.isfinite(lon)
+        sep = _num(_field(f, 9))
+        epoch.positions["GNS"] = (lat, lon, _num(_field(f, 8)), sep, quality, valid)
+
+    def _on_rmc(self, f: list[str]) -> None:
+        if not f[0]:
+            return
+        epoch = self._epoch_at(f[0])
+        date = _field(f, 8)
+        if len(date) == 6 and date.isdigit():
+            day, month, year = int(date[:2]), int(date[2:4]), int(date[4:])
+            year += 1900 if year >= 80 else 2000
+            if 1 <= month <= 12 and 1 <= day <= 31:
+                epoch.date = (year, month, day)
+        lat, lon = _lat_lon(f, 2)
+        mode = _mode_quality(_field(f, 11))
+        valid = f[1] == "A" and mode != 0 and math.isfinite(lat) and math.isfinite(lon)
+        quality = mode if mode > 0 else 1
+        epoch.positions["RMC"] = (lat, lon, math.nan, math.nan, quality, valid)
+        speed = _num(_field(f, 6)) * KNOT_M_S
+        course = _num(_field(f, 7))
+        if math.isfinite(speed):
+            epoch.speed = speed
+        if math.isfinite(course):
+            epoch.course = course
+
+    def _on_gll(self, f: list[str]) -> None:
+        if len(f) < 6 or not f[4]:
+            return
+        epoch = self._epoch_at(f[4])
+        lat, lon = _lat_lon(f, 0)
+        mode = _mode_quality(_field(f, 6))
+        valid = f[5] == "A" and mode != 0 and math.isfinite(lat) and math.isfinite(lon)
+        epoch.positions["GLL"] = (lat, lon, math.nan, math.nan, mode if mode > 0 else 1, valid)
+
+    def _on_zda(self, f: list[str]) -> None:
+        if not f[0]:
+            return
+        epoch = self._epoch_at(f[0])
+        if f[1].isdigit() and f[2].isdigit() and f[3].isdigit():
+            day, month, year = int(f[1]), int(f[2]), int(f[3])
+            if 1 <= month <= 12 and 1 <= day <= 31 and year >= 1980:
+                epoch.date = (year, month, day)
+
+    def _on_gst(self, f: list[str]) -> None:
+        if not f[0]:
+            return
+        epoch = self._epoch_at(f[0])
+        sigma_lat, sigma_lon, sigma_alt = (_num(_field(f, i)) for i in (5, 6, 7))
+        if any(math.isfinite(s) for s in (sigma_lat, sigma_lon, sigma_alt)):
+            epoch.std = (sigma_lon, sigma_lat, sigma_alt)
+
+    def _on_gsa(self, f: list[str]) -> None:
+        epoch = self._untimed_epoch()
+        if epoch is None:
+            return
+        pdop, hdop, vdop = (_num(_field(f, i)) for i in (14, 15, 16))
+        if any(math.isfinite(d) for d in (pdop, hdop, vdop)):
+            epoch.dops = (pdop, hdop, vdop)
+        epoch.gsa_sats += sum(1 for prn in f[2:14] if prn.strip())
+
+    def _on_vtg(self, f: list[str]) -> None:
+        epoch = self._untimed_epoch()
+        if epoch is None:
+            return
+        course = _num(f[0])
+        knots = _num(_field(f, 4))
+        kmh = _num(_field(f, 6))
+        speed = knots * KNOT_M_S if math.isfinite(knots) else kmh * KMH_M_S
+        if math.isfinite(speed):
+            epoch.speed = speed
+        if math.isfinite(course):
+            epoch.course = course
+
+
+def _epoch_position(epoch: _Epoch) -> tuple[float, float, float, float, int] | None:
+    """(lat, lon, alt_msl, geoid_sep, quality) from the best valid source, or None."""
+    for source in _POSITION_PRIORITY:
+        pos = epoch.positions.get(source)
+        if pos is not None and pos[5]:
+            lat, lon, alt, sep, quality, _ = pos
+            if not math.isfinite(alt):  # a 2D source: borrow altitude from GGA/GNS if any
+                for other in ("GGA", "GNS"):
+                    alt_pos = epoch.positions.get(other)
+                    if alt_pos is not None and math.isfinite(alt_pos[2]):
+                        alt, sep = alt_pos[2], alt_pos[3]
+                        break
+            return lat, lon, alt, sep, quality
+    return None
+
+
+def _read_lines(path: Path) -> list[str]:
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read NMEA log ({exc.strerror}); check the path") from None
+    # latin-1 maps every byte to one character, so binary noise never stops decoding.
+    return raw.decode("latin-1").splitlines()
+
+
+def _parse(path: Path) -> _Reader:
+    reader = _Reader()
+    for line in _read_lines(path):
+        reader.feed_line(line)
+    return reader
+
+
+def read_nmea(path: str | Path, *, time_offset_s: float = 0.0) -> NmeaResult:
+    """Read an NMEA 0183 log into fix epochs (see the module docstring for conventions).
+
+    Raises :class:`fgins.types.InputError` when the file cannot be read or holds no usable fix.
+    """
+    path = Path(path)
+    reader = _parse(path)
+    return _assemble(path, reader, time_offset_s)
+
+
+def _assemble(path: Path, reader: _Reader, time_offset_s: float) -> NmeaResult:
+    epochs = [reader.epochs[k] for k in sorted(reader.epochs)]
+    warnings: list[str] = []
+    if reader.backward_jumps:
+        warnings.append(f"time of day went backwards {reader.backward_jumps} times")
+    if reader.untimed_before_first:
+        warnings.append(
+            f"{reader.untimed_before_first} GSA/VTG sentences before the first timed sentence"
+        )
+
+    # Time base: seconds since the first epoch's UTC midnight, moved to POSIX by a date.
+    seconds = np.array([e.tod for e in epochs], dtype=float)
+    dated = [(i, e.date) for i, e in enumerate(epochs) if e.date is not None]
+    has_date = bool(dated)
+    if has_date:
+        first_index, (year, month, day) = dated[0]
+        midnight = calendar.timegm((year, month, day, 0, 0, 0))
+        base = midnight - math.floor(seconds[first_index] / 86400.0) * 86400.0
+        day_of = {i: calendar.timegm((*d, 0, 0, 0)) for i, d in dated}
+        inconsistent = sum(
+            1 for i, m in day_of.items() if m != base + math.floor(seconds[i] / 86400.0) * 86400
+        )
+        if inconsistent:
+            warnings.append(f"{inconsistent} epochs whose date disagrees with the first date")
+        seconds = seconds + base
+
+    rows: list[tuple[float, ...]] = []
+    quality_histogram: Counter[int] = Counter()
+    without_fix = 0
+    for t, epoch in zip(seconds, epochs, strict=True):
+        position = _epoch_position(epoch)
+        if position is None:
+            without_fix += 1
+            gga = epoch.positions.get("GGA")
+            quality_histogram[gga[4] if gga else 0] += 1
+            continue
+        lat, lon, alt, sep, quality = position
+        quality_histogram[quality] += 1
+        pdop, hdop, vdop = epoch.dops if epoch.dops else (math.nan, epoch.gga_hdop, math.nan)
+        if not math.isfinite(hdop):
+            hdop = epoch.gga_hdop
+        std = epoch.std or (math.nan, math.nan, math.nan)
+        sats = epoch.num_sats if epoch.num_sats >= 0 else (epoch.gsa_sats or -1)
+        rows.append(
+            (
+                t,
+                lat,
+                lon,
+                alt,
+                sep,
+                *std,
+                hdop,
+                vdop,
+                pdop,
+                quality,
+                sats,
+                epoch.speed,
+                epoch.course,
+            )
+        )
+    if not rows:
+        raise InputError(
+            f"{path}: no usable GNSS fix in {sum(reader.counts.values())} NMEA sentences "
+            f"({reader.corrupt} corrupt lines, {reader.checksum_failures} checksum failures); "
+            "check that the receiver had a fix and the file is NMEA 0183"
+        )
+    table = np.array(rows, dtype=float)
+    lat, lon, alt_msl, sep = table[:, 1], table[:, 2], table[:, 3], table[:, 4]
+    modelled = np.isfinite(alt_msl) & ~np.isfinite(sep)
+    if modelled.any():
+        sep = sep.copy()
+        sep[modelled] = geoid_undulation(lat[modelled], lon[modelled])
+    height = alt_msl + np.where(np.isfinite(sep), sep, 0.0)
+    speed, course = table[:, 13], table[:, 14]
+    course_rad = np.radians(course)
+    velocity = np.column_stack(
+        [speed * np.sin(course_rad), speed * np.cos(course_rad), np.full(len(table), np.nan)]
+    )
+    if without_fix:
+        warnings.append(f"{without_fix} epochs without a usable position were skipped")
+    if modelled.any():
+        warnings.append(
+            f"{int(modelled.sum())} epochs without geoid separation: used {GEOID_MODEL_NAME}"
+        )
+    gnss = GnssData(
+        t=table[:, 0] + time_offset_s,
+        lla=np.column_stack([lat, lon, height]),
+        velocity=velocity,
+        std=table[:, 5:8],
+        hdop=table[:, 8],
+        vdop=table[:, 9],
+        pdop=table[:, 10],
+        fix_quality=table[:, 11],
+        num_sats=table[:, 12],
+        speed=speed,
+        course=course,
+    )
+    return NmeaResult(
+        gnss=gnss,
+        counts=dict(reader.counts),
+        corrupt_lines=reader.corrupt,
+        checksum_failures=reader.checksum_failures,
+        warnings=warnings,
+        has_date=has_date,
+        geoid_from_model=int(modelled.sum()),
+        talkers=dict(reader.talkers),
+        epochs_without_fix=without_fix,
+        geoid_modelled=modelled,
+        epoch_quality_histogram=dict(quality_histogram),
+    )
+
+
+def _stats(values: np.ndarray) -> str:
+    finite = values[np.isfinite(values)]
+    if finite.size == 0:
+        return "n/a"
+    return f"{finite.min():.2f} / {np.median(finite):.2f} / {finite.max():.2f}"
+
+
+def summarize_nmea(path: str | Path) -> str:
+    """A human-readable report of one NMEA log (what ``fgins inspect FILE.nmea`` prints)."""
+    path = Path(path)
+    reader = _parse(path)
+    lines = [f"NMEA log {path}"]
+    by_type = ", ".join(f"{k} {v}" for k, v in sorted(reader.counts.items()))
+    by_talker = ", ".join(f"{k} {v}" for k, v in sorted(reader.talkers.items()))
+    lines.append(f"  sentences by type:   {by_type or 'none'}")
+    lines.append(f"  sentences by talker: {by_talker or 'none'}")
+    lines.append(
+        f"  corrupt lines: {reader.corrupt}, checksum failures: {reader.checksum_failures}"
+    )
+    try:
+        result = _assemble(path, reader, 0.0)
+    except InputError as error:
+        lines.append(f"  no usable fix: {error}")
+        return "\n".join(lines)
+    gnss = result.gnss
+    t = gnss.t
+    period = float(np.median(np.diff(t))) if len(t) > 1 else math.nan
+    lines.append(
+        f"  fixes: {len(gnss)} (+{result.epochs_without_fix} epochs without a position), "
+        f"rate {1.0 / period if period > 0 else math.nan:.2f} Hz"
+    )
+    time_kind = "POSIX UTC (date found)" if result.has_date else "seconds of day (no date)"
+    lines.append(f"  time span: {t[0]:.3f} .. {t[-1]:.3f} s ({t[-1] - t[0]:.1f} s), {time_kind}")
+    histogram = ", ".join(f"{q}: {n}" for q, n in sorted(result.epoch_quality_histogram.items()))
+    lines.append(f"  fix quality histogram (GGA codes): {histogram}")
+    for name in ("hdop", "vdop", "pdop"):
+        lines.append(f"  {name} min / median / max: {_stats(getattr(gnss, name))}")
+    if len(t) > 1 and period > 0:
+        gaps = np.flatnonzero(np.diff(t) > 3 * period)
+        lines.append(f"  gaps > 3 periods: {len(gaps)}")
+        lines.extend(
+            f"    {t[i]:.3f} -> {t[i + 1]:.3f} ({t[i + 1] - t[i]:.1f} s)" for i in gaps[:10]
+        )
+    source = (
+        f"{GEOID_MODEL_NAME} for {result.geoid_from_model} epochs"
+        if (result.geoid_from_model)
+        else "receiver (GGA/GNS separation)"
+    )
+    lines.append(f"  geoid separation: {source}")
+    lines.extend(f"  warning: {w}" for w in result.warnings)
+    return "\n".join(lines)

@@ -1,0 +1,106 @@
+"""GNSS export round trips: gnss.csv via the csv module and numpy, GeoJSON via json, KML via
+xml.etree; the reader side is independent of the writer."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fgins.io.gnss_export import GNSS_CSV_COLUMNS, write_gnss
+from fgins.types import GnssData, InputError
+
+KML_NS = {"k": "http://www.opengis.net/kml/2.2"}
+
+
+def _sample_gnss() -> GnssData:
+    rng = np.random.default_rng(7)
+    n = 6
+    lla = np.column_stack(
+        [45.0 + rng.normal(0, 1e-3, n), -122.0 + rng.normal(0, 1e-3, n), rng.normal(100, 5, n)]
+    )
+    lla[2, 2] = np.nan  # a 2D fix
+    velocity = rng.normal(0, 3, (n, 3))
+    velocity[:, 2] = np.nan
+    std = np.abs(rng.normal(1, 0.2, (n, 3)))
+    std[4] = np.nan
+    return GnssData(
+        t=1.6e9 + np.arange(n) * 0.2 + 1 / 3,
+        lla=lla,
+        velocity=velocity,
+        std=std,
+        hdop=np.array([0.9, 1.1, np.nan, 1.3, 2.0, 0.8]),
+        vdop=rng.uniform(1, 2, n),
+        pdop=rng.uniform(1, 3, n),
+        fix_quality=np.array([1, 2, 4, 5, 1, 1]),
+        num_sats=np.array([7, 8, np.nan, 9, 10, 11]),
+        speed=np.hypot(velocity[:, 0], velocity[:, 1]),
+        course=np.degrees(np.arctan2(velocity[:, 0], velocity[:, 1])) % 360,
+    )
+
+
+def _expected(gnss: GnssData) -> np.ndarray:
+    sats = np.where(gnss.num_sats >= 0, gnss.num_sats, np.nan)
+    return np.column_stack(
+        [gnss.t, gnss.lla, gnss.velocity, gnss.std, gnss.hdop, gnss.vdop, gnss.pdop,
+         gnss.fix_quality, sats, gnss.speed, gnss.course]
+    )  # fmt: skip
+
+
+def test_csv_round_trip_exact(tmp_path: Path) -> None:
+    gnss = _sample_gnss()
+    path = write_gnss(gnss, tmp_path / "gnss.csv")
+    with path.open(newline="") as handle:
+        rows = list(csv.reader(handle))
+    assert tuple(rows[0]) == GNSS_CSV_COLUMNS
+    assert rows[3][3] == "" and rows[3][13] == "4" and rows[3][14] == ""  # NaN -> empty cell
+    loaded = np.genfromtxt(
+        path, delimiter=",", skip_header=1, missing_values="", filling_values=np.nan
+    )
+    np.testing.assert_array_equal(np.isnan(loaded), np.isnan(_expected(gnss)))
+    np.testing.assert_array_equal(np.nan_to_num(loaded), np.nan_to_num(_expected(gnss)))
+    assert not list(tmp_path.glob(".*.part"))  # written atomically, no leftovers
+
+
+def test_geojson_parses_with_track_and_points(tmp_path: Path) -> None:
+    gnss = _sample_gnss()
+    document = json.loads(write_gnss(gnss, tmp_path / "fixes.geojson").read_text())
+    assert document["type"] == "FeatureCollection"
+    line, *points = document["features"]
+    assert line["geometry"]["type"] == "LineString"
+    assert len(line["geometry"]["coordinates"]) == len(points) == len(gnss)
+    for i, point in enumerate(points):
+        lon, lat, *alt = point["geometry"]["coordinates"]
+        assert (lat, lon) == (gnss.lla[i, 0], gnss.lla[i, 1])  # GeoJSON order is lon, lat
+        assert alt == ([] if math.isnan(gnss.lla[i, 2]) else [gnss.lla[i, 2]])
+        assert point["properties"]["time"] == gnss.t[i]
+        assert point["properties"]["fix_quality"] == gnss.fix_quality[i]
+    assert points[2]["properties"]["hdop"] is None and points[2]["properties"]["num_sats"] is None
+
+
+def test_kml_parses_with_track_and_points(tmp_path: Path) -> None:
+    gnss = _sample_gnss()
+    root = ET.parse(write_gnss(gnss, tmp_path / "fixes.kml")).getroot()
+    line = root.find(".//k:LineString/k:coordinates", KML_NS)
+    assert line is not None and len(line.text.split()) == len(gnss)
+    points = root.findall(".//k:Point/k:coordinates", KML_NS)
+    assert len(points) == len(gnss)
+    for i, point in enumerate(points):
+        lon, lat, _ = (float(v) for v in point.text.split(","))
+        assert (lat, lon) == (gnss.lla[i, 0], gnss.lla[i, 1])
+    times = [
+        float(d.find("k:value", KML_NS).text)
+        for d in root.iterfind(".//k:Data[@name='time']", KML_NS)
+    ]
+    np.testing.assert_array_equal(times, gnss.t)
+
+
+def test_unknown_suffix_is_input_error(tmp_path: Path) -> None:
+    with pytest.raises(InputError, match=r"\.gpx"):
+        write_gnss(_sample_gnss(), tmp_path / "fixes.gpx")
+    assert not any(tmp_path.iterdir())

@@ -1,0 +1,158 @@
+"""Property tests: whatever bytes an NMEA log holds, the reader never raises anything but a
+clean one-line InputError for "no usable fix", and damaged lines are counted."""
+
+from __future__ import annotations
+
+import math
+import tempfile
+from functools import reduce
+from pathlib import Path
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from fgins.io.nmea import read_nmea
+from fgins.types import InputError
+
+
+def _with_checksum(body: str) -> str:
+    checksum = reduce(lambda acc, char: acc ^ ord(char), body, 0)
+    return f"${body}*{checksum:02X}"
+
+
+# One good epoch (u-blox style), checksums computed here, independently of the reader.
+GOOD_LINES = [
+    _with_checksum("GPRMC,123519.00,A,4807.03800,N,01131.00000,E,022.4,084.4,230394,,,A"),
+    _with_checksum("GPGGA,123519.00,4807.03800,N,01131.00000,E,1,08,0.9,545.4,M,46.9,M,,"),
+    _with_checksum("GPGSA,A,3,04,05,,09,12,,,24,,,,,2.5,1.3,2.1"),
+    _with_checksum("GPGST,123519.00,1.0,2.0,1.5,45.0,1.2,0.8,2.5"),
+]
+FUZZ_SETTINGS = settings(max_examples=60, deadline=None, suppress_health_check=list(HealthCheck))
+
+
+def _read_bytes(data: bytes):
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "fuzz.nmea"
+        path.write_bytes(data)
+        try:
+            return read_nmea(path)
+        except InputError as error:
+            message = str(error)
+            assert message and "\n" not in message and "no usable GNSS fix" in message
+            return None
+
+
+def test_good_epoch_is_decoded_exactly() -> None:
+    result = _read_bytes(("\r\n".join(GOOD_LINES) + "\r\n").encode())
+    assert result is not None and len(result.gnss) == 1
+    lat, lon, height = result.gnss.lla[0]
+    assert lat == pytest.approx(48 + 7.038 / 60, abs=1e-12)
+    assert lon == pytest.approx(11 + 31.0 / 60, abs=1e-12)
+    assert height == pytest.approx(545.4 + 46.9, abs=1e-9)
+    assert result.gnss.std[0].tolist() == pytest.approx([0.8, 1.2, 2.5])  # east=lon, north=lat
+    assert (result.gnss.pdop[0], result.gnss.hdop[0], result.gnss.vdop[0]) == (2.5, 1.3, 2.1)
+    speed = 22.4 * 1852 / 3600
+    east, north = speed * math.sin(math.radians(84.4)), speed * math.cos(math.radians(84.4))
+    assert result.gnss.velocity[0, :2].tolist() == pytest.approx([east, north])
+    assert math.isnan(result.gnss.velocity[0, 2])
+    assert result.has_date and result.gnss.t[0] == 764426119.0  # 1994-03-23T12:35:19Z
+    assert result.corrupt_lines == result.checksum_failures == 0
+
+
+@FUZZ_SETTINGS
+@given(st.binary(max_size=2000))
+def test_random_bytes_never_crash(data: bytes) -> None:
+    _read_bytes(data)
+
+
+@FUZZ_SETTINGS
+@given(st.lists(st.tuples(st.sampled_from(GOOD_LINES), st.integers(1, 80)), min_size=1))
+def test_truncated_lines_are_counted(cuts: list[tuple[str, int]]) -> None:
+    lines = [line[:cut] for line, cut in cuts]
+    result = _read_bytes("\n".join(lines).encode())
+    damaged = sum(1 for line, cut in cuts if cut < len(line))
+    if result is not None:
+        # a cut line loses its checksum: it is either rejected (counted) or, if it still holds
+        # all its fields, decoded; never silently half-read.
+        assert result.corrupt_lines + result.checksum_failures <= damaged
+        assert result.gnss.lla[0, 0] == pytest.approx(48 + 7.038 / 60, abs=1e-3)
+
+
+@FUZZ_SETTINGS
+@given(st.integers(0, len(GOOD_LINES) - 1), st.sampled_from("0123456789ABCDEF"), st.booleans())
+def test_flipped_checksum_is_a_checksum_failure(index: int, digit: str, last: bool) -> None:
+    line = GOOD_LINES[index]
+    position = len(line) - (1 if last else 2)
+    if line[position] == digit:
+        return
+    damaged = line[:position] + digit + line[position + 1 :]
+    lines = [*GOOD_LINES[:index], damaged, *GOOD_LINES[index + 1 :]]
+    result = _read_bytes("\n".join(lines).encode())
+    assert result is None or result.checksum_failures == 1
+
+
+@FUZZ_SETTINGS
+@given(st.lists(st.integers(0, 15), max_size=8), st.integers(0, len(GOOD_LINES) - 1))
+def test_empty_fields_never_crash(emptied: list[int], index: int) -> None:
+    body = GOOD_LINES[index][1:-3].split(",")
+    for field_index in emptied:
+        if 0 < field_index < len(body):
+            body[field_index] = ""
+    lines = [*GOOD_LINES[:index], _with_checksum(",".join(body)), *GOOD_LINES[index + 1 :]]
+    result = _read_bytes("\n".join(lines).encode())
+    if result is not None:
+        assert result.corrupt_lines == result.checksum_failures == 0
+
+
+@FUZZ_SETTINGS
+@given(st.binary(max_size=40), st.sampled_from(["\n", "\r\n", "\r"]))
+def test_leading_noise_and_line_endings(noise: bytes, newline: str) -> None:
+    data = b"".join(
+        noise.replace(b"$", b"") + line.encode() + newline.encode() for line in GOOD_LINES
+    )
+    result = _read_bytes(data)
+    assert result is not None and len(result.gnss) == 1
+    assert result.gnss.hdop[0] == 1.3
+
+
+def test_no_fix_log_is_one_line_input_error(tmp_path: Path) -> None:
+    path = tmp_path / "nofix.nmea"
+    path.write_text(_with_checksum("GPGGA,123519.00,,,,,0,00,99.99,,,,,,") + "\n")
+    with pytest.raises(InputError, match="no usable GNSS fix"):
+        read_nmea(path)
+
+
+def _gga(time: str, quality: int = 1, separation: str = "46.9") -> str:
+    return _with_checksum(
+        f"GPGGA,{time},4807.03800,N,01131.00000,E,{quality},08,0.9,545.4,M,{separation},M,,"
+    )
+
+
+def test_midnight_rollover_without_date_and_offset(tmp_path: Path) -> None:
+    path = tmp_path / "midnight.nmea"
+    lines = [_gga("235959.00"), _gga("000000.00"), _gga("000001.00", quality=0), _gga("000002.00")]
+    path.write_text("\n".join(lines) + "\n")
+    result = read_nmea(path, time_offset_s=10.0)
+    assert not result.has_date
+    assert result.gnss.t.tolist() == [86399.0 + 10, 86400.0 + 10, 86402.0 + 10]
+    assert result.epochs_without_fix == 1
+
+
+def test_midnight_rollover_with_date_from_rmc(tmp_path: Path) -> None:
+    rmc = _with_checksum("GPRMC,235959.00,A,4807.03800,N,01131.00000,E,0.0,,311299,,,A")
+    path = tmp_path / "dated.nmea"
+    path.write_text("\n".join([_gga("235958.00"), rmc, _gga("235959.00"), _gga("000000.50")]))
+    result = read_nmea(path)
+    assert result.has_date
+    # 1999-12-31T23:59:58Z = 946684798; the last fix is on 2000-01-01.
+    assert result.gnss.t.tolist() == [946684798.0, 946684799.0, 946684800.5]
+
+
+def test_missing_separation_uses_geoid_model(tmp_path: Path) -> None:
+    path = tmp_path / "nosep.nmea"
+    path.write_text(_gga("120000.00", separation="") + "\n")
+    result = read_nmea(path)
+    assert result.geoid_from_model == 1 and result.geoid_modelled.tolist() == [True]
+    # EGM at 48.117N 11.517E (Munich) is about 47 m; the receiver line above says 46.9 m.
+    assert result.gnss.lla[0, 2] == pytest.approx(545.4 + 46.9, abs=2.0)
