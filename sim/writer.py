@@ -1,0 +1,90 @@
+"""Write a simulated run as the folder ``fgins sim`` produces (DESIGN.md).
+
+imu.csv, gnss.csv, baro.csv (when there is a barometer), config.toml and truth.csv, each
+written atomically. tomllib only reads TOML, so config.toml comes from the small emitter here.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+from fgins.io.atomic import atomic_path
+from fgins.io.csv_pair import write_baro_csv, write_gnss_csv, write_imu_csv
+from fgins.io.trajectory_csv import write_trajectory_csv
+from fgins.sim.scenarios import SimRun
+from fgins.types import InputError
+
+
+def toml_value(value: Any, where: str = "") -> str:
+    """One TOML value: bool, int, float, str, list (inline array) or dict (inline table)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        if math.isnan(value):
+            return "nan"
+        if math.isinf(value):
+            return "inf" if value > 0 else "-inf"
+        return repr(value)
+    if isinstance(value, str):
+        escaped = value.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n")
+        return f'"{escaped}"'
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(toml_value(v, where) for v in value) + "]"
+    if isinstance(value, dict):
+        items = ", ".join(f"{toml_key(k)} = {toml_value(v, where)}" for k, v in value.items())
+        return "{ " + items + " }" if items else "{}"
+    # numpy scalars and the like
+    if hasattr(value, "item"):
+        return toml_value(value.item(), where)
+    raise InputError(f"config.toml: cannot write {type(value).__name__} value at {where}")
+
+
+def toml_key(key: str) -> str:
+    if key and all(c.isalnum() or c in "_-" for c in key):
+        return key
+    return toml_value(str(key))
+
+
+def dumps_toml(tables: dict[str, dict[str, Any]]) -> str:
+    """Top-level tables of scalars / arrays / inline tables as TOML text."""
+    lines: list[str] = []
+    for name, table in tables.items():
+        if lines:
+            lines.append("")
+        lines.append(f"[{toml_key(name)}]")
+        for key, value in table.items():
+            lines.append(f"{toml_key(key)} = {toml_value(value, f'{name}.{key}')}")
+    return "\n".join(lines) + "\n"
+
+
+def write_sim_dir(run: SimRun, out_dir: str | Path) -> None:
+    """Write ``run`` into ``out_dir`` (created if needed)."""
+    folder = Path(out_dir)
+    if folder.exists() and not folder.is_dir():
+        raise InputError(f"{folder}: exists and is not a folder; choose another output path")
+    folder.mkdir(parents=True, exist_ok=True)
+    dataset = run.dataset
+    write_imu_csv(dataset.imu, folder / "imu.csv")
+    write_gnss_csv(dataset.gnss, folder / "gnss.csv")
+    if dataset.baro is not None:
+        write_baro_csv(dataset.baro, folder / "baro.csv")
+    origin = dataset.origin
+    tables: dict[str, dict[str, Any]] = {
+        **run.config,
+        "origin": {"lat": origin.lat, "lon": origin.lon, "alt": origin.alt},
+        "scenario": {
+            "name": dataset.name,
+            "seed": int(dataset.metadata.get("seed", 0)),  # type: ignore[call-overload]
+            "vehicle": dataset.vehicle or "",
+            "outages": [[a, b] for a, b in run.outages],
+            "description": run.description,
+            "initial_errors": dict(run.initial_errors),
+        },
+    }
+    with atomic_path(folder / "config.toml") as tmp:
+        tmp.write_text(dumps_toml(tables))
+    write_trajectory_csv(run.truth, folder / "truth.csv")
