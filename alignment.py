@@ -95,8 +95,10 @@ def initial_alignment(
     first = imu.t <= t0 + 1.0
     first[: min(len(first), 10)] = True
     specific_force = imu.accel[first].mean(axis=0)
+    # The IMU decides "at rest": noisy GNSS fits show metres per second of false motion.
+    static = _imu_static(imu.gyro[first], imu.accel[first], g)
 
-    if speed >= moving_speed:
+    if speed >= moving_speed and not static:
         nav_force = acceleration - gravity
         forward = np.array([velocity[0], velocity[1], velocity[2]])
         rotation = _triad(specific_force, np.array([1.0, 0.0, 0.0]), nav_force, forward)
@@ -107,7 +109,7 @@ def initial_alignment(
             rotation=rotation,
             velocity=velocity,
             position=position,
-            attitude_sigma_rad=np.radians([2.0, 2.0, 5.0 if heading_deg is None else 2.0]),
+            attitude_sigma_rad=np.radians([3.0, 3.0, 10.0 if heading_deg is None else 2.0]),
             velocity_sigma=1.0,
             position_sigma=2.0,
             moving=True,
@@ -126,9 +128,9 @@ def initial_alignment(
     return Alignment(
         t=t0,
         rotation=rotation,
-        velocity=np.zeros(3) if speed < 0.5 else velocity,
+        velocity=np.zeros(3) if static else velocity,
         position=position,
-        attitude_sigma_rad=np.radians([2.0, 2.0, 10.0 if known else 180.0]),
+        attitude_sigma_rad=np.radians([2.0, 2.0, 15.0 if known else 180.0]),
         velocity_sigma=0.5,
         position_sigma=2.0,
         moving=False,
@@ -143,21 +145,42 @@ def _with_heading(rotation: np.ndarray, heading_deg: float) -> np.ndarray:
     return roll_pitch_heading_to_rotation(roll, pitch, heading_deg)
 
 
+def _imu_static(gyro: np.ndarray, accel: np.ndarray, gravity: float) -> bool:
+    """At rest: small rotation rate, specific force close to g and steady."""
+    return bool(
+        np.linalg.norm(gyro.mean(axis=0)) < 0.02
+        and abs(np.linalg.norm(accel.mean(axis=0)) - gravity) < 0.3
+        and np.all(accel.std(axis=0) < 0.3)
+    )
+
+
 def _heading_from_first_motion(
-    dataset: Dataset, gnss_t: np.ndarray, gnss_enu: np.ndarray, moving_speed: float
+    dataset: Dataset,
+    gnss_t: np.ndarray,
+    gnss_enu: np.ndarray,
+    moving_speed: float,
+    chord_s: float = 5.0,
+    min_chord_m: float = 20.0,
 ) -> tuple[float, bool]:
-    """Heading at the start: GNSS course once moving, minus the yaw turned since the start."""
-    dt = np.diff(gnss_t)
-    velocity = np.diff(gnss_enu, axis=0) / dt[:, None]
-    speed = np.linalg.norm(velocity[:, :2], axis=1)
-    moving = np.flatnonzero((speed >= moving_speed) & (dt < 3.0))
-    if moving.size == 0:
-        return 0.0, False
-    k = int(moving[0])
-    t_move = 0.5 * (gnss_t[k] + gnss_t[k + 1])
-    heading = float(np.degrees(np.arctan2(velocity[k, 0], velocity[k, 1])))
-    imu = dataset.imu
-    span = imu.t <= t_move
-    # Yaw rate about the local vertical, approximated by the body z rate (near level at rest).
-    yaw_turned = float(np.sum(imu.gyro[span][:-1, 2] * np.diff(imu.t[span])))
-    return float(np.mod(heading + np.degrees(yaw_turned), 360.0)), True
+    """Heading at the start: course once moving, minus the yaw turned since the start.
+
+    The course comes from a chord of at least ``min_chord_m`` over ``chord_s`` seconds, so
+    metre-level GNSS noise at rest cannot fake a direction (single-epoch differences can).
+    """
+    for k in range(len(gnss_t)):
+        later = np.flatnonzero((gnss_t > gnss_t[k]) & (gnss_t <= gnss_t[k] + chord_s))
+        if later.size == 0:
+            continue
+        j = int(later[-1])
+        chord = gnss_enu[j, :2] - gnss_enu[k, :2]
+        span = gnss_t[j] - gnss_t[k]
+        length = float(np.linalg.norm(chord))
+        if length >= min_chord_m and length / span >= moving_speed:
+            t_move = 0.5 * (gnss_t[k] + gnss_t[j])
+            heading = float(np.degrees(np.arctan2(chord[0], chord[1])))
+            imu = dataset.imu
+            before = imu.t <= t_move
+            # Yaw turned since the start, from the body z rate (near level on the ground).
+            yaw_turned = float(np.sum(imu.gyro[before][:-1, 2] * np.diff(imu.t[before])))
+            return float(np.mod(heading + np.degrees(yaw_turned), 360.0)), True
+    return 0.0, False

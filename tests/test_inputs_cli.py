@@ -1,0 +1,157 @@
+"""Readers' checks and the CLI contract: one-line errors, non-zero exits, no partial outputs."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fgins.cli import main
+from fgins.config import imu_noise_from_config, load_config
+from fgins.io.csv_pair import read_csv_dataset, read_imu_csv
+from fgins.io.imu_checks import find_gaps, find_linear_fills
+from fgins.io.trajectory_csv import COLUMNS
+from fgins.sim.scenarios import SCENARIOS
+from fgins.sim.writer import write_sim_dir
+from fgins.types import FginsError, InputError
+
+
+@pytest.fixture(scope="module")
+def sim_dir(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("sim") / "uav"
+    write_sim_dir(SCENARIOS["uav-loop-baro"](seed=2, duration_s=60), folder)
+    return folder
+
+
+def test_datasheet_units_convert_in_closed_form():
+    noise = imu_noise_from_config(
+        {"gyro_arw_deg_per_sqrt_hr": 0.6, "accel_vrw_m_per_s_per_sqrt_hr": 0.12,
+         "gyro_turn_on_bias_deg_per_s": 0.5, "accel_turn_on_bias_mg": 10.0}
+    )  # fmt: skip
+    assert noise.gyro_noise == pytest.approx(0.6 * math.pi / 180 / 60)
+    assert noise.accel_noise == pytest.approx(0.12 / 60)
+    assert noise.gyro_bias_prior == pytest.approx(0.5 * math.pi / 180)
+    assert noise.accel_bias_prior == pytest.approx(10e-3 * 9.80665)
+
+
+def test_config_errors_are_clear(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[imu]\ngyro_arw = 1\n")
+    with pytest.raises(FginsError, match="unknown key"):
+        load_config(bad)
+    bad.write_text("[imu\n")
+    with pytest.raises(FginsError, match="bad.toml"):
+        load_config(bad)
+    with pytest.raises(FginsError, match="unknown IMU preset"):
+        imu_noise_from_config({"preset": "potato"})
+
+
+def test_gaps_and_linear_fills_are_found():
+    rng = np.random.default_rng(0)
+    t = np.arange(0, 20, 0.01)
+    data = rng.normal(size=(len(t), 6))
+    # A lost stretch filled by straight lines between its end samples (as KITTI's logger did).
+    i, j = 500, 580
+    data[i : j + 1] = (
+        data[i] + (data[j] - data[i]) * ((t[i : j + 1] - t[i]) / (t[j] - t[i]))[:, None]
+    )
+    fills = find_linear_fills(t, data)
+    assert len(fills) == 1
+    assert fills[0][0] == pytest.approx(t[i]) and fills[0][1] == pytest.approx(t[j])
+    gappy = np.delete(t, np.arange(1000, 1010))
+    assert find_gaps(gappy) == [(pytest.approx(t[999]), pytest.approx(t[1010]))]
+
+
+def _write_imu(path: Path, rows: list[list[float]]) -> None:
+    lines = ["time,gyro_x,gyro_y,gyro_z,accel_x,accel_y,accel_z"]
+    lines += [
+        ",".join("nan" if isinstance(v, float) and math.isnan(v) else str(v) for v in row)
+        for row in rows
+    ]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def test_imu_csv_nan_and_duplicates_are_counted_backwards_time_is_an_error(tmp_path):
+    rows = [[0.01 * k, 0, 0, 0, 0, 0, 9.8] for k in range(100)]
+    rows[10][3] = float("nan")
+    rows.insert(20, list(rows[20]))  # repeated timestamp
+    path = tmp_path / "imu.csv"
+    _write_imu(path, rows)
+    warnings: list[str] = []
+    imu = read_imu_csv(path, warnings)
+    assert len(imu) == 99  # 101 rows - 1 NaN - 1 repeated
+    assert any("NaN" in w for w in warnings) and any("repeated" in w for w in warnings)
+    rows[50][0] = 0.2  # time jumps backwards
+    _write_imu(path, rows)
+    with pytest.raises(InputError, match="backwards"):
+        read_imu_csv(path, [])
+
+
+def test_sim_folder_and_csv_pair_in_any_order(sim_dir):
+    folder = read_csv_dataset([sim_dir])
+    pair = read_csv_dataset([sim_dir / "gnss.csv", sim_dir / "imu.csv"])
+    np.testing.assert_array_equal(folder.imu.t, pair.imu.t)
+    np.testing.assert_allclose(folder.gnss.lla, pair.gnss.lla)
+    assert folder.baro is not None
+    with pytest.raises(InputError, match="no GNSS CSV"):
+        read_csv_dataset([sim_dir / "imu.csv"])
+
+
+def test_cli_smooth_writes_design_columns_at_imu_rate(sim_dir, tmp_path):
+    out = tmp_path / "out.csv"
+    assert (
+        main(
+            ["smooth", str(sim_dir), "--method", "batch", "--gnss-outage", "20:30", "-o", str(out)]
+        )
+        == 0
+    )
+    header = out.read_text().splitlines()[0].split(",")
+    assert header[: len(COLUMNS)] == COLUMNS
+    table = np.loadtxt(out, delimiter=",", skiprows=1)
+    imu = np.loadtxt(sim_dir / "imu.csv", delimiter=",", skiprows=1)
+    np.testing.assert_allclose(table[:, 0], imu[:, 0], atol=1e-6)
+    assert np.all(np.isfinite(table[:, : len(COLUMNS)]))
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["smooth", "missing.csv", "-o", "{out}"], "no such file"),
+        (["smooth", "demo:kitti", "--gnss-outage", "90:60", "-o", "{out}"], "START < END"),
+        (["smooth", "demo:kitti", "--gnss-outage", "abc", "-o", "{out}"], "START:END"),
+        (["smooth", "demo:nope", "-o", "{out}"], "demo:kitti"),
+        (["smooth", "{sim}/imu.csv", "-o", "{out}"], "no GNSS CSV"),
+    ],
+)
+def test_bad_input_is_one_line_and_leaves_no_output(tmp_path, sim_dir, capsys, args, message):
+    out = tmp_path / "result.csv"
+    argv = [a.format(out=out, sim=sim_dir) for a in args]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0] and "Traceback" not in err[0]
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_no_usable_gnss_in_span_is_a_clear_error(tmp_path, sim_dir, capsys):
+    gnss = (sim_dir / "gnss.csv").read_text().splitlines()
+    shifted = [gnss[0]] + [
+        ",".join([str(float(r.split(",")[0]) + 1e6), *r.split(",")[1:]]) for r in gnss[1:]
+    ]
+    (tmp_path / "gnss.csv").write_text("\n".join(shifted) + "\n")
+    out = tmp_path / "x.csv"
+    assert (
+        main(["smooth", str(sim_dir / "imu.csv"), str(tmp_path / "gnss.csv"), "-o", str(out)]) == 2
+    )
+    assert "time span" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_python_dash_m_entry_point():
+    result = subprocess.run(
+        [sys.executable, "-m", "fgins", "--version"], capture_output=True, text=True
+    )
+    assert result.returncode == 0 and result.stdout.startswith("fgins ")
