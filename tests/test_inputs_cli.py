@@ -44,7 +44,7 @@ def test_config_errors_are_clear(tmp_path):
     with pytest.raises(FginsError, match="unknown key"):
         load_config(bad)
     bad.write_text("[imu\n")
-    with pytest.raises(FginsError, match="bad.toml"):
+    with pytest.raises(FginsError, match=r"bad\.toml"):
         load_config(bad)
     with pytest.raises(FginsError, match="unknown IMU preset"):
         imu_noise_from_config({"preset": "potato"})
