@@ -126,7 +126,7 @@ def write_output(
 
         write_trajectory_geo(trajectory, path)
     elif suffix == ".mcap":
-        from fgins.io.mcap import write_mcap
+        from fgins.io.mcap_writer import write_mcap
 
         write_mcap(trajectory, path, gnss=dataset.gnss, input_path=with_input)
     else:
@@ -134,6 +134,8 @@ def write_output(
 
 
 def _report(dataset: Dataset, trajectory: Trajectory) -> None:
+    for line in dataset.metadata.get("mcap_report", []):
+        print(line, file=sys.stderr)
     for warning in dataset.warnings:
         print(f"warning: {warning}", file=sys.stderr)
     for key in ("gnss_gating",):

@@ -65,3 +65,27 @@ def plot_track_and_errors(
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=110, format=Path(path).suffix.lstrip(".") or "png")
     plt.close(fig)
+
+
+def plot_outage_errors(case, path: str | Path) -> None:
+    """Per method: horizontal error vs time with outages shaded and each method's 3-sigma."""
+    fig, ax = plt.subplots(figsize=(12, 5))
+    t0 = case.dataset.t0
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for color, result in zip(colors * 3, case.results, strict=False):
+        rel = result.errors.t - t0
+        ax.plot(rel, result.errors.horizontal, "-", color=color, lw=0.9, label=result.method)
+        ax.plot(rel, 3 * result.errors.horizontal_std, ":", color=color, lw=0.7)
+    for start, end in case.windows:
+        ax.axvspan(start, end, color="red", alpha=0.1)
+    ax.set_yscale("symlog", linthresh=0.5)
+    ax.set_xlabel("time since first GNSS epoch (s)")
+    ax.set_ylabel("horizontal error (m); dotted: reported 3 sigma")
+    reference = "truth" if case.truth is not None else "withheld GNSS"
+    ax.set_title(f"{case.name}: error against {reference}, outages shaded")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="upper left", fontsize=8)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)

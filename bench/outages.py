@@ -1,0 +1,170 @@
+"""Outage-reconstruction benchmark: every method on identical data and identical outages.
+
+Reference: simulator truth where the dataset has it, else the withheld GNSS fixes themselves
+(on real data, the only independent reference inside an outage). Results: per-method metrics,
+a markdown table with ratios against a baseline method measured in the same run, JSON, plots.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from fgins.bench.metrics import Errors, errors_against
+from fgins.config import RunConfig
+from fgins.io.atomic import atomic_path
+from fgins.outages import in_windows, outage_mask
+from fgins.pipeline import run_method
+from fgins.types import Dataset, FginsError, Trajectory
+
+
+@dataclass
+class MethodResult:
+    method: str
+    metrics: dict[str, float]
+    wall_s: float
+    errors: Errors
+    trajectory: Trajectory
+
+
+@dataclass
+class BenchCase:
+    """One dataset under one outage protocol."""
+
+    name: str
+    dataset: Dataset
+    config: RunConfig
+    windows: list[tuple[float, float]]
+    truth: Trajectory | None = None
+    results: list[MethodResult] = field(default_factory=list)
+
+
+def _truth_errors(
+    trajectory: Trajectory, truth: Trajectory, t0: float, windows: list[tuple[float, float]]
+) -> Errors:
+    difference = trajectory.position - truth.at(trajectory.t)
+    std = np.linalg.norm(trajectory.position_std[:, :2], axis=1)
+    return Errors(
+        t=trajectory.t,
+        horizontal=np.linalg.norm(difference[:, :2], axis=1),
+        vertical=np.abs(difference[:, 2]),
+        inside=in_windows(trajectory.t, t0, windows),
+        horizontal_std=std,
+    )
+
+
+def end_of_outage_errors(
+    errors: Errors, t0: float, windows: list[tuple[float, float]]
+) -> list[float]:
+    """Horizontal error at the last reference epoch inside each window (the drift at its end)."""
+    out = []
+    relative = errors.t - t0
+    for start, end in windows:
+        inside = np.flatnonzero((relative >= start) & (relative < end))
+        if inside.size:
+            out.append(float(errors.horizontal[inside[-1]]))
+    return out
+
+
+def run_case(case: BenchCase, methods: list[str], progress: bool = False) -> BenchCase:
+    mask = outage_mask(case.dataset, case.windows)
+    for method in methods:
+        started = time.perf_counter()
+        try:
+            trajectory = run_method(
+                case.dataset, case.config, method, gnss_mask=mask, progress=progress
+            )
+        except FginsError as exc:
+            print(f"  {case.name}: {method} unavailable: {exc}")
+            continue
+        wall = time.perf_counter() - started
+        variants = [(method, trajectory)]
+        if method == "isam2" and "online" in trajectory.info:
+            variants.append(("isam2-online", trajectory.info["online"]))
+        for name, traj in variants:
+            if case.truth is not None:
+                errors = _truth_errors(traj, case.truth, case.dataset.t0, case.windows)
+            else:
+                errors = errors_against(
+                    traj,
+                    case.dataset.gnss.t,
+                    case.dataset.gnss_enu(),
+                    case.dataset.t0,
+                    case.windows,
+                )
+            metrics = errors.summary()
+            ends = end_of_outage_errors(errors, case.dataset.t0, case.windows)
+            metrics["h_end_outage_mean"] = float(np.mean(ends)) if ends else float("nan")
+            metrics["imu_samples_per_s"] = len(case.dataset.imu) / wall
+            if case.truth is not None:
+                metrics.update(_attitude_bias_errors(traj, case.truth))
+            case.results.append(MethodResult(name, metrics, wall, errors, traj))
+    return case
+
+
+def _attitude_bias_errors(trajectory: Trajectory, truth: Trajectory) -> dict[str, float]:
+    rows = np.clip(np.searchsorted(truth.t, trajectory.t), 0, len(truth.t) - 1)
+    est = trajectory.roll_pitch_heading_deg()
+    ref = truth.roll_pitch_heading_deg()[rows]
+    diff = (est - ref + 180.0) % 360.0 - 180.0
+    out = {
+        "roll_pitch_rms_deg": float(np.sqrt(np.mean(diff[:, :2] ** 2))),
+        "heading_rms_deg": float(np.sqrt(np.mean(diff[:, 2] ** 2))),
+    }
+    if np.all(np.isfinite(trajectory.gyro_bias)) and np.all(np.isfinite(truth.gyro_bias)):
+        out["gyro_bias_rms_deg_h"] = float(
+            np.degrees(np.sqrt(np.mean((trajectory.gyro_bias - truth.gyro_bias[rows]) ** 2))) * 3600
+        )
+        out["accel_bias_rms_mg"] = float(
+            np.sqrt(np.mean((trajectory.accel_bias - truth.accel_bias[rows]) ** 2)) / 9.80665e-3
+        )
+    return out
+
+
+def markdown_table(cases: list[BenchCase], baseline: str = "ekf") -> str:
+    """One row per case and method; ratios against ``baseline`` in the same case."""
+    lines = [
+        "| case | method | h RMS outage (m) | h max outage (m) | h end (m) | h RMS aided (m) | "
+        f"in 3σ | wall (s) | IMU samples/s | RMS / {baseline} |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for case in cases:
+        reference = next((r for r in case.results if r.method == baseline), None)
+        for result in case.results:
+            m = result.metrics
+            ratio = (
+                m["h_rms_outage"] / reference.metrics["h_rms_outage"]
+                if reference is not None and reference.metrics["h_rms_outage"] > 0
+                else float("nan")
+            )
+            lines.append(
+                f"| {case.name} | {result.method} | {m['h_rms_outage']:.2f} | {m['h_max_outage']:.2f} | "
+                f"{m['h_end_outage_mean']:.2f} | {m['h_rms_aided']:.2f} | "
+                f"{100 * m.get('within_3sigma_outage', float('nan')):.0f}% | {result.wall_s:.2f} | "
+                f"{m['imu_samples_per_s']:,.0f} | {ratio:.2f} |"
+            )
+    return "\n".join(lines)
+
+
+def write_results(cases: list[BenchCase], out_dir: Path, baseline: str = "ekf") -> None:
+    from fgins.bench.plots import plot_outage_errors
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    payload = {
+        case.name: {
+            "windows": case.windows,
+            "reference": "truth" if case.truth is not None else "withheld GNSS",
+            "methods": {r.method: {**r.metrics, "wall_s": r.wall_s} for r in case.results},
+        }
+        for case in cases
+    }
+    with atomic_path(out_dir / "outages.json") as tmp:
+        tmp.write_text(json.dumps(payload, indent=2, default=float))
+    with atomic_path(out_dir / "outages.md") as tmp:
+        tmp.write_text(markdown_table(cases, baseline) + "\n")
+    for case in cases:
+        plot_outage_errors(case, out_dir / f"{case.name}.png")

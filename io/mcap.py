@@ -1,0 +1,879 @@
+"""Read MCAP logs (ROS 2 bags with the mcap storage plugin, Foxglove recordings).
+
+Topics are chosen by *schema*, never by name. The file is streamed record by record (constant
+memory in the file size: only floats of the chosen channels are kept), so a recording cut off
+mid-write (no summary, no footer) is read up to the cut with a warning.
+
+Supported schemas and the role they fill:
+
+* ``sensor_msgs/msg/Imu`` -> IMU (gyro, accel; a fast CDR path, no generic decoding)
+* ``sensor_msgs/msg/NavSatFix``, ``gps_msgs/msg/GPSFix``, ``foxglove.LocationFix`` (protobuf
+  or JSON), ``nmea_msgs/msg/Sentence`` (parsed by :mod:`fgins.io.nmea`) -> GNSS fixes
+* ``geometry_msgs/msg/TwistWithCovarianceStamped`` / ``TwistStamped`` -> GNSS ENU velocity
+* ``sensor_msgs/msg/FluidPressure`` -> barometer (Pa)
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import struct
+import tempfile
+from array import array
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from mcap.exceptions import InvalidMagic
+from mcap.reader import make_reader
+from mcap.records import Channel, Footer, Message, Schema
+from mcap.stream_reader import StreamReader
+
+from fgins.types import BaroData, Dataset, GnssData, ImuData, InputError, Origin
+
+IMU_SCHEMAS = frozenset({"sensor_msgs/msg/Imu"})
+NAVSATFIX = "sensor_msgs/msg/NavSatFix"
+GPSFIX = "gps_msgs/msg/GPSFix"
+LOCATIONFIX = "foxglove.LocationFix"
+NMEA_SENTENCE = "nmea_msgs/msg/Sentence"
+FIX_SCHEMAS = frozenset({NAVSATFIX, GPSFIX, LOCATIONFIX, NMEA_SENTENCE})
+VELOCITY_SCHEMAS = frozenset(
+    {"geometry_msgs/msg/TwistWithCovarianceStamped", "geometry_msgs/msg/TwistStamped"}
+)
+BARO_SCHEMAS = frozenset({"sensor_msgs/msg/FluidPressure"})
+
+ROLE_IMU, ROLE_GNSS, ROLE_VELOCITY, ROLE_BARO = "imu", "gnss", "gnss velocity", "baro"
+
+# NavSatFix / LocationFix position_covariance_type: 0 = unknown (ignore the numbers).
+COVARIANCE_TYPE_UNKNOWN = 0
+# sensor_msgs/NavSatStatus and gps_msgs/GPSStatus: < 0 is "no fix"; SBAS/GBAS/DGPS are
+# differential (NMEA GGA quality 2); plain fix is autonomous (quality 1).
+NAVSAT_STATUS_TO_QUALITY = {0: 1, 1: 2, 2: 2, 18: 2, 33: 2}
+
+_PROGRESS_EVERY_RECORDS = 4096
+
+# Channel metadata that marks channels fgins wrote (see fgins.io.mcap_writer).
+PRODUCER_KEY, PRODUCER_FGINS = "producer", "fgins"
+
+
+@dataclass
+class McapResult:
+    """What :func:`read_mcap` returns: the data and human-readable lines about how it was read."""
+
+    dataset: Dataset
+    report: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+
+def role_of_schema(schema_name: str) -> str | None:
+    """The sensor role a schema fills, or None when fgins does not use it."""
+    if schema_name in IMU_SCHEMAS:
+        return ROLE_IMU
+    if schema_name in FIX_SCHEMAS:
+        return ROLE_GNSS
+    if schema_name in VELOCITY_SCHEMAS:
+        return ROLE_VELOCITY
+    if schema_name in BARO_SCHEMAS:
+        return ROLE_BARO
+    return None
+
+
+# --------------------------------------------------------------------------------------------
+# Streaming over records, robust to torn files
+# --------------------------------------------------------------------------------------------
+
+
+class _ByteProgress:
+    """A tqdm bar over the bytes consumed from a file (a no-op when disabled)."""
+
+    def __init__(self, file: Any, total: int, enabled: bool, label: str) -> None:
+        self._file = file
+        self._bar = None
+        self._last = 0
+        if enabled:
+            from tqdm import tqdm
+
+            self._bar = tqdm(total=total, unit="B", unit_scale=True, desc=label, leave=False)
+
+    def update(self) -> None:
+        if self._bar is not None:
+            position = self._file.tell()
+            self._bar.update(position - self._last)
+            self._last = position
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self.update()
+            self._bar.close()
+
+
+@dataclass
+class _StreamOutcome:
+    truncated: bool = False
+    error: str = ""
+    has_footer: bool = False
+    has_summary: bool = False
+
+
+def _stream_records(
+    path: Path, outcome: _StreamOutcome, progress: bool, label: str
+) -> Iterator[Any]:
+    """Yield every record of the data section (chunks opened); stop cleanly at a torn record."""
+    with open(path, "rb") as file:
+        bar = _ByteProgress(file, path.stat().st_size, progress, label)
+        try:
+            reader = StreamReader(file, record_size_limit=1 << 31)
+            records = reader.records
+            count = 0
+            while True:
+                try:
+                    record = next(records)
+                except StopIteration:
+                    break
+                except InvalidMagic as exc:
+                    if count == 0:
+                        raise InputError(
+                            f"{path}: not an MCAP file (bad magic bytes); give a .mcap recording"
+                        ) from exc
+                    outcome.truncated, outcome.error = True, f"bad magic at end: {exc}"
+                    break
+                except Exception as exc:
+                    # mcap raises on the torn last record of a recording that was cut off
+                    # (EndOfFile, struct/zstd errors, ...): everything before it is intact.
+                    outcome.truncated = True
+                    outcome.error = f"{type(exc).__name__}: {exc}"
+                    break
+                count += 1
+                if isinstance(record, Footer):
+                    outcome.has_footer = True
+                    outcome.has_summary = record.summary_start != 0
+                if count % _PROGRESS_EVERY_RECORDS == 0:
+                    bar.update()
+                yield record
+        finally:
+            bar.close()
+
+
+def _read_summary(path: Path) -> Any:
+    """The summary section (channels, schemas, statistics), or None when there is none."""
+    try:
+        with open(path, "rb") as file:
+            summary = make_reader(file).get_summary()
+    except Exception:  # a torn or foreign file: fall back to choosing while streaming
+        return None
+    if summary is None or summary.statistics is None:
+        return None
+    return summary
+
+
+def _check_magic(path: Path) -> None:
+    if not path.is_file():
+        raise InputError(f"{path}: no such file; check the path")
+    with open(path, "rb") as file:
+        head = file.read(8)
+    if head != b"\x89MCAP0\r\n":
+        raise InputError(f"{path}: not an MCAP file (bad magic bytes); give a .mcap recording")
+
+
+# --------------------------------------------------------------------------------------------
+# Decoding
+# --------------------------------------------------------------------------------------------
+
+
+def _make_decoder(schema: Schema | None, channel: Channel) -> Callable[[bytes], Any] | None:
+    """A function bytes -> message object for this channel, or None if it cannot be decoded."""
+    encoding = channel.message_encoding
+    if encoding == "json":
+        return json.loads
+    if schema is None:
+        return None
+    if encoding == "cdr" and schema.encoding == "ros2msg":
+        from mcap_ros2.decoder import DecoderFactory as Ros2DecoderFactory
+
+        return Ros2DecoderFactory().decoder_for(encoding, schema)
+    if encoding == "protobuf" and schema.encoding == "protobuf":
+        try:
+            from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoderFactory
+        except ImportError:  # optional dependency: report the channel as undecodable
+            return None
+        return ProtobufDecoderFactory().decoder_for(encoding, schema)
+    return None
+
+
+def _imu_cdr_reader(data: bytes) -> tuple[int, tuple[float, ...]]:
+    """sensor_msgs/msg/Imu from CDR without generic decoding (the high-rate stream).
+
+    Returns (header stamp ns, (gx, gy, gz, ax, ay, az)). CDR aligns 8-byte fields to 8 relative
+    to the byte after the 4-byte encapsulation header.
+    """
+    little = data[1] == 1
+    prefix = "<" if little else ">"
+    sec, nanosec, frame_len = struct.unpack_from(prefix + "iII", data, 4)
+    body = 12 + frame_len
+    body = (body + 7) & ~7
+    # orientation (4 doubles) + its covariance (9 doubles) precede angular_velocity
+    gyro_at = 4 + body + 13 * 8
+    accel_at = gyro_at + 12 * 8  # angular_velocity (3) + its covariance (9)
+    gyro = struct.unpack_from(prefix + "3d", data, gyro_at)
+    accel = struct.unpack_from(prefix + "3d", data, accel_at)
+    return sec * 1_000_000_000 + nanosec, gyro + accel
+
+
+def _get(msg: Any, name: str, default: Any = None) -> Any:
+    """Field access for decoded objects (ROS 2, protobuf) and JSON dicts alike."""
+    if isinstance(msg, dict):
+        return msg.get(name, default)
+    return getattr(msg, name, default)
+
+
+def _ros_stamp_ns(msg: Any) -> int:
+    stamp = msg.header.stamp
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def _foxglove_stamp_ns(msg: Any) -> int:
+    stamp = _get(msg, "timestamp")
+    if stamp is None:
+        return 0
+    if isinstance(stamp, dict):  # JSON: {"sec": .., "nsec": ..}
+        return int(stamp.get("sec", 0)) * 1_000_000_000 + int(stamp.get("nsec", 0))
+    return int(stamp.seconds) * 1_000_000_000 + int(stamp.nanos)
+
+
+def _std_from_covariance(covariance: Any, covariance_type: Any) -> tuple[float, float, float]:
+    """1-sigma east/north/up from an ENU row-major 3x3 covariance (REP-145 / Foxglove)."""
+    if isinstance(covariance_type, str):  # JSON may spell the enum
+        covariance_type = 0 if covariance_type.upper() == "UNKNOWN" else 1
+    if covariance is None or len(covariance) != 9 or int(covariance_type or 0) == 0:
+        return (math.nan, math.nan, math.nan)
+    diag = (float(covariance[0]), float(covariance[4]), float(covariance[8]))
+    return tuple(math.sqrt(v) if v > 0 else math.nan for v in diag)  # type: ignore[return-value]
+
+
+# --------------------------------------------------------------------------------------------
+# Accumulators: one per chosen channel, Python lists of floats (never messages)
+# --------------------------------------------------------------------------------------------
+
+
+class _Accumulator:
+    def __init__(self, topic: str, schema_name: str) -> None:
+        self.topic = topic
+        self.schema_name = schema_name
+        self.t = array("d")
+        self.stamp_fallbacks = 0  # header stamp zero -> log time used
+        self.decode_errors = 0
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def time(self, stamp_ns: int, log_time_ns: int, use_header_stamp: bool) -> float:
+        if use_header_stamp and stamp_ns > 0:
+            return stamp_ns / 1e9
+        if use_header_stamp:
+            self.stamp_fallbacks += 1
+        return log_time_ns / 1e9
+
+
+class _ImuAccumulator(_Accumulator):
+    def __init__(self, topic: str, schema_name: str) -> None:
+        super().__init__(topic, schema_name)
+        self.values = array("d")  # gx gy gz ax ay az per sample
+
+    def add_raw(self, data: bytes, log_time: int, use_header_stamp: bool) -> None:
+        stamp, values = _imu_cdr_reader(data)
+        self.t.append(self.time(stamp, log_time, use_header_stamp))
+        self.values.extend(values)
+
+
+class _FixAccumulator(_Accumulator):
+    """NavSatFix, GPSFix and LocationFix rows."""
+
+    COLUMNS = ("lat", "lon", "alt", "se", "sn", "su", "quality", "hdop", "vdop", "pdop")
+    COLUMNS += ("ve", "vn", "vu", "speed", "course", "sats")
+
+    def __init__(self, topic: str, schema_name: str) -> None:
+        super().__init__(topic, schema_name)
+        self.rows = array("d")
+        self.no_fix = 0
+
+    def add(self, msg: Any, log_time: int, use_header_stamp: bool) -> None:
+        nan = math.nan
+        velocity = (nan, nan, nan)
+        speed = course = nan
+        hdop = vdop = pdop = nan
+        sats = nan
+        if self.schema_name == LOCATIONFIX:
+            stamp = _foxglove_stamp_ns(msg)
+            quality = 1.0
+            vel = _get(msg, "velocity")
+            if vel:  # newer LocationFix carries ENU velocity
+                velocity = (float(_get(vel, "x", nan)), float(_get(vel, "y", nan)))
+                velocity += (float(_get(vel, "z", nan)),)
+        else:
+            stamp = _ros_stamp_ns(msg)
+            status = int(msg.status.status)
+            if status < 0:
+                self.no_fix += 1
+                return
+            quality = float(NAVSAT_STATUS_TO_QUALITY.get(status, 1))
+            if self.schema_name == GPSFIX:
+                hdop, vdop, pdop = float(msg.hdop), float(msg.vdop), float(msg.pdop)
+                sats = float(msg.status.satellites_used)
+                speed, course = float(msg.speed), float(msg.track)
+                track = math.radians(course)
+                velocity = (speed * math.sin(track), speed * math.cos(track), float(msg.climb))
+        std = _std_from_covariance(
+            _get(msg, "position_covariance"), _get(msg, "position_covariance_type", 0)
+        )
+        lat = float(_get(msg, "latitude", nan))
+        lon = float(_get(msg, "longitude", nan))
+        alt = float(_get(msg, "altitude", nan))
+        if not (math.isfinite(lat) and math.isfinite(lon) and math.isfinite(alt)):
+            self.no_fix += 1
+            return
+        self.t.append(self.time(stamp, log_time, use_header_stamp))
+        self.rows.extend((lat, lon, alt, *std, quality, hdop, vdop, pdop, *velocity))
+        self.rows.extend((speed, course, sats))
+
+
+class _VelocityAccumulator(_Accumulator):
+    def __init__(self, topic: str, schema_name: str) -> None:
+        super().__init__(topic, schema_name)
+        self.rows = array("d")  # ve vn vu std_e std_n std_u
+
+    def add(self, msg: Any, log_time: int, use_header_stamp: bool) -> None:
+        twist = msg.twist
+        std = (math.nan, math.nan, math.nan)
+        if self.schema_name.endswith("TwistWithCovarianceStamped"):
+            covariance = twist.covariance  # 6x6 row-major, linear part first (ENU per REP-145)
+            twist = twist.twist
+            diag = (covariance[0], covariance[7], covariance[14])
+            std = tuple(math.sqrt(v) if v > 0 else math.nan for v in diag)  # type: ignore[assignment]
+        linear = twist.linear
+        self.t.append(self.time(_ros_stamp_ns(msg), log_time, use_header_stamp))
+        self.rows.extend((float(linear.x), float(linear.y), float(linear.z), *std))
+
+
+class _BaroAccumulator(_Accumulator):
+    def __init__(self, topic: str, schema_name: str) -> None:
+        super().__init__(topic, schema_name)
+        self.pressure = array("d")
+
+    def add(self, msg: Any, log_time: int, use_header_stamp: bool) -> None:
+        self.t.append(self.time(_ros_stamp_ns(msg), log_time, use_header_stamp))
+        self.pressure.append(float(msg.fluid_pressure))
+
+
+class _NmeaAccumulator(_Accumulator):
+    """Streams sentences into a temp file for :func:`fgins.io.nmea.read_nmea`."""
+
+    def __init__(self, topic: str, schema_name: str) -> None:
+        super().__init__(topic, schema_name)
+        handle, name = tempfile.mkstemp(prefix="fgins-mcap-", suffix=".nmea")
+        self.file = os.fdopen(handle, "w", encoding="ascii", errors="replace")
+        self.path = Path(name)
+        self.fix_stamps = array("d")  # stamps of GGA sentences: aligns NMEA time to the bag
+
+    def add(self, msg: Any, log_time: int, use_header_stamp: bool) -> None:
+        sentence = str(msg.sentence).strip()
+        t = self.time(_ros_stamp_ns(msg), log_time, use_header_stamp)
+        self.t.append(t)
+        if sentence[3:6] == "GGA":
+            self.fix_stamps.append(t)
+        self.file.write(sentence + "\n")
+
+    def close(self) -> None:
+        if not self.file.closed:
+            self.file.close()
+
+
+_ACCUMULATOR_BY_ROLE: dict[str, type[_Accumulator]] = {
+    ROLE_IMU: _ImuAccumulator,
+    ROLE_VELOCITY: _VelocityAccumulator,
+    ROLE_BARO: _BaroAccumulator,
+}
+
+
+def _new_accumulator(role: str, topic: str, schema_name: str) -> _Accumulator:
+    if role == ROLE_GNSS:
+        cls = _NmeaAccumulator if schema_name == NMEA_SENTENCE else _FixAccumulator
+        return cls(topic, schema_name)
+    return _ACCUMULATOR_BY_ROLE[role](topic, schema_name)
+
+
+# --------------------------------------------------------------------------------------------
+# Building the Dataset
+# --------------------------------------------------------------------------------------------
+
+
+def _sorted_unique(t: np.ndarray, label: str, warnings: list[str]) -> np.ndarray | slice:
+    """Indices that put ``t`` in strictly increasing order (duplicates dropped, counted).
+
+    The usual case, already increasing, gives a slice: views, no copy of large arrays.
+    """
+    if t.size < 2 or bool(np.all(np.diff(t) > 0)):
+        return slice(None)
+    order = np.argsort(t, kind="stable")
+    reordered = int(np.count_nonzero(np.diff(t) < 0)) if t.size > 1 else 0
+    keep = np.ones(order.size, dtype=bool)
+    keep[1:] = np.diff(t[order]) > 0
+    dropped = int(order.size - np.count_nonzero(keep))
+    if reordered:
+        warnings.append(f"{label}: {reordered} time steps backwards; samples sorted by time")
+    if dropped:
+        warnings.append(f"{label}: {dropped} samples with a repeated timestamp dropped")
+    return order[keep]
+
+
+def _build_imu(acc: _ImuAccumulator, warnings: list[str]) -> ImuData:
+    t = np.frombuffer(acc.t, dtype=float)
+    values = np.frombuffer(acc.values, dtype=float).reshape(-1, 6)
+    good = np.all(np.isfinite(values), axis=1)
+    if not np.all(good):
+        warnings.append(f"imu {acc.topic}: {int(np.sum(~good))} samples with NaN values dropped")
+        t, values = t[good], values[good]
+    idx = _sorted_unique(t, f"imu {acc.topic}", warnings)
+    if t[idx].size < 2:
+        raise InputError(f"imu topic {acc.topic}: fewer than 2 usable samples; check the recording")
+    return ImuData(t=t[idx], gyro=values[idx, :3], accel=values[idx, 3:])
+
+
+def _build_fixes(acc: _FixAccumulator, warnings: list[str]) -> GnssData:
+    t = np.frombuffer(acc.t, dtype=float)
+    rows = np.frombuffer(acc.rows, dtype=float).reshape(-1, len(_FixAccumulator.COLUMNS))
+    idx = _sorted_unique(t, f"gnss {acc.topic}", warnings)
+    t, rows = t[idx], rows[idx]
+    velocity = rows[:, 10:13]
+    return GnssData(
+        t=t,
+        lla=rows[:, 0:3],
+        std=rows[:, 3:6],
+        fix_quality=rows[:, 6],
+        hdop=rows[:, 7],
+        vdop=rows[:, 8],
+        pdop=rows[:, 9],
+        velocity=velocity,
+        speed=rows[:, 13],
+        course=rows[:, 14],
+        num_sats=rows[:, 15],
+    )
+
+
+def _build_nmea(acc: _NmeaAccumulator, path: Path, warnings: list[str]) -> GnssData:
+    acc.close()
+    try:
+        try:
+            from fgins.io.nmea import read_nmea
+        except ImportError as exc:
+            raise InputError(
+                f"{path}: topic {acc.topic} carries NMEA sentences but fgins.io.nmea is not "
+                "available; install a complete fgins"
+            ) from exc
+        parsed = read_nmea(acc.path)
+    finally:
+        acc.path.unlink(missing_ok=True)
+    gnss = parsed if isinstance(parsed, GnssData) else parsed.gnss
+    warnings.extend(f"gnss {acc.topic}: {line}" for line in getattr(parsed, "warnings", []))
+    stamps = np.frombuffer(acc.fix_stamps, dtype=float)
+    n = min(len(gnss), stamps.size)
+    if n:
+        # NMEA time is UTC (of day, or POSIX with a date); the bag's stamps are the time base of
+        # the IMU. Shift by the median offset between GGA stamps and parsed epochs.
+        offset = float(np.median(stamps[:n] - gnss.t[:n]))
+        if abs(offset) > 0.5:
+            gnss.t = gnss.t + offset
+            warnings.append(
+                f"gnss {acc.topic}: NMEA times shifted by {offset:.3f} s onto the message stamps"
+            )
+    return gnss
+
+
+def _attach_velocity(
+    gnss: GnssData, acc: _VelocityAccumulator, warnings: list[str], report: list[str]
+) -> None:
+    """Fill GNSS ENU velocity from a Twist topic, matched to the nearest fix in time."""
+    t_vel = np.frombuffer(acc.t, dtype=float)
+    rows = np.frombuffer(acc.rows, dtype=float).reshape(-1, 6)
+    idx = _sorted_unique(t_vel, f"gnss velocity {acc.topic}", warnings)
+    t_vel, rows = t_vel[idx], rows[idx]
+    if t_vel.size == 0 or len(gnss) == 0:
+        return
+    period = float(np.median(np.diff(gnss.t))) if len(gnss) > 1 else 1.0
+    tolerance = 0.25 * period
+    nearest = np.clip(np.searchsorted(t_vel, gnss.t), 1, max(t_vel.size - 1, 1))
+    left = np.clip(nearest - 1, 0, t_vel.size - 1)
+    right = np.clip(nearest, 0, t_vel.size - 1)
+    pick = np.where(np.abs(t_vel[left] - gnss.t) <= np.abs(t_vel[right] - gnss.t), left, right)
+    matched = np.abs(t_vel[pick] - gnss.t) <= tolerance
+    gnss.velocity[matched] = rows[pick[matched], :3]
+    gnss.velocity_std[matched] = rows[pick[matched], 3:]
+    report.append(
+        f"gnss velocity: {int(matched.sum())}/{len(gnss)} fixes matched to {acc.topic} "
+        f"(within {tolerance:.3f} s)"
+    )
+    if not matched.all():
+        warnings.append(
+            f"gnss velocity {acc.topic}: {int((~matched).sum())} fixes without a velocity "
+            f"within {tolerance:.3f} s"
+        )
+
+
+# --------------------------------------------------------------------------------------------
+# The reader
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass
+class _Candidate:
+    channel_id: int
+    topic: str
+    schema_name: str
+    role: str
+
+
+def _choose(
+    role: str,
+    candidates: list[_Candidate],
+    counts: dict[int, int],
+    override: str | None,
+    report: list[str],
+) -> _Candidate | None:
+    """The channel to read for one role: the override, else the one with most messages."""
+    mine = [c for c in candidates if c.role == role]
+    if override is not None:
+        chosen = [c for c in mine if c.topic == override]
+        if not chosen:
+            available = ", ".join(sorted({c.topic for c in mine})) or "none"
+            raise InputError(
+                f"{role} topic {override!r} not found among the {role} topics ({available}); "
+                "pick one of those"
+            )
+        report.append(f"{role}: {override} ({chosen[0].schema_name}) chosen by the user")
+        return chosen[0]
+    if not mine:
+        return None
+    ranked = sorted(mine, key=lambda c: (-counts.get(c.channel_id, 0), c.topic))
+    best = ranked[0]
+    if len(ranked) == 1:
+        why = "the only candidate"
+    else:
+        others = ", ".join(f"{c.topic} ({counts.get(c.channel_id, 0)})" for c in ranked[1:])
+        why = f"most messages of {len(ranked)} candidates; others: {others}"
+    report.append(
+        f"{role}: {best.topic} ({best.schema_name}, {counts.get(best.channel_id, 0)} messages), "
+        f"{why}"
+    )
+    return best
+
+
+_ROLES = (ROLE_IMU, ROLE_GNSS, ROLE_VELOCITY, ROLE_BARO)
+
+
+class _McapScan:
+    """One streaming pass: routes the messages of candidate channels into accumulators."""
+
+    def __init__(self, path: Path, use_header_stamp: bool, overrides: dict[str, str | None]):
+        self.path = path
+        self.use_header_stamp = use_header_stamp
+        self.overrides = overrides
+        self.report: list[str] = []
+        self.warnings: list[str] = []
+        self.schemas: dict[int, Schema] = {}
+        self.channels: dict[int, Channel] = {}
+        self.candidates: dict[int, _Candidate] = {}
+        self.skipped: dict[int, str] = {}  # channel id -> why it is not used
+        self.counts: dict[int, int] = {}
+        self.accumulators: dict[int, _Accumulator] = {}
+        self.decoders: dict[int, Callable[[bytes], Any] | None] = {}
+        self.outcome = _StreamOutcome()
+        self.chosen: dict[str, _Candidate] | None = None
+
+    # -- choosing ---------------------------------------------------------------------------
+
+    def choose(self, counts: dict[int, int]) -> None:
+        self.chosen = {}
+        for role in _ROLES:
+            pick = _choose(
+                role, list(self.candidates.values()), counts, self.overrides.get(role), self.report
+            )
+            if pick is not None:
+                self.chosen[role] = pick
+
+    def preselect_from_summary(self, summary: Any) -> None:
+        """With a summary, the channels and counts are known before any message is read."""
+        self.schemas.update(summary.schemas)
+        for channel in summary.channels.values():
+            self.on_channel(channel)
+        self.choose(dict(summary.statistics.channel_message_counts))
+        chosen_ids = {c.channel_id for c in self.chosen.values()}
+        for cid in list(self.accumulators):
+            if cid not in chosen_ids:
+                self.discard(cid)
+
+    # -- records ----------------------------------------------------------------------------
+
+    def on_channel(self, channel: Channel) -> None:
+        if channel.id in self.channels:
+            return
+        self.channels[channel.id] = channel
+        schema = self.schemas.get(channel.schema_id)
+        name = schema.name if schema is not None else ""
+        role = role_of_schema(name)
+        if role is None:
+            self.skipped[channel.id] = f"unknown schema {name or '(none)'}"
+            return
+        if channel.metadata.get(PRODUCER_KEY) == PRODUCER_FGINS:
+            # fgins's own output (smoothed fixes, copied GNSS) is not a sensor: never read back
+            self.skipped[channel.id] = f"{name} written by fgins, not a sensor"
+            return
+        if role == ROLE_IMU:
+            if channel.message_encoding != "cdr":
+                self.skipped[channel.id] = f"{name} in {channel.message_encoding} not supported"
+                return
+        else:
+            try:
+                decoder = _make_decoder(schema, channel)
+            except Exception as exc:  # a schema text the decoder cannot parse
+                decoder = None
+                self.warnings.append(f"{channel.topic}: cannot build a decoder for {name}: {exc}")
+            if decoder is None:
+                self.skipped[channel.id] = (
+                    f"{name} in {channel.message_encoding} cannot be decoded here"
+                )
+                return
+            self.decoders[channel.id] = decoder
+        self.candidates[channel.id] = _Candidate(channel.id, channel.topic, name, role)
+        if self.chosen is None or channel.id in {c.channel_id for c in self.chosen.values()}:
+            self.accumulators[channel.id] = _new_accumulator(role, channel.topic, name)
+
+    def on_message(self, record: Message) -> None:
+        cid = record.channel_id
+        self.counts[cid] = self.counts.get(cid, 0) + 1
+        acc = self.accumulators.get(cid)
+        if acc is None:
+            return
+        try:
+            if isinstance(acc, _ImuAccumulator):
+                acc.add_raw(record.data, record.log_time, self.use_header_stamp)
+            else:
+                message = self.decoders[cid](record.data)  # type: ignore[misc]
+                acc.add(message, record.log_time, self.use_header_stamp)  # type: ignore[attr-defined]
+        except Exception:  # one corrupt message must not end the read: counted, reported
+            acc.decode_errors += 1
+
+    def run(self, progress: bool) -> None:
+        for record in _stream_records(self.path, self.outcome, progress, self.path.name):
+            if isinstance(record, Message):
+                self.on_message(record)
+            elif isinstance(record, Schema):
+                self.schemas.setdefault(record.id, record)
+            elif isinstance(record, Channel):
+                self.on_channel(record)
+        if self.chosen is None:  # no summary: every candidate was read, choose now
+            self.choose(self.counts)
+            chosen_ids = {c.channel_id for c in self.chosen.values()}  # type: ignore[union-attr]
+            for cid in list(self.accumulators):
+                if cid not in chosen_ids:
+                    self.discard(cid)
+
+    def discard(self, channel_id: int) -> None:
+        acc = self.accumulators.pop(channel_id)
+        if isinstance(acc, _NmeaAccumulator):
+            acc.close()
+            acc.path.unlink(missing_ok=True)
+
+    def close(self) -> None:
+        for cid in list(self.accumulators):
+            self.discard(cid)
+
+
+def _accumulator_for(scan: _McapScan, role: str) -> _Accumulator | None:
+    chosen = (scan.chosen or {}).get(role)
+    return None if chosen is None else scan.accumulators.get(chosen.channel_id)
+
+
+def _assemble(scan: _McapScan) -> McapResult:
+    path, report, warnings = scan.path, scan.report, scan.warnings
+    if scan.outcome.truncated:
+        warnings.append(
+            f"{path}: recording is truncated ({scan.outcome.error}); read up to the cut"
+        )
+    for cid, why in sorted(scan.skipped.items()):
+        topic = scan.channels[cid].topic
+        report.append(f"skipped {topic}: {why} ({scan.counts.get(cid, 0)} messages)")
+    imu_acc = _accumulator_for(scan, ROLE_IMU)
+    gnss_acc = _accumulator_for(scan, ROLE_GNSS)
+    if imu_acc is None:
+        raise InputError(
+            f"{path}: no IMU channel (sensor_msgs/msg/Imu) found; record the IMU topic "
+            "or give an IMU CSV"
+        )
+    if gnss_acc is None:
+        raise InputError(
+            f"{path}: no GNSS channel (NavSatFix, GPSFix, foxglove.LocationFix, "
+            "nmea_msgs/Sentence) found; record a GNSS topic or give an NMEA/GNSS CSV"
+        )
+    for acc in scan.accumulators.values():
+        if acc.decode_errors:
+            warnings.append(f"{acc.topic}: {acc.decode_errors} messages could not be decoded")
+        if acc.stamp_fallbacks:
+            warnings.append(
+                f"{acc.topic}: {acc.stamp_fallbacks} messages with a zero header stamp; "
+                "their log time was used"
+            )
+    imu = _build_imu(imu_acc, warnings)  # type: ignore[arg-type]
+    if isinstance(gnss_acc, _NmeaAccumulator):
+        gnss = _build_nmea(gnss_acc, path, warnings)
+    else:
+        assert isinstance(gnss_acc, _FixAccumulator)
+        if gnss_acc.no_fix:
+            warnings.append(f"gnss {gnss_acc.topic}: {gnss_acc.no_fix} no-fix messages dropped")
+        gnss = _build_fixes(gnss_acc, warnings)
+    if len(gnss) == 0:
+        raise InputError(
+            f"{path}: GNSS topic {gnss_acc.topic} has no valid fix ({gnss_acc.decode_errors} "
+            "undecodable messages); nothing to anchor the trajectory"
+        )
+    velocity_acc = _accumulator_for(scan, ROLE_VELOCITY)
+    if velocity_acc is not None:
+        _attach_velocity(gnss, velocity_acc, warnings, report)  # type: ignore[arg-type]
+    baro = None
+    baro_acc = _accumulator_for(scan, ROLE_BARO)
+    if isinstance(baro_acc, _BaroAccumulator) and len(baro_acc):
+        t = np.frombuffer(baro_acc.t, dtype=float)
+        idx = _sorted_unique(t, f"baro {baro_acc.topic}", warnings)
+        baro = BaroData(t=t[idx], pressure=np.frombuffer(baro_acc.pressure, dtype=float)[idx])
+    origin = Origin(*(float(v) for v in gnss.lla[0]))
+    report.append(
+        f"read {len(imu)} IMU samples, {len(gnss)} GNSS fixes"
+        + (f", {len(baro.t)} barometer samples" if baro is not None else "")
+        + f"; origin at the first valid fix ({origin.lat:.7f}, {origin.lon:.7f}, "
+        f"{origin.alt:.2f} m)"
+    )
+    dataset = Dataset(
+        imu=imu,
+        gnss=gnss,
+        origin=origin,
+        baro=baro,
+        name=path.stem,
+        warnings=list(warnings),
+        metadata={
+            "source": str(path),
+            "format": "mcap",
+            "topics": {role: c.topic for role, c in (scan.chosen or {}).items()},
+            "time_base": "header stamp" if scan.use_header_stamp else "log time",
+        },
+    )
+    return McapResult(dataset=dataset, report=report, warnings=warnings)
+
+
+def read_mcap(
+    path: str | Path,
+    *,
+    imu_topic: str | None = None,
+    gnss_topic: str | None = None,
+    use_header_stamp: bool = True,
+    progress: bool = True,
+) -> McapResult:
+    """Read IMU, GNSS (+ GNSS velocity, barometer) from an MCAP file into a :class:`Dataset`.
+
+    Topics are chosen by schema; with several candidates for one role the one with most
+    messages is used (``imu_topic`` / ``gnss_topic`` override). Times are float seconds of the
+    header stamps (``use_header_stamp``; log time where a stamp is zero), else of the log
+    times. Raises :class:`InputError` for a file that is not an MCAP or lacks IMU or GNSS.
+    """
+    path = Path(path)
+    _check_magic(path)
+    scan = _McapScan(path, use_header_stamp, {ROLE_IMU: imu_topic, ROLE_GNSS: gnss_topic})
+    try:
+        summary = _read_summary(path)
+        if summary is not None:
+            scan.preselect_from_summary(summary)
+        scan.run(progress)
+        return _assemble(scan)
+    finally:
+        scan.close()
+
+
+# --------------------------------------------------------------------------------------------
+# Inspection
+# --------------------------------------------------------------------------------------------
+
+GAP_NOMINAL_PERIODS = 3.0  # a gap is an interval longer than this many nominal periods
+
+
+def _gap_lines(log_ns: np.ndarray) -> tuple[float, list[str]]:
+    """Nominal rate (Hz) and one line per gap (> 3 nominal periods) of a channel's log times."""
+    if log_ns.size < 2:
+        return math.nan, []
+    ordered = np.sort(log_ns)
+    dt = np.diff(ordered) / 1e9  # differences in integer ns first: no float cancellation
+    t = (ordered - ordered[0]) / 1e9
+    period = float(np.median(dt))
+    if period <= 0:
+        return math.nan, []
+    gaps = np.flatnonzero(dt > GAP_NOMINAL_PERIODS * period)
+    lines = [f"gap of {dt[i]:.3f} s at t+{t[i]:.3f} s" for i in gaps[:5]]
+    if gaps.size > 5:
+        lines.append(f"... {gaps.size - 5} more gaps")
+    return 1.0 / period, lines
+
+
+def summarize_mcap(path: str | Path, *, progress: bool = False) -> str:
+    """A human-readable overview of an MCAP file (for ``fgins inspect``).
+
+    Channels with schema, encoding, role for fgins, message count, nominal rate, time span and
+    gaps (> 3 nominal periods); whether a summary section exists; truncation.
+    """
+    path = Path(path)
+    _check_magic(path)
+    outcome = _StreamOutcome()
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    log_times: dict[int, array] = {}
+    for record in _stream_records(path, outcome, progress, f"inspecting {path.name}"):
+        if isinstance(record, Message):
+            log_times.setdefault(record.channel_id, array("q")).append(record.log_time)
+        elif isinstance(record, Schema):
+            schemas.setdefault(record.id, record)
+        elif isinstance(record, Channel):
+            channels.setdefault(record.id, record)
+    size_mb = path.stat().st_size / 1e6
+    lines = [f"{path} ({size_mb:.1f} MB)"]
+    if outcome.truncated:
+        lines.append(f"TRUNCATED: {outcome.error}; everything before the cut is listed")
+    lines.append(
+        "summary section: "
+        + ("yes" if outcome.has_summary else "no (fgins streams the whole file to choose topics)")
+    )
+    all_times = [np.frombuffer(v, dtype=np.int64) for v in log_times.values() if len(v)]
+    if all_times:
+        start = min(int(a.min()) for a in all_times)
+        end = max(int(a.max()) for a in all_times)
+        total = sum(a.size for a in all_times)
+        lines.append(
+            f"time span: {start / 1e9:.3f} .. {end / 1e9:.3f} s ({(end - start) / 1e9:.3f} s), "
+            f"{total} messages, {len(channels)} channels"
+        )
+    else:
+        lines.append(f"no messages, {len(channels)} channels")
+    for cid in sorted(channels, key=lambda c: channels[c].topic):
+        channel = channels[cid]
+        schema = schemas.get(channel.schema_id)
+        name = schema.name if schema is not None else "(no schema)"
+        role = role_of_schema(name) or "not used"
+        if channel.metadata.get(PRODUCER_KEY) == PRODUCER_FGINS:
+            role = "fgins output, not read as a sensor"
+        times = np.frombuffer(log_times.get(cid, array("q")), dtype=np.int64)
+        rate, gaps = _gap_lines(times)
+        rate_text = f"{rate:.2f} Hz" if math.isfinite(rate) else "rate n/a"
+        span = f"{(times.max() - times.min()) / 1e9:.3f} s" if times.size else "empty"
+        lines.append(
+            f"  {channel.topic}: {name} [{channel.message_encoding}] -> {role}; "
+            f"{times.size} messages, {rate_text}, span {span}"
+        )
+        lines.extend(f"      {gap}" for gap in gaps)
+    return "\n".join(lines)

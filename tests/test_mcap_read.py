@@ -1,0 +1,232 @@
+"""read_mcap / summarize_mcap against files written by independent libraries (rosbags,
+foxglove-sdk, the plain mcap writer) from a synthetic drive with known values."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rosbags", reason="test extra: pip install rosbags")
+pytest.importorskip("foxglove", reason="test extra: pip install foxglove-sdk")
+pytest.importorskip("mcap_protobuf", reason="test extra: pip install mcap-protobuf-support")
+
+from fgins.io.mcap import read_mcap, summarize_mcap
+from fgins.tests.mcap_fixtures import (
+    LOG_LATENCY_NS,
+    Drive,
+    drive_from_dataset,
+    gga_sentences,
+    make_drive,
+    write_foxglove_json,
+    write_foxglove_protobuf,
+    write_ros2_bag,
+)
+from fgins.types import InputError
+
+
+@pytest.fixture(scope="module")
+def drive() -> Drive:
+    return make_drive(duration_s=20.0)
+
+
+@pytest.fixture(scope="module")
+def ros2_bag(drive: Drive, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return write_ros2_bag(tmp_path_factory.mktemp("ros2") / "bag", drive, second_imu_every=3)
+
+
+def test_ros2_bag_values_are_read_exactly(ros2_bag: Path, drive: Drive) -> None:
+    result = read_mcap(ros2_bag, progress=False)
+    data = result.dataset
+    valid = drive.valid
+    # Header stamps are the time base: ns / 1e9 exactly.
+    np.testing.assert_array_equal(data.imu.t, drive.imu_ns / 1e9)
+    np.testing.assert_array_equal(data.imu.gyro, drive.gyro)
+    np.testing.assert_array_equal(data.imu.accel, drive.accel)
+    np.testing.assert_array_equal(data.gnss.t, drive.gnss_ns[valid] / 1e9)
+    np.testing.assert_array_equal(data.gnss.lla, drive.lla[valid])
+    # std from the covariance diagonal (the off-diagonal 0.3 must not leak in)
+    np.testing.assert_allclose(data.gnss.std, drive.std[valid], rtol=1e-14)
+    np.testing.assert_array_equal(data.gnss.velocity, drive.velocity[valid])
+    np.testing.assert_allclose(data.gnss.velocity_std, drive.velocity_std[valid], rtol=1e-14)
+    assert np.all(data.gnss.fix_quality == 1)
+    assert data.baro is not None
+    np.testing.assert_array_equal(data.baro.t, drive.baro_ns / 1e9)
+    np.testing.assert_array_equal(data.baro.pressure, drive.pressure)
+    first = drive.lla[valid][0]
+    assert (data.origin.lat, data.origin.lon, data.origin.alt) == tuple(first)
+    no_fix = int(np.sum(~valid))
+    assert no_fix > 0
+    assert any(f"{no_fix} no-fix messages dropped" in w for w in result.warnings)
+
+
+def test_log_time_is_used_when_asked(ros2_bag: Path, drive: Drive) -> None:
+    data = read_mcap(ros2_bag, use_header_stamp=False, progress=False).dataset
+    np.testing.assert_array_equal(data.imu.t, (drive.imu_ns + LOG_LATENCY_NS) / 1e9)
+    assert data.metadata["time_base"] == "log time"
+
+
+def test_candidate_with_most_messages_is_chosen_and_reported(ros2_bag: Path) -> None:
+    result = read_mcap(ros2_bag, progress=False)
+    imu_line = next(line for line in result.report if line.startswith("imu:"))
+    assert "/imu/data" in imu_line and "most messages" in imu_line and "/imu/raw" in imu_line
+    assert result.dataset.metadata["topics"]["imu"] == "/imu/data"
+
+
+def test_override_picks_the_sparser_imu(ros2_bag: Path, drive: Drive) -> None:
+    result = read_mcap(ros2_bag, imu_topic="/imu/raw", progress=False)
+    np.testing.assert_array_equal(result.dataset.imu.t, drive.imu_ns[::3] / 1e9)
+    np.testing.assert_array_equal(result.dataset.imu.gyro, drive.gyro[::3])
+    assert any("chosen by the user" in line for line in result.report)
+
+
+def test_override_of_a_missing_topic_is_an_input_error(ros2_bag: Path) -> None:
+    with pytest.raises(InputError, match="/imu/nope"):
+        read_mcap(ros2_bag, imu_topic="/imu/nope", progress=False)
+    with pytest.raises(InputError, match="/gps/vel"):
+        # a velocity topic is not a GNSS position topic
+        read_mcap(ros2_bag, gnss_topic="/gps/vel", progress=False)
+
+
+def test_unknown_schema_is_skipped_and_listed(ros2_bag: Path) -> None:
+    result = read_mcap(ros2_bag, progress=False)
+    assert any(
+        "/mystery" in line and "acme_msgs/msg/Mystery" in line and "7 messages" in line
+        for line in result.report
+    )
+
+
+def test_missing_imu_is_an_input_error(drive: Drive, tmp_path: Path) -> None:
+    path = write_ros2_bag(tmp_path / "bag", drive, with_imu=False)
+    with pytest.raises(InputError, match="no IMU channel"):
+        read_mcap(path, progress=False)
+
+
+def test_not_an_mcap_is_an_input_error(tmp_path: Path) -> None:
+    path = tmp_path / "drive.mcap"
+    path.write_text("time,lat,lon\n1,2,3\n")
+    with pytest.raises(InputError, match="not an MCAP"):
+        read_mcap(path, progress=False)
+    with pytest.raises(InputError, match="no such file"):
+        read_mcap(tmp_path / "missing.mcap", progress=False)
+    with pytest.raises(InputError, match="not an MCAP"):
+        summarize_mcap(path)
+
+
+def _assert_location_fixes(data, drive: Drive) -> None:
+    valid = drive.valid
+    np.testing.assert_array_equal(data.gnss.t, drive.gnss_ns[valid] / 1e9)
+    np.testing.assert_array_equal(data.gnss.lla, drive.lla[valid])
+    np.testing.assert_allclose(data.gnss.std, drive.std[valid], rtol=1e-14)
+    np.testing.assert_array_equal(data.imu.t, drive.imu_ns / 1e9)
+    np.testing.assert_array_equal(data.imu.accel, drive.accel)
+
+
+def test_foxglove_protobuf_location_fix(drive: Drive, tmp_path: Path) -> None:
+    path = write_foxglove_protobuf(tmp_path / "foxglove.mcap", drive)
+    result = read_mcap(path, progress=False)
+    _assert_location_fixes(result.dataset, drive)
+    # the LocationFix velocity field (ENU) is carried through
+    np.testing.assert_array_equal(result.dataset.gnss.velocity, drive.velocity[drive.valid])
+    assert result.warnings == []
+
+
+def test_foxglove_json_location_fix(drive: Drive, tmp_path: Path) -> None:
+    path = write_foxglove_json(tmp_path / "json.mcap", drive)
+    result = read_mcap(path, progress=False)
+    _assert_location_fixes(result.dataset, drive)
+    assert np.all(np.isnan(result.dataset.gnss.velocity))
+
+
+def test_gpsfix_dops_and_velocity(drive: Drive, tmp_path: Path) -> None:
+    path = write_ros2_bag(tmp_path / "bag", drive, gpsfix=True, with_velocity=False)
+    gnss = read_mcap(path, progress=False).dataset.gnss
+    valid = drive.valid
+    np.testing.assert_array_equal(gnss.lla, drive.lla[valid])
+    np.testing.assert_allclose(gnss.hdop, (0.9 + 0.01 * np.arange(valid.size))[valid])
+    np.testing.assert_allclose(gnss.vdop, 1.4)
+    assert np.all(gnss.num_sats == 9)
+    # velocity rebuilt from track/speed/climb
+    np.testing.assert_allclose(gnss.velocity, drive.velocity[valid], atol=1e-12)
+    assert np.all(np.isnan(gnss.std))  # covariance type UNKNOWN: not used
+
+
+def test_nmea_sentences_are_parsed(drive: Drive, tmp_path: Path) -> None:
+    pytest.importorskip("fgins.io.nmea", reason="fgins.io.nmea (read_nmea) not available yet")
+    sentences = gga_sentences(drive)
+    path = write_ros2_bag(tmp_path / "bag", drive, nmea_sentences=sentences, with_velocity=False)
+    result = read_mcap(path, progress=False)
+    gnss = result.dataset.gnss
+    valid = drive.valid
+    assert len(gnss) == len(sentences)
+    # GGA carries 1e-7 arc-minutes: < 2e-9 deg; ellipsoidal height = MSL + separation
+    np.testing.assert_allclose(gnss.lla[:, :2], drive.lla[valid, :2], atol=3e-9)
+    np.testing.assert_allclose(gnss.lla[:, 2], drive.lla[valid, 2], atol=1e-3)
+    # times on the bag's stamps (the IMU's time base), not UTC of day
+    np.testing.assert_allclose(gnss.t, drive.gnss_ns[valid] / 1e9, atol=1e-3)
+
+
+def test_truncated_recording_reads_a_prefix(drive: Drive, tmp_path: Path) -> None:
+    full_path = write_foxglove_json(tmp_path / "full.mcap", drive, chunk_size=8192)
+    full = read_mcap(full_path, progress=False).dataset
+    cut_path = tmp_path / "cut.mcap"
+    data = full_path.read_bytes()
+    cut_path.write_bytes(data[: int(0.6 * len(data))])
+    result = read_mcap(cut_path, progress=False)
+    cut = result.dataset
+    assert any("truncated" in w for w in result.warnings)
+    n_imu, n_gnss = len(cut.imu), len(cut.gnss)
+    assert 0.3 * len(full.imu) < n_imu < 0.8 * len(full.imu)
+    np.testing.assert_array_equal(cut.imu.t, full.imu.t[:n_imu])
+    np.testing.assert_array_equal(cut.imu.gyro, full.imu.gyro[:n_imu])
+    np.testing.assert_array_equal(cut.gnss.lla, full.gnss.lla[:n_gnss])
+    summary = summarize_mcap(cut_path)
+    assert "TRUNCATED" in summary and "summary section: no" in summary
+
+
+def test_summary_lists_channels_rates_and_gaps(drive: Drive, tmp_path: Path) -> None:
+    keep = np.ones(drive.imu_ns.size, dtype=bool)
+    t = (drive.imu_ns - drive.imu_ns[0]) / 1e9
+    keep[(t >= 5.0) & (t < 6.0)] = False  # a 1 s hole in a 100 Hz stream
+    path = write_foxglove_json(tmp_path / "gap.mcap", drive, imu_keep=keep)
+    text = summarize_mcap(path)
+    assert "summary section: yes" in text
+    imu_line = next(line for line in text.splitlines() if line.strip().startswith("/imu:"))
+    assert f"{int(keep.sum())} messages" in imu_line and "100.00 Hz" in imu_line
+    assert "gap of 1.010 s at t+4.990 s" in text
+    fix_line = next(line for line in text.splitlines() if "/gps/location" in line)
+    assert f"{int(drive.valid.sum())} messages" in fix_line and "-> gnss" in fix_line
+
+
+def test_repeated_and_backward_stamps_are_sorted_and_counted(tmp_path: Path) -> None:
+    drive = make_drive(duration_s=5.0)
+    drive.imu_ns[10] = drive.imu_ns[9]  # a repeated stamp
+    drive.imu_ns[20], drive.imu_ns[21] = drive.imu_ns[21], drive.imu_ns[20]  # a backward step
+    path = write_ros2_bag(tmp_path / "bag", drive, with_unknown=False)
+    result = read_mcap(path, progress=False)
+    imu = result.dataset.imu
+    assert len(imu) == drive.imu_ns.size - 1
+    assert np.all(np.diff(imu.t) > 0)
+    assert any("1 samples with a repeated timestamp dropped" in w for w in result.warnings)
+    # the swapped pair is put back in time order with its own values
+    k = int(np.searchsorted(imu.t, drive.imu_ns[21] / 1e9))
+    np.testing.assert_array_equal(imu.gyro[k], drive.gyro[21])
+
+
+def test_simulated_urban_drive_round_trips_through_a_ros2_bag(tmp_path: Path) -> None:
+    scenarios = pytest.importorskip("fgins.sim.scenarios", reason="fgins.sim not available yet")
+    if "car-urban" not in scenarios.SCENARIOS:
+        pytest.skip("scenario car-urban not available yet")
+    start = 1_000.0
+    run = scenarios.SCENARIOS["car-urban"](seed=0, duration_s=30, start_time_s=start)
+    drive = drive_from_dataset(run.dataset, start)
+    path = write_ros2_bag(tmp_path / "bag", drive, with_baro=drive.baro_ns.size > 0)
+    data = read_mcap(path, progress=False).dataset
+    valid = drive.valid
+    np.testing.assert_array_equal(data.imu.t, drive.imu_ns / 1e9)
+    np.testing.assert_allclose(data.imu.t - data.imu.t[0], run.dataset.imu.t - start, atol=1e-6)
+    np.testing.assert_array_equal(data.imu.gyro, run.dataset.imu.gyro)
+    np.testing.assert_array_equal(data.imu.accel, run.dataset.imu.accel)
+    np.testing.assert_array_equal(data.gnss.lla, run.dataset.gnss.lla[valid])
+    np.testing.assert_allclose(data.gnss.std, run.dataset.gnss.std[valid], rtol=1e-14)
