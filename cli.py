@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from fgins import __version__
-from fgins.config import IMU_PRESETS, RunConfig, load_config
+from fgins.config import IMU_PRESETS, RunConfig, config_for_dataset
 from fgins.outages import outage_mask, parse_windows
 from fgins.pipeline import METHODS, run_method
 from fgins.types import Dataset, FginsError, Trajectory
@@ -101,16 +101,9 @@ def _progress(args: argparse.Namespace) -> bool:
 
 
 def _config_for(dataset: Dataset, args: argparse.Namespace) -> RunConfig:
-    config = load_config(
-        args.config,
-        dataset_imu=dataset.imu_config,
-        dataset_gnss=dataset.gnss_config,
-        imu_preset=args.imu_preset,
+    return config_for_dataset(
+        dataset, args.config, imu_preset=args.imu_preset, vehicle=args.vehicle
     )
-    vehicle = args.vehicle or dataset.vehicle
-    if vehicle:
-        config.smoother.vehicle = vehicle
-    return config
 
 
 def write_output(

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
-from fgins.types import FginsError
+from fgins.types import Dataset, FginsError
 
 STANDARD_GRAVITY = 9.80665
 DEG = math.pi / 180.0
@@ -195,9 +195,27 @@ class SmootherConfig:
     min_keyframe_interval_s: float = 0.2
     suspect_noise_factor: float = 30.0
     initial_heading_deg: float | None = None
-    vehicle: str = "car"
+    # Vehicle type decides the land-vehicle constraints: "car" turns on NHC and ZUPT.
+    vehicle: str = "other"
+    use_nhc: bool | None = None  # None: on for cars
+    use_zupt: bool | None = None  # None: on for cars
+    nhc_sigma_lateral_m_per_s: float = 0.1  # slip and the IMU's offset from the rear axle
+    nhc_sigma_vertical_m_per_s: float = 0.2
+    imu_to_vehicle_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    zupt_sigma_m_per_s: float = 0.02
+    zupt_max_speed_m_per_s: float = 1.5  # the predicted speed must agree that it is a stop
+    baro_sigma_m: float = 0.5
+    baro_bias_walk_m_per_sqrt_s: float = 0.05
     isam2_relinearize_threshold: float = 0.01
     batch_max_iterations: int = 100
+
+    @property
+    def nhc(self) -> bool:
+        return self.use_nhc if self.use_nhc is not None else self.vehicle == "car"
+
+    @property
+    def zupt(self) -> bool:
+        return self.use_zupt if self.use_zupt is not None else self.vehicle == "car"
 
 
 @dataclass
@@ -207,6 +225,7 @@ class RunConfig:
     imu: dict[str, Any] = field(default_factory=dict)
     gnss: GnssConfig = field(default_factory=GnssConfig)
     smoother: SmootherConfig = field(default_factory=SmootherConfig)
+    explicit_smoother_keys: frozenset[str] = frozenset()
 
     def imu_noise(self) -> ImuNoise:
         return imu_noise_from_config(self.imu)
@@ -247,4 +266,34 @@ def load_config(
         raise FginsError(
             f"[smoother]: unknown key(s) {', '.join(sorted(set(smoother_table) - known))}"
         )
-    return RunConfig(imu=imu, gnss=gnss, smoother=SmootherConfig(**smoother_table))
+    if "imu_to_vehicle_rpy_deg" in smoother_table:
+        smoother_table["imu_to_vehicle_rpy_deg"] = tuple(smoother_table["imu_to_vehicle_rpy_deg"])
+    return RunConfig(
+        imu=imu,
+        gnss=gnss,
+        smoother=SmootherConfig(**smoother_table),
+        explicit_smoother_keys=frozenset(smoother_table),
+    )
+
+
+def config_for_dataset(
+    dataset: Dataset,
+    path: str | Path | None = None,
+    *,
+    imu_preset: str | None = None,
+    vehicle: str | None = None,
+) -> RunConfig:
+    """The run configuration of a dataset: its own sensor settings and vehicle type, then a
+    TOML file, then command-line choices."""
+    config = load_config(
+        path,
+        dataset_imu=dataset.imu_config,
+        dataset_gnss=dataset.gnss_config,
+        imu_preset=imu_preset,
+    )
+    chosen = vehicle or dataset.vehicle
+    if chosen and "vehicle" not in config.explicit_smoother_keys:
+        config.smoother.vehicle = chosen
+    if vehicle:
+        config.smoother.vehicle = vehicle
+    return config

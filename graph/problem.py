@@ -15,8 +15,10 @@ from tqdm import tqdm
 
 from fgins.alignment import Alignment, initial_alignment
 from fgins.config import ImuNoise, RunConfig
+from fgins.factors import baro as baro_model
 from fgins.factors import gnss as gnss_model
 from fgins.factors import imu as imu_model
+from fgins.factors import vehicle as vehicle_model
 from fgins.geodesy import earth_rate_enu, normal_gravity
 from fgins.graph.keyframes import Segments, build_segments, keyframe_times
 from fgins.types import Dataset, InputError
@@ -37,7 +39,11 @@ class Problem:
     alignment: Alignment
     gravity: np.ndarray
     omega_earth: np.ndarray
+    quiet: np.ndarray  # (K,) the IMU is quiet around keyframe k (a stop, if the speed agrees)
+    baro_pressure: np.ndarray  # (K,) mean pressure (Pa) around keyframe k, NaN where none
+    imu_to_vehicle: np.ndarray
     info: dict[str, object] = field(default_factory=dict)
+    zupt_keyframes: set[int] = field(default_factory=set)
 
     @property
     def n_keyframes(self) -> int:
@@ -64,11 +70,60 @@ class Problem:
         )
         return graph
 
-    def keyframe_factors(self, k: int) -> gtsam.NonlinearFactorGraph:
-        """Factors that arrive with keyframe k: the IMU factor from k-1 and k's GNSS."""
+    def keyframe_factors(
+        self, k: int, predicted_speed: float | None = None
+    ) -> gtsam.NonlinearFactorGraph:
+        """Factors that arrive with keyframe k: the IMU factor from k-1, k's GNSS, barometer and
+        land-vehicle constraints. ``predicted_speed`` (the current best guess of the speed at
+        k) must confirm a stop before the quiet IMU is taken as one."""
         graph = gtsam.NonlinearFactorGraph()
+        smoother = self.config.smoother
         if k > 0:
             graph.add(imu_model.combined_imu_factor(k - 1, k, self.pims[k - 1]))
+        if smoother.nhc:
+            graph.add(
+                vehicle_model.nhc_factor(
+                    X(k), V(k), smoother.nhc_sigma_lateral_m_per_s,
+                    smoother.nhc_sigma_vertical_m_per_s, self.imu_to_vehicle,
+                )
+            )  # fmt: skip
+        stopped = (
+            smoother.zupt
+            and bool(self.quiet[k])
+            and predicted_speed is not None
+            and predicted_speed < smoother.zupt_max_speed_m_per_s
+        )
+        if stopped:
+            graph.add(vehicle_model.zero_velocity_factor(V(k), smoother.zupt_sigma_m_per_s))
+            if k - 1 in self.zupt_keyframes:
+                graph.add(vehicle_model.no_motion_factor(X(k - 1), X(k), np.radians(0.01), 0.01))
+            self.zupt_keyframes.add(k)
+        if self.has_baro:
+            if k == 0:
+                graph.add(
+                    gtsam.PriorFactorDouble(
+                        baro_model.baro_key(0),
+                        self.baro_bias0,
+                        gtsam.noiseModel.Isotropic.Sigma(1, 100.0),
+                    )
+                )
+            else:
+                dt = float(self.segments.times[k] - self.segments.times[k - 1])
+                graph.add(
+                    baro_model.bias_walk_factor(
+                        baro_model.baro_key(k - 1), baro_model.baro_key(k), dt,
+                        smoother.baro_bias_walk_m_per_sqrt_s,
+                    )
+                )  # fmt: skip
+            if np.isfinite(self.baro_pressure[k]):
+                graph.add(
+                    baro_model.pressure_factor(
+                        X(k),
+                        baro_model.baro_key(k),
+                        float(self.baro_pressure[k]),
+                        smoother.baro_sigma_m,
+                    )
+                )
         g = int(self.gnss_at[k])
         if g >= 0:
             graph.add(
@@ -84,6 +139,30 @@ class Problem:
                     velocity[2], sigma[2] = 0.0, 1e3
                 graph.add(gnss_model.velocity_factor(V(k), velocity, sigma))
         return graph
+
+    @property
+    def has_baro(self) -> bool:
+        return bool(np.any(np.isfinite(self.baro_pressure)))
+
+    @property
+    def baro_bias0(self) -> float:
+        first = int(np.flatnonzero(np.isfinite(self.baro_pressure))[0])
+        # Up at the first baro keyframe is roughly the alignment's up (near the start).
+        return baro_model.initial_bias(
+            float(self.alignment.position[2]), float(self.baro_pressure[first])
+        )
+
+    def insert_extra_values(
+        self, k: int, values: gtsam.Values, estimate: gtsam.Values | None = None
+    ) -> None:
+        """Initial values of keyframe k's non-navigation states (barometer bias)."""
+        if self.has_baro:
+            key = baro_model.baro_key(k)
+            previous = baro_model.baro_key(k - 1) if k > 0 else None
+            if estimate is not None and previous is not None and estimate.exists(previous):
+                values.insert(key, estimate.atDouble(previous))
+            else:
+                values.insert(key, self.baro_bias0)
 
     def predict(
         self, k: int, state: gtsam.NavState, bias: gtsam.imuBias.ConstantBias
@@ -148,6 +227,10 @@ def build_problem(
         span = segments.interval(i)
         imu_model.integrate(pim, accel[span], gyro[span], segments.dt[span])
         pims.append(pim)
+    quiet = _quiet_imu(imu, times, noise)
+    baro_pressure = _baro_at(dataset, times)
+    roll, pitch, yaw = np.radians(config.smoother.imu_to_vehicle_rpy_deg)
+    imu_to_vehicle = gtsam.Rot3.Ypr(yaw, pitch, roll).matrix()
     return Problem(
         dataset=dataset,
         config=config,
@@ -162,6 +245,9 @@ def build_problem(
         alignment=alignment,
         gravity=np.array([0.0, 0.0, -normal_gravity(dataset.origin.lat, dataset.origin.alt)]),
         omega_earth=earth_rate_enu(dataset.origin.lat),
+        quiet=quiet,
+        baro_pressure=baro_pressure,
+        imu_to_vehicle=imu_to_vehicle,
         info={
             "gnss_gating": gate_summary,
             "gnss_epochs_used": int(matched.sum()),
@@ -181,3 +267,43 @@ def _decimate(t: np.ndarray, min_interval: float) -> np.ndarray:
             keep[i] = True
             last = ti
     return keep
+
+
+def _quiet_imu(imu, times: np.ndarray, noise: ImuNoise, half_window_s: float = 0.5) -> np.ndarray:
+    """True where the IMU shows no motion within +-half_window_s of a keyframe.
+
+    Thresholds sit well above the sensor's own white noise at its sample rate and below what
+    a moving road vehicle's vibration gives.
+    """
+    rate = imu.rate_hz
+    gyro_threshold = max(4.0 * noise.gyro_noise * np.sqrt(rate), 0.005)
+    accel_threshold = max(4.0 * noise.accel_noise * np.sqrt(rate), 0.05)
+    turn_threshold = max(3.0 * noise.gyro_bias_prior, 0.01)
+    lo = np.searchsorted(imu.t, times - half_window_s)
+    hi = np.searchsorted(imu.t, times + half_window_s)
+    quiet = np.zeros(len(times), dtype=bool)
+    for k, (a, b) in enumerate(zip(lo, hi, strict=True)):
+        if b - a < 5:
+            continue
+        gyro_std = imu.gyro[a:b].std(axis=0).max()
+        accel_std = imu.accel[a:b].std(axis=0).max()
+        # A steady turn is smooth too: the mean rate must be no more than a bias could give.
+        turning = np.linalg.norm(imu.gyro[a:b].mean(axis=0)) > turn_threshold
+        quiet[k] = gyro_std < gyro_threshold and accel_std < accel_threshold and not turning
+    return quiet
+
+
+def _baro_at(dataset: Dataset, times: np.ndarray, half_window_s: float = 0.25) -> np.ndarray:
+    """Mean barometric pressure within +-half_window_s of each keyframe (NaN where none)."""
+    out = np.full(len(times), np.nan)
+    baro = dataset.baro
+    if baro is None or not np.any(np.isfinite(baro.pressure)):
+        return out
+    valid = np.isfinite(baro.pressure)
+    t, pressure = baro.t[valid], baro.pressure[valid]
+    lo = np.searchsorted(t, times - half_window_s)
+    hi = np.searchsorted(t, times + half_window_s)
+    for k, (a, b) in enumerate(zip(lo, hi, strict=True)):
+        if b > a:
+            out[k] = pressure[a:b].mean()
+    return out

@@ -43,6 +43,7 @@ def initial_values(problem: Problem) -> gtsam.Values:
         values.insert(X(k), state.pose())
         values.insert(V(k), state.velocity())
         values.insert(B(k), bias)
+        problem.insert_extra_values(k, values)
     return values
 
 
@@ -150,10 +151,12 @@ def _to_trajectory(
 def smooth_batch(problem: Problem, progress: bool = True) -> Trajectory:
     """Levenberg-Marquardt over the whole drive, covariances from the marginals."""
     started = time.perf_counter()
+    problem.zupt_keyframes.clear()
     graph = problem.prior_factors()
-    for k in range(problem.n_keyframes):
-        graph.push_back(problem.keyframe_factors(k))
     initial = initial_values(problem)
+    for k in range(problem.n_keyframes):
+        speed = float(np.linalg.norm(initial.atVector(V(k))))
+        graph.push_back(problem.keyframe_factors(k, speed))
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(problem.config.smoother.batch_max_iterations)
     params.setRelativeErrorTol(1e-6)
@@ -183,6 +186,7 @@ def smooth_batch(problem: Problem, progress: bool = True) -> Trajectory:
 def smooth_isam2(problem: Problem, progress: bool = True) -> tuple[Trajectory, Trajectory]:
     """One iSAM2 update per keyframe. Returns (final smoothed, online filtered) trajectories."""
     started = time.perf_counter()
+    problem.zupt_keyframes.clear()
     params = gtsam.ISAM2Params()
     params.setRelinearizeThreshold(problem.config.smoother.isam2_relinearize_threshold)
     params.relinearizeSkip = 1
@@ -198,13 +202,14 @@ def smooth_isam2(problem: Problem, progress: bool = True) -> tuple[Trajectory, T
     bias = gtsam.imuBias.ConstantBias()
     for k in tqdm(range(n), desc="iSAM2", unit="kf", disable=not progress, leave=False):
         graph = problem.prior_factors() if k == 0 else gtsam.NonlinearFactorGraph()
-        graph.push_back(problem.keyframe_factors(k))
         new_values = gtsam.Values()
         if k > 0:
             state = problem.predict(k - 1, state, bias)
+        graph.push_back(problem.keyframe_factors(k, float(np.linalg.norm(state.velocity()))))
         new_values.insert(X(k), state.pose())
         new_values.insert(V(k), state.velocity())
         new_values.insert(B(k), bias)
+        problem.insert_extra_values(k, new_values, online_values)
         try:
             isam.update(graph, new_values)
         except RuntimeError as exc:

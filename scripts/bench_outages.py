@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 
 from fgins.bench.outages import BenchCase, markdown_table, run_case, write_results
-from fgins.config import load_config
+from fgins.config import config_for_dataset
 from fgins.pipeline import METHODS
 
 KITTI_PROTOCOLS = {
@@ -26,7 +26,7 @@ def kitti_cases() -> list[BenchCase]:
     from fgins.io.kitti import read_kitti
 
     dataset = read_kitti()
-    config = load_config(dataset_imu=dataset.imu_config, dataset_gnss=dataset.gnss_config)
+    config = config_for_dataset(dataset)
     return [
         BenchCase(f"kitti-{name}", dataset, config, windows)
         for name, windows in KITTI_PROTOCOLS.items()
@@ -39,18 +39,14 @@ def sim_cases(names: list[str], seed: int) -> list[BenchCase]:
     cases = []
     for name in names:
         run = SCENARIOS[name](seed=seed)
-        config = load_config(
-            dataset_imu=run.dataset.imu_config, dataset_gnss=run.dataset.gnss_config
-        )
+        config = config_for_dataset(run.dataset)
         duration = run.dataset.gnss.t[-1] - run.dataset.t0
         # The scenario's own outages when it has them, else 30 s and 60 s windows.
         windows = run.outages or [
             (duration * 0.3, duration * 0.3 + 30),
             (duration * 0.65, duration * 0.65 + 60),
         ]
-        if run.outages:
-            # Scenario outages are already removed from its GNSS; score them against truth.
-            pass
+        # (Scenario outages are already removed from its GNSS; they are scored against truth.)
         cases.append(BenchCase(name, run.dataset, config, windows, truth=run.truth))
     return cases
 
