@@ -104,6 +104,22 @@ def _nav_covariances(pose_cov: np.ndarray, rotation: np.ndarray) -> tuple[np.nda
     return attitude, position
 
 
+def _marginal_function(graph: gtsam.NonlinearFactorGraph, result: gtsam.Values):
+    """Marginal covariance lookup: Cholesky (fast); QR through iSAM2 when Cholesky calls the
+    system indeterminate, which tight bias random walks of tactical-grade IMUs can provoke."""
+    try:
+        marginals = gtsam.Marginals(graph, result)
+        # Cholesky failures surface on the first query, not in the constructor.
+        marginals.marginalCovariance(result.keys()[0])
+        return marginals.marginalCovariance
+    except RuntimeError:
+        params = gtsam.ISAM2Params()
+        params.setFactorization("QR")
+        isam = gtsam.ISAM2(params)
+        isam.update(graph, result)
+        return isam.marginalCovariance
+
+
 def _marginal_covariances(
     problem: Problem, marginal_pose, marginal_velocity, values: gtsam.Values, progress: bool
 ) -> dict[str, np.ndarray]:
@@ -164,10 +180,8 @@ def smooth_batch(problem: Problem, progress: bool = True) -> Trajectory:
     optimizer = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
     result = optimizer.optimize()
     solved = time.perf_counter()
-    marginals = gtsam.Marginals(graph, result)
-    covariances = _marginal_covariances(
-        problem, marginals.marginalCovariance, marginals.marginalCovariance, result, progress
-    )
+    marginal = _marginal_function(graph, result)
+    covariances = _marginal_covariances(problem, marginal, marginal, result, progress)
     states = _states_from_values(problem, result, covariances)
     trajectory = _to_trajectory(problem, states, "batch", smoothed=True)
     trajectory.timings.update(

@@ -1,0 +1,146 @@
+"""GNSS measurements for the Kalman baselines: which epochs, their values, sigmas and models.
+
+The epochs, sigmas and gating come from :mod:`fgins.factors.gnss` (the one GNSS noise model
+of the project) exactly as the factor graph uses them; only the linearisation lives here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from statistics import NormalDist
+
+import numpy as np
+
+from fgins.baseline.mechanization import ATT, GYRO_BIAS, POS, STATE_DIM, VEL, NominalState
+from fgins.config import RunConfig
+from fgins.factors import gnss as gnss_model
+from fgins.types import Dataset, InputError
+
+
+@dataclass
+class GnssEpochs:
+    """The usable GNSS epochs inside the IMU span, ENU, with their 1-sigma errors."""
+
+    t: np.ndarray  # (M,)
+    position: np.ndarray  # (M, 3) antenna, ENU
+    position_sigma: np.ndarray  # (M, 3)
+    velocity: np.ndarray  # (M, 3) ENU, NaN where none
+    velocity_sigma: np.ndarray  # (M, 3), NaN where that component is not used
+    usable: np.ndarray  # (len(dataset.gnss),) mask of the epochs used
+    gating_summary: str
+    outside_imu_span: int
+
+
+def select_gnss(dataset: Dataset, config: RunConfig, gnss_mask: np.ndarray | None) -> GnssEpochs:
+    """Gated, outage-masked epochs within the IMU span (as :func:`graph.problem.build_problem`)."""
+    gnss = dataset.gnss
+    if gnss_mask is not None:
+        gnss_mask = np.asarray(gnss_mask, dtype=bool)
+        if gnss_mask.shape != (len(gnss),):
+            raise InputError(
+                f"gnss_mask has shape {gnss_mask.shape} for {len(gnss)} GNSS epochs; "
+                "build it with fgins.outages.outage_mask(dataset, windows)"
+            )
+    gate = gnss_model.gate_epochs(gnss, config.gnss)
+    usable = gate.usable if gnss_mask is None else gate.usable & gnss_mask
+    imu_t = dataset.imu.t
+    in_span = (gnss.t >= imu_t[0]) & (gnss.t <= imu_t[-1])
+    if not np.any(usable & in_span):
+        raise InputError(
+            f"{dataset.name or 'input'}: no usable GNSS epoch within the IMU time span "
+            f"({imu_t[0]:.3f}-{imu_t[-1]:.3f} s); check the time bases (--time-offset)"
+        )
+    outside = int((usable & ~in_span).sum())
+    usable = usable & in_span
+    subset = gnss.subset(usable)
+    velocity_sigma = gnss_model.velocity_sigmas(subset, config.gnss)
+    if not config.gnss.use_velocity:
+        velocity_sigma[:] = np.nan
+    return GnssEpochs(
+        t=subset.t,
+        position=dataset.gnss_enu()[usable],
+        position_sigma=gnss_model.position_sigmas(subset, config.gnss),
+        velocity=subset.velocity,
+        velocity_sigma=velocity_sigma,
+        usable=usable,
+        gating_summary=gate.summary(),
+        outside_imu_span=outside,
+    )
+
+
+@dataclass
+class Linearized:
+    """Stacked measurement rows at one epoch: residual z - h(x), Jacobian, noise variances."""
+
+    residual: np.ndarray  # (m,)
+    jacobian: np.ndarray  # (m, 15)
+    variance: np.ndarray  # (m,)
+    n_position: int
+    n_velocity: int
+
+
+def linearize_gnss(
+    epochs: GnssEpochs,
+    g: int,
+    state: NominalState,
+    body_rate: np.ndarray,
+    lever_arm: np.ndarray,
+) -> Linearized:
+    """Antenna position (and velocity where given) of epoch ``g`` against the nominal state.
+
+    h_p = p + R l and h_v = v + R (w_nb x l), with w_nb the body rate relative to ENU (bias
+    corrected). With R_true = Exp(phi) R: d(R l)/dphi = -[R l]x, d(R (w x l))/dphi =
+    -[R (w x l)]x and, since w_true = w_nominal - dbg, d(R (w x l))/d(dbg) = R [l]x.
+    """
+    from fgins.baseline.mechanization import skew_batch
+
+    rotation = state.rotation
+    arm_nav = rotation @ lever_arm
+    rows_h = [np.zeros((3, STATE_DIM))]
+    rows_h[0][:, POS] = np.eye(3)
+    rows_h[0][:, ATT] = -skew_batch(arm_nav)
+    residual = [epochs.position[g] - (state.position + arm_nav)]
+    variance = [epochs.position_sigma[g] ** 2]
+    n_velocity = 0
+    use = np.isfinite(epochs.velocity_sigma[g]) & np.isfinite(epochs.velocity[g])
+    if use[0] and use[1]:
+        arm_velocity = rotation @ np.cross(body_rate, lever_arm)
+        h = np.zeros((3, STATE_DIM))
+        h[:, VEL] = np.eye(3)
+        h[:, ATT] = -skew_batch(arm_velocity)
+        h[:, GYRO_BIAS] = rotation @ skew_batch(lever_arm)
+        r = epochs.velocity[g] - (state.velocity + arm_velocity)
+        # Vertical velocity only where the receiver gives it (speed + course has none).
+        rows = np.flatnonzero(use)
+        rows_h.append(h[rows])
+        residual.append(r[rows])
+        variance.append(epochs.velocity_sigma[g][rows] ** 2)
+        n_velocity = len(rows)
+    return Linearized(
+        residual=np.concatenate(residual),
+        jacobian=np.vstack(rows_h),
+        variance=np.concatenate(variance),
+        n_position=3,
+        n_velocity=n_velocity,
+    )
+
+
+def chi2_quantile(probability: float, dof: int) -> float:
+    """Chi-square quantile (Wilson-Hilferty; within ~1 % for dof >= 3), numpy/stdlib only."""
+    z = NormalDist().inv_cdf(probability)
+    c = 2.0 / (9.0 * dof)
+    return float(dof * (1.0 - c + z * np.sqrt(c)) ** 3)
+
+
+def huber_variances(
+    residual: np.ndarray, innovation_var: np.ndarray, variance: np.ndarray, k: float
+) -> tuple[np.ndarray, int]:
+    """Measurement variances inflated like the graph's Huber kernel (weight k/|u| beyond k).
+
+    u is the residual normalised by its innovation sigma (prediction + measurement), the
+    filter's analogue of the graph's whitened error. Returns the variances and how many
+    components were down-weighted.
+    """
+    u = np.abs(residual) / np.sqrt(innovation_var)
+    factor = np.where(u > k, u / k, 1.0)
+    return variance * factor, int((u > k).sum())
