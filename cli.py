@@ -30,6 +30,10 @@ def _add_sensor_options(parser: argparse.ArgumentParser) -> None:
         "--vehicle", choices=["car", "aircraft", "uav", "pedestrian", "other"],
         help="vehicle type (land-vehicle constraints apply to car)",
     )  # fmt: skip
+    parser.add_argument(
+        "--robust", choices=["huber", "cauchy"],
+        help="robust GNSS kernel against outliers (Huber k=2 or Cauchy k=3 in sigmas)",
+    )  # fmt: skip
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
 
 
@@ -131,7 +135,7 @@ def _report(dataset: Dataset, trajectory: Trajectory) -> None:
         print(line, file=sys.stderr)
     for warning in dataset.warnings:
         print(f"warning: {warning}", file=sys.stderr)
-    for key in ("gnss_gating",):
+    for key in ("gnss_gating", "gnss_rejected"):
         if key in trajectory.info:
             print(trajectory.info[key], file=sys.stderr)
 

@@ -160,6 +160,7 @@ class GnssConfig:
     pdop_max: float | None = 5.0
     min_fix_quality: int = 1
     huber_k: float | None = None
+    cauchy_k: float | None = None  # redescending: rejects gross jumps (takes precedence)
     use_velocity: bool = True
     velocity_sigma_m_per_s: float | None = None
     course_min_speed_m_per_s: float = 3.0

@@ -103,14 +103,22 @@ def gate_epochs(gnss: GnssData, config: GnssConfig) -> GateResult:
     )
 
 
-def position_noise_model(sigma: np.ndarray, huber_k: float | None):  # -> gtsam noise model
-    """Diagonal GTSAM noise model, wrapped in a Huber kernel when ``huber_k`` is set."""
+def position_noise_model(sigma: np.ndarray, config: GnssConfig):  # -> gtsam noise model
+    """Diagonal GTSAM noise model, wrapped in a Cauchy or Huber kernel when configured.
+
+    Huber is convex (safe from any start) but only bounds an outlier's pull; Cauchy
+    redescends, so a 50-sigma jump ends up with almost no weight.
+    """
     import gtsam
 
     base = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigma, dtype=float))
-    if huber_k is None:
+    if config.cauchy_k is not None:
+        kernel = gtsam.noiseModel.mEstimator.Cauchy.Create(config.cauchy_k)
+    elif config.huber_k is not None:
+        kernel = gtsam.noiseModel.mEstimator.Huber.Create(config.huber_k)
+    else:
         return base
-    return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(huber_k), base)
+    return gtsam.noiseModel.Robust.Create(kernel, base)
 
 
 def position_factor(
@@ -119,7 +127,7 @@ def position_factor(
     """GNSS antenna position factor on a pose, with the lever arm when it is not zero."""
     import gtsam
 
-    noise = position_noise_model(sigma, config.huber_k)
+    noise = position_noise_model(sigma, config)
     lever_arm = np.asarray(config.lever_arm_m, dtype=float)
     if np.any(lever_arm != 0):
         return gtsam.GPSFactorArm(pose_key, position_enu, lever_arm, noise)

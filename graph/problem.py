@@ -42,6 +42,7 @@ class Problem:
     quiet: np.ndarray  # (K,) the IMU is quiet around keyframe k (a stop, if the speed agrees)
     baro_pressure: np.ndarray  # (K,) mean pressure (Pa) around keyframe k, NaN where none
     imu_to_vehicle: np.ndarray
+    gnss_mask: np.ndarray | None = None  # the caller's withheld epochs (outages), True = keep
     info: dict[str, object] = field(default_factory=dict)
     zupt_keyframes: set[int] = field(default_factory=set)
 
@@ -164,6 +165,18 @@ class Problem:
             else:
                 values.insert(key, self.baro_bias0)
 
+    def gnss_whitened_residuals(self, values: gtsam.Values) -> tuple[np.ndarray, np.ndarray]:
+        """(times, |whitened residual|) of every GNSS position factor at an estimate."""
+        keyframes = np.flatnonzero(self.gnss_at >= 0)
+        lever = np.asarray(self.config.gnss.lever_arm_m, dtype=float)
+        norms = np.empty(len(keyframes))
+        for i, k in enumerate(keyframes):
+            g = int(self.gnss_at[k])
+            pose = values.atPose3(X(int(k)))
+            antenna = pose.translation() + pose.rotation().matrix() @ lever
+            norms[i] = np.linalg.norm((antenna - self.gnss_enu[g]) / self.gnss_sigma[g])
+        return self.segments.times[keyframes], norms
+
     def predict(
         self, k: int, state: gtsam.NavState, bias: gtsam.imuBias.ConstantBias
     ) -> gtsam.NavState:
@@ -248,6 +261,7 @@ def build_problem(
         quiet=quiet,
         baro_pressure=baro_pressure,
         imu_to_vehicle=imu_to_vehicle,
+        gnss_mask=gnss_mask,
         info={
             "gnss_gating": gate_summary,
             "gnss_epochs_used": int(matched.sum()),

@@ -8,6 +8,7 @@ its own update, i.e. what a real-time system would have had.
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import gtsam
 import numpy as np
@@ -21,11 +22,41 @@ from fgins.types import Dataset, FginsError, Trajectory
 
 
 def initial_values(problem: Problem) -> gtsam.Values:
-    """A guess for every keyframe: IMU prediction, reset to GNSS where a fix exists.
+    """A guess for every keyframe from the forward EKF baseline (Huber-weighted GNSS).
 
-    Velocity is reset from GNSS too (its own velocity, else central differences of the fixes
-    around the epoch), so accelerometer bias cannot run the guess away over a long drive.
+    A filter is the right initialiser for a batch smoother: it corrects attitude and biases
+    as it goes, bridges outages with its own best dead reckoning and down-weights gross GNSS
+    outliers, so Levenberg-Marquardt starts in the right basin (and the ZUPT test sees a
+    sensible speed). Falls back to GNSS-reset dead reckoning if the filter cannot run.
     """
+    from fgins.baseline.ekf import run_ekf
+
+    # Huber-weighted updates bound what a gross outlier can do to the guess; a hard
+    # innovation gate would be worse: once it rejects a few fixes the filter can lock out.
+    config = replace(problem.config, gnss=replace(problem.config.gnss, huber_k=2.0, cauchy_k=None))
+    try:
+        ekf = run_ekf(problem.dataset, config, gnss_mask=problem.gnss_mask, progress=False)
+    except FginsError:
+        return _dead_reckoning_guess(problem)
+    times = problem.segments.times
+    nearest = np.clip(np.searchsorted(ekf.t, times), 0, len(ekf.t) - 1)
+    position = np.column_stack([np.interp(times, ekf.t, ekf.position[:, i]) for i in range(3)])
+    velocity = np.column_stack([np.interp(times, ekf.t, ekf.velocity[:, i]) for i in range(3)])
+    accel_bias = np.nan_to_num(ekf.accel_bias[nearest])
+    gyro_bias = np.nan_to_num(ekf.gyro_bias[nearest])
+    if not (np.all(np.isfinite(position)) and np.all(np.isfinite(velocity))):
+        return _dead_reckoning_guess(problem)
+    values = gtsam.Values()
+    for k in range(problem.n_keyframes):
+        values.insert(X(k), gtsam.Pose3(gtsam.Rot3(ekf.rotation[nearest[k]]), position[k]))
+        values.insert(V(k), velocity[k])
+        values.insert(B(k), gtsam.imuBias.ConstantBias(accel_bias[k], gyro_bias[k]))
+        problem.insert_extra_values(k, values)
+    return values
+
+
+def _dead_reckoning_guess(problem: Problem) -> gtsam.Values:
+    """IMU prediction reset to GNSS position (and differenced-GNSS velocity) at every fix."""
     align = problem.alignment
     values = gtsam.Values()
     state = gtsam.NavState(gtsam.Rot3(align.rotation), align.position, align.velocity)
@@ -48,15 +79,12 @@ def initial_values(problem: Problem) -> gtsam.Values:
 
 
 def _finite_difference_velocity(problem: Problem) -> np.ndarray:
-    """GNSS velocity where given, else central differences over neighbours <= 2.5 s away."""
-    gnss_t = problem.dataset.gnss.t
-    # The usable epochs are the keyframes that carry GNSS, in order.
+    """GNSS velocity where given, else central differences over neighbours <= 5 s apart."""
     keyed = problem.gnss_at[problem.gnss_at >= 0]
     t = np.empty(len(problem.gnss_enu))
     t[keyed] = problem.segments.times[problem.gnss_at >= 0]
     enu = problem.gnss_enu
     out = problem.gnss_velocity.copy()
-    del gnss_t
     for g in range(len(enu)):
         if np.all(np.isfinite(out[g])):
             continue
@@ -66,6 +94,28 @@ def _finite_difference_velocity(problem: Problem) -> np.ndarray:
         else:
             out[g] = np.nan
     return out
+
+
+# A fix whose whitened residual exceeds this at the solution (chi-square, 3 dof, 99.9 %) is
+# reported as rejected: the robust kernel has all but removed its weight.
+REJECT_WHITENED = 4.03
+
+
+def _gnss_report(problem: Problem, values: gtsam.Values) -> dict[str, object]:
+    times, norms = problem.gnss_whitened_residuals(values)
+    rejected = times[norms > REJECT_WHITENED]
+    return {
+        "gnss_rejected_times": [float(t) for t in rejected],
+        "gnss_rejected": f"GNSS outliers: {len(rejected)} of {len(times)} fixes rejected "
+        f"(whitened residual > {REJECT_WHITENED})"
+        + (
+            ": t - t0 = "
+            + ", ".join(f"{t - problem.dataset.t0:.1f}" for t in rejected[:20])
+            + (" ..." if len(rejected) > 20 else "")
+            if len(rejected)
+            else ""
+        ),
+    }
 
 
 def _states_from_values(
@@ -187,6 +237,7 @@ def smooth_batch(problem: Problem, progress: bool = True) -> Trajectory:
     trajectory.timings.update(
         {"optimize": solved - started, "covariance": time.perf_counter() - solved}
     )
+    trajectory.info.update(_gnss_report(problem, result))
     trajectory.info.update(
         {
             "iterations": optimizer.iterations(),
@@ -254,6 +305,7 @@ def smooth_isam2(problem: Problem, progress: bool = True) -> tuple[Trajectory, T
     filtered = _to_trajectory(
         problem, _states_from_values(problem, online_values, online), "isam2-online", smoothed=False
     )
+    final.info.update(_gnss_report(problem, result))
     final.timings.update(
         {"incremental": incremental - started, "final": time.perf_counter() - incremental}
     )

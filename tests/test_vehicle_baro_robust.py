@@ -1,0 +1,94 @@
+"""Land-vehicle constraints, barometer and robust GNSS against simulator truth."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from fgins.config import config_for_dataset
+from fgins.factors.gnss import position_sigmas
+from fgins.geodesy import enu_to_lla
+from fgins.graph.smoother import smooth
+from fgins.outages import in_windows, outage_mask
+from fgins.sim.scenarios import SCENARIOS
+
+
+def _rms(values: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(values**2)))
+
+
+def _errors(trajectory, truth):
+    return trajectory.position - truth.at(trajectory.t)
+
+
+@pytest.fixture(scope="module")
+def loop():
+    return SCENARIOS["uav-loop-baro"](seed=5, duration_s=180)
+
+
+def test_nhc_shrinks_outage_error_on_a_car(loop):
+    windows = [(60.0, 120.0)]
+    mask = outage_mask(loop.dataset, windows)
+    results = {}
+    for vehicle in ("other", "car"):
+        config = config_for_dataset(loop.dataset, vehicle=vehicle)
+        trajectory = smooth(loop.dataset, config, "batch", gnss_mask=mask, progress=False)
+        inside = in_windows(trajectory.t, loop.dataset.t0, windows)
+        results[vehicle] = _rms(np.linalg.norm(_errors(trajectory, loop.truth)[inside, :2], axis=1))
+    assert results["car"] < 0.8 * results["other"]
+
+
+def test_barometer_holds_height_in_an_outage(loop):
+    windows = [(60.0, 120.0)]
+    mask = outage_mask(loop.dataset, windows)
+    # As on the UAV of the low-cost study: no land-vehicle constraint holds the vertical.
+    config = config_for_dataset(loop.dataset, vehicle="uav")
+    with_baro = smooth(loop.dataset, config, "batch", gnss_mask=mask, progress=False)
+    without = smooth(replace(loop.dataset, baro=None), config, "batch", gnss_mask=mask, progress=False)
+    inside = in_windows(with_baro.t, loop.dataset.t0, windows)
+    up_with = _rms(_errors(with_baro, loop.truth)[inside, 2])
+    up_without = _rms(_errors(without, loop.truth)[inside, 2])
+    assert up_with < 0.7 * up_without
+
+
+def test_zupt_at_stops_and_never_while_turning(loop):
+    config = config_for_dataset(loop.dataset)
+    trajectory = smooth(loop.dataset, config, "batch", progress=False)
+    # The loop never stops: a steady turn is smooth but must not be taken for a stop.
+    assert np.median(np.linalg.norm(trajectory.velocity[:, :2], axis=1)) > 2.5
+    urban = SCENARIOS["car-urban"](seed=0, duration_s=120)
+    result = smooth(urban.dataset, config_for_dataset(urban.dataset), "batch", progress=False)
+    truth_speed = np.linalg.norm(urban.truth.velocity[:, :2], axis=1)
+    stopped = truth_speed < 0.01
+    assert stopped.any()
+    assert np.max(np.linalg.norm(result.velocity[stopped, :2], axis=1)) < 0.1
+
+
+def test_robust_kernel_survives_five_percent_jumps_and_lists_them():
+    run = SCENARIOS["car-urban"](seed=4, duration_s=240)
+    dataset = run.dataset
+    rng = np.random.default_rng(1)
+    enu = dataset.gnss_enu()
+    jumped = rng.choice(len(enu), size=int(0.05 * len(enu)), replace=False)
+    angle = rng.uniform(0, 2 * np.pi, len(jumped))
+    size = rng.uniform(20, 100, len(jumped))
+    enu[jumped, 0] += size * np.cos(angle)
+    enu[jumped, 1] += size * np.sin(angle)
+    corrupted = replace(dataset, gnss=replace(dataset.gnss, lla=enu_to_lla(enu, dataset.origin)))
+    config = config_for_dataset(dataset)
+    config.gnss.cauchy_k = 3.0
+    clean = smooth(dataset, config, "batch", progress=False)
+    dirty = smooth(corrupted, config, "batch", progress=False)
+    clean_rms = _rms(np.linalg.norm(_errors(clean, run.truth)[:, :2], axis=1))
+    dirty_rms = _rms(np.linalg.norm(_errors(dirty, run.truth)[:, :2], axis=1))
+    assert dirty_rms < 1.2 * clean_rms
+    rejected = set(np.round(dirty.info["gnss_rejected_times"], 6))
+    # Every jump that stands out of its fix's own noise (> 6 sigma horizontally) is listed;
+    # a 20 m jump on an urban fix with HDOP 8 is inside its error budget and harmless.
+    sigma = np.hypot(*position_sigmas(dataset.gnss, config.gnss)[jumped, :2].T)
+    visible = jumped[size > 6 * sigma]
+    assert visible.size >= len(jumped) // 2
+    assert set(np.round(dataset.gnss.t[visible], 6)) <= rejected
+    assert len(rejected) <= len(jumped) + 3  # few good fixes thrown away
