@@ -22,8 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fgins.datatypes import Dataset, InputError
 from fgins.geodesy import normal_gravity, roll_pitch_heading_to_rotation
-from fgins.types import Dataset, InputError
 
 
 @dataclass

@@ -14,9 +14,9 @@ import numpy as np
 
 from fgins import __version__
 from fgins.config import IMU_PRESETS, RunConfig, config_for_dataset
+from fgins.datatypes import Dataset, FginsError, Trajectory
 from fgins.outages import outage_mask, parse_windows
 from fgins.pipeline import METHODS, run_method
-from fgins.types import Dataset, FginsError, Trajectory
 
 OUTPUT_SUFFIXES = (".csv", ".geojson", ".kml", ".mcap")
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
-from fgins.types import Dataset, FginsError
+from fgins.datatypes import Dataset, FginsError
 
 STANDARD_GRAVITY = 9.80665
 DEG = math.pi / 180.0

@@ -8,7 +8,7 @@ import numpy as np
 import pymap3d
 
 if TYPE_CHECKING:
-    from fgins.types import Origin
+    from fgins.datatypes import Origin
 
 WGS84_A = 6378137.0
 WGS84_F = 1.0 / 298.257223563

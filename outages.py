@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from fgins.types import Dataset, FginsError
+from fgins.datatypes import Dataset, FginsError
 
 
 def parse_windows(text: str | None) -> list[tuple[float, float]]:

@@ -7,7 +7,7 @@ import importlib
 import numpy as np
 
 from fgins.config import RunConfig
-from fgins.types import Dataset, FginsError, Trajectory
+from fgins.datatypes import Dataset, FginsError, Trajectory
 
 GRAPH_METHODS = ("batch", "isam2", "isam2-online")
 # Kalman baselines: method name -> "module:function" taking (dataset, config, gnss_mask=...,

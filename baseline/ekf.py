@@ -3,10 +3,10 @@
 Fifteen error states (position, velocity, attitude error ``phi`` in ENU, accelerometer and
 gyro bias) around a nominal strapdown solution, with closed-loop feedback: after every GNSS
 update the estimated errors are injected into the nominal state and reset to zero. Same
-inputs as the factor graph (:class:`~fgins.types.Dataset`, :class:`~fgins.config.RunConfig`),
+inputs as the factor graph (:class:`~fgins.datatypes.Dataset`, :class:`~fgins.config.RunConfig`),
 same initial state and uncertainty (:func:`fgins.alignment.initial_alignment`), same GNSS
 epochs, gating, sigmas and lever arm (:mod:`fgins.factors.gnss`), same navigation model
-(:mod:`fgins.baseline.mechanization`), same output (:class:`~fgins.types.Trajectory` at every
+(:mod:`fgins.baseline.mechanization`), same output (:class:`~fgins.datatypes.Trajectory` at every
 IMU sample).
 
 The IMU stream is processed in blocks that end at each usable GNSS epoch (the sample that
@@ -55,8 +55,8 @@ from fgins.baseline.mechanization import (
     skew_batch,
 )
 from fgins.config import ImuNoise, RunConfig
+from fgins.datatypes import Dataset, FginsError, InputError, Trajectory
 from fgins.geodesy import so3_exp
-from fgins.types import Dataset, FginsError, InputError, Trajectory
 
 
 @dataclass(frozen=True)

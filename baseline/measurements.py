@@ -13,8 +13,8 @@ import numpy as np
 
 from fgins.baseline.mechanization import ATT, GYRO_BIAS, POS, STATE_DIM, VEL, NominalState
 from fgins.config import RunConfig
+from fgins.datatypes import Dataset, InputError
 from fgins.factors import gnss as gnss_model
-from fgins.types import Dataset, InputError
 
 
 @dataclass

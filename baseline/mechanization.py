@@ -28,8 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgins.config import ImuNoise
+from fgins.datatypes import Origin
 from fgins.geodesy import earth_rate_enu, normal_gravity, so3_exp, so3_log
-from fgins.types import Origin
 
 STATE_DIM = 15
 POS = slice(0, 3)

@@ -6,8 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fgins.datatypes import Trajectory
 from fgins.outages import in_windows
-from fgins.types import Trajectory
 
 
 @dataclass

@@ -16,10 +16,10 @@ import numpy as np
 
 from fgins.bench.metrics import Errors, errors_against
 from fgins.config import RunConfig
+from fgins.datatypes import Dataset, FginsError, Trajectory
 from fgins.io.atomic import atomic_path
 from fgins.outages import in_windows, outage_mask
 from fgins.pipeline import run_method
-from fgins.types import Dataset, FginsError, Trajectory
 
 
 @dataclass

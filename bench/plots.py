@@ -11,9 +11,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from fgins.bench.metrics import Errors
+from fgins.datatypes import Trajectory
 from fgins.io.atomic import atomic_path
 from fgins.outages import in_windows
-from fgins.types import Trajectory
 
 
 def plot_track_and_errors(

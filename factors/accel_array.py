@@ -51,7 +51,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgins.config import STANDARD_GRAVITY
-from fgins.types import ImuData, InputError
+from fgins.datatypes import ImuData, InputError
 
 # |theta| must be 1 to this tolerance (axes are direction cosines from a datasheet or a fit).
 _UNIT_AXIS_TOLERANCE = 1e-6

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgins.config import GnssConfig
-from fgins.types import GnssData
+from fgins.datatypes import GnssData
 
 # NMEA GGA fix-quality codes -> UERE table key.
 QUALITY_UERE_KEY = {1: "autonomous", 2: "dgps", 9: "dgps", 4: "rtk_fixed", 5: "rtk_float"}

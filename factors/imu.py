@@ -6,8 +6,8 @@ import gtsam
 import numpy as np
 
 from fgins.config import ImuNoise
+from fgins.datatypes import Origin
 from fgins.geodesy import earth_rate_enu, normal_gravity
-from fgins.types import Origin
 
 
 def preintegration_params(

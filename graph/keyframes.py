@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fgins.types import ImuData
+from fgins.datatypes import ImuData
 
 
 @dataclass

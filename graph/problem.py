@@ -15,13 +15,13 @@ from tqdm import tqdm
 
 from fgins.alignment import Alignment, initial_alignment
 from fgins.config import ImuNoise, RunConfig
+from fgins.datatypes import Dataset, InputError
 from fgins.factors import baro as baro_model
 from fgins.factors import gnss as gnss_model
 from fgins.factors import imu as imu_model
 from fgins.factors import vehicle as vehicle_model
 from fgins.geodesy import earth_rate_enu, normal_gravity
 from fgins.graph.keyframes import Segments, build_segments, keyframe_times
-from fgins.types import Dataset, InputError
 
 
 @dataclass

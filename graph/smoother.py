@@ -16,9 +16,9 @@ from gtsam.symbol_shorthand import B, V, X
 from tqdm import tqdm
 
 from fgins.config import RunConfig
+from fgins.datatypes import Dataset, FginsError, Trajectory
 from fgins.graph.output import KeyframeStates, densify
 from fgins.graph.problem import Problem, build_problem
-from fgins.types import Dataset, FginsError, Trajectory
 
 
 def initial_values(problem: Problem) -> gtsam.Values:

@@ -14,9 +14,9 @@ from typing import Any
 
 import numpy as np
 
+from fgins.datatypes import BaroData, Dataset, GnssData, ImuData, InputError, Origin
 from fgins.io.atomic import atomic_path
 from fgins.io.imu_checks import clean_imu
-from fgins.types import BaroData, Dataset, GnssData, ImuData, InputError, Origin
 
 IMU_COLUMNS = ["time", "gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z"]
 GNSS_REQUIRED = ["time", "lat", "lon", "alt"]

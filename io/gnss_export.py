@@ -16,8 +16,8 @@ from xml.sax.saxutils import escape
 
 import numpy as np
 
+from fgins.datatypes import GnssData, InputError
 from fgins.io.atomic import atomic_path
-from fgins.types import GnssData, InputError
 
 GNSS_CSV_COLUMNS = (
     "time",

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from fgins.types import ImuData, InputError
+from fgins.datatypes import ImuData, InputError
 
 GAP_FACTOR = 3.0  # a gap is a sample interval longer than this many nominal periods
 MIN_FILL_DURATION_S = 0.3  # shorter straight-line runs happen naturally at rest

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from fgins.types import Dataset, InputError
+from fgins.datatypes import Dataset, InputError
 
 NMEA_SUFFIXES = {".nmea", ".log", ".txt", ".gps", ".ubx_nmea"}
 
@@ -58,9 +58,9 @@ def load_dataset(
 
 
 def _nmea_with_imu(nmea: list[Path], others: list[Path], time_offset_s: float) -> Dataset:
+    from fgins.datatypes import Origin
     from fgins.io.csv_pair import csv_kind, read_imu_csv
     from fgins.io.nmea import read_nmea
-    from fgins.types import Origin
 
     if len(nmea) > 1:
         raise InputError(f"give one NMEA file, got {len(nmea)}")

@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
+from fgins.datatypes import Dataset, GnssData, InputError, Origin
 from fgins.geodesy import enu_to_lla
 from fgins.io.imu_checks import clean_imu
-from fgins.types import Dataset, GnssData, InputError, Origin
 
 # Karlsruhe, near the KITTI raw-data drives (the converted file carries no geodetic origin).
 KITTI_ORIGIN = Origin(lat=49.011212804408, lon=8.4228850417969, alt=112.83492279053)

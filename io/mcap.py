@@ -32,7 +32,7 @@ from mcap.reader import make_reader
 from mcap.records import Channel, Footer, Message, Schema
 from mcap.stream_reader import StreamReader
 
-from fgins.types import BaroData, Dataset, GnssData, ImuData, InputError, Origin
+from fgins.datatypes import BaroData, Dataset, GnssData, ImuData, InputError, Origin
 
 IMU_SCHEMAS = frozenset({"sensor_msgs/msg/Imu"})
 NAVSATFIX = "sensor_msgs/msg/NavSatFix"

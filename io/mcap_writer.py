@@ -31,10 +31,10 @@ from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 from mcap_protobuf.schema import build_file_descriptor_set
 
+from fgins.datatypes import GnssData, InputError, Trajectory
 from fgins.geodesy import enu_to_lla
 from fgins.io.atomic import atomic_path
 from fgins.io.mcap import PRODUCER_FGINS, PRODUCER_KEY
-from fgins.types import GnssData, InputError, Trajectory
 
 FIX_TOPIC = "/fgins/fix"
 POSE_TOPIC = "/fgins/pose"

@@ -1,4 +1,4 @@
-"""NMEA 0183 reader: real receiver logs -> :class:`fgins.types.GnssData`.
+"""NMEA 0183 reader: real receiver logs -> :class:`fgins.datatypes.GnssData`.
 
 Sentences are split out of the raw bytes (leading junk, binary noise, CR/LF variants
 tolerated), checked and tokenised by pynmea2, then merged into fix epochs by their time of day
@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 import pynmea2
 
+from fgins.datatypes import GnssData, InputError
 from fgins.io.geoid import GEOID_MODEL_NAME, geoid_undulation
-from fgins.types import GnssData, InputError
 
 KNOT_M_S = 1852.0 / 3600.0
 KMH_M_S = 1.0 / 3.6
@@ -421,7 +421,7 @@ def _parse(path: Path) -> _Reader:
 def read_nmea(path: str | Path, *, time_offset_s: float = 0.0) -> NmeaResult:
     """Read an NMEA 0183 log into fix epochs (see the module docstring for conventions).
 
-    Raises :class:`fgins.types.InputError` when the file cannot be read or holds no usable fix.
+    Raises :class:`fgins.datatypes.InputError` when the file cannot be read or holds no usable fix.
     """
     path = Path(path)
     reader = _parse(path)

@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pymap3d
 
+from fgins.datatypes import InputError, Origin, Trajectory
 from fgins.geodesy import enu_to_lla, roll_pitch_heading_to_rotation
 from fgins.io.atomic import atomic_path
-from fgins.types import InputError, Origin, Trajectory
 
 COLUMNS = [
     "time", "lat", "lon", "alt", "east", "north", "up",

@@ -8,9 +8,9 @@ from xml.sax.saxutils import escape
 
 import numpy as np
 
+from fgins.datatypes import FginsError, Trajectory
 from fgins.geodesy import enu_to_lla
 from fgins.io.atomic import atomic_path
-from fgins.types import FginsError, Trajectory
 
 
 def _decimated_lla(

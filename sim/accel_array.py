@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fgins.datatypes import InputError
 from fgins.factors.accel_array import AccelArray
-from fgins.types import InputError
 
 MICRO_G = 9.80665e-6  # m/s^2
 CALIBRATION_RESIDUAL = 0.1  # fraction of turn-on bias / scale factor left after calibration

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fgins.types import BaroData, InputError
+from fgins.datatypes import BaroData, InputError
 
 # International Standard Atmosphere, troposphere (valid below 11 km).
 SEA_LEVEL_PRESSURE_PA = 101325.0

@@ -12,8 +12,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from fgins.datatypes import GnssData, InputError, Origin
 from fgins.geodesy import enu_to_lla
-from fgins.types import GnssData, InputError, Origin
 
 Window = tuple[float, float]
 

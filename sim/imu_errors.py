@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fgins.config import ImuNoise
-from fgins.types import InputError
+from fgins.datatypes import InputError
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fgins.types import InputError
+from fgins.datatypes import InputError
 
 STANDARD_GRAVITY = 9.80665
 

@@ -15,12 +15,12 @@ from typing import Any
 import numpy as np
 
 from fgins.config import ImuNoise, imu_noise_from_config
+from fgins.datatypes import Dataset, ImuData, InputError, Origin, Trajectory
 from fgins.sim import motion
 from fgins.sim.baro import BaroModel, simulate_baro
 from fgins.sim.gnss import BiasedStretch, DopStretch, GnssModel, GnssTruthInput, simulate_gnss
 from fgins.sim.imu_errors import ImuErrorModel, apply_imu_errors
 from fgins.sim.strapdown import NavModel, exact_motion
-from fgins.types import Dataset, ImuData, InputError, Origin, Trajectory
 
 DEG = np.pi / 180.0
 MG = 1e-3 * 9.80665

@@ -20,9 +20,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fgins.datatypes import InputError, Origin
 from fgins.geodesy import earth_rate_enu, normal_gravity, so3_exp
 from fgins.sim.motion import MotionProfile
-from fgins.types import InputError, Origin
 
 
 @dataclass(frozen=True)

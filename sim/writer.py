@@ -10,11 +10,11 @@ import math
 from pathlib import Path
 from typing import Any
 
+from fgins.datatypes import InputError
 from fgins.io.atomic import atomic_path
 from fgins.io.csv_pair import write_baro_csv, write_gnss_csv, write_imu_csv
 from fgins.io.trajectory_csv import write_trajectory_csv
 from fgins.sim.scenarios import SimRun
-from fgins.types import InputError
 
 
 def toml_value(value: Any, where: str = "") -> str:

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from fgins.config import imu_noise_from_config
+from fgins.datatypes import ImuData, InputError
 from fgins.factors.accel_array import (
     AccelArray,
     alpha_is_rate_free,
@@ -27,7 +28,6 @@ from fgins.sim.accel_array import (
     array_readings,
     draw_array_errors,
 )
-from fgins.types import ImuData, InputError
 
 L = 0.05  # cube half-edge, m
 

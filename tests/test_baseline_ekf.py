@@ -21,6 +21,7 @@ from fgins.baseline.mechanization import (
     propagate_nominal,
 )
 from fgins.config import RunConfig, imu_noise_from_config, load_config
+from fgins.datatypes import Dataset, GnssData, InputError, Origin
 from fgins.geodesy import enu_to_lla, so3_exp
 from fgins.outages import in_windows, outage_mask
 from fgins.sim import motion
@@ -28,7 +29,6 @@ from fgins.sim.gnss import GnssModel
 from fgins.sim.imu_errors import ImuErrorModel
 from fgins.sim.scenarios import SCENARIOS, simulate_run
 from fgins.sim.strapdown import NavModel, mechanize
-from fgins.types import Dataset, GnssData, InputError, Origin
 
 ORIGIN = Origin(48.1372, 11.5755, 520.0)
 METHODS = {"ekf": run_ekf, "ekf-rts": run_ekf_rts}

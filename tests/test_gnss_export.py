@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fgins.datatypes import GnssData, InputError
 from fgins.io.gnss_export import GNSS_CSV_COLUMNS, write_gnss
-from fgins.types import GnssData, InputError
 
 KML_NS = {"k": "http://www.opengis.net/kml/2.2"}
 

@@ -12,12 +12,12 @@ import pytest
 
 from fgins.cli import main
 from fgins.config import imu_noise_from_config, load_config
+from fgins.datatypes import FginsError, InputError
 from fgins.io.csv_pair import read_csv_dataset, read_imu_csv
 from fgins.io.imu_checks import find_gaps, find_linear_fills
 from fgins.io.trajectory_csv import COLUMNS
 from fgins.sim.scenarios import SCENARIOS
 from fgins.sim.writer import write_sim_dir
-from fgins.types import FginsError, InputError
 
 
 @pytest.fixture(scope="module")

@@ -12,6 +12,7 @@ pytest.importorskip("rosbags", reason="test extra: pip install rosbags")
 pytest.importorskip("foxglove", reason="test extra: pip install foxglove-sdk")
 pytest.importorskip("mcap_protobuf", reason="test extra: pip install mcap-protobuf-support")
 
+from fgins.datatypes import InputError
 from fgins.io.mcap import read_mcap, summarize_mcap
 from fgins.tests.mcap_fixtures import (
     LOG_LATENCY_NS,
@@ -23,7 +24,6 @@ from fgins.tests.mcap_fixtures import (
     write_foxglove_protobuf,
     write_ros2_bag,
 )
-from fgins.types import InputError
 
 
 @pytest.fixture(scope="module")

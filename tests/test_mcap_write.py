@@ -16,6 +16,7 @@ pytest.importorskip(
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
+from fgins.datatypes import GnssData, InputError, Origin, Trajectory
 from fgins.geodesy import enu_to_lla, so3_exp
 from fgins.io.mcap import read_mcap
 from fgins.io.mcap_writer import (
@@ -27,7 +28,6 @@ from fgins.io.mcap_writer import (
     write_mcap,
 )
 from fgins.tests.mcap_fixtures import make_drive, write_ros2_bag
-from fgins.types import GnssData, InputError, Origin, Trajectory
 
 T_START = 1_700_000_000.0
 

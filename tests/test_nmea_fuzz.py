@@ -12,8 +12,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from fgins.datatypes import InputError
 from fgins.io.nmea import read_nmea
-from fgins.types import InputError
 
 
 def _with_checksum(body: str) -> str:

@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fgins.datatypes import InputError
 from fgins.io.geoid import geoid_undulation
 from fgins.io.nmea import read_nmea
-from fgins.types import InputError
 
 
 def _shared_dir() -> Path:

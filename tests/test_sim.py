@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from fgins.config import GnssConfig, imu_noise_from_config
+from fgins.datatypes import InputError, Origin
 from fgins.geodesy import lla_to_enu, so3_log
 from fgins.io.csv_pair import read_csv_dataset
 from fgins.io.trajectory_csv import read_trajectory_csv
@@ -27,7 +28,6 @@ from fgins.sim.imu_errors import ImuErrorModel, SensorErrors, apply_imu_errors
 from fgins.sim.scenarios import SCENARIOS
 from fgins.sim.strapdown import NavModel, exact_motion, mechanize
 from fgins.sim.writer import dumps_toml, write_sim_dir
-from fgins.types import InputError, Origin
 
 ORIGIN = Origin(48.0, 11.0, 500.0)
 

@@ -46,7 +46,9 @@ def test_barometer_holds_height_in_an_outage(loop):
     # As on the UAV of the low-cost study: no land-vehicle constraint holds the vertical.
     config = config_for_dataset(loop.dataset, vehicle="uav")
     with_baro = smooth(loop.dataset, config, "batch", gnss_mask=mask, progress=False)
-    without = smooth(replace(loop.dataset, baro=None), config, "batch", gnss_mask=mask, progress=False)
+    without = smooth(
+        replace(loop.dataset, baro=None), config, "batch", gnss_mask=mask, progress=False
+    )
     inside = in_windows(with_baro.t, loop.dataset.t0, windows)
     up_with = _rms(_errors(with_baro, loop.truth)[inside, 2])
     up_without = _rms(_errors(without, loop.truth)[inside, 2])
