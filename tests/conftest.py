@@ -29,3 +29,12 @@ def kitti_config(kitti):
     from fgins.config import load_config
 
     return load_config(dataset_imu=kitti.imu_config, dataset_gnss=kitti.gnss_config)
+
+
+@pytest.fixture(scope="session")
+def shared() -> Path:
+    """The shared/ folder with the real NMEA logs; skips the test where it is absent."""
+    folder = shared_dir()
+    if folder is None:
+        pytest.skip("../shared (real NMEA logs) not present; set FGINS_SHARED")
+    return folder

@@ -1,0 +1,146 @@
+"""End to end through the CLI: NMEA + IMU CSV, ROS 2 MCAP (written by rosbags), gpsd logs.
+
+Each path is checked against the canonical CSV path on the same simulated drive, and both
+against the simulator's truth.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pynmea2
+import pytest
+
+from fgins.cli import main
+from fgins.config import config_for_dataset
+from fgins.factors.gnss import position_sigmas
+from fgins.geodesy import lla_to_enu
+from fgins.io.csv_pair import write_gnss_csv, write_imu_csv
+from fgins.sim.scenarios import SCENARIOS
+from fgins.sim.writer import dumps_toml
+
+START = dt.datetime(2024, 5, 1, 23, 59, 0, tzinfo=dt.UTC)  # crosses UTC midnight on purpose
+
+
+def _read(path: Path) -> dict[str, np.ndarray]:
+    table = np.genfromtxt(path, delimiter=",", names=True)
+    return {name: table[name] for name in table.dtype.names}
+
+
+def _horizontal_rms_vs_truth(out: dict[str, np.ndarray], run, origin) -> float:
+    enu = lla_to_enu(np.column_stack([out["lat"], out["lon"], out["alt"]]), origin)
+    truth = run.truth.at(out["time"] - out["time"][0] + run.truth.t[0])
+    return float(np.sqrt(np.mean(np.sum((enu[:, :2] - truth[:, :2]) ** 2, axis=1))))
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory):
+    """A short highway drive with per-fix sigmas written into the data (so every input format
+    carries the same GNSS weights) and one config for every path."""
+    run = SCENARIOS["highway"](seed=7, duration_s=90)
+    dataset = run.dataset
+    config = config_for_dataset(dataset)
+    gnss = replace(dataset.gnss, std=position_sigmas(dataset.gnss, config.gnss))
+    gnss.__post_init__()
+    folder = tmp_path_factory.mktemp("drive")
+    write_imu_csv(dataset.imu, folder / "imu.csv")
+    write_gnss_csv(gnss, folder / "gnss.csv")
+    gnss_table = {"lever_arm_m": list(config.gnss.lever_arm_m)}
+    if config.gnss.velocity_sigma_m_per_s is not None:
+        gnss_table["velocity_sigma_m_per_s"] = config.gnss.velocity_sigma_m_per_s
+    tables = {"imu": dict(dataset.imu_config), "gnss": gnss_table}
+    (folder / "run.toml").write_text(dumps_toml(tables))
+    return run, replace(dataset, gnss=gnss), folder
+
+
+def _smooth(args: list[str], out: Path) -> dict[str, np.ndarray]:
+    assert main(["smooth", *args, "-o", str(out), "--vehicle", "car"]) == 0
+    return _read(out)
+
+
+def _nmea_lines(dataset) -> list[str]:
+    """GGA + RMC + GSA per fix, written with pynmea2 (an independent writer)."""
+    lines = []
+    for t, (lat, lon, alt), hdop in zip(
+        dataset.gnss.t, dataset.gnss.lla, dataset.gnss.hdop, strict=True
+    ):
+        stamp = START + dt.timedelta(seconds=float(t))
+        hms = stamp.strftime("%H%M%S.") + f"{stamp.microsecond // 10000:02d}"
+        lat_txt = f"{int(abs(lat)):02d}{(abs(lat) % 1) * 60:011.8f}"
+        lon_txt = f"{int(abs(lon)):03d}{(abs(lon) % 1) * 60:011.8f}"
+        ns, ew = ("N" if lat >= 0 else "S"), ("E" if lon >= 0 else "W")
+        separation = 47.0  # geoid separation: ellipsoidal = MSL + separation
+        gga = pynmea2.GGA("GN", "GGA", (hms, lat_txt, ns, lon_txt, ew, "1", "12", f"{hdop:.2f}",
+                                        f"{alt - separation:.3f}", "M", f"{separation:.1f}", "M", "", ""))  # fmt: skip
+        rmc = pynmea2.RMC("GN", "RMC", (hms, "A", lat_txt, ns, lon_txt, ew, "", "", stamp.strftime("%d%m%y"), "", "", "A"))  # fmt: skip
+        lines += [str(gga), str(rmc)]
+    return lines
+
+
+def test_nmea_plus_imu_matches_the_csv_path(drive, tmp_path):
+    run, dataset, folder = drive
+    nmea = tmp_path / "drive.nmea"
+    lines = _nmea_lines(dataset)
+    lines.insert(5, "$GNGGA,garbage*00")  # a corrupt line is counted, not fatal
+    nmea.write_text("\r\n".join(lines) + "\r\n")
+    offset = -START.timestamp()  # NMEA gives POSIX UTC; the IMU clock starts at 0
+    csv_out = _smooth(
+        [str(folder / "imu.csv"), str(folder / "gnss.csv"), "--config", str(folder / "run.toml")],
+        tmp_path / "csv.csv",
+    )
+    nmea_out = _smooth(
+        [
+            str(nmea),
+            str(folder / "imu.csv"),
+            "--time-offset",
+            str(offset),
+            "--config",
+            str(folder / "run.toml"),
+        ],
+        tmp_path / "nmea.csv",
+    )
+    np.testing.assert_allclose(nmea_out["time"], csv_out["time"])
+    origin = run.dataset.origin
+    csv_rms = _horizontal_rms_vs_truth(csv_out, run, origin)
+    nmea_rms = _horizontal_rms_vs_truth(nmea_out, run, origin)
+    # NMEA carries no per-fix sigma here (HDOP only), so weights differ a little.
+    assert nmea_rms < 1.25 * csv_rms + 0.05
+
+
+def test_ros2_mcap_matches_the_csv_path(drive, tmp_path):
+    from fgins.tests.mcap_fixtures import drive_from_dataset, write_ros2_bag
+
+    run, dataset, folder = drive
+    bag = write_ros2_bag(tmp_path / "bag", drive_from_dataset(dataset, start_time_s=float(dataset.imu.t[0])),
+                         with_baro=False, with_unknown=False)  # fmt: skip
+    config = ["--config", str(folder / "run.toml")]
+    csv_out = _smooth(
+        [str(folder / "imu.csv"), str(folder / "gnss.csv"), *config], tmp_path / "csv.csv"
+    )
+    mcap_out = _smooth([str(bag), *config], tmp_path / "mcap.csv")
+    assert len(mcap_out["time"]) == len(csv_out["time"])
+    origin = run.dataset.origin
+    csv_rms = _horizontal_rms_vs_truth(csv_out, run, origin)
+    mcap_rms = _horizontal_rms_vs_truth(mcap_out, run, origin)
+    assert abs(mcap_rms - csv_rms) <= 0.01 * csv_rms + 0.005
+    # The MCAP output of the same run opens and its fixes equal the CSV output's.
+    out_mcap = tmp_path / "out.mcap"
+    assert main(["smooth", str(bag), *config, "--vehicle", "car", "-o", str(out_mcap)]) == 0
+    from fgins.io.mcap import summarize_mcap
+
+    assert "/fgins/fix" in summarize_mcap(out_mcap)
+
+
+def test_gpsd_log_converts_and_inspects(tmp_path, capsys, shared):
+    log = shared / "data" / "nmea" / "gpsd" / "mtk-3301.log"
+    out = tmp_path / "fixes.csv"
+    assert main(["convert", str(log), "-o", str(out)]) == 0
+    header = out.read_text().splitlines()[0].split(",")
+    assert header[:4] == ["time", "lat", "lon", "alt"]
+    assert main(["inspect", str(log)]) == 0
+    report = capsys.readouterr().out
+    assert "GGA" in report and "RMC" in report
+    assert main(["convert", str(log), "-o", str(tmp_path / "fixes.kml")]) == 0
