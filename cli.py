@@ -15,7 +15,7 @@ import numpy as np
 from fgins import __version__
 from fgins.config import IMU_PRESETS, RunConfig, config_for_dataset
 from fgins.datatypes import Dataset, FginsError, Trajectory
-from fgins.outages import outage_mask, parse_windows
+from fgins.outages import outage_mask, parse_windows, periodic_windows
 from fgins.pipeline import METHODS, run_method
 
 OUTPUT_SUFFIXES = (".csv", ".geojson", ".kml", ".mcap")
@@ -89,6 +89,19 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument(
         "--set", action="append", default=[], metavar="KEY=VALUE", help="scenario option"
     )
+
+    bench = sub.add_parser(
+        "bench", help="outage benchmark: every method on the same data and outages"
+    )
+    bench.add_argument("inputs", nargs="+", metavar="INPUT", help="as for smooth")
+    bench.add_argument("--methods", default="batch,isam2,ekf,ekf-rts")
+    bench.add_argument("--gnss-outage", metavar="A:B[,C:D...]", help="explicit windows")
+    bench.add_argument("--outage-duration", type=float, default=30.0)
+    bench.add_argument("--outage-period", type=float, default=90.0)
+    bench.add_argument("--outage-start", type=float, default=60.0)
+    bench.add_argument("--baseline", default="ekf", help="method the ratios are taken against")
+    bench.add_argument("-o", "--output-dir", type=Path, default=Path("out/bench"))
+    _add_sensor_options(bench)
 
     convert = sub.add_parser("convert", help="write GNSS fixes of a log as gnss.csv/.geojson/.kml")
     convert.add_argument("input", type=Path)
@@ -271,6 +284,46 @@ def _parse_value(text: str) -> object:
     return text
 
 
+def cmd_bench(args: argparse.Namespace) -> int:
+    from fgins.bench.outages import BenchCase, markdown_table, run_case, write_results
+    from fgins.io.inputs import load_dataset
+    from fgins.pipeline import METHODS
+
+    methods = [m for m in args.methods.split(",") if m]
+    unknown = sorted(set(methods) - set(METHODS))
+    if unknown:
+        raise FginsError(
+            f"--methods: unknown {', '.join(unknown)}; choose from {', '.join(METHODS)}"
+        )
+    started = time.perf_counter()
+    dataset = load_dataset(args.inputs, progress=_progress(args))
+    config = _config_for(dataset, args)
+    if args.gnss_outage:
+        windows = parse_windows(args.gnss_outage)
+    else:
+        span = float(dataset.gnss.t[-1] - dataset.t0)
+        windows = periodic_windows(
+            args.outage_duration, args.outage_period, args.outage_start, span
+        )
+    truth = None
+    truth_path = Path(args.inputs[0]) / "truth.csv"
+    if len(args.inputs) == 1 and truth_path.exists():
+        from fgins.io.trajectory_csv import read_trajectory_csv
+
+        truth = read_trajectory_csv(truth_path, dataset.origin)
+    name = dataset.name.replace(":", "-") or "input"
+    case = BenchCase(name, dataset, config, windows, truth=truth)
+    run_case(case, methods, progress=_progress(args))
+    print(markdown_table([case], baseline=args.baseline))
+    write_results([case], args.output_dir, baseline=args.baseline)
+    reference = "simulator truth" if truth is not None else "the withheld GNSS fixes"
+    print(f"\nreference: {reference}; outages {windows}")
+    print(
+        f"benchmark wall time {time.perf_counter() - started:.1f} s; results in {args.output_dir}/"
+    )
+    return 0
+
+
 def cmd_convert(args: argparse.Namespace) -> int:
     from fgins.io.gnss_export import write_gnss
 
@@ -345,6 +398,7 @@ COMMANDS = {
     "smooth": cmd_smooth,
     "demo": cmd_demo,
     "sim": cmd_sim,
+    "bench": cmd_bench,
     "convert": cmd_convert,
     "inspect": cmd_inspect,
 }

@@ -45,3 +45,21 @@ def in_windows(t: np.ndarray, t0: float, windows: list[tuple[float, float]]) -> 
     for start, end in windows:
         inside |= (relative >= start) & (relative < end)
     return inside
+
+
+def periodic_windows(
+    duration_s: float, period_s: float, start_s: float, span_s: float
+) -> list[tuple[float, float]]:
+    """Outages of ``duration_s`` every ``period_s`` from ``start_s`` while they fit in ``span_s``."""
+    if duration_s <= 0 or period_s < duration_s:
+        raise FginsError("outage protocol: need 0 < duration <= period")
+    windows = []
+    start = start_s
+    while start + duration_s <= span_s:
+        windows.append((start, start + duration_s))
+        start += period_s
+    if not windows:
+        raise FginsError(
+            f"outage protocol: no {duration_s:g} s window fits in {span_s:.0f} s of GNSS from {start_s:g} s"
+        )
+    return windows
