@@ -207,7 +207,7 @@ class SmootherConfig:
     zupt_max_speed_m_per_s: float = 1.5  # the predicted speed must agree that it is a stop
     baro_sigma_m: float = 0.5
     baro_bias_walk_m_per_sqrt_s: float = 0.05
-    isam2_relinearize_threshold: float = 0.01
+    isam2_relinearize_threshold: float = 0.1
     batch_max_iterations: int = 100
 
     @property
