@@ -214,21 +214,46 @@ def _to_trajectory(
     )
 
 
-def smooth_batch(problem: Problem, progress: bool = True) -> Trajectory:
-    """Levenberg-Marquardt over the whole drive, covariances from the marginals."""
-    started = time.perf_counter()
+def _batch_graph(problem: Problem, speeds: np.ndarray | None) -> gtsam.NonlinearFactorGraph:
+    """All factors; ZUPTs only where ``speeds`` (a solution's, per keyframe) confirm a stop."""
     problem.zupt_keyframes.clear()
     graph = problem.prior_factors()
-    initial = initial_values(problem)
     for k in range(problem.n_keyframes):
-        speed = float(np.linalg.norm(initial.atVector(V(k))))
-        graph.push_back(problem.keyframe_factors(k, speed))
+        graph.push_back(problem.keyframe_factors(k, None if speeds is None else float(speeds[k])))
+    return graph
+
+
+def _optimize(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iterations: int):
     params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(problem.config.smoother.batch_max_iterations)
+    params.setMaxIterations(max_iterations)
     params.setRelativeErrorTol(1e-6)
     params.setAbsoluteErrorTol(1e-6)
     optimizer = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
-    result = optimizer.optimize()
+    return optimizer.optimize(), optimizer.iterations()
+
+
+def smooth_batch(problem: Problem, progress: bool = True) -> Trajectory:
+    """Levenberg-Marquardt over the whole drive, covariances from the marginals.
+
+    With ZUPT on, two passes: the first solves without zero-velocity factors; stops are then
+    the quiet-IMU keyframes where that solution's speed is low, and the second pass adds
+    their ZUPTs. Deciding stops from the initial guess instead would let a guess that is
+    wrong in an outage plant a false stop, which no optimiser recovers from.
+    """
+    started = time.perf_counter()
+    max_iterations = problem.config.smoother.batch_max_iterations
+    initial = initial_values(problem)
+    graph = _batch_graph(problem, None)
+    result, iterations = _optimize(graph, initial, max_iterations)
+    if problem.config.smoother.zupt and problem.quiet.any():
+        speeds = np.array(
+            [np.linalg.norm(result.atVector(V(k))) for k in range(problem.n_keyframes)]
+        )
+        with_stops = _batch_graph(problem, speeds)
+        if problem.zupt_keyframes:
+            graph = with_stops
+            result, more = _optimize(graph, result, max_iterations)
+            iterations += more
     solved = time.perf_counter()
     marginal = _marginal_function(graph, result)
     covariances = _marginal_covariances(problem, marginal, marginal, result, progress)
@@ -240,7 +265,8 @@ def smooth_batch(problem: Problem, progress: bool = True) -> Trajectory:
     trajectory.info.update(_gnss_report(problem, result))
     trajectory.info.update(
         {
-            "iterations": optimizer.iterations(),
+            "iterations": iterations,
+            "zupt_keyframes": len(problem.zupt_keyframes),
             "initial_error": graph.error(initial),
             "final_error": graph.error(result),
         }
