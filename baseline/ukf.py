@@ -1,0 +1,424 @@
+"""Loosely coupled unscented Kalman filter on the 15-dim error state (numpy only, method "ukf").
+
+The sigma-point filter of the MEMS study (20 Hz MEMS IMU + 2 Hz GPS on a car; fixes with
+PDOP > 5 rejected, which :func:`fgins.factors.gnss.gate_epochs` already does through
+``config.gnss.pdop_max``). Everything but the estimator is the EKF's
+(:mod:`fgins.baseline.ekf`): same alignment and initial covariance, same GNSS epochs, sigmas,
+gating and lever arm (:mod:`fgins.baseline.measurements`), same strapdown model and blocks
+(:mod:`fgins.baseline.mechanization`), same output construction.
+
+Sigma points. Error-state sigma points ``dx_i`` (2n + 1 = 31 for n = 15) are drawn around the
+nominal state and turned into full states ``x_i = nominal [+] dx_i``; each is propagated
+through the nonlinear mechanization, and the propagated spread, expressed again as error
+states relative to the propagated central point, gives the predicted mean and covariance.
+
+Why the *scaled* unscented transform: the study used the unscaled form with kappa = 3 - n,
+which for n = 15 is kappa = -12; the central weight kappa / (n + kappa) = -4 is negative, and
+a covariance built with a negative weight can be indefinite (a Cholesky factor of it then does
+not exist and the filter stops). The scaled form (alpha, beta, kappa) with the defaults
+alpha = 1, beta = 2, kappa = 0 has lambda = alpha^2 (n + kappa) - n = 0: mean weights
+W0 = 0 and Wi = 1 / (2n), covariance weight W0 = beta + 1 - alpha^2 = 2, all non-negative,
+so the predicted covariance is a sum of positive semidefinite terms (plus Q). Points lie at
++-sqrt(n + lambda) = 3.9 sigma, which probes the attitude nonlinearity over the range that
+matters after an outage; smaller ``alpha`` moves them in (and then W0 < 0).
+
+Speed. Propagating 31 sigma points per IMU sample in a Python loop would be far too slow;
+instead each block (the stretch between two GNSS epochs, at most ``max_block_s``) is
+propagated for all 31 points and all samples at once with the vectorised block mechanization
+(:func:`fgins.baseline.mechanization.propagate_nominal` takes batch axes). Sigma points are
+drawn afresh at every block start; the process noise of the block is added after the
+propagation, mapped to the block end through the central point's transition (exact for the
+additive, linear noise model of the EKF: white IMU noise and bias random walks).
+
+GNSS update. Position (and velocity where given) with the lever arm, ``p + R l`` and
+``v + R (w x l)``: nonlinear in the attitude when there is a lever arm, so the update uses the
+unscented transform too (for a zero lever arm it is linear and the transform reproduces the
+linear Kalman update exactly). Injection of the update into the nominal state and the
+covariance reset are the EKF's.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from tqdm import tqdm
+
+from fgins.alignment import initial_alignment
+from fgins.baseline.ekf import (
+    FilterRun,
+    _info,
+    _trajectory,
+    filtered_output,
+    initial_covariance,
+    reset_jacobian,
+)
+from fgins.baseline.measurements import (
+    GnssEpochs,
+    chi2_quantile,
+    huber_variances,
+    linearize_gnss,
+    select_gnss,
+)
+from fgins.baseline.mechanization import (
+    ACC_BIAS,
+    ATT,
+    GYRO_BIAS,
+    POS,
+    STATE_DIM,
+    VEL,
+    BlockNominal,
+    NavFrame,
+    NominalState,
+    block_times,
+    block_transition,
+    propagate_nominal,
+    segment_imu,
+)
+from fgins.config import RunConfig
+from fgins.datatypes import Dataset, InputError, Trajectory
+from fgins.geodesy import so3_exp, so3_log
+
+
+@dataclass(frozen=True)
+class UkfOptions:
+    """Unscented-transform scaling and block length (see the module docstring)."""
+
+    alpha: float = 1.0
+    beta: float = 2.0
+    kappa: float = 0.0
+    max_block_s: float = 1.0
+    innovation_gate_probability: float | None = None
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.alpha <= 1.0:
+            raise InputError(f"UKF: alpha must be in (0, 1], got {self.alpha}")
+        if not self.max_block_s > 0:
+            raise InputError(f"UKF: max_block_s must be > 0, got {self.max_block_s}")
+        if self.alpha**2 * (STATE_DIM + self.kappa) <= 0:
+            raise InputError(f"UKF: alpha^2 (n + kappa) must be > 0 (kappa = {self.kappa})")
+        p = self.innovation_gate_probability
+        if p is not None and not 0.5 < p < 1.0:
+            raise InputError(f"UKF: innovation_gate_probability must be in (0.5, 1), got {p}")
+
+
+@dataclass(frozen=True)
+class SigmaWeights:
+    """Weights of the scaled unscented transform; points at +-sqrt(scale) sigma."""
+
+    mean: np.ndarray  # (2n + 1,)
+    cov: np.ndarray  # (2n + 1,)
+    scale: float  # n + lambda
+
+
+def sigma_weights(n: int, alpha: float, beta: float = 2.0, kappa: float = 0.0) -> SigmaWeights:
+    """Scaled unscented transform (Julier 2002): lambda = alpha^2 (n + kappa) - n."""
+    lam = alpha**2 * (n + kappa) - n
+    scale = n + lam
+    mean = np.full(2 * n + 1, 0.5 / scale)
+    mean[0] = lam / scale
+    cov = mean.copy()
+    cov[0] += 1.0 - alpha**2 + beta
+    return SigmaWeights(mean=mean, cov=cov, scale=scale)
+
+
+def sigma_offsets(cov: np.ndarray, scale: float) -> np.ndarray:
+    """Offsets (2n + 1, n): zero, then +- the columns of a square root of ``scale * cov``."""
+    try:
+        root = np.linalg.cholesky(scale * cov)
+    except np.linalg.LinAlgError:
+        # Rounding can leave a tiny negative eigenvalue after many updates: clip it.
+        values, vectors = np.linalg.eigh(0.5 * (cov + cov.T))
+        root = vectors * np.sqrt(scale * np.clip(values, 0.0, None))
+    return np.concatenate([np.zeros((1, len(cov))), root.T, -root.T])
+
+
+def unscented_transform(
+    function: Callable[[np.ndarray], np.ndarray],
+    mean: np.ndarray,
+    cov: np.ndarray,
+    weights: SigmaWeights,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mean, covariance of ``function(x)`` for x ~ (mean, cov), and the cross-covariance
+    cov(x, y). ``function`` maps points (2n + 1, n) to outputs (2n + 1, m) in one call."""
+    points = mean + sigma_offsets(cov, weights.scale)
+    outputs = function(points)
+    y_mean = weights.mean @ outputs
+    dy = outputs - y_mean
+    dx = points - weights.mean @ points
+    return y_mean, (weights.cov * dy.T) @ dy, (weights.cov * dx.T) @ dy
+
+
+def _errors_from_central(block: BlockNominal, offsets: np.ndarray) -> np.ndarray:
+    """Error states (S, nodes, 15) of every propagated sigma point relative to point 0."""
+    s, nodes = block.position.shape[:2]
+    errors = np.empty((s, nodes, STATE_DIM))
+    errors[..., POS] = block.position - block.position[:1]
+    errors[..., VEL] = block.velocity - block.velocity[:1]
+    errors[..., ATT] = so3_log(block.rotation @ np.swapaxes(block.rotation[:1], -1, -2))
+    errors[..., ACC_BIAS] = offsets[:, None, ACC_BIAS]  # biases are constant over the block
+    errors[..., GYRO_BIAS] = offsets[:, None, GYRO_BIAS]
+    return errors
+
+
+def _central(block: BlockNominal) -> BlockNominal:
+    return BlockNominal(
+        block.rotation[0], block.velocity[0], block.position[0], block.specific_force_nav[0]
+    )
+
+
+def _gnss_predictions(
+    points: NominalState, gyro: np.ndarray, frame: NavFrame, lever_arm: np.ndarray, n_vel: int
+) -> np.ndarray:
+    """Antenna position and the first ``n_vel`` velocity components for states (S, ...)."""
+    rotation = points.rotation
+    arm = np.einsum("sij,j->si", rotation, lever_arm)
+    rows = [points.position + arm]
+    if n_vel:
+        body_rate = gyro - points.gyro_bias - np.einsum("sji,j->si", rotation, frame.earth_rate)
+        arm_velocity = np.einsum("sij,sj->si", rotation, np.cross(body_rate, lever_arm))
+        rows.append((points.velocity + arm_velocity)[:, :n_vel])
+    return np.concatenate(rows, axis=1)
+
+
+@dataclass
+class _UnscentedUpdater:
+    """GNSS update at a block boundary through the unscented transform (closed loop)."""
+
+    epochs: GnssEpochs
+    lever_arm: np.ndarray
+    weights: SigmaWeights
+    huber_k: float | None
+    gate_probability: float | None
+    frame: NavFrame
+    counts: dict[str, int]
+    rejected_times: list[float] = field(default_factory=list)
+
+    def __call__(
+        self, g: int, state: NominalState, cov: np.ndarray, gyro: np.ndarray
+    ) -> tuple[NominalState, np.ndarray]:
+        body_rate = gyro - state.gyro_bias - state.rotation.T @ self.frame.earth_rate
+        # Measured values, rows and variances as the EKF forms them; residual = z - h(state).
+        lin = linearize_gnss(self.epochs, g, state, body_rate, self.lever_arm)
+
+        def predict(offsets: np.ndarray) -> np.ndarray:
+            points = state.boxplus(offsets)
+            return _gnss_predictions(points, gyro, self.frame, self.lever_arm, lin.n_velocity)
+
+        y_mean, predicted, cross = unscented_transform(
+            predict, np.zeros(STATE_DIM), cov, self.weights
+        )
+        # residual = z - h(state), so the innovation z - y_mean is:
+        innovation = lin.residual - (y_mean - predict(np.zeros((1, STATE_DIM)))[0])
+        variance = lin.variance
+        if self.huber_k is not None:
+            variance, n_down = huber_variances(
+                innovation, np.diag(predicted) + variance, variance, self.huber_k
+            )
+            self.counts["huber_downweighted"] += n_down
+        s = predicted + np.diag(variance)
+        if self.gate_probability is not None:
+            nis = float(innovation @ np.linalg.solve(s, innovation))
+            if nis > chi2_quantile(self.gate_probability, len(innovation)):
+                self.counts["rejected_innovation"] += 1
+                self.rejected_times.append(float(self.epochs.t[g]))
+                return state, cov
+        gain = np.linalg.solve(s, cross.T).T
+        correction = gain @ innovation
+        cov = cov - gain @ s @ gain.T
+        reset = reset_jacobian(correction[ATT])
+        cov = reset @ cov @ reset.T
+        self.counts["gnss_updates"] += 1
+        self.counts["velocity_updates"] += int(lin.n_velocity > 0)
+        return state.boxplus(correction), 0.5 * (cov + cov.T)
+
+
+def _predict_block(
+    state: NominalState,
+    cov: np.ndarray,
+    gyro: np.ndarray,
+    accel: np.ndarray,
+    dt: np.ndarray,
+    frame: NavFrame,
+    weights: SigmaWeights,
+) -> tuple[NominalState, np.ndarray, BlockNominal]:
+    """Propagate all sigma points through one block at once.
+
+    Returns the predicted mean states at every node of the block (batch of nodes), the
+    sigma covariance at the block end (without process noise), and the central point's
+    propagation (for the process noise and the transition).
+    """
+    offsets = sigma_offsets(cov, weights.scale)
+    points = state.boxplus(offsets)
+    block = propagate_nominal(points, gyro, accel, dt, frame)
+    errors = _errors_from_central(block, offsets)  # (S, nodes, 15)
+    mean_error = np.einsum("s,snk->nk", weights.mean, errors)
+    spread = errors[:, -1] - mean_error[-1]
+    sigma_cov = (weights.cov * spread.T) @ spread
+    central = _central(block)
+    means = NominalState(
+        rotation=so3_exp(mean_error[:, ATT]) @ central.rotation,
+        velocity=central.velocity + mean_error[:, VEL],
+        position=central.position + mean_error[:, POS],
+        accel_bias=np.broadcast_to(state.accel_bias + mean_error[-1, ACC_BIAS], (len(dt) + 1, 3)),
+        gyro_bias=np.broadcast_to(state.gyro_bias + mean_error[-1, GYRO_BIAS], (len(dt) + 1, 3)),
+    )
+    return means, sigma_cov, central
+
+
+def run_ukf_filter(
+    dataset: Dataset,
+    config: RunConfig,
+    gnss_mask: np.ndarray | None,
+    options: UkfOptions,
+    progress: bool,
+) -> tuple[FilterRun, GnssEpochs]:
+    """The forward UKF pass; the result has the EKF's layout (transition: central point's)."""
+    imu = dataset.imu
+    epochs = select_gnss(dataset, config, gnss_mask)
+    noise = config.imu_noise()
+    frame = NavFrame.at(dataset.origin)
+    weights = sigma_weights(STATE_DIM, options.alpha, options.beta, options.kappa)
+    align = initial_alignment(
+        dataset, epochs.usable, heading_deg=config.smoother.initial_heading_deg
+    )
+    times = block_times(float(imu.t[0]), float(imu.t[-1]), epochs.t, options.max_block_s)
+    segments = segment_imu(imu.t, times)
+    # GNSS epochs are block boundaries by construction (block_times keeps every anchor).
+    boundary = np.clip(np.searchsorted(times, epochs.t), 0, len(times) - 1)
+    gnss_at = np.full(len(times), -1)
+    gnss_at[boundary] = np.arange(len(epochs.t))
+    white_scale = np.ones(len(segments.dt))
+    for a, b in imu.suspect:
+        white_scale[(segments.start >= a) & (segments.start < b)] = (
+            config.smoother.suspect_noise_factor
+        )
+
+    n_nodes = len(segments.start) + 1
+    nodes = {name: np.empty((n_nodes, 3)) for name in ("velocity", "position", "ba", "bg")}
+    rotation = np.empty((n_nodes, 3, 3))
+    n_blocks = len(times) - 1
+    cov_prior = np.empty((n_blocks + 1, STATE_DIM, STATE_DIM))
+    cov_posterior = np.empty_like(cov_prior)
+    transition = np.empty((n_blocks, STATE_DIM, STATE_DIM))
+    prior: list[NominalState] = []
+    posterior: list[NominalState] = []
+    counts = {
+        "gnss_updates": 0,
+        "velocity_updates": 0,
+        "rejected_innovation": 0,
+        "huber_downweighted": 0,
+    }
+    update = _UnscentedUpdater(
+        epochs=epochs,
+        lever_arm=np.asarray(config.gnss.lever_arm_m, dtype=float),
+        weights=weights,
+        huber_k=config.gnss.huber_k,
+        gate_probability=options.innovation_gate_probability,
+        frame=frame,
+        counts=counts,
+    )
+    state = NominalState(
+        rotation=np.asarray(align.rotation, dtype=float),
+        velocity=np.asarray(align.velocity, dtype=float),
+        position=np.asarray(align.position, dtype=float),
+        accel_bias=np.zeros(3),
+        gyro_bias=np.zeros(3),
+    )
+    cov = initial_covariance(
+        state.rotation, align.attitude_sigma_rad, align.velocity_sigma, align.position_sigma, noise
+    )
+    gyro_at = imu.gyro[segments.sample]
+    accel_at = imu.accel[segments.sample]
+
+    def at_boundary(
+        k: int, state: NominalState, cov: np.ndarray
+    ) -> tuple[NominalState, np.ndarray]:
+        prior.append(state.copy())
+        cov_prior[k] = cov
+        if gnss_at[k] >= 0:
+            sample = min(int(np.searchsorted(imu.t, times[k], side="right")) - 1, len(imu) - 1)
+            state, cov = update(int(gnss_at[k]), state, cov, imu.gyro[sample])
+        posterior.append(state.copy())
+        cov_posterior[k] = cov
+        return state, cov
+
+    state, cov = at_boundary(0, state, cov)
+    for b in tqdm(range(n_blocks), desc="UKF", unit="block", disable=not progress, leave=False):
+        span = segments.block(b)
+        dt = segments.dt[span]
+        means, sigma_cov, central = _predict_block(
+            state, cov, gyro_at[span], accel_at[span], dt, frame, weights
+        )
+        rows = slice(span.start, span.stop)
+        rotation[rows] = means.rotation[:-1]
+        nodes["velocity"][rows] = means.velocity[:-1]
+        nodes["position"][rows] = means.position[:-1]
+        nodes["ba"][rows] = means.accel_bias[:-1]
+        nodes["bg"][rows] = means.gyro_bias[:-1]
+        phi, q = block_transition(central, dt, frame, noise, white_scale[span])
+        transition[b] = phi
+        cov = sigma_cov + q
+        end = NominalState(
+            means.rotation[-1].copy(),
+            means.velocity[-1].copy(),
+            means.position[-1].copy(),
+            means.accel_bias[-1].copy(),
+            means.gyro_bias[-1].copy(),
+        )
+        state, cov = at_boundary(b + 1, end, 0.5 * (cov + cov.T))
+    rotation[-1], nodes["velocity"][-1], nodes["position"][-1] = (
+        state.rotation,
+        state.velocity,
+        state.position,
+    )
+    nodes["ba"][-1], nodes["bg"][-1] = state.accel_bias, state.gyro_bias
+    counts["blocks"] = n_blocks
+    counts["gnss_epochs_used"] = len(epochs.t)
+    counts["gnss_epochs_outside_imu_span"] = epochs.outside_imu_span
+    run = FilterRun(
+        segments=segments,
+        rotation=rotation,
+        velocity=nodes["velocity"],
+        position=nodes["position"],
+        accel_bias=nodes["ba"],
+        gyro_bias=nodes["bg"],
+        prior=prior,
+        posterior=posterior,
+        cov_prior=cov_prior,
+        cov_posterior=cov_posterior,
+        transition=transition,
+        counts=counts,
+        rejected_times=update.rejected_times,
+    )
+    return run, epochs
+
+
+def run_ukf(
+    dataset: Dataset,
+    config: RunConfig,
+    *,
+    gnss_mask: np.ndarray | None = None,
+    progress: bool = True,
+    options: UkfOptions | None = None,
+) -> Trajectory:
+    """Loosely coupled 15-state error-state UKF (method ``"ukf"``), output at every IMU sample.
+
+    ``gnss_mask`` withholds GNSS epochs (outages, True = keep). Raises InputError when no
+    usable GNSS epoch lies within the IMU span. ``info`` counts updates and rejections and
+    records the unscented-transform parameters.
+    """
+    options = options or UkfOptions()
+    started = time.perf_counter()
+    run, epochs = run_ukf_filter(dataset, config, gnss_mask, options, progress)
+    filtered = time.perf_counter()
+    states, cov = filtered_output(dataset, run)
+    info = _info(run, epochs)
+    info["unscented"] = {"alpha": options.alpha, "beta": options.beta, "kappa": options.kappa}
+    trajectory = _trajectory(dataset, "ukf", states, cov, info)
+    trajectory.timings.update(
+        {"filter": filtered - started, "total": time.perf_counter() - started}
+    )
+    return trajectory
