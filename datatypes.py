@@ -165,6 +165,62 @@ class BaroData:
 
 
 @dataclass
+class AccelArrayData:
+    """Raw readings of a gyro-free IMU: N single-axis accelerometers (m/s^2) at times t (s).
+
+    ``positions`` (N, 3, m) and unit sensing ``axes`` (N, 3) are in the body frame, origin at
+    the point whose specific force is wanted. ``noise_density`` is the per-sensor white noise
+    (m/s^2/sqrt(Hz)), ``bias_sigma`` the 1-sigma residual bias after calibration (m/s^2; None
+    when unknown), ``initial_rate`` the angular rate at t[0] (rad/s) the rate integral starts
+    from. Geometry is validated by :class:`fgins.factors.accel_array.AccelArray`.
+    """
+
+    t: np.ndarray
+    readings: np.ndarray
+    positions: np.ndarray
+    axes: np.ndarray
+    noise_density: float
+    bias_sigma: float | None = None
+    initial_rate: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    grade: str = ""
+
+    def __post_init__(self) -> None:
+        self.t = _as_float_array("accel_array.t", self.t, ())
+        self.positions = _as_float_array("accel_array.positions", self.positions, (3,))
+        n_sensors = self.positions.shape[0]
+        self.axes = _as_float_array("accel_array.axes", self.axes, (3,))
+        if self.axes.shape[0] != n_sensors:
+            raise InputError(
+                f"accel_array: {n_sensors} positions but {self.axes.shape[0]} sensing axes"
+            )
+        self.readings = _as_float_array("accel_array.readings", self.readings, (n_sensors,))
+        if self.readings.shape[0] != self.t.shape[0]:
+            raise InputError(
+                f"accel_array: {self.readings.shape[0]} reading rows for {self.t.shape[0]} times"
+            )
+        _check_time("accel_array.t", self.t)
+        self.initial_rate = np.asarray(self.initial_rate, dtype=float)
+        if self.initial_rate.shape != (3,) or not np.all(np.isfinite(self.initial_rate)):
+            raise InputError("accel_array.initial_rate: expected 3 finite values (rad/s)")
+        self.noise_density = float(self.noise_density)
+        if not (np.isfinite(self.noise_density) and self.noise_density > 0):
+            raise InputError(
+                f"accel_array: noise density {self.noise_density} must be finite and > 0"
+            )
+        if self.bias_sigma is not None:
+            self.bias_sigma = float(self.bias_sigma)
+            if not (np.isfinite(self.bias_sigma) and self.bias_sigma >= 0):
+                raise InputError(f"accel_array: bias sigma {self.bias_sigma} must be >= 0")
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+    @property
+    def n_sensors(self) -> int:
+        return int(self.positions.shape[0])
+
+
+@dataclass
 class Origin:
     """Local ENU tangent-plane origin (deg, deg, ellipsoidal m)."""
 
@@ -192,6 +248,8 @@ class Dataset:
     vehicle: str | None = None
     warnings: list[str] = field(default_factory=list)
     metadata: dict[str, object] = field(default_factory=dict)
+    # Raw gyro-free IMU readings when ``imu`` was derived from an accelerometer array.
+    accel_array: AccelArrayData | None = None
 
     @property
     def t0(self) -> float:

@@ -17,7 +17,10 @@ BASELINE_METHODS = {
     "ekf-rts": "fgins.baseline.ekf:run_ekf_rts",
     "ukf": "fgins.baseline.ukf:run_ukf",
     "planar-kf": "fgins.baseline.planar_kf:run_planar_kf",
+    "ekf18": "fgins.baseline.ekf18:run_ekf18",
 }
+# A gyro-free IMU (raw accelerometer-array readings in the dataset) has its own filter.
+ACCEL_ARRAY_METHODS = {"ekf": "ekf18"}
 METHODS = GRAPH_METHODS + tuple(BASELINE_METHODS)
 
 
@@ -33,6 +36,8 @@ def run_method(
         from fgins.graph.smoother import smooth
 
         return smooth(dataset, config, method, gnss_mask=gnss_mask, progress=progress)
+    if dataset.accel_array is not None:
+        method = ACCEL_ARRAY_METHODS.get(method, method)
     if method in BASELINE_METHODS:
         module_name, function_name = BASELINE_METHODS[method].split(":")
         try:

@@ -14,7 +14,13 @@ from typing import Any
 
 import numpy as np
 
-from fgins.datatypes import BaroData, Dataset, GnssData, ImuData, InputError, Origin
+from fgins.datatypes import AccelArrayData, BaroData, Dataset, GnssData, ImuData, InputError, Origin
+from fgins.io.accel_array_csv import (
+    accel_array_from_table,
+    derive_imu,
+    is_accel_array_header,
+    read_accel_array_csv,
+)
 from fgins.io.atomic import atomic_path
 from fgins.io.imu_checks import clean_imu
 
@@ -39,8 +45,11 @@ def read_header(path: Path) -> list[str]:
 
 
 def csv_kind(path: Path) -> str | None:
-    """'imu', 'gnss', 'baro' or None, from the header line."""
-    header = set(read_header(path))
+    """'imu', 'accel_array', 'gnss', 'baro' or None, from the header line."""
+    columns = read_header(path)
+    if is_accel_array_header(columns):
+        return "accel_array"
+    header = set(columns)
     if {"gyro_x", "accel_x"} <= header:
         return "imu"
     if {"lat", "lon"} <= header:
@@ -232,11 +241,28 @@ def read_csv_dataset(paths: list[Path]) -> Dataset:
         if kind in by_kind:
             raise InputError(f"two {kind} files given: {by_kind[kind]} and {path}")
         by_kind[kind] = path
-    if "imu" not in by_kind:
-        raise InputError("no IMU CSV among the inputs (header time,gyro_x,...,accel_z)")
+    if "imu" in by_kind and "accel_array" in by_kind:
+        raise InputError(
+            f"both an IMU CSV ({by_kind['imu']}) and accelerometer-array readings "
+            f"({by_kind['accel_array']}) given; pass one of them"
+        )
+    if "imu" not in by_kind and "accel_array" not in by_kind:
+        raise InputError(
+            "no IMU CSV among the inputs (header time,gyro_x,...,accel_z, or time,a1,...,aN "
+            "for a gyro-free accelerometer array)"
+        )
     if "gnss" not in by_kind:
         raise InputError("no GNSS CSV among the inputs (header time,lat,lon,alt,...)")
-    imu = read_imu_csv(by_kind["imu"], warnings)
+    accel_array: AccelArrayData | None = None
+    if "accel_array" in by_kind:
+        if not config:  # a file given on its own: its geometry sits beside it
+            config = _read_sim_config(by_kind["accel_array"].parent)
+        accel_array = _read_accel_array(by_kind["accel_array"], config, warnings)
+        imu, derived_noise = derive_imu(accel_array)
+        if not config.get("imu"):
+            config = {**config, "imu": derived_noise}
+    else:
+        imu = read_imu_csv(by_kind["imu"], warnings)
     gnss = read_gnss_csv(by_kind["gnss"], warnings)
     baro = read_baro_csv(by_kind["baro"], warnings) if "baro" in by_kind else None
     if len(gnss) == 0:
@@ -253,9 +279,28 @@ def read_csv_dataset(paths: list[Path]) -> Dataset:
         gnss=gnss,
         baro=baro,
         origin=origin,
-        name=name or by_kind["imu"].parent.name,
+        name=name or by_kind.get("imu", by_kind.get("accel_array", Path())).parent.name,
         imu_config=dict(config.get("imu", {})),
         gnss_config=dict(config.get("gnss", {})),
         vehicle=config.get("scenario", {}).get("vehicle"),
+        warnings=warnings,
+        accel_array=accel_array,
+    )
+
+
+def _read_accel_array(path: Path, config: dict[str, Any], warnings: list[str]) -> AccelArrayData:
+    """Readings of ``path`` with the ``[accel_array]`` table of the accompanying config."""
+    table = config.get("accel_array")
+    if not table:
+        raise InputError(
+            f"{path}: accelerometer-array readings need an [accel_array] table (positions_m, "
+            "axes, noise_m_per_s2_per_sqrt_hz) in config.toml beside them"
+        )
+    t, readings = read_accel_array_csv(path, warnings)
+    return accel_array_from_table(
+        dict(table),
+        t,
+        readings,
+        where=f"{path.parent / 'config.toml'} [accel_array]",
         warnings=warnings,
     )

@@ -1,7 +1,8 @@
 """Write a simulated run as the folder ``fgins sim`` produces (DESIGN.md).
 
-imu.csv, gnss.csv, baro.csv (when there is a barometer), config.toml and truth.csv, each
-written atomically. tomllib only reads TOML, so config.toml comes from the small emitter here.
+imu.csv (accel_array.csv instead for a gyro-free IMU, whose IMU is derived on reading),
+gnss.csv, baro.csv (when there is a barometer), config.toml and truth.csv, each written
+atomically. tomllib only reads TOML, so config.toml comes from the small emitter here.
 """
 
 from __future__ import annotations
@@ -11,6 +12,11 @@ from pathlib import Path
 from typing import Any
 
 from fgins.datatypes import InputError
+from fgins.io.accel_array_csv import (
+    ACCEL_ARRAY_FILE,
+    accel_array_table,
+    write_accel_array_csv,
+)
 from fgins.io.atomic import atomic_path
 from fgins.io.csv_pair import write_baro_csv, write_gnss_csv, write_imu_csv
 from fgins.io.trajectory_csv import write_trajectory_csv
@@ -68,13 +74,22 @@ def write_sim_dir(run: SimRun, out_dir: str | Path) -> None:
         raise InputError(f"{folder}: exists and is not a folder; choose another output path")
     folder.mkdir(parents=True, exist_ok=True)
     dataset = run.dataset
-    write_imu_csv(dataset.imu, folder / "imu.csv")
+    if dataset.accel_array is not None:
+        # Gyro-free IMU: the raw readings are the data; the IMU is derived when reading.
+        write_accel_array_csv(dataset.accel_array, folder / ACCEL_ARRAY_FILE)
+    else:
+        write_imu_csv(dataset.imu, folder / "imu.csv")
     write_gnss_csv(dataset.gnss, folder / "gnss.csv")
     if dataset.baro is not None:
         write_baro_csv(dataset.baro, folder / "baro.csv")
     origin = dataset.origin
     tables: dict[str, dict[str, Any]] = {
         **run.config,
+        **(
+            {"accel_array": accel_array_table(dataset.accel_array)}
+            if dataset.accel_array is not None
+            else {}
+        ),
         "origin": {"lat": origin.lat, "lon": origin.lon, "alt": origin.alt},
         "scenario": {
             "name": dataset.name,

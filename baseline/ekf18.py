@@ -1,0 +1,345 @@
+"""18-state error-state EKF for a gyro-free IMU (accelerometer array + GNSS), numpy only.
+
+Error states: position (3), velocity (3), attitude ``phi`` (3, ENU, ``R_true = Exp(phi) R``),
+angular rate (3, body, ``w_true = w + dw``) and the biases of the six accelerometers (6).
+The filter propagates from the *raw array readings*, not from the front end's integrated rate:
+with readings A (bias-corrected by the estimate), P the least-squares solver of the geometry
+and G = P Q its centripetal coupling (:mod:`fgins.factors.accel_array`),
+
+    alpha = P_alpha (A - b) - G_alpha m(w)      (zero coupling for the cube)
+    w'    = alpha                               (the rate is a state, integrated here)
+    f     = P_f (A - b) - G_f m(w)              (centripetal term from the current rate)
+
+and the strapdown mechanization of :mod:`fgins.baseline.mechanization` runs on (w, f). The rate
+is integrated over the segments between IMU samples and block boundaries with the trapezoid
+rule on linearly interpolated alpha (the front end's scheme), and each segment uses its mean
+rate, so the attitude integration is second order in the sample interval.
+
+Error dynamics (per segment, first order): dphi' = R dw - w_ie x phi, dw' = -P_alpha db -
+G_alpha M(w) dw, dv' = -[f_n]x phi + R (-P_f db - G_f M(w) dw) - 2 w_ie x dv, p' = v, with
+M = dm/dw. White accelerometer noise (density sigma per sensor, held over each sample) drives
+velocity and rate together (correlated through P); the biases are constants with a tiny
+random walk. GNSS position (+ velocity where given) updates use the project's GNSS noise model
+(:mod:`fgins.baseline.measurements`, :mod:`fgins.factors.gnss`) with closed-loop injection.
+Blocks end at GNSS epochs and at most ``max_block_s`` apart, as in :mod:`fgins.baseline.ekf`.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from tqdm import tqdm
+
+from fgins.alignment import initial_alignment
+from fgins.baseline.measurements import linearize_gnss, select_gnss
+from fgins.baseline.mechanization import (
+    NavFrame,
+    NominalState,
+    block_times,
+    propagate_nominal,
+    segment_imu,
+    skew_batch,
+)
+from fgins.config import RunConfig
+from fgins.datatypes import AccelArrayData, Dataset, InputError, Trajectory
+from fgins.factors.accel_array import AccelArray, rate_monomials
+
+STATE_DIM = 18
+POS = slice(0, 3)
+VEL = slice(3, 6)
+ATT = slice(6, 9)
+RATE = slice(9, 12)
+BIAS = slice(12, 18)
+# Random walk of the six accelerometer biases (m/s^2/sqrt(s)): constants in the model, but a
+# tiny walk keeps the covariance from collapsing over long drives.
+BIAS_RANDOM_WALK = 1e-6
+INITIAL_RATE_SIGMA = 1e-3  # rad/s: the front end's w0 (zero) misses the Earth rate and more
+
+
+def _rate_jacobian(rate: np.ndarray) -> np.ndarray:
+    """M(w) = dm/dw (n, 6, 3) of the monomials m = (wx^2, wy^2, wz^2, wxwy, wxwz, wywz)."""
+    x, y, z = rate[:, 0], rate[:, 1], rate[:, 2]
+    zero = np.zeros_like(x)
+    rows = [
+        (2 * x, zero, zero),
+        (zero, 2 * y, zero),
+        (zero, zero, 2 * z),
+        (y, x, zero),
+        (z, zero, x),
+        (zero, z, y),
+    ]
+    return np.stack([np.stack(r, axis=-1) for r in rows], axis=1)
+
+
+class _ArrayModel:
+    """Solver pieces of the array geometry, weighted by the (equal) sensor noise."""
+
+    def __init__(self, data: AccelArrayData) -> None:
+        array = AccelArray(positions=data.positions, axes=data.axes)
+        solver = array.solver()
+        self.solver_f, self.solver_alpha = solver[:3], solver[3:]
+        coupling = solver @ array.centripetal_matrix()
+        self.coupling_f, self.coupling_alpha = coupling[:3], coupling[3:]
+        self.n_sensors = len(array)
+        self.noise_density = data.noise_density
+
+    def alpha(self, readings: np.ndarray, rate: np.ndarray) -> np.ndarray:
+        return readings @ self.solver_alpha.T - rate_monomials(rate) @ self.coupling_alpha.T
+
+    def specific_force(self, readings: np.ndarray, rate: np.ndarray) -> np.ndarray:
+        return readings @ self.solver_f.T - rate_monomials(rate) @ self.coupling_f.T
+
+
+def _integrate_rate(
+    model: _ArrayModel, corrected: np.ndarray, node_t: np.ndarray, w0: np.ndarray
+) -> np.ndarray:
+    """Rates at the block's nodes: trapezoid rule on alpha interpolated at the node times.
+
+    ``corrected`` are the bias-corrected readings interpolated to the nodes (n+1, N). For a
+    rate-free geometry alpha is known at every node at once; otherwise Heun steps per node.
+    """
+    dt = np.diff(node_t)
+    if np.max(np.abs(model.coupling_alpha)) < 1e-9:
+        alpha = corrected @ model.solver_alpha.T
+        steps = 0.5 * (alpha[1:] + alpha[:-1]) * dt[:, None]
+        return w0 + np.vstack([np.zeros((1, 3)), np.cumsum(steps, axis=0)])
+    rate = np.empty((len(node_t), 3))
+    rate[0] = w0
+    for k, h in enumerate(dt):
+        a0 = model.alpha(corrected[k], rate[k])
+        predicted = rate[k] + h * a0
+        rate[k + 1] = rate[k] + 0.5 * h * (a0 + model.alpha(corrected[k + 1], predicted))
+    return rate
+
+
+def _segment_transitions(
+    model: _ArrayModel,
+    rotation: np.ndarray,
+    f_nav: np.ndarray,
+    rate: np.ndarray,
+    dt: np.ndarray,
+    frame: NavFrame,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per-segment error-state transitions and process noise, each (n, 18, 18)."""
+    n = len(dt)
+    eye = np.eye(3)
+    d1 = dt[:, None, None]
+    d2 = d1**2
+    w_x = skew_batch(frame.earth_rate)
+    f_x = skew_batch(f_nav)
+    m_jac = _rate_jacobian(rate)
+    df_dw = -np.einsum("ij,njk->nik", model.coupling_f, m_jac)  # (n, 3, 3)
+    dalpha_dw = -np.einsum("ij,njk->nik", model.coupling_alpha, m_jac)
+    r_pf = -rotation @ model.solver_f  # (n, 3, 6): d(R f)/db
+    pa = -model.solver_alpha  # (3, 6): d alpha/db
+    r_df_dw = rotation @ df_dw
+
+    phi = np.tile(np.eye(STATE_DIM), (n, 1, 1))
+    phi[:, POS, VEL] = eye * d1 - w_x * d2
+    phi[:, POS, ATT] = -0.5 * f_x * d2
+    phi[:, POS, RATE] = 0.5 * r_df_dw * d2
+    phi[:, POS, BIAS] = 0.5 * r_pf * d2
+    phi[:, VEL, VEL] -= 2.0 * w_x * d1
+    phi[:, VEL, ATT] = -f_x * d1
+    phi[:, VEL, RATE] = r_df_dw * d1
+    phi[:, VEL, BIAS] = r_pf * d1
+    phi[:, ATT, ATT] -= w_x * d1
+    phi[:, ATT, RATE] = rotation * d1 + 0.5 * rotation @ dalpha_dw * d2
+    phi[:, ATT, BIAS] = 0.5 * rotation @ pa * d2
+    phi[:, RATE, RATE] += dalpha_dw * d1
+    phi[:, RATE, BIAS] = pa * d1
+
+    # Sensor white noise n (6,) held over dt (variance sigma^2 / dt) enters like a bias.
+    noise_in = np.zeros((n, STATE_DIM, model.n_sensors))
+    noise_in[:, POS] = 0.5 * r_pf * d2
+    noise_in[:, VEL] = r_pf * d1
+    noise_in[:, ATT] = 0.5 * rotation @ pa * d2
+    noise_in[:, RATE] = pa * d1
+    variance = model.noise_density**2 / dt
+    q = np.einsum("nik,n,njk->nij", noise_in, variance, noise_in)
+    q[:, BIAS, BIAS] += (BIAS_RANDOM_WALK**2 * dt)[:, None, None] * np.eye(model.n_sensors)
+    return phi, q
+
+
+def _compose(phi: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(Phi, Q) of a block from per-segment ones by an associative tree reduction."""
+    dim = phi.shape[-1]
+    while phi.shape[0] > 1:
+        if phi.shape[0] % 2:
+            phi = np.concatenate([phi, np.eye(dim)[None]])
+            q = np.concatenate([q, np.zeros((1, dim, dim))])
+        early, late = phi[0::2], phi[1::2]
+        q = late @ q[0::2] @ np.swapaxes(late, 1, 2) + q[1::2]
+        phi = late @ early
+    return phi[0], q[0]
+
+
+def _interpolate_readings(data: AccelArrayData, times: np.ndarray) -> np.ndarray:
+    """Readings linearly interpolated to ``times`` (n, N)."""
+    return np.column_stack(
+        [np.interp(times, data.t, data.readings[:, j]) for j in range(data.n_sensors)]
+    )
+
+
+def run_ekf18(
+    dataset: Dataset,
+    config: RunConfig,
+    *,
+    gnss_mask: np.ndarray | None = None,
+    progress: bool = True,
+    max_block_s: float = 1.0,
+) -> Trajectory:
+    """The 18-state gyro-free EKF (method ``"ekf18"``), output at every array sample.
+
+    Needs ``dataset.accel_array`` (raw readings + geometry); ``dataset.imu`` (the front-end
+    output) is used only for the initial alignment. ``info`` holds the update counts and the
+    final accelerometer bias estimates (``accel_array_bias``, m/s^2).
+    """
+    data = dataset.accel_array
+    if data is None:
+        raise InputError(
+            f"{dataset.name or 'input'}: method ekf18 needs accelerometer-array readings "
+            "(accel_array.csv); use ekf for an ordinary IMU"
+        )
+    if not max_block_s > 0:
+        raise InputError(f"ekf18: max_block_s must be > 0, got {max_block_s}")
+    started = time.perf_counter()
+    model = _ArrayModel(data)
+    frame = NavFrame.at(dataset.origin)
+    epochs = select_gnss(dataset, config, gnss_mask)
+    align = initial_alignment(
+        dataset, epochs.usable, heading_deg=config.smoother.initial_heading_deg
+    )
+    lever_arm = np.asarray(config.gnss.lever_arm_m, dtype=float)
+    times = block_times(float(data.t[0]), float(data.t[-1]), epochs.t, max_block_s)
+    segments = segment_imu(data.t, times)
+    node_t = segments.nodes
+    # Which block boundary carries which GNSS epoch (-1: none); epochs are boundaries.
+    gnss_at = np.full(len(times), -1)
+    at = np.clip(np.searchsorted(times, epochs.t), 0, len(times) - 1)
+    on_boundary = np.isclose(times[at], epochs.t, rtol=0.0, atol=1e-9)
+    gnss_at[at[on_boundary]] = np.flatnonzero(on_boundary)
+    node_readings = _interpolate_readings(data, node_t)
+
+    n_nodes = len(node_t)
+    rotation = np.empty((n_nodes, 3, 3))
+    velocity = np.empty((n_nodes, 3))
+    position = np.empty((n_nodes, 3))
+    rate_out = np.empty((n_nodes, 3))
+    cov_prior = np.empty((len(times), STATE_DIM, STATE_DIM))
+    cov_post = np.empty_like(cov_prior)
+
+    # Nominal state: navigation + rate + six biases.
+    nav = NominalState(
+        rotation=np.asarray(align.rotation, dtype=float),
+        velocity=np.asarray(align.velocity, dtype=float),
+        position=np.asarray(align.position, dtype=float),
+        accel_bias=np.zeros(3),
+        gyro_bias=np.zeros(3),
+    )
+    rate = data.initial_rate.copy()
+    bias = np.zeros(data.n_sensors)
+    bias_sigma = data.bias_sigma if data.bias_sigma is not None else 1e-3 * 9.80665
+    cov = np.zeros((STATE_DIM, STATE_DIM))
+    cov[POS, POS] = np.eye(3) * align.position_sigma**2
+    cov[VEL, VEL] = np.eye(3) * align.velocity_sigma**2
+    att_sigma = np.asarray(align.attitude_sigma_rad)
+    cov[ATT, ATT] = nav.rotation @ np.diag(att_sigma**2) @ nav.rotation.T
+    cov[RATE, RATE] = np.eye(3) * INITIAL_RATE_SIGMA**2
+    cov[BIAS, BIAS] = np.eye(data.n_sensors) * max(bias_sigma, 1e-9) ** 2
+    counts = {"gnss_updates": 0, "velocity_updates": 0}
+
+    def update(k: int) -> None:
+        nonlocal nav, rate, bias, cov
+        g = int(gnss_at[k])
+        body_rate = rate - nav.rotation.T @ frame.earth_rate
+        lin = linearize_gnss(epochs, g, nav, body_rate, lever_arm)
+        h = np.zeros((len(lin.residual), STATE_DIM))
+        h[:, :9] = lin.jacobian[:, :9]
+        h[:, RATE] = -lin.jacobian[:, 12:15]  # w_true = w + dw, the gyro bias enters as -dw
+        s = h @ cov @ h.T + np.diag(lin.variance)
+        gain = np.linalg.solve(s, h @ cov).T
+        dx = gain @ lin.residual
+        i_kh = np.eye(STATE_DIM) - gain @ h
+        cov = i_kh @ cov @ i_kh.T + (gain * lin.variance) @ gain.T  # Joseph form
+        reset = np.eye(STATE_DIM)
+        reset[ATT, ATT] -= 0.5 * skew_batch(dx[ATT])
+        cov = reset @ cov @ reset.T
+        cov = 0.5 * (cov + cov.T)
+        dx15 = np.zeros(15)
+        dx15[:9] = dx[:9]
+        nav = nav.boxplus(dx15)
+        rate = rate + dx[RATE]
+        bias = bias + dx[BIAS]
+        counts["gnss_updates"] += 1
+        counts["velocity_updates"] += int(lin.n_velocity > 0)
+
+    def boundary(k: int) -> None:
+        cov_prior[k] = cov
+        if gnss_at[k] >= 0:
+            update(k)
+        cov_post[k] = cov
+
+    boundary(0)
+    n_blocks = len(times) - 1
+    for b in tqdm(range(n_blocks), desc="EKF18", unit="block", disable=not progress, leave=False):
+        span = segments.block(b)
+        nodes = slice(span.start, span.stop + 1)
+        dt = segments.dt[span]
+        corrected = node_readings[nodes] - bias
+        rates = _integrate_rate(model, corrected, node_t[nodes], rate)
+        mean_rate = 0.5 * (rates[1:] + rates[:-1])
+        # Specific force over a segment: readings held from the segment start (the IMU hold
+        # model), centripetal term at the segment's mean rate.
+        held = data.readings[segments.sample[span]] - bias
+        force = model.specific_force(held, mean_rate)
+        nominal = propagate_nominal(nav, mean_rate, force, dt, frame)
+        rows = slice(span.start, span.stop)
+        rotation[rows] = nominal.rotation[:-1]
+        velocity[rows] = nominal.velocity[:-1]
+        position[rows] = nominal.position[:-1]
+        rate_out[rows] = rates[:-1]
+        phi, q = _segment_transitions(
+            model, nominal.rotation[:-1], nominal.specific_force_nav, mean_rate, dt, frame
+        )
+        phi_block, q_block = _compose(phi, q)
+        cov = phi_block @ cov @ phi_block.T + q_block
+        cov = 0.5 * (cov + cov.T)
+        nav = nominal.end(nav)
+        rate = rates[-1]
+        boundary(b + 1)
+    rotation[-1], velocity[-1], position[-1] = nav.rotation, nav.velocity, nav.position
+    rate_out[-1] = rate
+
+    # Output at the array samples: the node at each sample time; covariances interpolated
+    # between a block's a-posteriori start and a-priori end.
+    rows = np.clip(np.searchsorted(node_t, data.t), 0, n_nodes - 1)
+    block = np.clip(np.searchsorted(times, data.t, side="right") - 1, 0, len(times) - 2)
+    share = np.clip((data.t - times[block]) / (times[block + 1] - times[block]), 0.0, 1.0)
+    s = share[:, None, None]
+    out_cov = (1.0 - s) * cov_post[block] + s * cov_prior[block + 1]
+    out_cov[data.t >= times[-1]] = cov_post[-1]
+    counts["blocks"] = n_blocks
+    trajectory = Trajectory(
+        t=data.t,
+        position=position[rows],
+        velocity=velocity[rows],
+        rotation=rotation[rows],
+        origin=dataset.origin,
+        method="ekf18",
+        # The rate error of the front end, as a gyro "bias": front-end rate minus filter rate.
+        gyro_bias=(dataset.imu.gyro - rate_out[rows]) if len(dataset.imu) == len(data) else None,
+        position_cov=out_cov[:, POS, POS],
+        velocity_cov=out_cov[:, VEL, VEL],
+        attitude_cov=out_cov[:, ATT, ATT],
+        info={
+            "gnss_gating": epochs.gating_summary,
+            **counts,
+            "gnss_epochs_used": len(epochs.t),
+            "accel_array_bias": bias.tolist(),
+            "angular_rate": rate_out[rows],
+        },
+    )
+    trajectory.timings["total"] = time.perf_counter() - started
+    return trajectory

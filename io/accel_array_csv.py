@@ -1,0 +1,211 @@
+"""Gyro-free IMU input: ``accel_array.csv`` (raw accelerometer-array readings) + its geometry.
+
+``accel_array.csv`` is ``time,a1,...,aN`` (s, m/s^2), one column per single-axis accelerometer.
+The geometry and noise come from an ``[accel_array]`` TOML table (a ``fgins sim`` folder's
+``config.toml``)::
+
+    [accel_array]
+    positions_m = [[0.0, 0.0, -0.1], ...]     # N x 3, body frame, m
+    axes = [[0.7071, 0.7071, 0.0], ...]        # N x 3 unit sensing axes
+    noise_m_per_s2_per_sqrt_hz = 0.00196       # per-sensor white noise density
+    bias_sigma_m_per_s2 = 0.00098              # optional: residual bias after calibration
+    initial_rate_rad_per_s = [0.0, 0.0, 0.0]   # optional: rate at the first sample (default 0)
+    grade = "tactical"                         # optional: fgins.sim.accel_array.GRADES name
+
+The ordinary IMU the rest of fgins consumes is *derived* by the front end
+(:func:`fgins.factors.accel_array.solve_array`): :func:`derive_imu` returns it with the
+``[imu]`` noise keys that describe it (:func:`fgins.factors.accel_array.equivalent_imu_noise`).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fgins.datatypes import AccelArrayData, ImuData, InputError
+from fgins.factors.accel_array import (
+    AccelArray,
+    equivalent_imu_noise,
+    solve_array,
+    to_imu_data,
+)
+from fgins.io.atomic import atomic_path
+
+ACCEL_ARRAY_FILE = "accel_array.csv"
+_READING_COLUMN = re.compile(r"a(\d+)$")
+# Residual bias assumed when neither the table nor the grade states one: 1 mg (a calibrated
+# MEMS accelerometer); stated in the dataset's warnings so it is never silent.
+DEFAULT_BIAS_SIGMA = 1e-3 * 9.80665
+
+
+def is_accel_array_header(header: list[str]) -> bool:
+    """True for ``time,a1,...,aN`` (N >= 1, columns numbered 1..N in order)."""
+    if len(header) < 2 or header[0] != "time":
+        return False
+    numbers = [_READING_COLUMN.match(name) for name in header[1:]]
+    return all(m is not None and int(m.group(1)) == i + 1 for i, m in enumerate(numbers))
+
+
+def read_accel_array_csv(
+    path: str | Path, warnings: list[str] | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Times (T,) and readings (T, N) of ``accel_array.csv``.
+
+    Malformed rows and rows with a missing or non-finite value are dropped and counted in
+    ``warnings`` (the rate integral then spans the longer interval); unsorted times raise.
+    """
+    path = Path(path)
+    warnings = [] if warnings is None else warnings
+    try:
+        with path.open(newline="") as handle:
+            reader = csv.reader(handle)
+            header = [name.strip().lower() for name in next(reader, [])]
+            if not is_accel_array_header(header):
+                raise InputError(
+                    f"{path}: header must be time,a1,...,aN (accelerometer array readings)"
+                )
+            rows: list[list[float]] = []
+            bad = 0
+            for row in reader:
+                if not row or all(not cell.strip() for cell in row):
+                    continue
+                try:
+                    values = [float(cell) for cell in row]
+                except ValueError:
+                    bad += 1
+                    continue
+                if len(values) != len(header) or not all(math.isfinite(v) for v in values):
+                    bad += 1
+                    continue
+                rows.append(values)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: not a text CSV file") from None
+    if bad:
+        warnings.append(f"{path.name}: dropped {bad} malformed or incomplete reading row(s)")
+    if len(rows) < 3:
+        raise InputError(f"{path}: need at least 3 reading rows, got {len(rows)}")
+    table = np.array(rows)
+    return table[:, 0], table[:, 1:]
+
+
+def write_accel_array_csv(data: AccelArrayData, path: str | Path) -> None:
+    """Write ``time,a1,...,aN`` (atomically)."""
+    header = ["time"] + [f"a{j + 1}" for j in range(data.n_sensors)]
+    table = np.column_stack([data.t, data.readings])
+    with atomic_path(path) as tmp:
+        np.savetxt(
+            tmp,
+            table,
+            delimiter=",",
+            header=",".join(header),
+            comments="",
+            fmt=["%.6f"] + ["%.10e"] * data.n_sensors,
+        )
+
+
+def accel_array_table(data: AccelArrayData) -> dict[str, Any]:
+    """The ``[accel_array]`` config table describing ``data`` (geometry, noise, grade)."""
+    table: dict[str, Any] = {
+        "positions_m": data.positions.tolist(),
+        "axes": data.axes.tolist(),
+        "noise_m_per_s2_per_sqrt_hz": data.noise_density,
+    }
+    if data.bias_sigma is not None:
+        table["bias_sigma_m_per_s2"] = data.bias_sigma
+    if np.any(data.initial_rate != 0):
+        table["initial_rate_rad_per_s"] = data.initial_rate.tolist()
+    if data.grade:
+        table["grade"] = data.grade
+    return table
+
+
+_TABLE_KEYS = {
+    "positions_m",
+    "axes",
+    "noise_m_per_s2_per_sqrt_hz",
+    "bias_sigma_m_per_s2",
+    "initial_rate_rad_per_s",
+    "grade",
+}
+
+
+def accel_array_from_table(
+    table: dict[str, Any],
+    t: np.ndarray,
+    readings: np.ndarray,
+    *,
+    where: str = "[accel_array]",
+    warnings: list[str] | None = None,
+) -> AccelArrayData:
+    """Readings plus an ``[accel_array]`` table -> validated :class:`AccelArrayData`."""
+    warnings = [] if warnings is None else warnings
+    unknown = set(table) - _TABLE_KEYS
+    if unknown:
+        raise InputError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}")
+    missing = [k for k in ("positions_m", "axes", "noise_m_per_s2_per_sqrt_hz") if k not in table]
+    if missing:
+        raise InputError(
+            f"{where}: missing key(s) {', '.join(missing)}; the accelerometer-array readings "
+            "need the geometry and noise density (see fgins.io.accel_array_csv)"
+        )
+    try:
+        positions = np.asarray(table["positions_m"], dtype=float)
+        axes = np.asarray(table["axes"], dtype=float)
+        initial_rate = np.asarray(table.get("initial_rate_rad_per_s", [0.0, 0.0, 0.0]), float)
+        noise = float(table["noise_m_per_s2_per_sqrt_hz"])
+    except (TypeError, ValueError):
+        raise InputError(f"{where}: positions_m, axes and noise must be numbers") from None
+    if positions.ndim != 2 or positions.shape[0] != readings.shape[1]:
+        raise InputError(
+            f"{where}: {positions.shape[0] if positions.ndim == 2 else '?'} positions for "
+            f"{readings.shape[1]} reading columns; list one position and axis per column a1..aN"
+        )
+    grade = str(table.get("grade", ""))
+    bias_sigma = table.get("bias_sigma_m_per_s2")
+    if bias_sigma is None and grade:
+        from fgins.sim.accel_array import resolve_grade
+
+        bias_sigma = resolve_grade(grade).residual_bias
+    if bias_sigma is None:
+        bias_sigma = DEFAULT_BIAS_SIGMA
+        warnings.append(
+            f"{where}: no bias_sigma_m_per_s2 or grade; assuming {DEFAULT_BIAS_SIGMA:.3g} m/s^2"
+        )
+    return AccelArrayData(
+        t=t,
+        readings=readings,
+        positions=positions,
+        axes=axes,
+        noise_density=noise,
+        bias_sigma=float(bias_sigma),
+        initial_rate=initial_rate,
+        grade=grade,
+    )
+
+
+def array_geometry(data: AccelArrayData) -> AccelArray:
+    """The validated geometry (raises InputError for degenerate arrays)."""
+    return AccelArray(positions=data.positions, axes=data.axes)
+
+
+def derive_imu(data: AccelArrayData) -> tuple[ImuData, dict[str, float]]:
+    """The front end: the array's ordinary IMU output and the ``[imu]`` keys describing it.
+
+    Readings are solved by noise-weighted least squares (equal weights for one density) and
+    the rate integrated from ``data.initial_rate``. The noise keys say that the "gyro" error is
+    the integral of accelerometer noise and bias (:func:`equivalent_imu_noise`); ``rate_hz``
+    is added so the graph knows the sample rate.
+    """
+    array = array_geometry(data)
+    solution = solve_array(array, data.readings, data.t, data.initial_rate)
+    imu = to_imu_data(solution)
+    bias = DEFAULT_BIAS_SIGMA if data.bias_sigma is None else data.bias_sigma
+    noise = equivalent_imu_noise(array, data.noise_density, bias)
+    return imu, {"preset": "tactical", **noise, "rate_hz": imu.rate_hz}
