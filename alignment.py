@@ -58,13 +58,28 @@ def _gnss_fit(
     t: np.ndarray, enu: np.ndarray, t_eval: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Position, velocity and acceleration at ``t_eval`` from a quadratic fit."""
+    position, velocity, acceleration, _ = _gnss_fit_with_sigma(t, enu, t_eval)
+    return position, velocity, acceleration
+
+
+def _gnss_fit_with_sigma(
+    t: np.ndarray, enu: np.ndarray, t_eval: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """As :func:`_gnss_fit`, plus the 1-sigma of the horizontal speed from the residuals."""
     dt = t - t_eval
     degree = 2 if len(t) >= 4 else 1
-    coeffs = np.polynomial.polynomial.polyfit(dt, enu, degree)
+    design = np.vander(dt, degree + 1, increasing=True)
+    coeffs, *_ = np.linalg.lstsq(design, enu, rcond=None)
     position = coeffs[0]
     velocity = coeffs[1]
     acceleration = 2 * coeffs[2] if degree == 2 else np.zeros(3)
-    return position, velocity, acceleration
+    dof = len(t) - (degree + 1)
+    if dof <= 0:
+        return position, velocity, acceleration, 0.0
+    residual = enu[:, :2] - design @ coeffs[:, :2]
+    noise = float(np.sqrt(np.sum(residual**2) / (2 * dof)))
+    covariance = np.linalg.inv(design.T @ design)
+    return position, velocity, acceleration, noise * float(np.sqrt(covariance[1, 1]))
 
 
 def initial_alignment(
@@ -89,8 +104,12 @@ def initial_alignment(
     window = gnss_t <= max(gnss_t[0], t0) + fit_window_s
     if window.sum() < 3:
         window = np.arange(len(gnss_t)) < 3
-    position, velocity, acceleration = _gnss_fit(gnss_t[window], gnss_enu[window], t0)
+    position, velocity, acceleration, speed_sigma = _gnss_fit_with_sigma(
+        gnss_t[window], gnss_enu[window], t0
+    )
     speed = float(np.linalg.norm(velocity[:2]))
+    # Motion must stand out of the fit's own noise (metre-level fixes fake m/s at rest).
+    moving_speed = max(moving_speed, 3.0 * speed_sigma)
     # Accelerometer average over the first second of IMU data.
     first = imu.t <= t0 + 1.0
     first[: min(len(first), 10)] = True
@@ -146,9 +165,11 @@ def _with_heading(rotation: np.ndarray, heading_deg: float) -> np.ndarray:
 
 
 def _imu_static(gyro: np.ndarray, accel: np.ndarray, gravity: float) -> bool:
-    """At rest: small rotation rate, specific force close to g and steady."""
+    """At rest: steady rates (their mean is the gyro bias, which can be large), specific
+    force close to g and steady."""
     return bool(
-        np.linalg.norm(gyro.mean(axis=0)) < 0.02
+        np.all(gyro.std(axis=0) < 0.01)
+        and np.linalg.norm(gyro.mean(axis=0)) < 0.05
         and abs(np.linalg.norm(accel.mean(axis=0)) - gravity) < 0.3
         and np.all(accel.std(axis=0) < 0.3)
     )

@@ -232,6 +232,14 @@ def _optimize(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iter
     return optimizer.optimize(), optimizer.iterations()
 
 
+def _suspect_solution(
+    graph: gtsam.NonlinearFactorGraph, result: gtsam.Values, iterations: int, max_iterations: int
+) -> bool:
+    """Did LM stall or end far from a consistent fit? A consistent solution has an error of
+    about half the number of measurement dimensions (chi-square / 2), i.e. ~1-2 per factor."""
+    return iterations >= max_iterations or graph.error(result) > 25.0 * graph.size()
+
+
 def smooth_batch(problem: Problem, progress: bool = True) -> Trajectory:
     """Levenberg-Marquardt over the whole drive, covariances from the marginals.
 
@@ -245,6 +253,16 @@ def smooth_batch(problem: Problem, progress: bool = True) -> Trajectory:
     initial = initial_values(problem)
     graph = _batch_graph(problem, None)
     result, iterations = _optimize(graph, initial, max_iterations)
+    fallback = False
+    if _suspect_solution(graph, result, iterations, max_iterations):
+        # The filter's guess led Levenberg-Marquardt astray (e.g. the EKF diverged in an
+        # outage): restart from iSAM2, whose incremental relinearisation is far more robust.
+        isam, _, _ = _run_isam2(problem, progress, online_covariance=False)
+        graph = _batch_graph(problem, None)
+        retry, more = _optimize(graph, isam.calculateEstimate(), max_iterations)
+        iterations += more
+        if graph.error(retry) < graph.error(result):
+            result, fallback = retry, True
     if problem.config.smoother.zupt and problem.quiet.any():
         speeds = np.array(
             [np.linalg.norm(result.atVector(V(k))) for k in range(problem.n_keyframes)]
@@ -267,6 +285,7 @@ def smooth_batch(problem: Problem, progress: bool = True) -> Trajectory:
         {
             "iterations": iterations,
             "zupt_keyframes": len(problem.zupt_keyframes),
+            "restarted_from_isam2": fallback,
             "initial_error": graph.error(initial),
             "final_error": graph.error(result),
         }
@@ -274,9 +293,12 @@ def smooth_batch(problem: Problem, progress: bool = True) -> Trajectory:
     return trajectory
 
 
-def smooth_isam2(problem: Problem, progress: bool = True) -> tuple[Trajectory, Trajectory]:
-    """One iSAM2 update per keyframe. Returns (final smoothed, online filtered) trajectories."""
-    started = time.perf_counter()
+def _run_isam2(problem: Problem, progress: bool, online_covariance: bool = True):
+    """Incremental iSAM2, one update per keyframe.
+
+    Returns (isam, online values, online covariances): each keyframe's state and covariance
+    right after its own update.
+    """
     problem.zupt_keyframes.clear()
     params = gtsam.ISAM2Params()
     params.setRelinearizeThreshold(problem.config.smoother.isam2_relinearize_threshold)
@@ -312,15 +334,23 @@ def smooth_isam2(problem: Problem, progress: bool = True) -> tuple[Trajectory, T
         online_values.insert(X(k), pose)
         online_values.insert(V(k), velocity)
         online_values.insert(B(k), bias)
-        attitude, position = _nav_covariances(
-            isam.marginalCovariance(X(k)), pose.rotation().matrix()
-        )
-        online["attitude"][k], online["position"][k] = attitude, position
-        online["velocity"][k] = isam.marginalCovariance(V(k))
-    incremental = time.perf_counter()
+        if online_covariance:
+            attitude, position = _nav_covariances(
+                isam.marginalCovariance(X(k)), pose.rotation().matrix()
+            )
+            online["attitude"][k], online["position"][k] = attitude, position
+            online["velocity"][k] = isam.marginalCovariance(V(k))
     # A few extra relinearisation passes let the final estimate settle like the batch one.
     for _ in range(3):
         isam.update()
+    return isam, online_values, online
+
+
+def smooth_isam2(problem: Problem, progress: bool = True) -> tuple[Trajectory, Trajectory]:
+    """One iSAM2 update per keyframe. Returns (final smoothed, online filtered) trajectories."""
+    started = time.perf_counter()
+    isam, online_values, online = _run_isam2(problem, progress)
+    incremental = time.perf_counter()
     result = isam.calculateEstimate()
     covariances = _marginal_covariances(
         problem, isam.marginalCovariance, isam.marginalCovariance, result, progress

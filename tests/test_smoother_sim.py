@@ -91,3 +91,20 @@ def test_outage_stays_within_reported_3_sigma(highway, method):
     assert np.median(np.linalg.norm(std[:, :2], axis=1)) < 20 * max(
         np.median(np.linalg.norm(error[:, :2], axis=1)), 0.1
     )
+
+
+def test_batch_recovers_when_the_start_heading_is_wrong_by_120_degrees():
+    """A wrong configured heading makes the EKF initial guess diverge; the batch solver
+    notices the inconsistent fit and restarts from iSAM2."""
+    run = SCENARIOS["highway"](seed=102, duration_s=150)
+    config = load_config(dataset_imu=run.dataset.imu_config, dataset_gnss=run.dataset.gnss_config)
+    true_heading = run.truth.roll_pitch_heading_deg()[0, 2]
+    config.smoother.initial_heading_deg = float(true_heading + 120.0)
+    trajectory = smooth(
+        run.dataset,
+        config,
+        "batch",
+        gnss_mask=outage_mask(run.dataset, [(60.0, 90.0)]),
+        progress=False,
+    )
+    assert np.sqrt(np.mean(_horizontal_error(trajectory, run.truth) ** 2)) < 2.0
