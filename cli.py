@@ -151,6 +151,11 @@ def _report(dataset: Dataset, trajectory: Trajectory) -> None:
     for key in ("gnss_gating", "gnss_rejected"):
         if key in trajectory.info:
             print(trajectory.info[key], file=sys.stderr)
+    if "odometer_scale_error" in trajectory.info:
+        print(
+            f"odometer scale-factor error: {100 * trajectory.info['odometer_scale_error']:+.2f} %",
+            file=sys.stderr,
+        )
 
 
 def cmd_smooth(args: argparse.Namespace) -> int:

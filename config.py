@@ -205,6 +205,8 @@ class SmootherConfig:
     imu_to_vehicle_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
     zupt_sigma_m_per_s: float = 0.02
     zupt_max_speed_m_per_s: float = 1.5  # the predicted speed must agree that it is a stop
+    odometer_sigma_m_per_s: float = 0.1
+    odometer_scale_sigma: float = 0.05  # prior on the wheel-speed scale-factor error
     baro_sigma_m: float = 0.5
     baro_bias_walk_m_per_sqrt_s: float = 0.05
     isam2_relinearize_threshold: float = 0.1

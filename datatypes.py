@@ -165,6 +165,21 @@ class BaroData:
 
 
 @dataclass
+class OdometerData:
+    """Wheel speed / odometer: forward speed over ground (m/s), before any scale correction."""
+
+    t: np.ndarray
+    speed: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.t = _as_float_array("odometer.t", self.t, ())
+        _check_time("odometer.t", self.t)
+        self.speed = _as_float_array("odometer.speed", self.speed, ())
+        if self.speed.shape != self.t.shape:
+            raise InputError("odometer: t and speed must have the same number of rows")
+
+
+@dataclass
 class AccelArrayData:
     """Raw readings of a gyro-free IMU: N single-axis accelerometers (m/s^2) at times t (s).
 
@@ -242,6 +257,7 @@ class Dataset:
     gnss: GnssData
     origin: Origin
     baro: BaroData | None = None
+    odometer: OdometerData | None = None
     name: str = ""
     imu_config: dict[str, object] = field(default_factory=dict)
     gnss_config: dict[str, object] = field(default_factory=dict)

@@ -19,6 +19,7 @@ from fgins.datatypes import Dataset, InputError
 from fgins.factors import baro as baro_model
 from fgins.factors import gnss as gnss_model
 from fgins.factors import imu as imu_model
+from fgins.factors import odometer as odometer_model
 from fgins.factors import vehicle as vehicle_model
 from fgins.geodesy import earth_rate_enu, normal_gravity
 from fgins.graph.keyframes import Segments, build_segments, keyframe_times
@@ -41,6 +42,7 @@ class Problem:
     omega_earth: np.ndarray
     quiet: np.ndarray  # (K,) the IMU is quiet around keyframe k (a stop, if the speed agrees)
     baro_pressure: np.ndarray  # (K,) mean pressure (Pa) around keyframe k, NaN where none
+    odometer_speed: np.ndarray  # (K,) mean wheel speed (m/s) around keyframe k, NaN where none
     imu_to_vehicle: np.ndarray
     gnss_mask: np.ndarray | None = None  # the caller's withheld epochs (outages), True = keep
     info: dict[str, object] = field(default_factory=dict)
@@ -99,6 +101,16 @@ class Problem:
             if k - 1 in self.zupt_keyframes:
                 graph.add(vehicle_model.no_motion_factor(X(k - 1), X(k), np.radians(0.01), 0.01))
             self.zupt_keyframes.add(k)
+        if np.any(np.isfinite(self.odometer_speed)):
+            if k == 0:
+                graph.add(odometer_model.scale_prior(smoother.odometer_scale_sigma))
+            if np.isfinite(self.odometer_speed[k]):
+                graph.add(
+                    odometer_model.speed_factor(
+                        X(k), V(k), float(self.odometer_speed[k]),
+                        smoother.odometer_sigma_m_per_s, self.imu_to_vehicle,
+                    )
+                )  # fmt: skip
         if self.has_baro:
             if k == 0:
                 graph.add(
@@ -156,7 +168,10 @@ class Problem:
     def insert_extra_values(
         self, k: int, values: gtsam.Values, estimate: gtsam.Values | None = None
     ) -> None:
-        """Initial values of keyframe k's non-navigation states (barometer bias)."""
+        """Initial values of keyframe k's non-navigation states (barometer bias, odometer
+        scale factor)."""
+        if k == 0 and np.any(np.isfinite(self.odometer_speed)):
+            values.insert(odometer_model.scale_key(), 0.0)
         if self.has_baro:
             key = baro_model.baro_key(k)
             previous = baro_model.baro_key(k - 1) if k > 0 else None
@@ -242,6 +257,7 @@ def build_problem(
         pims.append(pim)
     quiet = _quiet_imu(imu, times, noise)
     baro_pressure = _baro_at(dataset, times)
+    odometer_speed = _odometer_at(dataset, times)
     roll, pitch, yaw = np.radians(config.smoother.imu_to_vehicle_rpy_deg)
     imu_to_vehicle = gtsam.Rot3.Ypr(yaw, pitch, roll).matrix()
     return Problem(
@@ -260,6 +276,7 @@ def build_problem(
         omega_earth=earth_rate_enu(dataset.origin.lat),
         quiet=quiet,
         baro_pressure=baro_pressure,
+        odometer_speed=odometer_speed,
         imu_to_vehicle=imu_to_vehicle,
         gnss_mask=gnss_mask,
         info={
@@ -320,4 +337,20 @@ def _baro_at(dataset: Dataset, times: np.ndarray, half_window_s: float = 0.25) -
     for k, (a, b) in enumerate(zip(lo, hi, strict=True)):
         if b > a:
             out[k] = pressure[a:b].mean()
+    return out
+
+
+def _odometer_at(dataset: Dataset, times: np.ndarray, half_window_s: float = 0.1) -> np.ndarray:
+    """Mean wheel speed within +-half_window_s of each keyframe (NaN where none)."""
+    out = np.full(len(times), np.nan)
+    odometer = dataset.odometer
+    if odometer is None:
+        return out
+    valid = np.isfinite(odometer.speed)
+    t, speed = odometer.t[valid], odometer.speed[valid]
+    lo = np.searchsorted(t, times - half_window_s)
+    hi = np.searchsorted(t, times + half_window_s)
+    for k, (a, b) in enumerate(zip(lo, hi, strict=True)):
+        if b > a:
+            out[k] = speed[a:b].mean()
     return out

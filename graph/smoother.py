@@ -101,6 +101,15 @@ def _finite_difference_velocity(problem: Problem) -> np.ndarray:
 REJECT_WHITENED = 4.03
 
 
+def _extra_states(values: gtsam.Values) -> dict[str, object]:
+    """Estimated non-navigation states worth reporting (odometer scale-factor error)."""
+    from fgins.factors.odometer import scale_key
+
+    if values.exists(scale_key()):
+        return {"odometer_scale_error": float(values.atDouble(scale_key()))}
+    return {}
+
+
 def _gnss_report(problem: Problem, values: gtsam.Values) -> dict[str, object]:
     times, norms = problem.gnss_whitened_residuals(values)
     rejected = times[norms > REJECT_WHITENED]
@@ -281,6 +290,7 @@ def smooth_batch(problem: Problem, progress: bool = True) -> Trajectory:
         {"optimize": solved - started, "covariance": time.perf_counter() - solved}
     )
     trajectory.info.update(_gnss_report(problem, result))
+    trajectory.info.update(_extra_states(result))
     trajectory.info.update(
         {
             "iterations": iterations,
@@ -362,6 +372,7 @@ def smooth_isam2(problem: Problem, progress: bool = True) -> tuple[Trajectory, T
         problem, _states_from_values(problem, online_values, online), "isam2-online", smoothed=False
     )
     final.info.update(_gnss_report(problem, result))
+    final.info.update(_extra_states(result))
     final.timings.update(
         {"incremental": incremental - started, "final": time.perf_counter() - incremental}
     )

@@ -14,7 +14,16 @@ from typing import Any
 
 import numpy as np
 
-from fgins.datatypes import AccelArrayData, BaroData, Dataset, GnssData, ImuData, InputError, Origin
+from fgins.datatypes import (
+    AccelArrayData,
+    BaroData,
+    Dataset,
+    GnssData,
+    ImuData,
+    InputError,
+    OdometerData,
+    Origin,
+)
 from fgins.io.accel_array_csv import (
     accel_array_from_table,
     derive_imu,
@@ -45,7 +54,7 @@ def read_header(path: Path) -> list[str]:
 
 
 def csv_kind(path: Path) -> str | None:
-    """'imu', 'accel_array', 'gnss', 'baro' or None, from the header line."""
+    """'imu', 'accel_array', 'gnss', 'baro', 'odometer' or None, from the header line."""
     columns = read_header(path)
     if is_accel_array_header(columns):
         return "accel_array"
@@ -56,6 +65,8 @@ def csv_kind(path: Path) -> str | None:
         return "gnss"
     if {"pressure_pa"} <= header or {"baro_height"} <= header:
         return "baro"
+    if {"time", "wheel_speed"} <= header:
+        return "odometer"
     return None
 
 
@@ -142,6 +153,25 @@ def read_gnss_csv(path: str | Path, warnings: list[str] | None = None) -> GnssDa
         speed=column("speed"),
         course=column("course"),
     )
+
+
+def read_odometer_csv(path: str | Path, warnings: list[str] | None = None) -> OdometerData:
+    """``wheel.csv``: ``time,wheel_speed`` (m/s, forward, before scale correction)."""
+    path = Path(path)
+    warnings = [] if warnings is None else warnings
+    columns = _read_columns(path, warnings)
+    t, speed = columns["time"], columns["wheel_speed"]
+    keep = np.isfinite(t) & np.isfinite(speed)
+    if not keep.all():
+        warnings.append(f"{path.name}: dropped {int((~keep).sum())} wheel-speed row(s) with NaN")
+    t, speed = t[keep], speed[keep]
+    repeated = np.concatenate([[False], np.diff(t) <= 0])
+    if repeated.any():
+        warnings.append(
+            f"{path.name}: dropped {int(repeated.sum())} wheel-speed row(s) out of time order"
+        )
+        t, speed = t[~repeated], speed[~repeated]
+    return OdometerData(t=t, speed=speed)
 
 
 def read_baro_csv(path: str | Path, warnings: list[str] | None = None) -> BaroData:
@@ -265,6 +295,7 @@ def read_csv_dataset(paths: list[Path]) -> Dataset:
         imu = read_imu_csv(by_kind["imu"], warnings)
     gnss = read_gnss_csv(by_kind["gnss"], warnings)
     baro = read_baro_csv(by_kind["baro"], warnings) if "baro" in by_kind else None
+    odometer = read_odometer_csv(by_kind["odometer"], warnings) if "odometer" in by_kind else None
     if len(gnss) == 0:
         raise InputError(f"{by_kind['gnss']}: no GNSS fix with a position")
     origin_table = config.get("origin")
@@ -278,6 +309,7 @@ def read_csv_dataset(paths: list[Path]) -> Dataset:
         imu=imu,
         gnss=gnss,
         baro=baro,
+        odometer=odometer,
         origin=origin,
         name=name or by_kind.get("imu", by_kind.get("accel_array", Path())).parent.name,
         imu_config=dict(config.get("imu", {})),

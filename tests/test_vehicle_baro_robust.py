@@ -94,3 +94,59 @@ def test_robust_kernel_survives_five_percent_jumps_and_lists_them():
     assert visible.size >= len(jumped) // 2
     assert set(np.round(dataset.gnss.t[visible], 6)) <= rejected
     assert len(rejected) <= len(jumped) + 3  # few good fixes thrown away
+
+
+def test_wheel_speed_with_unknown_scale_bridges_an_outage(tmp_path):
+    """A wheel-speed CSV with a 3 % scale error: the graph estimates the scale and the
+    outage error drops against the same run without the odometer."""
+    from fgins.cli import main
+    from fgins.sim.writer import write_sim_dir
+
+    run = SCENARIOS["car-urban"](seed=6, duration_s=200)
+    folder = tmp_path / "drive"
+    write_sim_dir(run, folder)
+    windows = "60:120"
+    rows = np.searchsorted(run.truth.t, run.dataset.imu.t[::10])
+    body_velocity = np.einsum("nji,nj->ni", run.truth.rotation[rows], run.truth.velocity[rows])
+    rng = np.random.default_rng(0)
+    wheel = 1.03 * body_velocity[:, 0] + rng.normal(0, 0.05, len(rows))
+    results = {}
+    for label in ("without", "with"):
+        if label == "with":
+            table = np.column_stack([run.truth.t[rows], wheel])
+            np.savetxt(
+                folder / "wheel.csv",
+                table,
+                delimiter=",",
+                header="time,wheel_speed",
+                comments="",
+                fmt="%.6f",
+            )
+        out = tmp_path / f"{label}.csv"
+        assert (
+            main(
+                [
+                    "smooth",
+                    str(folder),
+                    "--vehicle",
+                    "car",
+                    "--gnss-outage",
+                    windows,
+                    "-o",
+                    str(out),
+                ]
+            )
+            == 0
+        )
+        table = np.genfromtxt(out, delimiter=",", names=True)
+        truth = run.truth.at(table["time"])
+        inside = in_windows(table["time"], run.dataset.t0, [(60.0, 120.0)])
+        error = np.hypot(table["east"] - truth[:, 0], table["north"] - truth[:, 1])[inside]
+        results[label] = _rms(error)
+    assert results["with"] < 0.85 * results["without"]
+    from fgins.config import config_for_dataset as configure
+    from fgins.io.csv_pair import read_csv_dataset
+
+    dataset = read_csv_dataset([folder])
+    estimate = smooth(dataset, configure(dataset, vehicle="car"), "batch", progress=False)
+    assert estimate.info["odometer_scale_error"] == pytest.approx(0.03, abs=0.005)
