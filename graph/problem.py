@@ -218,6 +218,7 @@ def build_problem(
             f"{dataset.name or 'input'}: no usable GNSS epoch within the IMU time span "
             f"({imu.t[0]:.3f}-{imu.t[-1]:.3f} s); check the time bases (--time-offset)"
         )
+    outside = int((usable & ~in_span).sum())
     usable &= in_span
     noise = config.imu_noise()
     gnss = dataset.gnss.subset(usable)
@@ -280,7 +281,8 @@ def build_problem(
         imu_to_vehicle=imu_to_vehicle,
         gnss_mask=gnss_mask,
         info={
-            "gnss_gating": gate_summary,
+            "gnss_gating": gate_summary
+            + (f"; {outside} usable epochs outside the IMU time span ignored" if outside else ""),
             "gnss_epochs_used": int(matched.sum()),
             "gnss_epochs_decimated": int((~decimated).sum()),
             "keyframes": len(times),

@@ -163,31 +163,56 @@ def _nav_covariances(pose_cov: np.ndarray, rotation: np.ndarray) -> tuple[np.nda
     return attitude, position
 
 
+def _qr_marginals(graph: gtsam.NonlinearFactorGraph, result: gtsam.Values):
+    params = gtsam.ISAM2Params()
+    params.setFactorization("QR")
+    isam = gtsam.ISAM2(params)
+    isam.update(graph, result)
+    return isam.marginalCovariance
+
+
 def _marginal_function(graph: gtsam.NonlinearFactorGraph, result: gtsam.Values):
-    """Marginal covariance lookup: Cholesky (fast); QR through iSAM2 when Cholesky calls the
-    system indeterminate, which tight bias random walks of tactical-grade IMUs can provoke."""
+    """Marginal covariance lookup: Cholesky (fast), falling back to QR through iSAM2 for the
+    keys where Cholesky calls the system indeterminate (tight bias random walks of
+    tactical-grade IMUs, long IMU gaps), and to NaN where even QR cannot tell."""
+    qr = None
     try:
-        marginals = gtsam.Marginals(graph, result)
-        # Cholesky failures surface on the first query, not in the constructor.
-        marginals.marginalCovariance(result.keys()[0])
-        return marginals.marginalCovariance
+        cholesky = gtsam.Marginals(graph, result).marginalCovariance
     except RuntimeError:
-        params = gtsam.ISAM2Params()
-        params.setFactorization("QR")
-        isam = gtsam.ISAM2(params)
-        isam.update(graph, result)
-        return isam.marginalCovariance
+        cholesky = None
+
+    def marginal(key: int) -> np.ndarray:
+        nonlocal qr, cholesky
+        if cholesky is not None:
+            try:
+                return cholesky(key)
+            except RuntimeError:
+                cholesky = None  # once ill-conditioned, use QR for the rest
+        if qr is None:
+            qr = _qr_marginals(graph, result)
+        try:
+            return qr(key)
+        except RuntimeError:
+            dim = 6 if gtsam.Symbol(key).chr() == ord("x") else 3
+            return np.full((dim, dim), np.nan)
+
+    return marginal
 
 
 def _marginal_covariances(
     problem: Problem, marginal_pose, marginal_velocity, values: gtsam.Values, progress: bool
 ) -> dict[str, np.ndarray]:
+    """ENU position/velocity/attitude covariances at every keyframe (NaN where a marginal
+    cannot be computed: the rest of the output is still valid)."""
     n = problem.n_keyframes
     out = {name: np.full((n, 3, 3), np.nan) for name in ("position", "velocity", "attitude")}
     for k in tqdm(range(n), desc="covariances", unit="kf", disable=not progress, leave=False):
         rotation = values.atPose3(X(k)).rotation().matrix()
-        out["attitude"][k], out["position"][k] = _nav_covariances(marginal_pose(X(k)), rotation)
-        out["velocity"][k] = marginal_velocity(V(k))
+        try:
+            out["attitude"][k], out["position"][k] = _nav_covariances(marginal_pose(X(k)), rotation)
+            out["velocity"][k] = marginal_velocity(V(k))
+        except RuntimeError:
+            continue
     return out
 
 

@@ -130,6 +130,8 @@ def read_gnss_csv(path: str | Path, warnings: list[str] | None = None) -> GnssDa
         warnings.append(f"{path.name}: dropped {int(duplicate.sum())} fix(es) with repeated time")
         index = index[~duplicate]
 
+    _report_time_jumps(t[index], path.name, warnings)
+
     def column(name: str) -> np.ndarray | None:
         return columns[name][index] if name in columns else None
 
@@ -153,6 +155,21 @@ def read_gnss_csv(path: str | Path, warnings: list[str] | None = None) -> GnssDa
         speed=column("speed"),
         course=column("course"),
     )
+
+
+def _report_time_jumps(t: np.ndarray, source: str, warnings: list[str]) -> None:
+    """GNSS gaps far beyond the fix interval: outages, or a clock that jumped."""
+    if len(t) < 3:
+        return
+    dt = np.diff(t)
+    nominal = float(np.median(dt))
+    jumps = np.flatnonzero(dt > max(10.0 * nominal, 5.0))
+    if jumps.size:
+        largest = float(dt[jumps].max())
+        warnings.append(
+            f"{source}: {jumps.size} gap(s) in the fixes longer than {max(10 * nominal, 5.0):.0f} s "
+            f"(largest {largest:.1f} s at t={t[jumps[int(np.argmax(dt[jumps]))]]:.1f}): outages or a time jump"
+        )
 
 
 def read_odometer_csv(path: str | Path, warnings: list[str] | None = None) -> OdometerData:

@@ -155,3 +155,23 @@ def test_python_dash_m_entry_point():
         [sys.executable, "-m", "fgins", "--version"], capture_output=True, text=True
     )
     assert result.returncode == 0 and result.stdout.startswith("fgins ")
+
+
+def test_long_imu_gap_and_gnss_clock_jump_are_reported_not_fatal(tmp_path, sim_dir, capsys):
+    folder = tmp_path / "broken"
+    folder.mkdir()
+    imu = np.loadtxt(sim_dir / "imu.csv", delimiter=",", skiprows=1)
+    gap = (imu[:, 0] > 20.0) & (imu[:, 0] < 30.0)
+    header = (sim_dir / "imu.csv").read_text().splitlines()[0]
+    np.savetxt(folder / "imu.csv", imu[~gap], delimiter=",", header=header, comments="", fmt="%.9f")
+    gnss = (sim_dir / "gnss.csv").read_text().splitlines()
+    jumped = [
+        ",".join([str(float(r.split(",")[0]) + 1000.0), *r.split(",")[1:]]) for r in gnss[-10:]
+    ]
+    (folder / "gnss.csv").write_text("\n".join(gnss[:-10] + jumped) + "\n")
+    out = tmp_path / "out.csv"
+    assert main(["smooth", str(folder), "-o", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "IMU gap" in err and "time jump" in err and "outside the IMU time span" in err
+    table = np.loadtxt(out, delimiter=",", skiprows=1)
+    assert np.all(np.isfinite(table[:, :16]))
