@@ -9,6 +9,12 @@ epochs, gating, sigmas and lever arm (:mod:`fgins.factors.gnss`), same navigatio
 (:mod:`fgins.baseline.mechanization`), same output (:class:`~fgins.datatypes.Trajectory` at every
 IMU sample).
 
+Land vehicles and barometers: with ``config.smoother.nhc`` / ``zupt`` and a dataset with
+pressure, the filter also gets the graph's non-holonomic, zero-velocity / zero-rate and
+barometric height information as pseudo-measurements at its block boundaries
+(:mod:`fgins.baseline.vehicle_updates`); a barometer appends its bias as a 16th error state,
+which the RTS pass smooths with the rest.
+
 The IMU stream is processed in blocks that end at each usable GNSS epoch (the sample that
 straddles an epoch is split there, so updates happen at the exact epoch time) and at most
 ``max_block_s`` apart in outages. Within a block the nominal state is mechanized at every
@@ -25,6 +31,7 @@ samples inside the block.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -35,7 +42,9 @@ from fgins.baseline.measurements import (
     GnssEpochs,
     chi2_quantile,
     huber_variances,
+    kalman_update,
     linearize_gnss,
+    pad_columns,
     select_gnss,
 )
 from fgins.baseline.mechanization import (
@@ -48,12 +57,13 @@ from fgins.baseline.mechanization import (
     NavFrame,
     NominalState,
     Segments,
+    augment_transition,
     block_times,
     block_transition,
     propagate_nominal,
     segment_imu,
-    skew_batch,
 )
+from fgins.baseline.vehicle_updates import VehicleAiding, vehicle_aiding
 from fgins.config import ImuNoise, RunConfig
 from fgins.datatypes import Dataset, FginsError, InputError, Trajectory
 from fgins.geodesy import so3_exp
@@ -82,7 +92,11 @@ class EkfOptions:
 
 @dataclass
 class FilterRun:
-    """Everything the forward pass produces (and the RTS smoother needs)."""
+    """Everything the forward pass produces (and the RTS smoother needs).
+
+    The error state is 15 navigation states plus any augmented ones (barometer bias), so
+    covariances are (K, n, n) with n = 15 + extra (see :mod:`fgins.baseline.vehicle_updates`).
+    """
 
     segments: Segments
     # Nominal states at every node (segment starts + final time), forward in time: inside
@@ -95,11 +109,12 @@ class FilterRun:
     # Per block boundary k (K = len(segments.times)).
     prior: list[NominalState]
     posterior: list[NominalState]
-    cov_prior: np.ndarray  # (K, 15, 15)
-    cov_posterior: np.ndarray  # (K, 15, 15)
-    transition: np.ndarray  # (K-1, 15, 15), block k -> k+1 about the posterior at k
+    cov_prior: np.ndarray  # (K, n, n)
+    cov_posterior: np.ndarray  # (K, n, n)
+    transition: np.ndarray  # (K-1, n, n), block k -> k+1 about the posterior at k
     counts: dict[str, int] = field(default_factory=dict)
     rejected_times: list[float] = field(default_factory=list)  # GNSS epochs failing the gate
+    zupt_times: list[float] = field(default_factory=list)  # boundaries taken as stops
 
 
 def initial_covariance(
@@ -108,23 +123,201 @@ def initial_covariance(
     velocity_sigma: float,
     position_sigma: float,
     noise: ImuNoise,
+    extra_variance: np.ndarray | None = None,
 ) -> np.ndarray:
     """P0 from the alignment sigmas (attitude sigmas about the body axes, as the graph's
-    Pose3 prior) and the turn-on bias priors."""
-    p0 = np.zeros((STATE_DIM, STATE_DIM))
+    Pose3 prior), the turn-on bias priors and the priors of any augmented states."""
+    extra = np.zeros(0) if extra_variance is None else np.asarray(extra_variance, dtype=float)
+    dim = STATE_DIM + len(extra)
+    p0 = np.zeros((dim, dim))
     p0[POS, POS] = np.eye(3) * position_sigma**2
     p0[VEL, VEL] = np.eye(3) * velocity_sigma**2
     p0[ATT, ATT] = rotation @ np.diag(np.asarray(attitude_sigma) ** 2) @ rotation.T
     p0[ACC_BIAS, ACC_BIAS] = np.eye(3) * noise.accel_bias_prior**2
     p0[GYRO_BIAS, GYRO_BIAS] = np.eye(3) * noise.gyro_bias_prior**2
+    p0[STATE_DIM:, STATE_DIM:] = np.diag(extra)
     return p0
 
 
-def reset_jacobian(phi: np.ndarray) -> np.ndarray:
-    """Covariance reset after injecting an attitude correction ``phi`` (first order)."""
-    g = np.eye(STATE_DIM)
-    g[ATT, ATT] -= 0.5 * skew_batch(phi)
-    return g
+@dataclass
+class FilterSetup:
+    """What every Kalman baseline's forward pass starts from, built once by
+    :func:`prepare_filter`: the GNSS epochs, the blocks, the pseudo-measurements, P0, x0."""
+
+    epochs: GnssEpochs
+    noise: ImuNoise
+    frame: NavFrame
+    segments: Segments
+    gnss_at: np.ndarray  # (K,) GNSS epoch at each boundary, -1 where none
+    white_scale: np.ndarray  # (segments,) white-noise inflation on suspect IMU stretches
+    aiding: VehicleAiding
+    state: NominalState
+    cov: np.ndarray
+    gyro_at: np.ndarray  # (segments, 3) IMU sample held over each segment
+    accel_at: np.ndarray
+    counts: dict[str, int]
+
+    @property
+    def times(self) -> np.ndarray:
+        return self.segments.times
+
+    def block_process_noise(
+        self, b: int, phi: np.ndarray, q: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """A block's 15-state Phi, Q extended to the augmented states."""
+        dt = float(self.times[b + 1] - self.times[b])
+        return augment_transition(phi, q, self.aiding.extra_process_variance(dt))
+
+
+def prepare_filter(
+    dataset: Dataset, config: RunConfig, gnss_mask: np.ndarray | None, max_block_s: float
+) -> FilterSetup:
+    """Shared setup of the EKF and UKF forward passes (same inputs as the factor graph)."""
+    imu = dataset.imu
+    epochs = select_gnss(dataset, config, gnss_mask)
+    noise = config.imu_noise()
+    frame = NavFrame.at(dataset.origin)
+    align = initial_alignment(
+        dataset, epochs.usable, heading_deg=config.smoother.initial_heading_deg
+    )
+    times = block_times(float(imu.t[0]), float(imu.t[-1]), epochs.t, max_block_s)
+    segments = segment_imu(imu.t, times)
+    # Which boundary carries which GNSS epoch (-1: none).
+    boundary = np.clip(np.searchsorted(times, epochs.t), 0, len(times) - 1)
+    matched = np.isclose(times[boundary], epochs.t, rtol=0.0, atol=1e-9)
+    if not np.all(matched):  # cannot happen: epochs are block boundaries by construction
+        raise FginsError("Kalman filter: a GNSS epoch fell between block boundaries (internal)")
+    gnss_at = np.full(len(times), -1)
+    gnss_at[boundary] = np.arange(len(epochs.t))
+    white_scale = np.ones(len(segments.dt))
+    for a, b in imu.suspect:
+        inside = (segments.start >= a) & (segments.start < b)
+        white_scale[inside] = config.smoother.suspect_noise_factor
+    aiding = vehicle_aiding(dataset, config, times, noise, frame.earth_rate)
+    extra, extra_variance = aiding.initial_extra(float(align.position[2]))
+    rotation = np.asarray(align.rotation, dtype=float)
+    state = NominalState(
+        rotation=rotation,
+        velocity=np.asarray(align.velocity, dtype=float),
+        position=np.asarray(align.position, dtype=float),
+        accel_bias=np.zeros(3),
+        gyro_bias=np.zeros(3),
+        extra=extra,
+    )
+    cov = initial_covariance(
+        rotation,
+        align.attitude_sigma_rad,
+        align.velocity_sigma,
+        align.position_sigma,
+        noise,
+        extra_variance,
+    )
+    counts = {
+        "gnss_updates": 0,
+        "velocity_updates": 0,
+        "rejected_innovation": 0,
+        "huber_downweighted": 0,
+    }
+    return FilterSetup(
+        epochs=epochs,
+        noise=noise,
+        frame=frame,
+        segments=segments,
+        gnss_at=gnss_at,
+        white_scale=white_scale,
+        aiding=aiding,
+        state=state,
+        cov=cov,
+        gyro_at=imu.gyro[segments.sample],
+        accel_at=imu.accel[segments.sample],
+        counts=counts,
+    )
+
+
+GnssUpdate = Callable[[int, NominalState, np.ndarray, np.ndarray], tuple[NominalState, np.ndarray]]
+
+
+class FilterRecorder:
+    """Runs the boundary updates (GNSS, then the vehicle/barometer pseudo-measurements) and
+    records what the RTS smoother and the output need, for any forward filter."""
+
+    def __init__(self, setup: FilterSetup, imu_t: np.ndarray, gyro: np.ndarray) -> None:
+        self.setup = setup
+        self._imu_t = imu_t
+        self._gyro = gyro
+        n_nodes = len(setup.segments.start) + 1
+        n_boundaries = len(setup.times)
+        dim = len(setup.cov)
+        self.rotation = np.empty((n_nodes, 3, 3))
+        self.velocity = np.empty((n_nodes, 3))
+        self.position = np.empty((n_nodes, 3))
+        self.accel_bias = np.empty((n_nodes, 3))
+        self.gyro_bias = np.empty((n_nodes, 3))
+        self.cov_prior = np.empty((n_boundaries, dim, dim))
+        self.cov_posterior = np.empty_like(self.cov_prior)
+        self.transition = np.empty((n_boundaries - 1, dim, dim))
+        self.prior: list[NominalState] = []
+        self.posterior: list[NominalState] = []
+
+    def boundary(
+        self, k: int, state: NominalState, cov: np.ndarray, gnss_update: GnssUpdate
+    ) -> tuple[NominalState, np.ndarray]:
+        self.prior.append(state.copy())
+        self.cov_prior[k] = cov
+        g = int(self.setup.gnss_at[k])
+        if g >= 0:
+            t = self.setup.times[k]
+            sample = min(
+                int(np.searchsorted(self._imu_t, t, side="right")) - 1, len(self._imu_t) - 1
+            )
+            state, cov = gnss_update(g, state, cov, self._gyro[sample])
+        state, cov = self.setup.aiding.update(k, state, cov)
+        self.posterior.append(state.copy())
+        self.cov_posterior[k] = cov
+        return state, cov
+
+    def store_nodes(self, span: slice, nodes: NominalState) -> None:
+        """Nominal states at the nodes of a block (all but its end node)."""
+        rows = slice(span.start, span.stop)
+        self.rotation[rows] = nodes.rotation[:-1]
+        self.velocity[rows] = nodes.velocity[:-1]
+        self.position[rows] = nodes.position[:-1]
+        self.accel_bias[rows] = nodes.accel_bias[:-1]
+        self.gyro_bias[rows] = nodes.gyro_bias[:-1]
+
+    def finish(self, state: NominalState, rejected_times: list[float]) -> FilterRun:
+        # The final node is the last boundary's a-posteriori state.
+        self.rotation[-1], self.velocity[-1], self.position[-1] = (
+            state.rotation,
+            state.velocity,
+            state.position,
+        )
+        self.accel_bias[-1], self.gyro_bias[-1] = state.accel_bias, state.gyro_bias
+        setup = self.setup
+        counts = {
+            **setup.counts,
+            **setup.aiding.counts,
+            "blocks": len(setup.times) - 1,
+            "gnss_epochs_used": len(setup.epochs.t),
+            "gnss_epochs_outside_imu_span": setup.epochs.outside_imu_span,
+            "augmented_states": setup.aiding.n_extra,
+        }
+        return FilterRun(
+            segments=setup.segments,
+            rotation=self.rotation,
+            velocity=self.velocity,
+            position=self.position,
+            accel_bias=self.accel_bias,
+            gyro_bias=self.gyro_bias,
+            prior=self.prior,
+            posterior=self.posterior,
+            cov_prior=self.cov_prior,
+            cov_posterior=self.cov_posterior,
+            transition=self.transition,
+            counts=counts,
+            rejected_times=list(rejected_times),
+            zupt_times=list(setup.aiding.zupt_times),
+        )
 
 
 @dataclass
@@ -144,7 +337,7 @@ class _Updater:
     ) -> tuple[NominalState, np.ndarray]:
         body_rate = gyro - state.gyro_bias - state.rotation.T @ self.frame.earth_rate
         lin = linearize_gnss(self.epochs, g, state, body_rate, self.lever_arm)
-        h = lin.jacobian
+        h = pad_columns(lin.jacobian, len(cov))
         predicted = h @ cov @ h.T
         variance = lin.variance
         if self.huber_k is not None:
@@ -159,15 +352,9 @@ class _Updater:
                 self.counts["rejected_innovation"] += 1
                 self.rejected_times.append(float(self.epochs.t[g]))
                 return state, cov
-        gain = np.linalg.solve(s, h @ cov).T
-        dx = gain @ lin.residual
-        i_kh = np.eye(STATE_DIM) - gain @ h
-        cov = i_kh @ cov @ i_kh.T + (gain * variance) @ gain.T  # Joseph form
-        reset = reset_jacobian(dx[ATT])
-        cov = reset @ cov @ reset.T
         self.counts["gnss_updates"] += 1
         self.counts["velocity_updates"] += int(lin.n_velocity > 0)
-        return state.boxplus(dx), 0.5 * (cov + cov.T)
+        return kalman_update(state, cov, lin.residual, h, variance, s)
 
 
 def run_filter(
@@ -178,120 +365,40 @@ def run_filter(
     progress: bool,
 ) -> tuple[FilterRun, GnssEpochs]:
     """The forward EKF pass over the whole IMU span."""
-    imu = dataset.imu
-    epochs = select_gnss(dataset, config, gnss_mask)
-    noise = config.imu_noise()
-    frame = NavFrame.at(dataset.origin)
-    align = initial_alignment(
-        dataset, epochs.usable, heading_deg=config.smoother.initial_heading_deg
-    )
-
-    times = block_times(float(imu.t[0]), float(imu.t[-1]), epochs.t, options.max_block_s)
-    segments = segment_imu(imu.t, times)
-    # Which boundary carries which GNSS epoch (-1: none).
-    boundary = np.searchsorted(times, epochs.t)
-    boundary = np.clip(boundary, 0, len(times) - 1)
-    matched = np.isclose(times[boundary], epochs.t, rtol=0.0, atol=1e-9)
-    if not np.all(matched):  # cannot happen: epochs are block boundaries by construction
-        raise FginsError("EKF: a GNSS epoch fell between block boundaries (internal error)")
-    gnss_at = np.full(len(times), -1)
-    gnss_at[boundary] = np.arange(len(epochs.t))
-
-    white_scale = np.ones(len(segments.dt))
-    for a, b in imu.suspect:
-        inside = (segments.start >= a) & (segments.start < b)
-        white_scale[inside] = config.smoother.suspect_noise_factor
-
-    n_nodes = len(segments.start) + 1
-    rotation = np.empty((n_nodes, 3, 3))
-    velocity = np.empty((n_nodes, 3))
-    position = np.empty((n_nodes, 3))
-    accel_bias = np.empty((n_nodes, 3))
-    gyro_bias = np.empty((n_nodes, 3))
-    n_blocks = len(times) - 1
-    cov_prior = np.empty((n_blocks + 1, STATE_DIM, STATE_DIM))
-    cov_posterior = np.empty_like(cov_prior)
-    transition = np.empty((n_blocks, STATE_DIM, STATE_DIM))
-    prior: list[NominalState] = []
-    posterior: list[NominalState] = []
-    counts = {
-        "gnss_updates": 0,
-        "velocity_updates": 0,
-        "rejected_innovation": 0,
-        "huber_downweighted": 0,
-    }
+    setup = prepare_filter(dataset, config, gnss_mask, options.max_block_s)
+    recorder = FilterRecorder(setup, dataset.imu.t, dataset.imu.gyro)
     update = _Updater(
-        epochs=epochs,
+        epochs=setup.epochs,
         lever_arm=np.asarray(config.gnss.lever_arm_m, dtype=float),
         huber_k=config.gnss.huber_k,
         gate_probability=options.innovation_gate_probability,
-        frame=frame,
-        counts=counts,
+        frame=setup.frame,
+        counts=setup.counts,
     )
-
-    state = NominalState(
-        rotation=np.asarray(align.rotation, dtype=float),
-        velocity=np.asarray(align.velocity, dtype=float),
-        position=np.asarray(align.position, dtype=float),
-        accel_bias=np.zeros(3),
-        gyro_bias=np.zeros(3),
-    )
-    cov = initial_covariance(
-        state.rotation, align.attitude_sigma_rad, align.velocity_sigma, align.position_sigma, noise
-    )
-    gyro_at = imu.gyro[segments.sample]
-    accel_at = imu.accel[segments.sample]
-
-    def at_boundary(
-        k: int, state: NominalState, cov: np.ndarray
-    ) -> tuple[NominalState, np.ndarray]:
-        prior.append(state.copy())
-        cov_prior[k] = cov
-        if gnss_at[k] >= 0:
-            sample = min(int(np.searchsorted(imu.t, times[k], side="right")) - 1, len(imu) - 1)
-            state, cov = update(int(gnss_at[k]), state, cov, imu.gyro[sample])
-        posterior.append(state.copy())
-        cov_posterior[k] = cov
-        return state, cov
-
-    state, cov = at_boundary(0, state, cov)
+    segments = setup.segments
+    state, cov = recorder.boundary(0, setup.state, setup.cov, update)
+    n_blocks = len(setup.times) - 1
     for b in tqdm(range(n_blocks), desc="EKF", unit="block", disable=not progress, leave=False):
         span = segments.block(b)
         dt = segments.dt[span]
-        nominal = propagate_nominal(state, gyro_at[span], accel_at[span], dt, frame)
-        nodes = slice(span.start, span.stop)
-        rotation[nodes] = nominal.rotation[:-1]
-        velocity[nodes] = nominal.velocity[:-1]
-        position[nodes] = nominal.position[:-1]
-        accel_bias[nodes] = state.accel_bias
-        gyro_bias[nodes] = state.gyro_bias
-        phi, q = block_transition(nominal, dt, frame, noise, white_scale[span])
-        transition[b] = phi
+        nominal = propagate_nominal(
+            state, setup.gyro_at[span], setup.accel_at[span], dt, setup.frame
+        )
+        # The biases are held constant over the block.
+        held = (len(dt) + 1, 3)
+        recorder.store_nodes(
+            span,
+            NominalState(
+                nominal.rotation, nominal.velocity, nominal.position,
+                np.broadcast_to(state.accel_bias, held), np.broadcast_to(state.gyro_bias, held),
+            ),
+        )  # fmt: skip
+        phi, q = block_transition(nominal, dt, setup.frame, setup.noise, setup.white_scale[span])
+        phi, q = setup.block_process_noise(b, phi, q)
+        recorder.transition[b] = phi
         cov = phi @ cov @ phi.T + q
-        state, cov = at_boundary(b + 1, nominal.end(state), 0.5 * (cov + cov.T))
-    # The final node is the last boundary's a-posteriori state.
-    rotation[-1], velocity[-1], position[-1] = state.rotation, state.velocity, state.position
-    accel_bias[-1], gyro_bias[-1] = state.accel_bias, state.gyro_bias
-    counts["blocks"] = n_blocks
-    run_rejected = update.rejected_times
-    counts["gnss_epochs_used"] = len(epochs.t)
-    counts["gnss_epochs_outside_imu_span"] = epochs.outside_imu_span
-    run = FilterRun(
-        segments=segments,
-        rotation=rotation,
-        velocity=velocity,
-        position=position,
-        accel_bias=accel_bias,
-        gyro_bias=gyro_bias,
-        prior=prior,
-        posterior=posterior,
-        cov_prior=cov_prior,
-        cov_posterior=cov_posterior,
-        transition=transition,
-        counts=counts,
-        rejected_times=run_rejected,
-    )
-    return run, epochs
+        state, cov = recorder.boundary(b + 1, nominal.end(state), 0.5 * (cov + cov.T), update)
+    return recorder.finish(state, update.rejected_times), setup.epochs
 
 
 def _node_rows(segments: Segments, imu_t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -310,13 +417,15 @@ def _interpolate(start: np.ndarray, end: np.ndarray, block: np.ndarray, share: n
     return (1.0 - s) * start[block] + s * end[block + 1]
 
 
-def _trajectory(
+def make_trajectory(
     dataset: Dataset,
     method: str,
     states: NominalState,
     cov: np.ndarray,
     info: dict[str, object],
 ) -> Trajectory:
+    """The output :class:`Trajectory` of a Kalman baseline: states and the navigation blocks
+    of the error covariance (N, n, n) at every IMU sample."""
     return Trajectory(
         t=dataset.imu.t,
         position=states.position,
@@ -333,11 +442,13 @@ def _trajectory(
     )
 
 
-def _info(run: FilterRun, epochs: GnssEpochs) -> dict[str, object]:
+def trajectory_info(run: FilterRun, epochs: GnssEpochs) -> dict[str, object]:
+    """``Trajectory.info`` of a Kalman baseline: gating summary, update counters, rejections."""
     return {
         "gnss_gating": epochs.gating_summary,
         **run.counts,
         "rejected_times": list(run.rejected_times),
+        "zupt_times": list(run.zupt_times),
     }
 
 
@@ -364,9 +475,9 @@ def rts_smooth(run: FilterRun) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     state (the start of block k), the smoothed correction relative to the forward a-priori
     state (the end of block k-1), and the smoothed covariance.
     """
-    n = len(run.posterior)
-    from_posterior = np.zeros((n, STATE_DIM))
-    from_prior = np.zeros((n, STATE_DIM))
+    n, dim = len(run.posterior), run.cov_posterior.shape[1]
+    from_posterior = np.zeros((n, dim))
+    from_prior = np.zeros((n, dim))
     cov_smoothed = np.empty_like(run.cov_posterior)
     cov_smoothed[-1] = run.cov_posterior[-1]
     smoothed = run.posterior[-1]
@@ -420,7 +531,8 @@ def run_ekf(
     progress: bool = True,
     options: EkfOptions | None = None,
 ) -> Trajectory:
-    """Loosely coupled 15-state error-state EKF (method ``"ekf"``), output at every IMU sample.
+    """Loosely coupled error-state EKF (method ``"ekf"``), output at every IMU sample: 15
+    states, 16 with a barometer; NHC/ZUPT pseudo-measurements per ``config.smoother``.
 
     ``gnss_mask`` withholds GNSS epochs (outages, True = keep). Raises InputError when no
     usable GNSS epoch lies within the IMU span. ``info`` counts updates and rejections.
@@ -429,7 +541,7 @@ def run_ekf(
     run, epochs = run_filter(dataset, config, gnss_mask, options or EkfOptions(), progress)
     filtered = time.perf_counter()
     states, cov = filtered_output(dataset, run)
-    trajectory = _trajectory(dataset, "ekf", states, cov, _info(run, epochs))
+    trajectory = make_trajectory(dataset, "ekf", states, cov, trajectory_info(run, epochs))
     trajectory.timings.update(
         {"filter": filtered - started, "total": time.perf_counter() - started}
     )
@@ -449,7 +561,7 @@ def run_ekf_rts(
     run, epochs = run_filter(dataset, config, gnss_mask, options or EkfOptions(), progress)
     filtered = time.perf_counter()
     states, cov = smoothed_output(dataset, run)
-    trajectory = _trajectory(dataset, "ekf-rts", states, cov, _info(run, epochs))
+    trajectory = make_trajectory(dataset, "ekf-rts", states, cov, trajectory_info(run, epochs))
     trajectory.timings.update(
         {
             "filter": filtered - started,

@@ -22,6 +22,14 @@ velocity and rate together (correlated through P); the biases are constants with
 random walk. GNSS position (+ velocity where given) updates use the project's GNSS noise model
 (:mod:`fgins.baseline.measurements`, :mod:`fgins.factors.gnss`) with closed-loop injection.
 Blocks end at GNSS epochs and at most ``max_block_s`` apart, as in :mod:`fgins.baseline.ekf`.
+
+Land-vehicle pseudo-measurements at every block boundary, switched and weighted by the same
+``config.smoother`` settings as the graph's factors (:mod:`fgins.factors.vehicle`): at a stop
+(quiet array and predicted speed below ``zupt_max_speed_m_per_s``) ZUPT plus a zero-angular-
+rate update (rate = Earth rate), which observes the rate state and through it the alpha-bias
+combinations of the six biases; otherwise the non-holonomic constraint. Why: the array's rate
+is a random walk (0.8 deg/s/sqrt(s) for the tactical 0.1 m cube) driven further by residual
+biases; 1 Hz GNSS positions alone observe it too weakly and the filter lost the attitude.
 """
 
 from __future__ import annotations
@@ -41,7 +49,7 @@ from fgins.baseline.mechanization import (
     segment_imu,
     skew_batch,
 )
-from fgins.config import RunConfig
+from fgins.config import RunConfig, SmootherConfig
 from fgins.datatypes import AccelArrayData, Dataset, InputError, Trajectory
 from fgins.factors.accel_array import AccelArray, rate_monomials
 
@@ -182,6 +190,80 @@ def _interpolate_readings(data: AccelArrayData, times: np.ndarray) -> np.ndarray
     )
 
 
+# Zero-angular-rate update at a stop (rad/s): what an idling engine's rocking leaves. The
+# graph's counterpart is the no-motion factor between stationary keyframes.
+ZARU_SIGMA_RAD_PER_S = 5e-4
+# Rest detection window (s) around a block boundary and the floor of its specific-force
+# spread (m/s^2): below a moving road vehicle's vibration, above the sensors' own noise
+# (the thresholds of graph.problem's quiet-IMU test).
+QUIET_HALF_WINDOW_S = 0.5
+QUIET_FORCE_FLOOR = 0.05
+
+
+def rotation_from_rpy(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """R = Rz(yaw) Ry(pitch) Rx(roll) (GTSAM's Rot3.Ypr), the IMU-to-vehicle mounting."""
+    cr, sr, cp, sp, cy, sy = (f(a) for a in (roll, pitch, yaw) for f in (np.cos, np.sin))
+    rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+    rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
+def quiet_array(model: _ArrayModel, data: AccelArrayData, times: np.ndarray) -> np.ndarray:
+    """True at block boundaries where the array's specific force shows no motion within
+    +-QUIET_HALF_WINDOW_S: per-axis spread below max(4 sigma of one sample, 0.05 m/s^2).
+
+    A steady cruise also has a flat specific force, so callers must also require a low
+    predicted speed (as the graph does)."""
+    force = data.readings @ model.solver_f.T  # centripetal part is negligible at rest
+    rate_hz = (len(data.t) - 1) / (data.t[-1] - data.t[0])
+    sigma_f = model.noise_density * float(np.sqrt(np.max(np.sum(model.solver_f**2, axis=1))))
+    threshold = max(4.0 * sigma_f * np.sqrt(rate_hz), QUIET_FORCE_FLOOR)
+    lo = np.searchsorted(data.t, times - QUIET_HALF_WINDOW_S)
+    hi = np.searchsorted(data.t, times + QUIET_HALF_WINDOW_S)
+    # Windowed standard deviation from cumulative sums (vectorised over boundaries).
+    first = np.vstack([np.zeros((1, 3)), np.cumsum(force, axis=0)])
+    second = np.vstack([np.zeros((1, 3)), np.cumsum(force**2, axis=0)])
+    count = np.maximum(hi - lo, 1)[:, None]
+    mean = (first[hi] - first[lo]) / count
+    variance = np.maximum((second[hi] - second[lo]) / count - mean**2, 0.0)
+    return (hi - lo >= 5) & np.all(np.sqrt(variance) < threshold, axis=1)
+
+
+def standstill_measurement(
+    nav: NominalState, rate: np.ndarray, frame: NavFrame, smoother: SmootherConfig
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """ZUPT + ZARU at a stop: velocity zero and inertial body rate = the Earth rate.
+
+    The rate is the ekf18 state that the angular-acceleration biases drive, so a stop observes
+    the alpha-bias combinations of the six accelerometer biases directly."""
+    h = np.zeros((6, STATE_DIM))
+    h[0:3, VEL] = np.eye(3)
+    h[3:6, RATE] = np.eye(3)
+    residual = np.concatenate([-nav.velocity, nav.rotation.T @ frame.earth_rate - rate])
+    variance = np.array([smoother.zupt_sigma_m_per_s**2] * 3 + [ZARU_SIGMA_RAD_PER_S**2] * 3)
+    return h, residual, variance
+
+
+def nhc_measurement(
+    nav: NominalState, mounting: np.ndarray, smoother: SmootherConfig
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Non-holonomic constraint: vehicle-frame lateral and vertical velocity are zero.
+
+    Same model as :func:`fgins.factors.vehicle.nhc_factor`, in this filter's left (ENU)
+    attitude error R_true = Exp(phi) R: v_b = R^T v + R^T dv + R^T [v]x phi."""
+    select = mounting.T[1:3]  # vehicle y and z axes in IMU axes
+    rotation_t = nav.rotation.T
+    h = np.zeros((2, STATE_DIM))
+    h[:, VEL] = select @ rotation_t
+    h[:, ATT] = select @ rotation_t @ skew_batch(nav.velocity)
+    residual = -(select @ rotation_t @ nav.velocity)
+    variance = np.array(
+        [smoother.nhc_sigma_lateral_m_per_s**2, smoother.nhc_sigma_vertical_m_per_s**2]
+    )
+    return h, residual, variance
+
+
 def run_ekf18(
     dataset: Dataset,
     config: RunConfig,
@@ -248,21 +330,21 @@ def run_ekf18(
     cov[ATT, ATT] = nav.rotation @ np.diag(att_sigma**2) @ nav.rotation.T
     cov[RATE, RATE] = np.eye(3) * INITIAL_RATE_SIGMA**2
     cov[BIAS, BIAS] = np.eye(data.n_sensors) * max(bias_sigma, 1e-9) ** 2
-    counts = {"gnss_updates": 0, "velocity_updates": 0}
+    counts = {"gnss_updates": 0, "velocity_updates": 0, "nhc_updates": 0, "zupt_updates": 0}
+    smoother = config.smoother
+    roll, pitch, yaw = np.radians(smoother.imu_to_vehicle_rpy_deg)
+    mounting = rotation_from_rpy(roll, pitch, yaw)
+    zupt_max_speed = smoother.zupt_max_speed_m_per_s
+    quiet = quiet_array(model, data, times) if smoother.zupt else np.zeros(len(times), bool)
 
-    def update(k: int) -> None:
+    def correct(h: np.ndarray, residual: np.ndarray, variance: np.ndarray) -> None:
+        """Closed-loop linear update of the 18 error states (Joseph form, attitude reset)."""
         nonlocal nav, rate, bias, cov
-        g = int(gnss_at[k])
-        body_rate = rate - nav.rotation.T @ frame.earth_rate
-        lin = linearize_gnss(epochs, g, nav, body_rate, lever_arm)
-        h = np.zeros((len(lin.residual), STATE_DIM))
-        h[:, :9] = lin.jacobian[:, :9]
-        h[:, RATE] = -lin.jacobian[:, 12:15]  # w_true = w + dw, the gyro bias enters as -dw
-        s = h @ cov @ h.T + np.diag(lin.variance)
+        s = h @ cov @ h.T + np.diag(variance)
         gain = np.linalg.solve(s, h @ cov).T
-        dx = gain @ lin.residual
+        dx = gain @ residual
         i_kh = np.eye(STATE_DIM) - gain @ h
-        cov = i_kh @ cov @ i_kh.T + (gain * lin.variance) @ gain.T  # Joseph form
+        cov = i_kh @ cov @ i_kh.T + (gain * variance) @ gain.T  # Joseph form
         reset = np.eye(STATE_DIM)
         reset[ATT, ATT] -= 0.5 * skew_batch(dx[ATT])
         cov = reset @ cov @ reset.T
@@ -272,13 +354,32 @@ def run_ekf18(
         nav = nav.boxplus(dx15)
         rate = rate + dx[RATE]
         bias = bias + dx[BIAS]
+
+    def gnss_update(k: int) -> None:
+        body_rate = rate - nav.rotation.T @ frame.earth_rate
+        lin = linearize_gnss(epochs, int(gnss_at[k]), nav, body_rate, lever_arm)
+        h = np.zeros((len(lin.residual), STATE_DIM))
+        h[:, :9] = lin.jacobian[:, :9]
+        h[:, RATE] = -lin.jacobian[:, 12:15]  # w_true = w + dw, the gyro bias enters as -dw
+        correct(h, lin.residual, lin.variance)
         counts["gnss_updates"] += 1
         counts["velocity_updates"] += int(lin.n_velocity > 0)
+
+    def vehicle_updates(k: int) -> None:
+        if smoother.zupt and quiet[k] and np.linalg.norm(nav.velocity) < zupt_max_speed:
+            h, residual, variance = standstill_measurement(nav, rate, frame, smoother)
+            correct(h, residual, variance)
+            counts["zupt_updates"] += 1
+        elif smoother.nhc:
+            h, residual, variance = nhc_measurement(nav, mounting, smoother)
+            correct(h, residual, variance)
+            counts["nhc_updates"] += 1
 
     def boundary(k: int) -> None:
         cov_prior[k] = cov
         if gnss_at[k] >= 0:
-            update(k)
+            gnss_update(k)
+        vehicle_updates(k)
         cov_post[k] = cov
 
     boundary(0)

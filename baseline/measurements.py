@@ -1,7 +1,9 @@
 """GNSS measurements for the Kalman baselines: which epochs, their values, sigmas and models.
 
 The epochs, sigmas and gating come from :mod:`fgins.factors.gnss` (the one GNSS noise model
-of the project) exactly as the factor graph uses them; only the linearisation lives here.
+of the project) exactly as the factor graph uses them; only the linearisation lives here, and
+the closed-loop linear Kalman update (:func:`kalman_update`) every linearised measurement of
+the baselines goes through.
 """
 
 from __future__ import annotations
@@ -11,7 +13,15 @@ from statistics import NormalDist
 
 import numpy as np
 
-from fgins.baseline.mechanization import ATT, GYRO_BIAS, POS, STATE_DIM, VEL, NominalState
+from fgins.baseline.mechanization import (
+    ATT,
+    GYRO_BIAS,
+    POS,
+    STATE_DIM,
+    VEL,
+    NominalState,
+    skew_batch,
+)
 from fgins.config import RunConfig
 from fgins.datatypes import Dataset, InputError
 from fgins.factors import gnss as gnss_model
@@ -92,8 +102,6 @@ def linearize_gnss(
     corrected). With R_true = Exp(phi) R: d(R l)/dphi = -[R l]x, d(R (w x l))/dphi =
     -[R (w x l)]x and, since w_true = w_nominal - dbg, d(R (w x l))/d(dbg) = R [l]x.
     """
-    from fgins.baseline.mechanization import skew_batch
-
     rotation = state.rotation
     arm_nav = rotation @ lever_arm
     rows_h = [np.zeros((3, STATE_DIM))]
@@ -144,3 +152,44 @@ def huber_variances(
     u = np.abs(residual) / np.sqrt(innovation_var)
     factor = np.where(u > k, u / k, 1.0)
     return variance * factor, int((u > k).sum())
+
+
+def reset_jacobian(phi: np.ndarray, dim: int = STATE_DIM) -> np.ndarray:
+    """Covariance reset after injecting an attitude correction ``phi`` (first order)."""
+    g = np.eye(dim)
+    g[ATT, ATT] -= 0.5 * skew_batch(phi)
+    return g
+
+
+def pad_columns(jacobian: np.ndarray, dim: int) -> np.ndarray:
+    """A Jacobian over the 15 navigation error states extended by zero columns to ``dim``."""
+    if jacobian.shape[1] == dim:
+        return jacobian
+    out = np.zeros((jacobian.shape[0], dim))
+    out[:, : jacobian.shape[1]] = jacobian
+    return out
+
+
+def kalman_update(
+    state: NominalState,
+    cov: np.ndarray,
+    residual: np.ndarray,
+    jacobian: np.ndarray,
+    variance: np.ndarray,
+    innovation_cov: np.ndarray | None = None,
+) -> tuple[NominalState, np.ndarray]:
+    """Closed-loop linear update: inject ``K r`` into the nominal state, Joseph-form covariance
+    and the attitude reset. ``innovation_cov`` (H P H^T + R) may be passed when the caller has
+    it already (gating); ``jacobian`` has as many columns as ``cov``."""
+    s = (
+        jacobian @ cov @ jacobian.T + np.diag(variance)
+        if innovation_cov is None
+        else innovation_cov
+    )
+    gain = np.linalg.solve(s, jacobian @ cov).T
+    dx = gain @ residual
+    i_kh = np.eye(len(cov)) - gain @ jacobian
+    cov = i_kh @ cov @ i_kh.T + (gain * variance) @ gain.T
+    reset = reset_jacobian(dx[ATT], len(cov))
+    cov = reset @ cov @ reset.T
+    return state.boxplus(dx), 0.5 * (cov + cov.T)

@@ -17,7 +17,9 @@ error-state transition and process noise of the block by a tree reduction of the
 per-sample Jacobians of the map above.
 
 Error state (15): ``dp, dv, phi, dba, dbg`` with ``true = nominal + d`` for position, velocity
-and biases and ``R_true = Exp(phi) R_nominal`` (``phi`` in ENU).
+and biases and ``R_true = Exp(phi) R_nominal`` (``phi`` in ENU). Filters may append further
+additive states after these 15 (e.g. a barometer bias): :attr:`NominalState.extra` carries
+their nominal values and :func:`augment_transition` extends a block's Phi and Q to them.
 """
 
 from __future__ import annotations
@@ -63,18 +65,33 @@ class NominalState:
     position: np.ndarray  # (..., 3)
     accel_bias: np.ndarray  # (..., 3)
     gyro_bias: np.ndarray  # (..., 3)
+    # Additive states after the 15 navigation ones (..., m); m = 0 unless a filter augments.
+    extra: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.extra is None:
+            self.extra = np.zeros((*np.shape(self.velocity)[:-1], 0))
+
+    @property
+    def dim(self) -> int:
+        """Length of the error-state vector: 15 plus the extra states."""
+        assert self.extra is not None
+        return STATE_DIM + self.extra.shape[-1]
 
     def copy(self) -> NominalState:
+        assert self.extra is not None
         return NominalState(
             self.rotation.copy(),
             self.velocity.copy(),
             self.position.copy(),
             self.accel_bias.copy(),
             self.gyro_bias.copy(),
+            self.extra.copy(),
         )
 
     def boxplus(self, dx: np.ndarray) -> NominalState:
-        """The state corrected by error-state vectors ``dx`` (..., 15)."""
+        """The state corrected by error-state vectors ``dx`` (..., 15 + m)."""
+        assert self.extra is not None
         rotation = so3_exp(dx[..., ATT]) @ self.rotation
         # Re-orthonormalise: thousands of corrections and prefix products accumulate rounding.
         u, _, vt = np.linalg.svd(rotation)
@@ -84,10 +101,12 @@ class NominalState:
             position=self.position + dx[..., POS],
             accel_bias=self.accel_bias + dx[..., ACC_BIAS],
             gyro_bias=self.gyro_bias + dx[..., GYRO_BIAS],
+            extra=self.extra + dx[..., STATE_DIM:],
         )
 
     def boxminus(self, reference: NominalState) -> np.ndarray:
-        """Error-state vector ``dx`` with ``reference.boxplus(dx) == self`` (..., 15)."""
+        """Error-state vector ``dx`` with ``reference.boxplus(dx) == self`` (..., 15 + m)."""
+        assert self.extra is not None and reference.extra is not None
         phi = so3_log(self.rotation @ np.swapaxes(reference.rotation, -1, -2))
         return np.concatenate(
             [
@@ -96,6 +115,7 @@ class NominalState:
                 phi,
                 self.accel_bias - reference.accel_bias,
                 self.gyro_bias - reference.gyro_bias,
+                self.extra - reference.extra,
             ],
             axis=-1,
         )
@@ -190,6 +210,7 @@ class BlockNominal:
             position=self.position[..., -1, :],
             accel_bias=state.accel_bias.copy(),
             gyro_bias=state.gyro_bias.copy(),
+            extra=None if state.extra is None else state.extra.copy(),
         )
 
 
@@ -287,3 +308,20 @@ def block_transition(
     """Error-state transition and process noise (15, 15) over one (unbatched) block."""
     phi = sample_transitions(nominal.rotation[:-1], nominal.specific_force_nav, dt, frame)
     return compose_transitions(phi, sample_process_noise(noise, dt, white_scale))
+
+
+def augment_transition(
+    phi: np.ndarray, q: np.ndarray, extra_variance: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Phi and Q (15, 15) of a block extended by random-walk states (constant in the
+    propagation) that gain ``extra_variance`` (m,) of process noise over the block."""
+    m = len(extra_variance)
+    if m == 0:
+        return phi, q
+    n = STATE_DIM + m
+    phi_out = np.eye(n)
+    phi_out[:STATE_DIM, :STATE_DIM] = phi
+    q_out = np.zeros((n, n))
+    q_out[:STATE_DIM, :STATE_DIM] = q
+    q_out[STATE_DIM:, STATE_DIM:] = np.diag(extra_variance)
+    return phi_out, q_out

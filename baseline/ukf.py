@@ -1,11 +1,15 @@
-"""Loosely coupled unscented Kalman filter on the 15-dim error state (numpy only, method "ukf").
+"""Loosely coupled unscented Kalman filter on the error state (numpy only, method "ukf").
 
 The sigma-point filter of the MEMS study (20 Hz MEMS IMU + 2 Hz GPS on a car; fixes with
 PDOP > 5 rejected, which :func:`fgins.factors.gnss.gate_epochs` already does through
 ``config.gnss.pdop_max``). Everything but the estimator is the EKF's
 (:mod:`fgins.baseline.ekf`): same alignment and initial covariance, same GNSS epochs, sigmas,
 gating and lever arm (:mod:`fgins.baseline.measurements`), same strapdown model and blocks
-(:mod:`fgins.baseline.mechanization`), same output construction.
+(:mod:`fgins.baseline.mechanization`), same output construction, all from the one shared
+setup (:func:`fgins.baseline.ekf.prepare_filter`, :class:`fgins.baseline.ekf.FilterRecorder`).
+The error state has 15 dimensions, 16 with a barometer bias; the land-vehicle and barometer
+pseudo-measurements (:mod:`fgins.baseline.vehicle_updates`) are the EKF's linear updates (they
+are linear, or for NHC nearly so, in the error state).
 
 Sigma points. Error-state sigma points ``dx_i`` (2n + 1 = 31 for n = 15) are drawn around the
 nominal state and turned into full states ``x_i = nominal [+] dx_i``; each is propagated
@@ -46,21 +50,20 @@ from dataclasses import dataclass, field
 import numpy as np
 from tqdm import tqdm
 
-from fgins.alignment import initial_alignment
 from fgins.baseline.ekf import (
+    FilterRecorder,
     FilterRun,
-    _info,
-    _trajectory,
     filtered_output,
-    initial_covariance,
-    reset_jacobian,
+    make_trajectory,
+    prepare_filter,
+    trajectory_info,
 )
 from fgins.baseline.measurements import (
     GnssEpochs,
     chi2_quantile,
     huber_variances,
     linearize_gnss,
-    select_gnss,
+    reset_jacobian,
 )
 from fgins.baseline.mechanization import (
     ACC_BIAS,
@@ -72,10 +75,8 @@ from fgins.baseline.mechanization import (
     BlockNominal,
     NavFrame,
     NominalState,
-    block_times,
     block_transition,
     propagate_nominal,
-    segment_imu,
 )
 from fgins.config import RunConfig
 from fgins.datatypes import Dataset, InputError, Trajectory
@@ -152,14 +153,15 @@ def unscented_transform(
 
 
 def _errors_from_central(block: BlockNominal, offsets: np.ndarray) -> np.ndarray:
-    """Error states (S, nodes, 15) of every propagated sigma point relative to point 0."""
+    """Error states (S, nodes, n) of every propagated sigma point relative to point 0."""
     s, nodes = block.position.shape[:2]
-    errors = np.empty((s, nodes, STATE_DIM))
+    errors = np.empty((s, nodes, offsets.shape[1]))
     errors[..., POS] = block.position - block.position[:1]
     errors[..., VEL] = block.velocity - block.velocity[:1]
     errors[..., ATT] = so3_log(block.rotation @ np.swapaxes(block.rotation[:1], -1, -2))
     errors[..., ACC_BIAS] = offsets[:, None, ACC_BIAS]  # biases are constant over the block
     errors[..., GYRO_BIAS] = offsets[:, None, GYRO_BIAS]
+    errors[..., STATE_DIM:] = offsets[:, None, STATE_DIM:]  # augmented states: constant too
     return errors
 
 
@@ -208,10 +210,10 @@ class _UnscentedUpdater:
             return _gnss_predictions(points, gyro, self.frame, self.lever_arm, lin.n_velocity)
 
         y_mean, predicted, cross = unscented_transform(
-            predict, np.zeros(STATE_DIM), cov, self.weights
+            predict, np.zeros(len(cov)), cov, self.weights
         )
         # residual = z - h(state), so the innovation z - y_mean is:
-        innovation = lin.residual - (y_mean - predict(np.zeros((1, STATE_DIM)))[0])
+        innovation = lin.residual - (y_mean - predict(np.zeros((1, len(cov))))[0])
         variance = lin.variance
         if self.huber_k is not None:
             variance, n_down = huber_variances(
@@ -228,7 +230,7 @@ class _UnscentedUpdater:
         gain = np.linalg.solve(s, cross.T).T
         correction = gain @ innovation
         cov = cov - gain @ s @ gain.T
-        reset = reset_jacobian(correction[ATT])
+        reset = reset_jacobian(correction[ATT], len(cov))
         cov = reset @ cov @ reset.T
         self.counts["gnss_updates"] += 1
         self.counts["velocity_updates"] += int(lin.n_velocity > 0)
@@ -264,6 +266,9 @@ def _predict_block(
         position=central.position + mean_error[:, POS],
         accel_bias=np.broadcast_to(state.accel_bias + mean_error[-1, ACC_BIAS], (len(dt) + 1, 3)),
         gyro_bias=np.broadcast_to(state.gyro_bias + mean_error[-1, GYRO_BIAS], (len(dt) + 1, 3)),
+        extra=np.broadcast_to(
+            state.extra + mean_error[-1, STATE_DIM:], (len(dt) + 1, mean_error.shape[1] - STATE_DIM)
+        ),
     )
     return means, sigma_cov, central
 
@@ -276,124 +281,43 @@ def run_ukf_filter(
     progress: bool,
 ) -> tuple[FilterRun, GnssEpochs]:
     """The forward UKF pass; the result has the EKF's layout (transition: central point's)."""
-    imu = dataset.imu
-    epochs = select_gnss(dataset, config, gnss_mask)
-    noise = config.imu_noise()
-    frame = NavFrame.at(dataset.origin)
-    weights = sigma_weights(STATE_DIM, options.alpha, options.beta, options.kappa)
-    align = initial_alignment(
-        dataset, epochs.usable, heading_deg=config.smoother.initial_heading_deg
-    )
-    times = block_times(float(imu.t[0]), float(imu.t[-1]), epochs.t, options.max_block_s)
-    segments = segment_imu(imu.t, times)
-    # GNSS epochs are block boundaries by construction (block_times keeps every anchor).
-    boundary = np.clip(np.searchsorted(times, epochs.t), 0, len(times) - 1)
-    gnss_at = np.full(len(times), -1)
-    gnss_at[boundary] = np.arange(len(epochs.t))
-    white_scale = np.ones(len(segments.dt))
-    for a, b in imu.suspect:
-        white_scale[(segments.start >= a) & (segments.start < b)] = (
-            config.smoother.suspect_noise_factor
-        )
-
-    n_nodes = len(segments.start) + 1
-    nodes = {name: np.empty((n_nodes, 3)) for name in ("velocity", "position", "ba", "bg")}
-    rotation = np.empty((n_nodes, 3, 3))
-    n_blocks = len(times) - 1
-    cov_prior = np.empty((n_blocks + 1, STATE_DIM, STATE_DIM))
-    cov_posterior = np.empty_like(cov_prior)
-    transition = np.empty((n_blocks, STATE_DIM, STATE_DIM))
-    prior: list[NominalState] = []
-    posterior: list[NominalState] = []
-    counts = {
-        "gnss_updates": 0,
-        "velocity_updates": 0,
-        "rejected_innovation": 0,
-        "huber_downweighted": 0,
-    }
+    setup = prepare_filter(dataset, config, gnss_mask, options.max_block_s)
+    recorder = FilterRecorder(setup, dataset.imu.t, dataset.imu.gyro)
+    weights = sigma_weights(len(setup.cov), options.alpha, options.beta, options.kappa)
     update = _UnscentedUpdater(
-        epochs=epochs,
+        epochs=setup.epochs,
         lever_arm=np.asarray(config.gnss.lever_arm_m, dtype=float),
         weights=weights,
         huber_k=config.gnss.huber_k,
         gate_probability=options.innovation_gate_probability,
-        frame=frame,
-        counts=counts,
+        frame=setup.frame,
+        counts=setup.counts,
     )
-    state = NominalState(
-        rotation=np.asarray(align.rotation, dtype=float),
-        velocity=np.asarray(align.velocity, dtype=float),
-        position=np.asarray(align.position, dtype=float),
-        accel_bias=np.zeros(3),
-        gyro_bias=np.zeros(3),
-    )
-    cov = initial_covariance(
-        state.rotation, align.attitude_sigma_rad, align.velocity_sigma, align.position_sigma, noise
-    )
-    gyro_at = imu.gyro[segments.sample]
-    accel_at = imu.accel[segments.sample]
-
-    def at_boundary(
-        k: int, state: NominalState, cov: np.ndarray
-    ) -> tuple[NominalState, np.ndarray]:
-        prior.append(state.copy())
-        cov_prior[k] = cov
-        if gnss_at[k] >= 0:
-            sample = min(int(np.searchsorted(imu.t, times[k], side="right")) - 1, len(imu) - 1)
-            state, cov = update(int(gnss_at[k]), state, cov, imu.gyro[sample])
-        posterior.append(state.copy())
-        cov_posterior[k] = cov
-        return state, cov
-
-    state, cov = at_boundary(0, state, cov)
+    segments = setup.segments
+    state, cov = recorder.boundary(0, setup.state, setup.cov, update)
+    n_blocks = len(setup.times) - 1
     for b in tqdm(range(n_blocks), desc="UKF", unit="block", disable=not progress, leave=False):
         span = segments.block(b)
         dt = segments.dt[span]
         means, sigma_cov, central = _predict_block(
-            state, cov, gyro_at[span], accel_at[span], dt, frame, weights
+            state, cov, setup.gyro_at[span], setup.accel_at[span], dt, setup.frame, weights
         )
-        rows = slice(span.start, span.stop)
-        rotation[rows] = means.rotation[:-1]
-        nodes["velocity"][rows] = means.velocity[:-1]
-        nodes["position"][rows] = means.position[:-1]
-        nodes["ba"][rows] = means.accel_bias[:-1]
-        nodes["bg"][rows] = means.gyro_bias[:-1]
-        phi, q = block_transition(central, dt, frame, noise, white_scale[span])
-        transition[b] = phi
+        recorder.store_nodes(span, means)
+        phi, q = block_transition(central, dt, setup.frame, setup.noise, setup.white_scale[span])
+        phi, q = setup.block_process_noise(b, phi, q)
+        recorder.transition[b] = phi
         cov = sigma_cov + q
+        assert means.extra is not None
         end = NominalState(
             means.rotation[-1].copy(),
             means.velocity[-1].copy(),
             means.position[-1].copy(),
             means.accel_bias[-1].copy(),
             means.gyro_bias[-1].copy(),
+            means.extra[-1].copy(),
         )
-        state, cov = at_boundary(b + 1, end, 0.5 * (cov + cov.T))
-    rotation[-1], nodes["velocity"][-1], nodes["position"][-1] = (
-        state.rotation,
-        state.velocity,
-        state.position,
-    )
-    nodes["ba"][-1], nodes["bg"][-1] = state.accel_bias, state.gyro_bias
-    counts["blocks"] = n_blocks
-    counts["gnss_epochs_used"] = len(epochs.t)
-    counts["gnss_epochs_outside_imu_span"] = epochs.outside_imu_span
-    run = FilterRun(
-        segments=segments,
-        rotation=rotation,
-        velocity=nodes["velocity"],
-        position=nodes["position"],
-        accel_bias=nodes["ba"],
-        gyro_bias=nodes["bg"],
-        prior=prior,
-        posterior=posterior,
-        cov_prior=cov_prior,
-        cov_posterior=cov_posterior,
-        transition=transition,
-        counts=counts,
-        rejected_times=update.rejected_times,
-    )
-    return run, epochs
+        state, cov = recorder.boundary(b + 1, end, 0.5 * (cov + cov.T), update)
+    return recorder.finish(state, update.rejected_times), setup.epochs
 
 
 def run_ukf(
@@ -415,9 +339,9 @@ def run_ukf(
     run, epochs = run_ukf_filter(dataset, config, gnss_mask, options, progress)
     filtered = time.perf_counter()
     states, cov = filtered_output(dataset, run)
-    info = _info(run, epochs)
+    info = trajectory_info(run, epochs)
     info["unscented"] = {"alpha": options.alpha, "beta": options.beta, "kappa": options.kappa}
-    trajectory = _trajectory(dataset, "ukf", states, cov, info)
+    trajectory = make_trajectory(dataset, "ukf", states, cov, info)
     trajectory.timings.update(
         {"filter": filtered - started, "total": time.perf_counter() - started}
     )

@@ -273,17 +273,25 @@ def solve_array(
     w0: np.ndarray,
     *,
     sigmas: np.ndarray | None = None,
+    alpha_bias: np.ndarray | None = None,
 ) -> ArraySolution:
     """Specific force, angular acceleration and rate from readings (T, N) at times t (T,).
 
     ``w0`` is the angular rate at t[0] (rad/s), e.g. zero for a start at rest. ``sigmas`` are
-    optional per-accelerometer noise sigmas for the weighted least squares. The rate is the
-    trapezoid integral of alpha (see the module docstring for the two integration paths).
+    optional per-accelerometer noise sigmas for the weighted least squares. ``alpha_bias``
+    (rad/s^2, e.g. from :func:`calibrate_at_rest`) is subtracted from the solved angular
+    acceleration before integration. The rate is the trapezoid integral of alpha (see the
+    module docstring for the two integration paths).
     """
     readings, t, w0 = _check_inputs(array, readings, t, w0)
     solver = array.solver(sigmas)
     coupling = solver @ array.centripetal_matrix()  # P Q
     linear = readings @ solver.T  # P A: (f, alpha) before the centripetal correction
+    if alpha_bias is not None:
+        alpha_bias = np.asarray(alpha_bias, dtype=float)
+        if alpha_bias.shape != (3,) or not np.all(np.isfinite(alpha_bias)):
+            raise InputError("accelerometer array: alpha_bias must be 3 finite values (rad/s^2)")
+        linear[:, 3:] -= alpha_bias
     dt = np.diff(t)
     if alpha_is_rate_free(array, sigmas):
         alpha = linear[:, 3:]
@@ -345,6 +353,83 @@ def _heun_integrate(
     return np.array(alpha), np.array(rate)
 
 
+@dataclass(frozen=True)
+class RestCalibration:
+    """Angular-acceleration bias measured while the array stood still at the start.
+
+    ``alpha_bias`` (rad/s^2) is the mean solved alpha over the rest span [t[0], t[0] +
+    ``duration_s``) (the truth is zero there); ``alpha_bias_sigma`` its 1-sigma error from the
+    white noise, sigma_alpha / sqrt(duration). ``samples`` is the number of readings used.
+    """
+
+    alpha_bias: np.ndarray
+    duration_s: float
+    samples: int
+    alpha_bias_sigma: float
+
+
+# Rest detection: the specific force of a vehicle at rest is constant (gravity). Windows whose
+# mean deviates from the first window's by more than this many sigmas of the window mean (white
+# noise only), or by the absolute floor (vibration, tiny creeping), count as motion.
+_REST_SIGMAS = 5.0
+_REST_FLOOR_M_PER_S2 = 0.02
+
+
+def calibrate_at_rest(
+    array: AccelArray,
+    readings: np.ndarray,
+    t: np.ndarray,
+    noise_density: float,
+    *,
+    window_s: float = 0.5,
+    min_rest_s: float = 2.0,
+) -> RestCalibration | None:
+    """The angular-acceleration bias from the initial standstill, or None if there is none.
+
+    Why: residual accelerometer biases b give a constant alpha bias P_alpha b, so the integrated
+    rate error grows *linearly* (for the 0.1 m cube, 100 ug of residual bias is 0.4 deg/s per
+    second) and soon swamps the white-noise random walk. At rest the true alpha is zero (the
+    Earth rate is constant), so the mean solved alpha over the rest span is the alpha bias (a
+    zero-angular-rate-update calibration, as done at every land-vehicle start). The rest span
+    is the longest prefix of whole windows whose mean specific force stays within
+    max(5 sigma of a window mean, 0.02 m/s^2) of the first window's; the last window is dropped
+    because motion may have begun inside it. Needs at least ``min_rest_s`` of rest.
+    """
+    readings, t, _ = _check_inputs(array, readings, t, np.zeros(3))
+    if not (window_s > 0 and min_rest_s > 0):
+        raise InputError("calibrate_at_rest: window_s and min_rest_s must be > 0")
+    solver = array.solver()
+    linear = readings @ solver.T
+    sigma_f, sigma_alpha = solution_noise_densities(array, noise_density)
+    window = np.floor((t - t[0]) / window_s).astype(int)
+    n_windows = int(window[-1])  # the last (possibly partial) window is never used
+    if n_windows < 2:
+        return None
+    counts = np.bincount(window, minlength=n_windows + 1)[:n_windows]
+    sums = np.stack(
+        [np.bincount(window, weights=linear[:, i], minlength=n_windows + 1) for i in range(3)],
+        axis=1,
+    )[:n_windows]
+    means = sums / counts[:, None]
+    tolerance = max(
+        _REST_SIGMAS * float(np.max(sigma_f)) / math.sqrt(window_s), _REST_FLOOR_M_PER_S2
+    )
+    moving = np.linalg.norm(means - means[0], axis=1) > tolerance
+    first_moving = int(np.argmax(moving)) if np.any(moving) else n_windows
+    rest_windows = first_moving - 1  # drop the window just before motion was seen
+    duration = rest_windows * window_s
+    if duration < min_rest_s:
+        return None
+    rest = window < rest_windows
+    alpha_bias = linear[rest, 3:].mean(axis=0)
+    return RestCalibration(
+        alpha_bias=alpha_bias,
+        duration_s=float(duration),
+        samples=int(np.count_nonzero(rest)),
+        alpha_bias_sigma=float(np.max(sigma_alpha)) / math.sqrt(duration),
+    )
+
+
 def to_imu_data(solution: ArraySolution) -> ImuData:
     """The array output as an ordinary IMU (gyro = integrated rate, accel = specific force)."""
     return ImuData(
@@ -379,6 +464,9 @@ def equivalent_imu_noise(
     *,
     drift_horizon_s: float = 60.0,
     initial_rate_sigma_rad_per_s: float = 1e-3,
+    alpha_bias_sigma: float | None = None,
+    keyframe_interval_s: float = 1.0,
+    typical_rate_rad_per_s: float = 0.3,
 ) -> dict[str, float]:
     """fgins ``[imu]`` config (SI ``*_si`` keys of :data:`fgins.config.IMU_KEYS`) for the array.
 
@@ -392,16 +480,30 @@ def equivalent_imu_noise(
       growing linearly, b_alpha * t. A random walk cannot represent a ramp; we inflate the walk
       so that its spread over ``drift_horizon_s`` (the span the smoother must bridge, e.g. a GNSS
       outage) matches the ramp: q^2 = sigma_alpha^2 + b_alpha^2 * horizon.
-    - The integrated rate has no white noise of its own; GTSAM still needs a positive gyro noise
-      density, so a small one is given: 1% of sigma_alpha accumulated over one second.
+    - The integrated rate has no white noise of its own, but GTSAM's preintegration holds the
+      gyro bias *constant* between two keyframes, so the rate's random walk inside an interval
+      T would be ignored: its attitude error has variance q^2 T^3 / 3, the same as a white
+      gyro noise of density q T / sqrt(3) over T. That is the gyro noise given
+      (``keyframe_interval_s`` = the graph's keyframe spacing, 1 s by default).
+      When the alpha bias was calibrated at rest (:func:`calibrate_at_rest`), pass the
+      calibration's ``alpha_bias_sigma``: only that residual ramps.
     - The initial rate error is the error of w0: it becomes the gyro turn-on bias prior.
     - Specific force noise/bias come straight from the least squares (largest axis). The
       constant f bias gets a slow random walk (one prior sigma per hour) so the smoother can
-      still refine it. The rate error also leaks into f through the centripetal correction
-      (L |w| delta_w for the cube): neglected, it is second order for small arrays.
+      still refine it.
+    - The rate error dw also leaks into f through the centripetal correction: f error =
+      -P_f Q (m(w + dw) - m(w)), of size |P_f Q| (2 |w| |dw| + |dw|^2) (for the cube
+      |P_f Q| = L). It starts at zero and grows with dw, so it is an accelerometer bias *walk*:
+      the walk is raised until its spread over the horizon covers the leak at that horizon's
+      rate error, for a vehicle turning at ``typical_rate_rad_per_s``. Ignoring it (as a
+      second-order effect) made the graph explain 0.01-0.1 m/s^2 of f error with tilt.
     """
     if not (math.isfinite(drift_horizon_s) and drift_horizon_s > 0):
         raise InputError(f"equivalent_imu_noise: drift_horizon_s {drift_horizon_s} must be > 0")
+    if not (math.isfinite(keyframe_interval_s) and keyframe_interval_s > 0):
+        raise InputError(
+            f"equivalent_imu_noise: keyframe_interval_s {keyframe_interval_s} must be > 0"
+        )
     if not (math.isfinite(initial_rate_sigma_rad_per_s) and initial_rate_sigma_rad_per_s > 0):
         raise InputError("equivalent_imu_noise: initial_rate_sigma_rad_per_s must be > 0")
     bias = np.broadcast_to(np.asarray(accel_bias, dtype=float), (len(array),))
@@ -413,13 +515,24 @@ def equivalent_imu_noise(
     solver = array.solver(sigmas)
     bias_std = np.sqrt(np.einsum("ij,j,ij->i", solver, bias**2, solver))
     bias_f, bias_alpha = float(np.max(bias_std[:3])), float(np.max(bias_std[3:]))
+    if alpha_bias_sigma is not None:
+        if not (math.isfinite(alpha_bias_sigma) and alpha_bias_sigma >= 0):
+            raise InputError("equivalent_imu_noise: alpha_bias_sigma must be finite and >= 0")
+        bias_alpha = alpha_bias_sigma
     alpha_density = float(np.max(sigma_alpha))
     rate_walk = math.sqrt(alpha_density**2 + bias_alpha**2 * drift_horizon_s)
+    # Centripetal leak of the rate error into f at the horizon (see above).
+    rate_error = rate_walk * math.sqrt(drift_horizon_s)
+    leak_gain = float(np.linalg.norm(centripetal_coupling(array, sigmas)[:3], ord=2))
+    leak = leak_gain * (2.0 * abs(typical_rate_rad_per_s) * rate_error + rate_error**2)
+    accel_walk = max(bias_f / math.sqrt(3600.0), leak / math.sqrt(drift_horizon_s), 1e-12)
     return {
-        "gyro_noise_rad_per_s_per_sqrt_hz": max(0.01 * alpha_density * 1.0, 1e-12),
+        "gyro_noise_rad_per_s_per_sqrt_hz": max(
+            rate_walk * keyframe_interval_s / math.sqrt(3.0), 1e-12
+        ),
         "gyro_bias_rw_rad_per_s_per_sqrt_s": rate_walk,
         "gyro_turn_on_bias_deg_per_s": math.degrees(initial_rate_sigma_rad_per_s),
         "accel_noise_m_per_s2_per_sqrt_hz": float(np.max(sigma_f)),
-        "accel_bias_rw_m_per_s2_per_sqrt_s": max(bias_f / math.sqrt(3600.0), 1e-12),
+        "accel_bias_rw_m_per_s2_per_sqrt_s": accel_walk,
         "accel_turn_on_bias_mg": max(bias_f, 1e-9) / (1e-3 * STANDARD_GRAVITY),
     }

@@ -10,6 +10,8 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
+from fgins.factors import stationary
+
 
 def baro_key(k: int) -> int:
     return gtsam.symbol("z", int(k))
@@ -36,7 +38,5 @@ def initial_bias(height_enu_m: float, pressure_pa: float) -> float:
 
 
 def standard_atmosphere_height(pressure_pa: float | np.ndarray) -> float | np.ndarray:
-    """GTSAM's own conversion (BarometricFactor::heightOut), kept identical on purpose."""
-    kpa = np.asarray(pressure_pa) / 1000.0
-    # NASA Glenn troposphere model, as in gtsam/navigation/BarometricFactor.h.
-    return (np.power(kpa / 101.29, 1.0 / 5.256) * 288.08 - 273.1 - 15.04) / -0.00649
+    """GTSAM's own conversion (BarometricFactor::heightOut); one copy, in factors/stationary."""
+    return stationary.standard_atmosphere_height(pressure_pa)

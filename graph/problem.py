@@ -20,6 +20,7 @@ from fgins.factors import baro as baro_model
 from fgins.factors import gnss as gnss_model
 from fgins.factors import imu as imu_model
 from fgins.factors import odometer as odometer_model
+from fgins.factors import stationary
 from fgins.factors import vehicle as vehicle_model
 from fgins.geodesy import earth_rate_enu, normal_gravity
 from fgins.graph.keyframes import Segments, build_segments, keyframe_times
@@ -256,8 +257,8 @@ def build_problem(
         span = segments.interval(i)
         imu_model.integrate(pim, accel[span], gyro[span], segments.dt[span])
         pims.append(pim)
-    quiet = _quiet_imu(imu, times, noise)
-    baro_pressure = _baro_at(dataset, times)
+    quiet = stationary.quiet_imu(imu, times, noise)
+    baro_pressure = stationary.pressure_at(dataset.baro, times)
     odometer_speed = _odometer_at(dataset, times)
     roll, pitch, yaw = np.radians(config.smoother.imu_to_vehicle_rpy_deg)
     imu_to_vehicle = gtsam.Rot3.Ypr(yaw, pitch, roll).matrix()
@@ -300,46 +301,6 @@ def _decimate(t: np.ndarray, min_interval: float) -> np.ndarray:
             keep[i] = True
             last = ti
     return keep
-
-
-def _quiet_imu(imu, times: np.ndarray, noise: ImuNoise, half_window_s: float = 0.5) -> np.ndarray:
-    """True where the IMU shows no motion within +-half_window_s of a keyframe.
-
-    Thresholds sit well above the sensor's own white noise at its sample rate and below what
-    a moving road vehicle's vibration gives.
-    """
-    rate = imu.rate_hz
-    gyro_threshold = max(4.0 * noise.gyro_noise * np.sqrt(rate), 0.005)
-    accel_threshold = max(4.0 * noise.accel_noise * np.sqrt(rate), 0.05)
-    turn_threshold = max(3.0 * noise.gyro_bias_prior, 0.01)
-    lo = np.searchsorted(imu.t, times - half_window_s)
-    hi = np.searchsorted(imu.t, times + half_window_s)
-    quiet = np.zeros(len(times), dtype=bool)
-    for k, (a, b) in enumerate(zip(lo, hi, strict=True)):
-        if b - a < 5:
-            continue
-        gyro_std = imu.gyro[a:b].std(axis=0).max()
-        accel_std = imu.accel[a:b].std(axis=0).max()
-        # A steady turn is smooth too: the mean rate must be no more than a bias could give.
-        turning = np.linalg.norm(imu.gyro[a:b].mean(axis=0)) > turn_threshold
-        quiet[k] = gyro_std < gyro_threshold and accel_std < accel_threshold and not turning
-    return quiet
-
-
-def _baro_at(dataset: Dataset, times: np.ndarray, half_window_s: float = 0.25) -> np.ndarray:
-    """Mean barometric pressure within +-half_window_s of each keyframe (NaN where none)."""
-    out = np.full(len(times), np.nan)
-    baro = dataset.baro
-    if baro is None or not np.any(np.isfinite(baro.pressure)):
-        return out
-    valid = np.isfinite(baro.pressure)
-    t, pressure = baro.t[valid], baro.pressure[valid]
-    lo = np.searchsorted(t, times - half_window_s)
-    hi = np.searchsorted(t, times + half_window_s)
-    for k, (a, b) in enumerate(zip(lo, hi, strict=True)):
-        if b > a:
-            out[k] = pressure[a:b].mean()
-    return out
 
 
 def _odometer_at(dataset: Dataset, times: np.ndarray, half_window_s: float = 0.1) -> np.ndarray:

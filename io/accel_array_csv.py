@@ -30,6 +30,8 @@ import numpy as np
 from fgins.datatypes import AccelArrayData, ImuData, InputError
 from fgins.factors.accel_array import (
     AccelArray,
+    RestCalibration,
+    calibrate_at_rest,
     equivalent_imu_noise,
     solve_array,
     to_imu_data,
@@ -195,17 +197,37 @@ def array_geometry(data: AccelArrayData) -> AccelArray:
     return AccelArray(positions=data.positions, axes=data.axes)
 
 
-def derive_imu(data: AccelArrayData) -> tuple[ImuData, dict[str, float]]:
+def derive_imu(data: AccelArrayData, *, calibrate: bool = True) -> tuple[ImuData, dict[str, float]]:
     """The front end: the array's ordinary IMU output and the ``[imu]`` keys describing it.
 
     Readings are solved by noise-weighted least squares (equal weights for one density) and
-    the rate integrated from ``data.initial_rate``. The noise keys say that the "gyro" error is
+    the rate integrated from ``data.initial_rate``. With ``calibrate`` (default) the angular-
+    acceleration bias is first measured over the initial standstill, if the record has one
+    (:func:`fgins.factors.accel_array.calibrate_at_rest`): without it the residual
+    accelerometer biases make the rate error a ramp that no rate random walk describes. The noise keys say that the "gyro" error is
     the integral of accelerometer noise and bias (:func:`equivalent_imu_noise`); ``rate_hz``
     is added so the graph knows the sample rate.
     """
     array = array_geometry(data)
-    solution = solve_array(array, data.readings, data.t, data.initial_rate)
+    calibration = rest_calibration(data) if calibrate else None
+    solution = solve_array(
+        array,
+        data.readings,
+        data.t,
+        data.initial_rate,
+        alpha_bias=None if calibration is None else calibration.alpha_bias,
+    )
     imu = to_imu_data(solution)
     bias = DEFAULT_BIAS_SIGMA if data.bias_sigma is None else data.bias_sigma
-    noise = equivalent_imu_noise(array, data.noise_density, bias)
+    noise = equivalent_imu_noise(
+        array,
+        data.noise_density,
+        bias,
+        alpha_bias_sigma=None if calibration is None else calibration.alpha_bias_sigma,
+    )
     return imu, {"preset": "tactical", **noise, "rate_hz": imu.rate_hz}
+
+
+def rest_calibration(data: AccelArrayData) -> RestCalibration | None:
+    """The alpha-bias calibration over the initial standstill (None: the record starts moving)."""
+    return calibrate_at_rest(array_geometry(data), data.readings, data.t, data.noise_density)

@@ -39,17 +39,25 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--duration", type=float, default=120.0, help="drive length, s")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--half-edge", type=float, default=0.1, help="cube half-edge L, m (sigma_alpha ~ 1/L)"
+    )
     args = parser.parse_args(argv)
     results: dict[tuple[str, float, str], tuple[float, float, float, float]] = {}
     print(
-        f"gyrofree-cube, seed {args.seed}, {args.duration:g} s urban drive, cube half-edge 0.1 m\n"
+        f"gyrofree-cube, seed {args.seed}, {args.duration:g} s urban drive, "
+        f"cube half-edge {args.half_edge:g} m\n"
     )
     print("| grade | GNSS Hz | method | horiz RMS m | vert RMS m | att RMS deg | time s |")
     print("|---|---|---|---|---|---|---|")
     for grade in GRADES:
         for rate in GNSS_RATES:
             run = SCENARIOS["gyrofree-cube"](
-                args.seed, grade=grade, gnss_rate_hz=rate, duration_s=args.duration
+                args.seed,
+                grade=grade,
+                gnss_rate_hz=rate,
+                duration_s=args.duration,
+                half_edge_m=args.half_edge,
             )
             config = config_for_dataset(run.dataset)
             for method in METHODS:

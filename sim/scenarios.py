@@ -338,7 +338,7 @@ def gyrofree_cube(seed: int = 0, **options: Any) -> SimRun:
     ``rate_hz`` (array sample rate, default 100), ``duration_s``, ``start_time_s``.
     """
     from fgins.factors.accel_array import AccelArray
-    from fgins.io.accel_array_csv import accel_array_table, derive_imu
+    from fgins.io.accel_array_csv import accel_array_table, derive_imu, rest_calibration
     from fgins.sim.accel_array import GRADES as ARRAY_GRADES
     from fgins.sim.accel_array import array_readings, draw_array_errors, resolve_grade
 
@@ -378,6 +378,7 @@ def gyrofree_cube(seed: int = 0, **options: Any) -> SimRun:
         bias_sigma=grade.residual_bias,
         grade=grade.name,
     )
+    # The front end calibrates the alpha bias over the 10 s standstill the drive starts with.
     imu, imu_config = derive_imu(raw)
     truth = Trajectory(
         t=t,
@@ -420,13 +421,15 @@ def gyrofree_cube(seed: int = 0, **options: Any) -> SimRun:
             f"Urban car with a gyro-free IMU: six {grade.name}-grade accelerometers on the faces "
             f"of a cube (half-edge {array.positions.max():g} m, face-diagonal axes) at "
             f"{rate_hz:g} Hz; GNSS {gnss_rate:g} Hz, UERE 2 m x DOP, position only. The IMU is "
-            "the front-end output (rate = integral of the solved angular acceleration)."
+            "the front-end output (rate = integral of the solved angular acceleration, its bias "
+            "calibrated over the initial 10 s standstill)."
         ),
         info={
             "gnss": gnss_info,
             "grade": grade.name,
             "gnss_rate_hz": gnss_rate,
             "array_errors": errors,  # drawn residual bias / scale factor per accelerometer
+            "rest_calibration": rest_calibration(raw),
         },
     )
 

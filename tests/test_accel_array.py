@@ -274,7 +274,13 @@ def test_equivalent_imu_noise_is_valid_fgins_config() -> None:
     bias_alpha = bias / (math.sqrt(2) * L)
     assert noise.accel_noise == pytest.approx(density / math.sqrt(2))
     assert noise.gyro_bias_rw == pytest.approx(math.sqrt(sigma_alpha**2 + bias_alpha**2 * horizon))
-    assert 0 < noise.gyro_noise < 0.1 * noise.gyro_bias_rw
+    # The in-interval random walk, folded into a white gyro noise over one keyframe interval
+    # (1 s): a Monte Carlo of the integrated walk (the attitude error) has variance q^2 T^3/3.
+    rng = np.random.default_rng(21)
+    dt, steps = 0.01, 100
+    walk = np.cumsum(rng.standard_normal((4000, steps)) * noise.gyro_bias_rw * math.sqrt(dt), 1)
+    angle = walk.sum(axis=1) * dt
+    assert noise.gyro_noise * math.sqrt(steps * dt) == pytest.approx(angle.std(), rel=0.06)
     assert noise.accel_bias_prior == pytest.approx(bias / math.sqrt(2))
     with pytest.raises(InputError):
         equivalent_imu_noise(array, -1.0, 0.0)

@@ -1,0 +1,209 @@
+"""Land-vehicle and barometer pseudo-measurements for the Kalman baselines (numpy only).
+
+The same information the factor graph gets (:mod:`fgins.factors.vehicle`,
+:mod:`fgins.factors.baro`, :meth:`fgins.graph.problem.Problem.keyframe_factors`), with the same
+configuration keys and sigmas, applied at the filter's block boundaries:
+
+- **NHC** (``config.smoother.nhc``): vehicle-frame lateral and vertical velocity are zero,
+  ``S R^T v = 0`` with ``S`` the vehicle y, z axes in IMU axes (mounting
+  ``imu_to_vehicle_rpy_deg``), sigmas ``nhc_sigma_lateral/vertical_m_per_s``. Rate: at block
+  boundaries no closer than ``min_keyframe_interval_s`` -- i.e. once per graph keyframe (every
+  GNSS epoch, decimated like the graph, and every ``max_block_s`` = 1 s in outages). The NHC
+  error (side-slip, mounting) is strongly time-correlated, so applying the same sigma at 10 or
+  100 Hz would claim far more information than it carries and than the graph uses; matching the
+  graph's rate keeps the comparison about the estimator.
+- **ZUPT** (``config.smoother.zupt``): where the IMU has been quiet over the last second
+  (:func:`fgins.factors.stationary.quiet_imu`, causal window) *and* the filter's own current
+  speed is below ``zupt_max_speed_m_per_s``: velocity = 0 (sigma ``zupt_sigma_m_per_s``) and
+  zero angular rate, the mean gyro over that second = gyro bias + Earth rate in the body
+  (sigma: its white noise averaged over the window, plus the graph's 0.01 deg/s no-motion
+  allowance). The latter is what makes a stop observe the gyro biases.
+- **Barometer** (``dataset.baro`` with pressure): standard-atmosphere height of the pressure
+  averaged over the last 0.25 s = up + b, with ``b`` a random-walk bias state
+  (``baro_bias_walk_m_per_sqrt_s``) appended to the error state as state 16 (augmentation
+  rather than differencing consecutive heights: a first-difference measurement is correlated
+  with the previous state, which a plain filter cannot express without cloning it). Prior of
+  ``b``: the first pressure height minus the aligned up, sigma 100 m (the graph's), sigma of
+  the height ``baro_sigma_m``.
+
+All are linear-Gaussian updates through :func:`fgins.baseline.measurements.kalman_update`
+(the UKF uses them too: NHC is only mildly nonlinear in the attitude, the rest is linear).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from fgins.baseline.measurements import kalman_update
+from fgins.baseline.mechanization import ATT, GYRO_BIAS, POS, STATE_DIM, VEL, NominalState
+from fgins.config import ImuNoise, RunConfig
+from fgins.datatypes import Dataset
+from fgins.factors import stationary
+from fgins.geodesy import skew, so3_exp
+
+BARO_BIAS = STATE_DIM  # index of the barometer bias in the augmented error state
+BARO_BIAS_PRIOR_SIGMA_M = 100.0  # as the graph's prior on its first bias key
+QUIET_WINDOW_S = 1.0  # the graph's +-0.5 s, looking back only
+BARO_WINDOW_S = 0.25
+NO_MOTION_RATE_SIGMA = np.radians(0.01)  # the graph's no-motion rotation sigma per ~1 s keyframe
+
+
+def imu_to_vehicle_rotation(rpy_deg: tuple[float, float, float]) -> np.ndarray:
+    """Mounting rotation from roll, pitch, yaw (deg) as GTSAM's ``Rot3.Ypr(yaw, pitch, roll)``
+    (Rz Ry Rx), which is how the graph builds it."""
+    roll, pitch, yaw = np.radians(np.asarray(rpy_deg, dtype=float))
+    return (
+        so3_exp(np.array([0.0, 0.0, yaw]))
+        @ so3_exp(np.array([0.0, pitch, 0.0]))
+        @ so3_exp(np.array([roll, 0.0, 0.0]))
+    )
+
+
+@dataclass
+class VehicleAiding:
+    """Which pseudo-measurements apply at which block boundary, with their sigmas."""
+
+    times: np.ndarray  # (K,) block boundaries
+    nhc: bool
+    nhc_sigma: np.ndarray  # (2,) lateral, vertical
+    nhc_rows: np.ndarray  # (2, 3) vehicle y, z axes in IMU axes
+    nhc_min_interval_s: float
+    zupt: bool
+    zupt_sigma: float
+    zupt_max_speed: float
+    quiet: np.ndarray  # (K,) IMU quiet over the last QUIET_WINDOW_S
+    rest_gyro: np.ndarray  # (K, 3) mean gyro over that window
+    rest_gyro_sigma: np.ndarray  # (K,) per-axis sigma of that mean as a rate measurement
+    baro_height: np.ndarray  # (K,) standard-atmosphere height, NaN where no pressure
+    baro_sigma: float
+    baro_walk: float
+    earth_rate: np.ndarray
+    counts: dict[str, int] = field(default_factory=dict)
+    zupt_times: list[float] = field(default_factory=list)  # boundaries taken as stops
+    _last_nhc: float = -np.inf
+
+    @property
+    def has_baro(self) -> bool:
+        return bool(np.any(np.isfinite(self.baro_height)))
+
+    @property
+    def n_extra(self) -> int:
+        """Error states appended after the 15 navigation ones (the barometer bias)."""
+        return 1 if self.has_baro else 0
+
+    def extra_process_variance(self, dt: float) -> np.ndarray:
+        """Random-walk variance of the extra states over a block of length ``dt``."""
+        return np.full(self.n_extra, self.baro_walk**2 * dt)
+
+    def initial_extra(self, up: float) -> tuple[np.ndarray, np.ndarray]:
+        """Nominal value and variance of the extra states at the start."""
+        if not self.has_baro:
+            return np.zeros(0), np.zeros(0)
+        first = self.baro_height[np.isfinite(self.baro_height)][0]
+        return np.array([first - up]), np.array([BARO_BIAS_PRIOR_SIGMA_M**2])
+
+    def update(
+        self, k: int, state: NominalState, cov: np.ndarray
+    ) -> tuple[NominalState, np.ndarray]:
+        """Apply the pseudo-measurements due at boundary ``k`` (after any GNSS update)."""
+        t = float(self.times[k])
+        if self.nhc and t >= self._last_nhc + self.nhc_min_interval_s - 1e-9:
+            state, cov = kalman_update(state, cov, *self.nhc_measurement(state, len(cov)))
+            self._last_nhc = t
+            self.counts["nhc_updates"] += 1
+        if (
+            self.zupt
+            and self.quiet[k]
+            and float(np.linalg.norm(state.velocity)) < self.zupt_max_speed
+        ):
+            state, cov = kalman_update(state, cov, *self.zupt_measurement(k, state, len(cov)))
+            self.counts["zupt_updates"] += 1
+            self.zupt_times.append(t)
+        if np.isfinite(self.baro_height[k]):
+            state, cov = kalman_update(state, cov, *self.baro_measurement(k, state, len(cov)))
+            self.counts["baro_updates"] += 1
+        return state, cov
+
+    def nhc_measurement(
+        self, state: NominalState, dim: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Residual, Jacobian, variance of ``S R^T v = 0``.
+
+        With R_true = Exp(phi) R and v_true = v + dv: R_true^T v_true ~ R^T v + R^T dv +
+        R^T [v]x phi, so H_v = S R^T and H_phi = S R^T [v]x.
+        """
+        rt = state.rotation.T
+        h = np.zeros((2, dim))
+        h[:, VEL] = self.nhc_rows @ rt
+        h[:, ATT] = self.nhc_rows @ rt @ skew(state.velocity)
+        residual = -(self.nhc_rows @ rt @ state.velocity)
+        return residual, h, self.nhc_sigma**2
+
+    def zupt_measurement(
+        self, k: int, state: NominalState, dim: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Residual, Jacobian, variance of velocity = 0 and of the resting gyro = b_g + R^T w_ie.
+
+        R_true^T w_ie ~ R^T w_ie + R^T [w_ie]x phi (tiny, kept for exactness).
+        """
+        h = np.zeros((6, dim))
+        h[:3, VEL] = np.eye(3)
+        h[3:, GYRO_BIAS] = np.eye(3)
+        h[3:, ATT] = state.rotation.T @ skew(self.earth_rate)
+        predicted_rate = state.gyro_bias + state.rotation.T @ self.earth_rate
+        residual = np.concatenate([-state.velocity, self.rest_gyro[k] - predicted_rate])
+        variance = np.concatenate(
+            [np.full(3, self.zupt_sigma**2), np.full(3, self.rest_gyro_sigma[k] ** 2)]
+        )
+        return residual, h, variance
+
+    def baro_measurement(
+        self, k: int, state: NominalState, dim: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Residual, Jacobian, variance of ``height(pressure) = up + b``."""
+        assert state.extra is not None
+        h = np.zeros((1, dim))
+        h[0, POS.start + 2] = 1.0
+        h[0, BARO_BIAS] = 1.0
+        residual = np.array([self.baro_height[k] - state.position[2] - state.extra[0]])
+        return residual, h, np.array([self.baro_sigma**2])
+
+
+def vehicle_aiding(
+    dataset: Dataset, config: RunConfig, times: np.ndarray, noise: ImuNoise, earth_rate: np.ndarray
+) -> VehicleAiding:
+    """The pseudo-measurements of ``dataset`` at the block boundaries ``times``."""
+    smoother = config.smoother
+    imu = dataset.imu
+    mounting = imu_to_vehicle_rotation(smoother.imu_to_vehicle_rpy_deg)
+    if smoother.zupt:
+        quiet = stationary.quiet_imu(imu, times, noise, before_s=QUIET_WINDOW_S, after_s=0.0)
+        rest_gyro, n_samples = stationary.mean_gyro(imu, times, before_s=QUIET_WINDOW_S)
+        window = np.maximum(n_samples, 1) / imu.rate_hz
+        rest_sigma = np.hypot(noise.gyro_noise / np.sqrt(window), NO_MOTION_RATE_SIGMA)
+    else:
+        quiet = np.zeros(len(times), dtype=bool)
+        rest_gyro, rest_sigma = np.zeros((len(times), 3)), np.ones(len(times))
+    pressure = stationary.pressure_at(dataset.baro, times, before_s=BARO_WINDOW_S, after_s=0.0)
+    return VehicleAiding(
+        times=np.asarray(times, dtype=float),
+        nhc=smoother.nhc,
+        nhc_sigma=np.array(
+            [smoother.nhc_sigma_lateral_m_per_s, smoother.nhc_sigma_vertical_m_per_s]
+        ),
+        nhc_rows=mounting.T[1:3],
+        nhc_min_interval_s=smoother.min_keyframe_interval_s,
+        zupt=smoother.zupt,
+        zupt_sigma=smoother.zupt_sigma_m_per_s,
+        zupt_max_speed=smoother.zupt_max_speed_m_per_s,
+        quiet=quiet,
+        rest_gyro=rest_gyro,
+        rest_gyro_sigma=rest_sigma,
+        baro_height=np.asarray(stationary.standard_atmosphere_height(pressure), dtype=float),
+        baro_sigma=smoother.baro_sigma_m,
+        baro_walk=smoother.baro_bias_walk_m_per_sqrt_s,
+        earth_rate=np.asarray(earth_rate, dtype=float),
+        counts={"nhc_updates": 0, "zupt_updates": 0, "baro_updates": 0},
+    )

@@ -1,0 +1,287 @@
+"""Land-vehicle (NHC, ZUPT) and barometer pseudo-measurements of the Kalman baselines.
+
+Independent references: GTSAM's own rotation and barometric factor (the graph's models),
+finite differences of the measurement functions, the graph's quiet-IMU detector, and
+simulator truth with known sensor noise (outage errors with and without the information).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import gtsam
+import numpy as np
+import pytest
+
+from fgins.baseline.ekf import prepare_filter, run_ekf, run_ekf_rts
+from fgins.baseline.measurements import kalman_update
+from fgins.baseline.mechanization import STATE_DIM, NominalState
+from fgins.baseline.ukf import run_ukf
+from fgins.baseline.vehicle_updates import (
+    BARO_BIAS,
+    QUIET_WINDOW_S,
+    imu_to_vehicle_rotation,
+)
+from fgins.config import RunConfig, config_for_dataset, imu_noise_from_config
+from fgins.datatypes import BaroData
+from fgins.factors import stationary
+from fgins.geodesy import so3_exp
+from fgins.outages import in_windows, outage_mask
+from fgins.sim.scenarios import SCENARIOS
+
+OUTAGE = [(100.0, 160.0)]  # 60 s; on car-urban it covers the stop at 115.7-126.4 s
+
+
+def _rms(values: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(values**2)))
+
+
+def _with(config: RunConfig, **smoother) -> RunConfig:
+    return replace(config, smoother=replace(config.smoother, **smoother))
+
+
+def _outage_run(config: RunConfig, run, method=run_ekf):
+    mask = outage_mask(run.dataset, OUTAGE)
+    return method(run.dataset, config, gnss_mask=mask, progress=False)
+
+
+@pytest.fixture(scope="module")
+def urban():
+    return SCENARIOS["car-urban"](seed=0, duration_s=240)
+
+
+@pytest.fixture(scope="module")
+def motorway():
+    return SCENARIOS["highway"](seed=0, duration_s=200)
+
+
+@pytest.fixture(scope="module")
+def loop():
+    return SCENARIOS["uav-loop-baro"](seed=5, duration_s=180)
+
+
+# --- models against independent references ---------------------------------------------------
+
+
+@pytest.mark.parametrize("rpy", [(0.0, 0.0, 0.0), (2.0, -3.0, 90.0), (-10.0, 5.0, -170.0)])
+def test_mounting_rotation_is_gtsams_ypr(rpy):
+    roll, pitch, yaw = np.radians(rpy)
+    np.testing.assert_allclose(
+        imu_to_vehicle_rotation(rpy), gtsam.Rot3.Ypr(yaw, pitch, roll).matrix(), atol=1e-12
+    )
+
+
+def test_barometric_height_is_gtsams():
+    pressures = np.array([101325.0, 95000.0, 80000.0])
+    height = stationary.standard_atmosphere_height(pressures)
+    for p, h in zip(pressures, height, strict=True):
+        factor = gtsam.BarometricFactor(1, 2, p / 1000.0, gtsam.noiseModel.Isotropic.Sigma(1, 1.0))
+        values = gtsam.Values()
+        values.insert(1, gtsam.Pose3(gtsam.Rot3(), np.array([0.0, 0.0, h])))
+        values.insert(2, 0.0)
+        # The factor's error z + bias - h(p) vanishes exactly at z = h(p).
+        assert factor.unwhitenedError(values)[0] == pytest.approx(0.0, abs=1e-6)
+
+
+def test_causal_quiet_detector_flags_every_true_stop(urban):
+    imu = urban.dataset.imu
+    noise = imu_noise_from_config(urban.dataset.imu_config)
+    times = imu.t[0] + np.arange(1.0, 230.0, 0.5)
+    # The filter's causal window flags every time whose whole last second is a true stop.
+    # (Steady straight driving in the simulator is quiet too: the speed check must confirm.)
+    causal = stationary.quiet_imu(imu, times, noise, before_s=QUIET_WINDOW_S, after_s=0.0)
+    at_rest = (_speed_at(urban, times) < 1e-3) & (_speed_at(urban, times - QUIET_WINDOW_S) < 1e-3)
+    assert at_rest.sum() > 10
+    assert np.all(causal[at_rest])
+
+
+def _speed_at(run, times: np.ndarray) -> np.ndarray:
+    speed = np.linalg.norm(run.truth.velocity, axis=1)
+    return np.interp(times, run.truth.t, speed)
+
+
+def _setup(run, config: RunConfig):
+    return prepare_filter(run.dataset, config, None, 1.0)
+
+
+def _numeric_jacobian(measure, state: NominalState, dim: int, step: float = 1e-6) -> np.ndarray:
+    columns = []
+    for i in range(dim):
+        dx = np.zeros(dim)
+        dx[i] = step
+        columns.append((measure(state.boxplus(dx)) - measure(state.boxplus(-dx))) / (2 * step))
+    return np.column_stack(columns)
+
+
+def test_pseudo_measurement_jacobians_match_finite_differences(loop):
+    config = config_for_dataset(loop.dataset, vehicle="car")
+    config = _with(config, imu_to_vehicle_rpy_deg=(3.0, -2.0, 10.0))
+    setup = _setup(loop, config)
+    aiding = setup.aiding
+    assert aiding.n_extra == 1
+    dim = len(setup.cov)
+    rng = np.random.default_rng(3)
+    state = NominalState(
+        so3_exp(rng.normal(size=3)),
+        *rng.normal(size=(4, 3)) * [[5.0], [30.0], [1e-2], [1e-3]],
+        extra=np.array([12.0]),
+    )
+    k = 7
+    aiding.baro_height[k] = 40.0
+    for name in ("nhc", "zupt", "baro"):
+
+        def residual(s: NominalState, name=name) -> np.ndarray:
+            if name == "nhc":
+                return aiding.nhc_measurement(s, dim)[0]
+            if name == "zupt":
+                return aiding.zupt_measurement(k, s, dim)[0]
+            return aiding.baro_measurement(k, s, dim)[0]
+
+        h = {
+            "nhc": lambda: aiding.nhc_measurement(state, dim)[1],
+            "zupt": lambda: aiding.zupt_measurement(k, state, dim)[1],
+            "baro": lambda: aiding.baro_measurement(k, state, dim)[1],
+        }[name]()
+        # residual = z - h(x): its derivative is -H.
+        numeric = -_numeric_jacobian(residual, state, dim)
+        np.testing.assert_allclose(h, numeric, atol=1e-6 * max(1.0, np.abs(numeric).max()))
+
+
+def test_kalman_update_matches_the_closed_form_scalar_case():
+    # One measurement of east position, prior variance 4, noise variance 1: gain 0.8.
+    state = NominalState(np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3))
+    cov = np.eye(STATE_DIM) * 4.0
+    h = np.zeros((1, STATE_DIM))
+    h[0, 0] = 1.0
+    updated, cov_after = kalman_update(state, cov, np.array([5.0]), h, np.array([1.0]))
+    assert updated.position[0] == pytest.approx(4.0)
+    assert cov_after[0, 0] == pytest.approx(0.8)
+    assert cov_after[1, 1] == pytest.approx(4.0)
+
+
+# --- the information pays off against truth --------------------------------------------------
+
+
+def test_land_vehicle_constraints_shrink_the_urban_outage_error(urban):
+    config = config_for_dataset(urban.dataset)
+    assert config.smoother.nhc and config.smoother.zupt  # a car: both on by default
+    inside = in_windows(urban.dataset.imu.t, urban.dataset.t0, OUTAGE)
+    variants = {"none": (False, False), "nhc": (True, False), "car": (True, True)}
+    rms = {}
+    for method in (run_ekf, run_ukf):
+        for variant, (nhc, zupt) in variants.items():
+            trajectory = _outage_run(_with(config, use_nhc=nhc, use_zupt=zupt), urban, method)
+            error = (trajectory.position - urban.truth.position)[inside, :2]
+            rms[method.__name__, variant] = _rms(np.linalg.norm(error, axis=1))
+            if nhc:
+                assert trajectory.info["nhc_updates"] >= 200  # about one per second
+    # Measured (seed 0): EKF 23.7 m -> 11.7 m with NHC alone -> 1.3 m with NHC + ZUPT at the
+    # stop inside the outage; UKF 16.1 -> 10.6 -> 1.4 m.
+    assert rms["run_ekf", "nhc"] < 0.6 * rms["run_ekf", "none"]
+    assert rms["run_ukf", "nhc"] < 0.8 * rms["run_ukf", "none"]
+    for method in ("run_ekf", "run_ukf"):
+        assert rms[method, "car"] < 0.2 * rms[method, "none"]
+
+
+def test_nhc_removes_cross_track_and_vertical_drift_on_the_highway(motorway):
+    run = motorway
+    config = config_for_dataset(run.dataset)
+    inside = in_windows(run.dataset.imu.t, run.dataset.t0, OUTAGE)
+    heading = run.truth.velocity[inside, :2] / np.linalg.norm(
+        run.truth.velocity[inside, :2], axis=1, keepdims=True
+    )
+    left = np.column_stack([-heading[:, 1], heading[:, 0]])
+    errors = {}
+    for nhc in (False, True):
+        trajectory = _outage_run(_with(config, use_nhc=nhc, use_zupt=nhc), run)
+        error = (trajectory.position - run.truth.position)[inside]
+        cross = np.sum(error[:, :2] * left, axis=1)
+        errors[nhc] = _rms(np.hypot(cross, error[:, 2]))
+    # Along-track drift (forward accelerometer bias) is what NHC cannot see; the directions it
+    # constrains shrink by 2.8x here (measured).
+    assert errors[True] < errors[False] / 2.0
+
+
+def test_zupt_holds_the_velocity_at_zero_during_a_stop_in_an_outage(urban):
+    config = config_for_dataset(urban.dataset)
+    t = urban.dataset.imu.t - urban.dataset.t0
+    stopped = (_speed_at(urban, urban.dataset.imu.t) < 1e-3) & (t > 117.0) & (t < 126.0)
+    assert stopped.sum() > 500
+    speeds = {}
+    for zupt in (False, True):
+        trajectory = _outage_run(_with(config, use_zupt=zupt), urban)
+        speeds[zupt] = np.linalg.norm(trajectory.velocity[stopped], axis=1)
+        if zupt:
+            assert trajectory.info["zupt_updates"] >= 8
+    assert np.max(speeds[True]) < 0.05
+    assert np.median(speeds[True]) < 0.5 * np.median(speeds[False])
+
+
+def test_zupts_only_where_the_vehicle_stands(loop, urban):
+    # The loop starts from rest, then turns steadily (smooth, but no stop).
+    for run in (loop, urban):
+        trajectory = run_ekf(run.dataset, config_for_dataset(run.dataset), progress=False)
+        zupt_times = np.array(trajectory.info["zupt_times"])
+        assert trajectory.info["nhc_updates"] > 100
+        assert len(zupt_times) == trajectory.info["zupt_updates"] > 0
+        assert np.all(_speed_at(run, zupt_times) < 0.05)
+        assert np.all(_speed_at(run, zupt_times - QUIET_WINDOW_S) < 0.05)
+
+
+@pytest.mark.parametrize(
+    ("method", "ratio"),
+    # Measured mean ratios over the seeds: EKF 0.03, UKF 0.05, EKF+RTS 0.40. RTS without the
+    # barometer already bridges from both ends; its linear correction also leaves metres of
+    # vertical error on this loop (a pre-existing limitation, present without the barometer).
+    [(run_ekf, 0.3), (run_ukf, 0.3), (run_ekf_rts, 0.6)],
+)
+def test_barometer_shrinks_the_vertical_outage_error_on_a_uav(method, ratio):
+    windows = [(60.0, 120.0)]
+    up = {True: [], False: []}
+    for seed in range(3):
+        run = SCENARIOS["uav-loop-baro"](seed=seed, duration_s=180)
+        config = config_for_dataset(run.dataset, vehicle="uav")
+        assert not config.smoother.nhc  # nothing but the barometer holds the vertical
+        mask = outage_mask(run.dataset, windows)
+        inside = in_windows(run.dataset.imu.t, run.dataset.t0, windows)
+        for baro in (True, False):
+            dataset = run.dataset if baro else replace(run.dataset, baro=None)
+            trajectory = method(dataset, config, gnss_mask=mask, progress=False)
+            assert trajectory.info["augmented_states"] == int(baro)
+            assert trajectory.info["baro_updates"] == (180 if baro else 0)
+            up[baro].append(_rms((trajectory.position - run.truth.position)[inside, 2]))
+    assert np.mean(up[True]) < ratio * np.mean(up[False])
+
+
+def test_rts_smooths_the_barometer_bias_state(loop):
+    config = config_for_dataset(loop.dataset, vehicle="uav")
+    from fgins.baseline.ekf import EkfOptions, rts_smooth, run_filter
+
+    run, _ = run_filter(loop.dataset, config, None, EkfOptions(), progress=False)
+    from_posterior, _, cov_smoothed = rts_smooth(run)
+    assert from_posterior.shape[1] == STATE_DIM + 1
+    bias_var_filtered = run.cov_posterior[:, BARO_BIAS, BARO_BIAS]
+    bias_var_smoothed = cov_smoothed[:, BARO_BIAS, BARO_BIAS]
+    # Smoothing never adds uncertainty and is far tighter at the start (later fixes inform it).
+    assert np.all(bias_var_smoothed <= bias_var_filtered + 1e-9)
+    assert bias_var_smoothed[0] < 0.1 * bias_var_filtered[0]
+    # Smoothed bias against the simulated one: the truth's bias is baro - true up.
+    bias = np.array([p.extra[0] for p in run.posterior]) + from_posterior[:, BARO_BIAS]
+    t = run.segments.times
+    pressure = stationary.pressure_at(loop.dataset.baro, t, before_s=0.25, after_s=0.0)
+    true_up = np.interp(t - 0.125, loop.truth.t, loop.truth.position[:, 2])
+    measured_bias = stationary.standard_atmosphere_height(pressure) - true_up
+    settled = t > t[0] + 30.0
+    # Barometer white noise 0.3 m averaged over 5 samples: the smoothed bias is within 0.5 m.
+    assert np.nanmedian(np.abs(bias - measured_bias)[settled]) < 0.5
+
+
+def test_pressure_gaps_and_bad_readings_are_skipped():
+    baro = BaroData(
+        t=np.arange(0.0, 2.0, 0.1),
+        pressure=np.r_[np.full(5, 100000.0), np.full(5, np.nan), np.full(5, -1.0), [99000.0] * 5],
+    )
+    out = stationary.pressure_at(baro, np.array([0.45, 0.95, 1.45, 1.95]), after_s=0.0)
+    assert out[0] == pytest.approx(100000.0)
+    assert np.isnan(out[1]) and np.isnan(out[2])
+    assert out[3] == pytest.approx(99000.0)
