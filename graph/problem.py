@@ -33,6 +33,8 @@ class Problem:
     noise: ImuNoise
     segments: Segments
     pims: list[gtsam.PreintegratedCombinedMeasurements]
+    params: gtsam.PreintegrationCombinedParams
+    suspect_params: gtsam.PreintegrationCombinedParams
     gnss_at: np.ndarray  # (K,) index into the usable GNSS epochs, -1 where none
     gnss_enu: np.ndarray  # usable epochs, ENU
     gnss_sigma: np.ndarray
@@ -193,6 +195,26 @@ class Problem:
             norms[i] = np.linalg.norm((antenna - self.gnss_enu[g]) / self.gnss_sigma[g])
         return self.segments.times[keyframes], norms
 
+    def repreintegrate(
+        self, values: gtsam.Values, gyro_threshold: float, accel_threshold: float
+    ) -> int:
+        """Redo the preintegration of intervals whose estimated bias moved far from the one
+        they were integrated about: GTSAM's first-order bias correction is only good for
+        small changes (a gyro-free IMU's rate error, a badly known turn-on bias). Returns how
+        many intervals were redone."""
+        redone = 0
+        for i, pim in enumerate(self.pims):
+            estimate = values.atConstantBias(B(i))
+            used = pim.biasHat()
+            if (
+                np.max(np.abs(estimate.gyroscope() - used.gyroscope())) > gyro_threshold
+                or np.max(np.abs(estimate.accelerometer() - used.accelerometer())) > accel_threshold
+            ):
+                params = self.suspect_params if self.segments.suspect[i] else self.params
+                self.pims[i] = _preintegrate(self.dataset.imu, self.segments, i, params, estimate)
+                redone += 1
+        return redone
+
     def predict(
         self, k: int, state: gtsam.NavState, bias: gtsam.imuBias.ConstantBias
     ) -> gtsam.NavState:
@@ -244,19 +266,19 @@ def build_problem(
     suspect_params = imu_model.preintegration_params(
         noise.scaled(config.smoother.suspect_noise_factor), dataset.origin
     )
-    accel = imu.accel[segments.sample]
-    gyro = imu.gyro[segments.sample]
-    pims = []
     zero_bias = gtsam.imuBias.ConstantBias()
-    for i in tqdm(
-        range(len(times) - 1), desc="preintegrating", unit="kf", disable=not progress, leave=False
-    ):
-        pim = gtsam.PreintegratedCombinedMeasurements(
-            suspect_params if segments.suspect[i] else params, zero_bias
+    pims = [
+        _preintegrate(
+            imu, segments, i, suspect_params if segments.suspect[i] else params, zero_bias
         )
-        span = segments.interval(i)
-        imu_model.integrate(pim, accel[span], gyro[span], segments.dt[span])
-        pims.append(pim)
+        for i in tqdm(
+            range(len(times) - 1),
+            desc="preintegrating",
+            unit="kf",
+            disable=not progress,
+            leave=False,
+        )
+    ]
     quiet = stationary.quiet_imu(imu, times, noise)
     baro_pressure = stationary.pressure_at(dataset.baro, times)
     odometer_speed = _odometer_at(dataset, times)
@@ -268,6 +290,8 @@ def build_problem(
         noise=noise,
         segments=segments,
         pims=pims,
+        params=params,
+        suspect_params=suspect_params,
         gnss_at=gnss_at,
         gnss_enu=enu,
         gnss_sigma=sigma,
@@ -290,6 +314,17 @@ def build_problem(
             "suspect_intervals": int(segments.suspect.sum()),
         },
     )
+
+
+def _preintegrate(
+    imu, segments: Segments, i: int, params, bias: gtsam.imuBias.ConstantBias
+) -> gtsam.PreintegratedCombinedMeasurements:
+    """Preintegrate keyframe interval i's IMU segments about ``bias``."""
+    span = segments.interval(i)
+    samples = segments.sample[span]
+    pim = gtsam.PreintegratedCombinedMeasurements(params, bias)
+    imu_model.integrate(pim, imu.accel[samples], imu.gyro[samples], segments.dt[span])
+    return pim
 
 
 def _decimate(t: np.ndarray, min_interval: float) -> np.ndarray:

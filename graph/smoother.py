@@ -297,6 +297,13 @@ def smooth_batch(problem: Problem, progress: bool = True) -> Trajectory:
         iterations += more
         if graph.error(retry) < graph.error(result):
             result, fallback = retry, True
+    # Re-linearise the preintegration where the bias estimate moved far from zero.
+    for _ in range(3):
+        if not problem.repreintegrate(result, gyro_threshold=0.02, accel_threshold=0.3):
+            break
+        graph = _batch_graph(problem, None)
+        result, more = _optimize(graph, result, max_iterations)
+        iterations += more
     if problem.config.smoother.zupt and problem.quiet.any():
         speeds = np.array(
             [np.linalg.norm(result.atVector(V(k))) for k in range(problem.n_keyframes)]
