@@ -168,3 +168,64 @@ def write_results(cases: list[BenchCase], out_dir: Path, baseline: str = "ekf") 
         tmp.write_text(markdown_table(cases, baseline) + "\n")
     for case in cases:
         plot_outage_errors(case, out_dir / f"{case.name}.png")
+
+
+@dataclass
+class SweepResult:
+    """Mean horizontal error at the end of the outages, per method, per outage length."""
+
+    name: str
+    lengths: list[float]
+    end_error: dict[str, list[float]]
+    rms_error: dict[str, list[float]]
+
+
+def outage_length_sweep(
+    name: str,
+    dataset: Dataset,
+    config: RunConfig,
+    methods: list[str],
+    lengths: list[float],
+    *,
+    truth: Trajectory | None = None,
+    start_s: float = 60.0,
+    gap_s: float = 60.0,
+) -> SweepResult:
+    """Error growth with outage length: for each length L, windows of L seconds every
+    L + gap_s seconds from start_s; every method sees the same windows."""
+    from fgins.outages import periodic_windows
+
+    span = float(dataset.gnss.t[-1] - dataset.t0)
+    result = SweepResult(name, list(lengths), {}, {})
+    for length in lengths:
+        windows = periodic_windows(length, length + gap_s, start_s, span)
+        case = run_case(
+            BenchCase(f"{name}-{length:g}s", dataset, config, windows, truth=truth), methods
+        )
+        for method_result in case.results:
+            result.end_error.setdefault(method_result.method, []).append(
+                method_result.metrics["h_end_outage_mean"]
+            )
+            result.rms_error.setdefault(method_result.method, []).append(
+                method_result.metrics["h_rms_outage"]
+            )
+    return result
+
+
+def sweep_table(sweep: SweepResult) -> str:
+    """Two markdown tables: RMS inside the outages, and the error at their end (the drift a
+    filter has accumulated; a smoother is pinned there by the fixes after the outage)."""
+    header = "| method | " + " | ".join(f"{length:g} s" for length in sweep.lengths) + " |"
+    rule = "|---|" + "---|" * len(sweep.lengths)
+    lines = []
+    for title, table in (
+        ("horizontal RMS inside the outages (m)", sweep.rms_error),
+        ("horizontal error at the end of the outages (m), mean over windows", sweep.end_error),
+    ):
+        lines += [f"{sweep.name}: {title}", header, rule]
+        lines += [
+            f"| {m} | " + " | ".join(f"{e:.2f}" for e in errors) + " |"
+            for m, errors in table.items()
+        ]
+        lines.append("")
+    return "\n".join(lines)

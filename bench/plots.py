@@ -89,3 +89,24 @@ def plot_outage_errors(case, path: str | Path) -> None:
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)
+
+
+def plot_outage_sweep(sweep, path: str | Path) -> None:
+    """Error versus outage length, one line per method: RMS inside, and at the end."""
+    fig, axes = plt.subplots(1, 2, figsize=(13, 5))
+    for ax, table, label in (
+        (axes[0], sweep.rms_error, "horizontal RMS inside the outage (m)"),
+        (axes[1], sweep.end_error, "horizontal error at outage end (m)"),
+    ):
+        for method, errors in table.items():
+            ax.plot(sweep.lengths, errors, "o-", label=method)
+        ax.set_yscale("log")
+        ax.set_xlabel("outage length (s)")
+        ax.set_ylabel(label)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle(f"{sweep.name}: error growth with outage length")
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)

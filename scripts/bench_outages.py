@@ -12,7 +12,15 @@ import argparse
 import time
 from pathlib import Path
 
-from fgins.bench.outages import BenchCase, markdown_table, run_case, write_results
+from fgins.bench.outages import (
+    BenchCase,
+    markdown_table,
+    outage_length_sweep,
+    run_case,
+    sweep_table,
+    write_results,
+)
+from fgins.bench.plots import plot_outage_sweep
 from fgins.config import config_for_dataset
 from fgins.pipeline import METHODS
 
@@ -58,6 +66,11 @@ def main() -> None:
     parser.add_argument("--no-kitti", action="store_true")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=Path("out/bench"))
+    parser.add_argument(
+        "--sweep-methods", default="batch,ekf,ekf-rts",
+        help="methods of the outage-length sweep (empty: no sweep)",
+    )  # fmt: skip
+    parser.add_argument("--sweep-lengths", default="10,30,60,90")
     args = parser.parse_args()
     methods = [m for m in args.methods.split(",") if m]
     unknown = set(methods) - set(METHODS)
@@ -75,6 +88,18 @@ def main() -> None:
     print()
     print(markdown_table(cases, baseline="ekf"))
     write_results(cases, args.out, baseline="ekf")
+    sweep_methods = [m for m in args.sweep_methods.split(",") if m]
+    if sweep_methods:
+        lengths = [float(x) for x in args.sweep_lengths.split(",")]
+        sweep_cases = [c for c in cases if c.name in ("kitti-30s", "car-urban")]
+        for case in sweep_cases:
+            name = case.name.split("-30s")[0]
+            print(f"\noutage-length sweep on {name} ({', '.join(sweep_methods)})", flush=True)
+            sweep = outage_length_sweep(
+                name, case.dataset, case.config, sweep_methods, lengths, truth=case.truth
+            )
+            print(sweep_table(sweep))
+            plot_outage_sweep(sweep, args.out / f"{name}-sweep.png")
     print(f"\nbenchmark wall time {time.perf_counter() - started:.1f} s; results in {args.out}/")
 
 
