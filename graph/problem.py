@@ -79,13 +79,39 @@ class Problem:
     def keyframe_factors(
         self, k: int, predicted_speed: float | None = None
     ) -> gtsam.NonlinearFactorGraph:
-        """Factors that arrive with keyframe k: the IMU factor from k-1, k's GNSS, barometer and
-        land-vehicle constraints. ``predicted_speed`` (the current best guess of the speed at
-        k) must confirm a stop before the quiet IMU is taken as one."""
+        """Factors that arrive with keyframe k: the IMU factor from k-1, k's GNSS, land-vehicle
+        constraints, odometer and barometer. ``predicted_speed`` (the current best guess of
+        the speed at k) must confirm a stop before a quiet IMU is taken as one."""
         graph = gtsam.NonlinearFactorGraph()
-        smoother = self.config.smoother
         if k > 0:
             graph.add(imu_model.combined_imu_factor(k - 1, k, self.pims[k - 1]))
+        self._add_gnss(graph, k)
+        self._add_vehicle(graph, k, predicted_speed)
+        self._add_odometer(graph, k)
+        self._add_baro(graph, k)
+        return graph
+
+    def _add_gnss(self, graph: gtsam.NonlinearFactorGraph, k: int) -> None:
+        g = int(self.gnss_at[k])
+        if g < 0:
+            return
+        graph.add(
+            gnss_model.position_factor(X(k), self.gnss_enu[g], self.gnss_sigma[g], self.config.gnss)
+        )
+        velocity = self.gnss_velocity[g].copy()
+        sigma = self.gnss_velocity_sigma[g].copy()
+        # The noise model leaves a velocity out (NaN sigma) where it is not trustworthy, e.g.
+        # a course at walking speed.
+        if not (self.config.gnss.use_velocity and np.all(np.isfinite(sigma[:2]))):
+            return
+        if not np.isfinite(velocity[2]) or not np.isfinite(sigma[2]):
+            velocity[2], sigma[2] = 0.0, 1e3  # horizontal-only (speed + course): vertical free
+        graph.add(gnss_model.velocity_factor(V(k), velocity, sigma))
+
+    def _add_vehicle(
+        self, graph: gtsam.NonlinearFactorGraph, k: int, predicted_speed: float | None
+    ) -> None:
+        smoother = self.config.smoother
         if smoother.nhc:
             graph.add(
                 vehicle_model.nhc_factor(
@@ -104,57 +130,50 @@ class Problem:
             if k - 1 in self.zupt_keyframes:
                 graph.add(vehicle_model.no_motion_factor(X(k - 1), X(k), np.radians(0.01), 0.01))
             self.zupt_keyframes.add(k)
-        if np.any(np.isfinite(self.odometer_speed)):
-            if k == 0:
-                graph.add(odometer_model.scale_prior(smoother.odometer_scale_sigma))
-            if np.isfinite(self.odometer_speed[k]):
-                graph.add(
-                    odometer_model.speed_factor(
-                        X(k), V(k), float(self.odometer_speed[k]),
-                        smoother.odometer_sigma_m_per_s, self.imu_to_vehicle,
-                    )
-                )  # fmt: skip
-        if self.has_baro:
-            if k == 0:
-                graph.add(
-                    gtsam.PriorFactorDouble(
-                        baro_model.baro_key(0),
-                        self.baro_bias0,
-                        gtsam.noiseModel.Isotropic.Sigma(1, 100.0),
-                    )
-                )
-            else:
-                dt = float(self.segments.times[k] - self.segments.times[k - 1])
-                graph.add(
-                    baro_model.bias_walk_factor(
-                        baro_model.baro_key(k - 1), baro_model.baro_key(k), dt,
-                        smoother.baro_bias_walk_m_per_sqrt_s,
-                    )
-                )  # fmt: skip
-            if np.isfinite(self.baro_pressure[k]):
-                graph.add(
-                    baro_model.pressure_factor(
-                        X(k),
-                        baro_model.baro_key(k),
-                        float(self.baro_pressure[k]),
-                        smoother.baro_sigma_m,
-                    )
-                )
-        g = int(self.gnss_at[k])
-        if g >= 0:
+
+    def _add_odometer(self, graph: gtsam.NonlinearFactorGraph, k: int) -> None:
+        if not np.any(np.isfinite(self.odometer_speed)):
+            return
+        smoother = self.config.smoother
+        if k == 0:
+            graph.add(odometer_model.scale_prior(smoother.odometer_scale_sigma))
+        if np.isfinite(self.odometer_speed[k]):
             graph.add(
-                gnss_model.position_factor(
-                    X(k), self.gnss_enu[g], self.gnss_sigma[g], self.config.gnss
+                odometer_model.speed_factor(
+                    X(k), V(k), float(self.odometer_speed[k]),
+                    smoother.odometer_sigma_m_per_s, self.imu_to_vehicle,
+                )
+            )  # fmt: skip
+
+    def _add_baro(self, graph: gtsam.NonlinearFactorGraph, k: int) -> None:
+        if not self.has_baro:
+            return
+        smoother = self.config.smoother
+        if k == 0:
+            graph.add(
+                gtsam.PriorFactorDouble(
+                    baro_model.baro_key(0),
+                    self.baro_bias0,
+                    gtsam.noiseModel.Isotropic.Sigma(1, 100.0),
                 )
             )
-            if self.config.gnss.use_velocity and np.all(np.isfinite(self.gnss_velocity[g, :2])):
-                velocity = self.gnss_velocity[g].copy()
-                sigma = self.gnss_velocity_sigma[g].copy()
-                if not np.isfinite(velocity[2]):
-                    # Horizontal-only velocity (speed + course): leave the vertical free.
-                    velocity[2], sigma[2] = 0.0, 1e3
-                graph.add(gnss_model.velocity_factor(V(k), velocity, sigma))
-        return graph
+        else:
+            dt = float(self.segments.times[k] - self.segments.times[k - 1])
+            graph.add(
+                baro_model.bias_walk_factor(
+                    baro_model.baro_key(k - 1), baro_model.baro_key(k), dt,
+                    smoother.baro_bias_walk_m_per_sqrt_s,
+                )
+            )  # fmt: skip
+        if np.isfinite(self.baro_pressure[k]):
+            graph.add(
+                baro_model.pressure_factor(
+                    X(k),
+                    baro_model.baro_key(k),
+                    float(self.baro_pressure[k]),
+                    smoother.baro_sigma_m,
+                )
+            )
 
     @property
     def has_baro(self) -> bool:

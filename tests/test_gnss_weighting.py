@@ -100,3 +100,26 @@ def test_pdop_gate_lets_the_imu_bridge_biased_fixes(mems_pdop):
             assert f"{int(high.sum())} rejected for PDOP" in trajectory.info["gnss_gating"]
     assert results["gated"] < 1.0
     assert results["not gated"] > 3.0 * results["gated"]
+
+
+def test_course_velocity_below_the_speed_threshold_adds_no_factor():
+    """Speed + course fixes (NaN vertical) while slow must be left out, not given NaN
+    sigmas: the smoothed trajectory stays finite and close to truth."""
+    from dataclasses import replace
+
+    run = SCENARIOS["car-urban"](seed=3, duration_s=90)
+    gnss = run.dataset.gnss
+    truth_velocity = np.column_stack(
+        [np.interp(gnss.t, run.truth.t, run.truth.velocity[:, i]) for i in range(3)]
+    )
+    course_only = truth_velocity.copy()
+    course_only[:, 2] = np.nan
+    dataset = replace(run.dataset, gnss=replace(gnss, velocity=course_only, velocity_std=None))
+    dataset.gnss.__post_init__()
+    slow = np.linalg.norm(course_only[:, :2], axis=1) < 3.0
+    assert slow.any() and (~slow).any()
+    config = config_for_dataset(dataset)
+    config.gnss.velocity_sigma_m_per_s = None
+    trajectory = smooth(dataset, config, "batch", progress=False)
+    assert np.all(np.isfinite(trajectory.position))
+    assert _horizontal_rms(trajectory, run.truth) < 2.0
