@@ -135,6 +135,7 @@ def initial_alignment(
         )
 
     # At rest: level from gravity; heading from the first motion (or the configuration).
+    heading_configured = heading_deg is not None
     up_body = specific_force / np.linalg.norm(specific_force)
     if heading_deg is None:
         heading_deg, known = _heading_from_first_motion(dataset, gnss_t, gnss_enu, moving_speed)
@@ -149,7 +150,9 @@ def initial_alignment(
         rotation=rotation,
         velocity=np.zeros(3) if static else velocity,
         position=position,
-        attitude_sigma_rad=np.radians([2.0, 2.0, 15.0 if known else 180.0]),
+        attitude_sigma_rad=np.radians(
+            [2.0, 2.0, 2.0 if heading_configured else (15.0 if known else 180.0)]
+        ),
         velocity_sigma=0.5,
         position_sigma=2.0,
         moving=False,

@@ -16,6 +16,42 @@ from fgins.datatypes import BaroData, ImuData
 MIN_QUIET_SAMPLES = 5
 
 
+STEADY_T_LIMIT = 4.0  # two-sample t statistic above which a window's halves differ
+
+
+def steady_imu(
+    imu_t: np.ndarray,
+    signals: list[np.ndarray],
+    times: np.ndarray,
+    before_s: float,
+    after_s: float = 0.0,
+) -> np.ndarray:
+    """True where no signal (N, 3) trends within ``[t - before_s, t + after_s)``.
+
+    For every axis, the difference of the means of the window's two halves is compared with
+    its standard error from the window's own sample scatter (a two-sample t statistic), so
+    vibration at rest does not count as motion while a ramp of any size does: a smooth start
+    from rest has tiny scatter but is not a stop.
+    """
+    times = np.asarray(times, dtype=float)
+    lo = np.searchsorted(imu_t, times - before_s)
+    hi = np.searchsorted(imu_t, times + after_s)
+    steady = np.ones(len(times), dtype=bool)
+    for k, (a, b) in enumerate(zip(lo, hi, strict=True)):
+        half = (b - a) // 2
+        if half < 2:
+            continue  # too short to judge; the quiet test already refuses such windows
+        for signal in signals:
+            first, second = signal[a : a + half], signal[b - half : b]
+            spread = np.sqrt((first.var(axis=0, ddof=1) + second.var(axis=0, ddof=1)) / half)
+            difference = np.abs(second.mean(axis=0) - first.mean(axis=0))
+            # Exactly constant signals (synthetic, noise-free data) have zero spread: steady.
+            if np.any(difference > STEADY_T_LIMIT * spread + 1e-12):
+                steady[k] = False
+                break
+    return steady
+
+
 def quiet_imu(
     imu: ImuData,
     times: np.ndarray,
@@ -23,11 +59,13 @@ def quiet_imu(
     *,
     before_s: float = 0.5,
     after_s: float = 0.5,
+    require_steady: bool = True,
 ) -> np.ndarray:
     """True where the IMU shows no motion within ``[t - before_s, t + after_s)`` of each time.
 
     Thresholds sit well above the sensor's own white noise at its sample rate and below what
-    a moving road vehicle's vibration gives.
+    a moving road vehicle's vibration gives; with ``require_steady`` the window must also
+    show no trend (:func:`steady_imu`).
     """
     rate = imu.rate_hz
     gyro_threshold = max(4.0 * noise.gyro_noise * np.sqrt(rate), 0.005)
@@ -45,6 +83,8 @@ def quiet_imu(
         # A steady turn is smooth too: the mean rate must be no more than a bias could give.
         turning = np.linalg.norm(imu.gyro[a:b].mean(axis=0)) > turn_threshold
         quiet[k] = gyro_std < gyro_threshold and accel_std < accel_threshold and not turning
+    if require_steady:
+        quiet &= steady_imu(imu.t, [imu.accel, imu.gyro], times, before_s, after_s)
     return quiet
 
 

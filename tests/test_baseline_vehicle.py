@@ -50,9 +50,12 @@ def urban():
     return SCENARIOS["car-urban"](seed=0, duration_s=240)
 
 
+MOTORWAY_SEEDS = (0, 1, 2)
+
+
 @pytest.fixture(scope="module")
-def motorway():
-    return SCENARIOS["highway"](seed=0, duration_s=200)
+def motorways():
+    return [SCENARIOS["highway"](seed=seed, duration_s=200) for seed in MOTORWAY_SEEDS]
 
 
 @pytest.fixture(scope="module")
@@ -183,23 +186,26 @@ def test_land_vehicle_constraints_shrink_the_urban_outage_error(urban):
         assert rms[method, "car"] < 0.2 * rms[method, "none"]
 
 
-def test_nhc_removes_cross_track_and_vertical_drift_on_the_highway(motorway):
-    run = motorway
-    config = config_for_dataset(run.dataset)
-    inside = in_windows(run.dataset.imu.t, run.dataset.t0, OUTAGE)
-    heading = run.truth.velocity[inside, :2] / np.linalg.norm(
-        run.truth.velocity[inside, :2], axis=1, keepdims=True
-    )
-    left = np.column_stack([-heading[:, 1], heading[:, 0]])
-    errors = {}
-    for nhc in (False, True):
-        trajectory = _outage_run(_with(config, use_nhc=nhc, use_zupt=nhc), run)
-        error = (trajectory.position - run.truth.position)[inside]
-        cross = np.sum(error[:, :2] * left, axis=1)
-        errors[nhc] = _rms(np.hypot(cross, error[:, 2]))
+def test_nhc_removes_cross_track_and_vertical_drift_on_the_highway(motorways):
+    errors = {False: [], True: []}
+    for run in motorways:
+        config = config_for_dataset(run.dataset)
+        inside = in_windows(run.dataset.imu.t, run.dataset.t0, OUTAGE)
+        heading = run.truth.velocity[inside, :2] / np.linalg.norm(
+            run.truth.velocity[inside, :2], axis=1, keepdims=True
+        )
+        left = np.column_stack([-heading[:, 1], heading[:, 0]])
+        for nhc in (False, True):
+            trajectory = _outage_run(_with(config, use_nhc=nhc, use_zupt=nhc), run)
+            # No stop on a motorway: the smooth start from rest must not be taken for one.
+            assert trajectory.info["zupt_updates"] == 0
+            error = (trajectory.position - run.truth.position)[inside]
+            cross = np.sum(error[:, :2] * left, axis=1)
+            errors[nhc].append(_rms(np.hypot(cross, error[:, 2])))
     # Along-track drift (forward accelerometer bias) is what NHC cannot see; the directions it
-    # constrains shrink by 2.8x here (measured).
-    assert errors[True] < errors[False] / 2.0
+    # constrains shrink by 2.5x over these runs (measured: 2.60 -> 2.28, 5.27 -> 1.48, 8.02 ->
+    # 2.59 m; one run alone says little: on seed 0 the cross-track drift happens to be small).
+    assert np.sum(errors[True]) < np.sum(errors[False]) / 2.0
 
 
 def test_zupt_holds_the_velocity_at_zero_during_a_stop_in_an_outage(urban):
@@ -285,3 +291,34 @@ def test_pressure_gaps_and_bad_readings_are_skipped():
     assert out[0] == pytest.approx(100000.0)
     assert np.isnan(out[1]) and np.isnan(out[2])
     assert out[3] == pytest.approx(99000.0)
+
+
+def test_a_smooth_start_from_rest_is_quiet_but_not_steady():
+    """The highway scenario's first seconds: the car speeds up from rest without vibration,
+    so the quiet-IMU detector (sample spread) calls [1 s, 2 s] a stop although the true speed
+    reaches 0.18 m/s; the trend test rejects it, while a real stop with noise and a strong
+    idling vibration (much larger than the ramp's rise) stays steady."""
+    run = SCENARIOS["highway"](seed=100, duration_s=10)
+    imu = run.dataset.imu
+    times = imu.t[0] + np.array([2.0])
+    noise = config_for_dataset(run.dataset).imu_noise()
+    speed = np.linalg.norm(run.truth.velocity[np.searchsorted(imu.t, times[0])])
+    assert speed > 0.1  # moving: a ZUPT (sigma 0.02 m/s) would be a > 5-sigma error
+    assert stationary.quiet_imu(
+        imu, times, noise, before_s=QUIET_WINDOW_S, after_s=0.0, require_steady=False
+    )[0]
+    assert not stationary.quiet_imu(imu, times, noise, before_s=QUIET_WINDOW_S, after_s=0.0)[0]
+    assert not stationary.steady_imu(imu.t, [imu.accel, imu.gyro], times, QUIET_WINDOW_S)[0]
+
+    rng = np.random.default_rng(0)
+    t = np.arange(0.0, 3.0, 0.01)
+    gravity = np.array([0.0, 0.0, 9.81])
+    vibration = 0.3 * np.sin(2 * np.pi * 25.0 * t)[:, None] * np.array([1.0, 0.5, 2.0])
+    accel = gravity + vibration + rng.standard_normal((len(t), 3)) * 0.02
+    gyro = rng.standard_normal((len(t), 3)) * 1e-3
+    at = t[0] + np.array([1.0, 2.0, 2.99])
+    assert stationary.steady_imu(t, [accel, gyro], at, QUIET_WINDOW_S).all()
+    # Noise-free data at rest (synthetic tests) is steady too.
+    assert stationary.steady_imu(
+        t, [np.tile(gravity, (len(t), 1)), 0 * gyro], at, QUIET_WINDOW_S
+    ).all()
