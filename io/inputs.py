@@ -46,7 +46,6 @@ def load_dataset(
         from fgins.io.mcap import read_mcap
 
         result = read_mcap(paths[0], imu_topic=imu_topic, gnss_topic=gnss_topic, progress=progress)
-        result.dataset.warnings.extend(result.warnings)
         result.dataset.metadata["mcap_report"] = result.report
         return result.dataset
     nmea = [p for p in paths if p.is_file() and _looks_like_nmea(p)]
