@@ -339,15 +339,26 @@ def _run_isam2(problem: Problem, progress: bool, online_covariance: bool = True)
     """Incremental iSAM2, one update per keyframe.
 
     Returns (isam, online values, online covariances): each keyframe's state and covariance
-    right after its own update.
+    right after its own update. Cholesky first (fast); if it calls an update indeterminate
+    (tight bias random walks against loose bias priors: the conditioning, not the problem,
+    is at fault) the run restarts with QR.
     """
+    try:
+        return _run_isam2_with(problem, progress, online_covariance, "CHOLESKY")
+    except _IndeterminateUpdate:
+        return _run_isam2_with(problem, progress, online_covariance, "QR")
+
+
+class _IndeterminateUpdate(Exception):
+    pass
+
+
+def _run_isam2_with(problem: Problem, progress: bool, online_covariance: bool, factorization: str):
     problem.zupt_keyframes.clear()
     params = gtsam.ISAM2Params()
     params.setRelinearizeThreshold(problem.config.smoother.isam2_relinearize_threshold)
     params.relinearizeSkip = 1
-    # QR: Cholesky declares the first IMU updates indeterminate when the bias random walk
-    # is tight relative to the bias priors (the conditioning, not the problem, is at fault).
-    params.setFactorization("QR")
+    params.setFactorization(factorization)
     isam = gtsam.ISAM2(params)
     n = problem.n_keyframes
     online = {name: np.full((n, 3, 3), np.nan) for name in ("position", "velocity", "attitude")}
@@ -368,6 +379,8 @@ def _run_isam2(problem: Problem, progress: bool, online_covariance: bool = True)
         try:
             isam.update(graph, new_values)
         except RuntimeError as exc:
+            if factorization == "CHOLESKY":
+                raise _IndeterminateUpdate from None
             raise FginsError(f"iSAM2 update at keyframe {k} failed: {exc}") from None
         pose = isam.calculateEstimatePose3(X(k))
         velocity = isam.calculateEstimateVector(V(k))
