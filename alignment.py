@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgins.datatypes import Dataset, InputError
-from fgins.geodesy import normal_gravity, roll_pitch_heading_to_rotation
+from fgins.geodesy import normal_gravity, roll_pitch_heading_to_rotation, so3_exp
 
 
 @dataclass
@@ -90,14 +90,82 @@ def initial_alignment(
     moving_speed: float = 2.0,
     fit_window_s: float = 6.0,
 ) -> Alignment:
-    """Initial state at the first IMU sample (see module docstring)."""
+    """Initial state at the first IMU sample (see module docstring).
+
+    When the first usable fix comes well after the IMU starts (GNSS withheld or lost at the
+    start), the state is aligned at that fix and carried back to the first IMU sample by
+    backward dead reckoning, with uncertainties grown by what dead reckoning over that
+    stretch can get wrong; a tight prior on an extrapolated state would pin the start wrong.
+    """
     imu = dataset.imu
     mask = np.ones(len(dataset.gnss), dtype=bool) if gnss_mask is None else gnss_mask
     gnss_t = dataset.gnss.t[mask]
     gnss_enu = dataset.gnss_enu()[mask]
     if len(gnss_t) < 2:
         raise InputError("alignment needs at least 2 usable GNSS fixes")
-    t0 = float(imu.t[0])
+    t_start = float(imu.t[0])
+    lead = float(gnss_t[0]) - t_start
+    if lead <= MAX_LEAD_S:
+        return _align_at(
+            dataset, t_start, gnss_t, gnss_enu, heading_deg, moving_speed, fit_window_s
+        )
+    later = _align_at(
+        dataset, float(gnss_t[0]), gnss_t, gnss_enu, heading_deg, moving_speed, fit_window_s
+    )
+    rotation, velocity, position = _propagate_back(dataset, later, t_start)
+    # Dead reckoning over `lead` seconds: ~0.1 m/s^2 of unknown acceleration (tilt, bias).
+    return Alignment(
+        t=t_start,
+        rotation=rotation,
+        velocity=velocity,
+        position=position,
+        attitude_sigma_rad=later.attitude_sigma_rad + np.radians([1.0, 1.0, 5.0]),
+        velocity_sigma=later.velocity_sigma + 0.1 * lead,
+        position_sigma=later.position_sigma + 0.05 * lead**2 + later.velocity_sigma * lead,
+        moving=later.moving,
+    )
+
+
+MAX_LEAD_S = 2.0  # first usable fix this long after the IMU starts: align there, carry back
+
+
+def _propagate_back(
+    dataset: Dataset, later: Alignment, t_start: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Backward strapdown (ENU, normal gravity, zero bias) from ``later`` to ``t_start``."""
+    imu = dataset.imu
+    gravity = np.array([0.0, 0.0, -normal_gravity(dataset.origin.lat, dataset.origin.alt)])
+    rotation, velocity, position = (
+        later.rotation.copy(),
+        later.velocity.copy(),
+        later.position.copy(),
+    )
+    end = int(np.searchsorted(imu.t, later.t, side="right")) - 1
+    t_next = later.t
+    for k in range(end, -1, -1):
+        dt = t_next - float(imu.t[k])
+        if dt <= 0:
+            continue
+        # Sample k is held over [t_k, t_next): undo its step.
+        rotation = rotation @ so3_exp(-imu.gyro[k] * dt)
+        acceleration = rotation @ imu.accel[k] + gravity
+        velocity = velocity - acceleration * dt
+        position = position - velocity * dt - 0.5 * acceleration * dt**2
+        t_next = float(imu.t[k])
+    return rotation, velocity, position
+
+
+def _align_at(
+    dataset: Dataset,
+    t0: float,
+    gnss_t: np.ndarray,
+    gnss_enu: np.ndarray,
+    heading_deg: float | None,
+    moving_speed: float,
+    fit_window_s: float,
+) -> Alignment:
+    """Alignment at time ``t0`` from the fixes around it and the IMU's first second there."""
+    imu = dataset.imu
     g = normal_gravity(dataset.origin.lat, dataset.origin.alt)
     gravity = np.array([0.0, 0.0, -g])
 
@@ -110,9 +178,11 @@ def initial_alignment(
     speed = float(np.linalg.norm(velocity[:2]))
     # Motion must stand out of the fit's own noise (metre-level fixes fake m/s at rest).
     moving_speed = max(moving_speed, 3.0 * speed_sigma)
-    # Accelerometer average over the first second of IMU data.
-    first = imu.t <= t0 + 1.0
-    first[: min(len(first), 10)] = True
+    # Accelerometer average over the first second of IMU data from t0.
+    first = (imu.t >= t0) & (imu.t <= t0 + 1.0)
+    if first.sum() < 10:
+        start = int(np.searchsorted(imu.t, t0))
+        first[start : start + 10] = True
     specific_force = imu.accel[first].mean(axis=0)
     # The IMU decides "at rest": noisy GNSS fits show metres per second of false motion.
     static = _imu_static(imu.gyro[first], imu.accel[first], g)
@@ -138,7 +208,7 @@ def initial_alignment(
     heading_configured = heading_deg is not None
     up_body = specific_force / np.linalg.norm(specific_force)
     if heading_deg is None:
-        heading_deg, known = _heading_from_first_motion(dataset, gnss_t, gnss_enu, moving_speed)
+        heading_deg, known = _heading_from_first_motion(dataset, gnss_t, gnss_enu, moving_speed, t0)
     else:
         known = True
     level = _triad(
@@ -183,6 +253,7 @@ def _heading_from_first_motion(
     gnss_t: np.ndarray,
     gnss_enu: np.ndarray,
     moving_speed: float,
+    t0: float,
     chord_s: float = 5.0,
     min_chord_m: float = 20.0,
 ) -> tuple[float, bool]:
@@ -203,7 +274,7 @@ def _heading_from_first_motion(
             t_move = 0.5 * (gnss_t[k] + gnss_t[j])
             heading = float(np.degrees(np.arctan2(chord[0], chord[1])))
             imu = dataset.imu
-            before = imu.t <= t_move
+            before = (imu.t >= t0) & (imu.t <= t_move)
             # Yaw turned since the start, from the body z rate (near level on the ground).
             yaw_turned = float(np.sum(imu.gyro[before][:-1, 2] * np.diff(imu.t[before])))
             return float(np.mod(heading + np.degrees(yaw_turned), 360.0)), True
