@@ -33,6 +33,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any, Self
 
 import numpy as np
 from tqdm import tqdm
@@ -40,6 +41,7 @@ from tqdm import tqdm
 from fgins.alignment import initial_alignment
 from fgins.baseline.measurements import (
     GnssEpochs,
+    Linearized,
     chi2_quantile,
     huber_variances,
     kalman_update,
@@ -54,6 +56,7 @@ from fgins.baseline.mechanization import (
     POS,
     STATE_DIM,
     VEL,
+    BlockNominal,
     NavFrame,
     NominalState,
     Segments,
@@ -314,6 +317,18 @@ class FilterRecorder:
         self.accel_bias[rows] = nodes.accel_bias[:-1]
         self.gyro_bias[rows] = nodes.gyro_bias[:-1]
 
+    def block_noise(
+        self, b: int, span: slice, central: BlockNominal
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Phi and Q of block ``b`` about the propagation ``central`` (augmented states
+        included); Phi is recorded for the RTS smoother."""
+        setup = self.setup
+        dt = setup.segments.dt[span]
+        phi, q = block_transition(central, dt, setup.frame, setup.noise, setup.white_scale[span])
+        phi, q = setup.block_process_noise(b, phi, q)
+        self.transition[b] = phi
+        return phi, q
+
     def finish(self, state: NominalState, rejected_times: list[float]) -> FilterRun:
         # The final node is the last boundary's a-posteriori state.
         self.rotation[-1], self.velocity[-1], self.position[-1] = (
@@ -350,8 +365,9 @@ class FilterRecorder:
 
 
 @dataclass
-class _Updater:
-    """GNSS update at a block boundary (closed loop: returns the corrected state)."""
+class GnssUpdater:
+    """What the GNSS updates of the Kalman baselines share at a block boundary: the epochs,
+    lever arm and frame, Huber down-weighting, the innovation gate and their counters."""
 
     epochs: GnssEpochs
     lever_arm: np.ndarray
@@ -361,29 +377,88 @@ class _Updater:
     counts: dict[str, int]
     rejected_times: list[float] = field(default_factory=list)
 
-    def __call__(
-        self, g: int, state: NominalState, cov: np.ndarray, gyro: np.ndarray
-    ) -> tuple[NominalState, np.ndarray]:
+    @classmethod
+    def for_setup(
+        cls, setup: FilterSetup, config: RunConfig, gate_probability: float | None, **extra: Any
+    ) -> Self:
+        """The updater of a forward pass (``extra``: a subclass's own fields)."""
+        return cls(
+            epochs=setup.epochs,
+            lever_arm=np.asarray(config.gnss.lever_arm_m, dtype=float),
+            huber_k=config.gnss.huber_k,
+            gate_probability=gate_probability,
+            frame=setup.frame,
+            counts=setup.counts,
+            **extra,
+        )
+
+    def linearize(self, g: int, state: NominalState, gyro: np.ndarray) -> Linearized:
+        """Measured values, rows and variances of epoch ``g``; residual = z - h(state)."""
         body_rate = gyro - state.gyro_bias - state.rotation.T @ self.frame.earth_rate
-        lin = linearize_gnss(self.epochs, g, state, body_rate, self.lever_arm)
-        h = pad_columns(lin.jacobian, len(cov))
-        predicted = h @ cov @ h.T
-        variance = lin.variance
+        return linearize_gnss(self.epochs, g, state, body_rate, self.lever_arm)
+
+    def screen(
+        self, g: int, innovation: np.ndarray, predicted: np.ndarray, variance: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """Measurement variances (Huber-inflated) and innovation covariance S of epoch ``g``
+        given the predicted measurement covariance; None when the gate rejects the epoch."""
         if self.huber_k is not None:
             variance, n_down = huber_variances(
-                lin.residual, np.diag(predicted) + variance, variance, self.huber_k
+                innovation, np.diag(predicted) + variance, variance, self.huber_k
             )
             self.counts["huber_downweighted"] += n_down
         s = predicted + np.diag(variance)
         if self.gate_probability is not None:
-            nis = float(lin.residual @ np.linalg.solve(s, lin.residual))
-            if nis > chi2_quantile(self.gate_probability, len(lin.residual)):
+            nis = float(innovation @ np.linalg.solve(s, innovation))
+            if nis > chi2_quantile(self.gate_probability, len(innovation)):
                 self.counts["rejected_innovation"] += 1
                 self.rejected_times.append(float(self.epochs.t[g]))
-                return state, cov
+                return None
+        return variance, s
+
+    def count_update(self, lin: Linearized) -> None:
         self.counts["gnss_updates"] += 1
         self.counts["velocity_updates"] += int(lin.n_velocity > 0)
+
+
+class _Updater(GnssUpdater):
+    """Linearised GNSS update at a block boundary (closed loop: returns the corrected state)."""
+
+    def __call__(
+        self, g: int, state: NominalState, cov: np.ndarray, gyro: np.ndarray
+    ) -> tuple[NominalState, np.ndarray]:
+        lin = self.linearize(g, state, gyro)
+        h = pad_columns(lin.jacobian, len(cov))
+        screened = self.screen(g, lin.residual, h @ cov @ h.T, lin.variance)
+        if screened is None:
+            return state, cov
+        variance, s = screened
+        self.count_update(lin)
         return kalman_update(state, cov, lin.residual, h, variance, s)
+
+
+# Prediction over block b (its IMU span given) from the a-posteriori state and covariance at
+# its start: the a-priori state and covariance at its end. It also records the block's nodes
+# (FilterRecorder.store_nodes) and transition (FilterRecorder.block_noise).
+BlockPrediction = Callable[[int, slice, NominalState, np.ndarray], tuple[NominalState, np.ndarray]]
+
+
+def forward_pass(
+    recorder: FilterRecorder,
+    update: GnssUpdater,
+    predict: BlockPrediction,
+    desc: str,
+    progress: bool,
+) -> FilterRun:
+    """The forward loop of every Kalman baseline: update at each block boundary, predict over
+    each block in between."""
+    setup = recorder.setup
+    state, cov = recorder.boundary(0, setup.state, setup.cov, update)
+    n_blocks = len(setup.times) - 1
+    for b in tqdm(range(n_blocks), desc=desc, unit="block", disable=not progress, leave=False):
+        end, cov = predict(b, setup.segments.block(b), state, cov)
+        state, cov = recorder.boundary(b + 1, end, 0.5 * (cov + cov.T), update)
+    return recorder.finish(state, update.rejected_times)
 
 
 def run_filter(
@@ -396,20 +471,12 @@ def run_filter(
     """The forward EKF pass over the whole IMU span."""
     setup = prepare_filter(dataset, config, gnss_mask, options.max_block_s)
     recorder = FilterRecorder(setup, dataset.imu.t, dataset.imu.gyro)
-    update = _Updater(
-        epochs=setup.epochs,
-        lever_arm=np.asarray(config.gnss.lever_arm_m, dtype=float),
-        huber_k=config.gnss.huber_k,
-        gate_probability=options.innovation_gate_probability,
-        frame=setup.frame,
-        counts=setup.counts,
-    )
-    segments = setup.segments
-    state, cov = recorder.boundary(0, setup.state, setup.cov, update)
-    n_blocks = len(setup.times) - 1
-    for b in tqdm(range(n_blocks), desc="EKF", unit="block", disable=not progress, leave=False):
-        span = segments.block(b)
-        dt = segments.dt[span]
+    update = _Updater.for_setup(setup, config, options.innovation_gate_probability)
+
+    def predict(
+        b: int, span: slice, state: NominalState, cov: np.ndarray
+    ) -> tuple[NominalState, np.ndarray]:
+        dt = setup.segments.dt[span]
         nominal = propagate_nominal(
             state, setup.gyro_at[span], setup.accel_at[span], dt, setup.frame
         )
@@ -422,12 +489,10 @@ def run_filter(
                 np.broadcast_to(state.accel_bias, held), np.broadcast_to(state.gyro_bias, held),
             ),
         )  # fmt: skip
-        phi, q = block_transition(nominal, dt, setup.frame, setup.noise, setup.white_scale[span])
-        phi, q = setup.block_process_noise(b, phi, q)
-        recorder.transition[b] = phi
-        cov = phi @ cov @ phi.T + q
-        state, cov = recorder.boundary(b + 1, nominal.end(state), 0.5 * (cov + cov.T), update)
-    return recorder.finish(state, update.rejected_times), setup.epochs
+        phi, q = recorder.block_noise(b, span, nominal)
+        return nominal.end(state), phi @ cov @ phi.T + q
+
+    return forward_pass(recorder, update, predict, "EKF", progress), setup.epochs
 
 
 def _node_rows(segments: Segments, imu_t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -552,6 +617,31 @@ def smoothed_output(dataset: Dataset, run: FilterRun) -> tuple[NominalState, np.
     return states, cov
 
 
+def kalman_trajectory(
+    dataset: Dataset,
+    method: str,
+    forward: Callable[[], tuple[FilterRun, GnssEpochs]],
+    *,
+    smooth: bool = False,
+    extra_info: dict[str, object] | None = None,
+) -> Trajectory:
+    """Run a forward pass, turn it into the output trajectory (filtered, or RTS-smoothed
+    with ``smooth``) and record the timings of both steps."""
+    started = time.perf_counter()
+    run, epochs = forward()
+    filtered = time.perf_counter()
+    states, cov = smoothed_output(dataset, run) if smooth else filtered_output(dataset, run)
+    info = {**trajectory_info(run, epochs), **(extra_info or {})}
+    trajectory = make_trajectory(dataset, method, states, cov, info)
+    finished = time.perf_counter()
+    timings = {"filter": filtered - started}
+    if smooth:
+        timings["smoother"] = finished - filtered
+    timings["total"] = finished - started
+    trajectory.timings.update(timings)
+    return trajectory
+
+
 def run_ekf(
     dataset: Dataset,
     config: RunConfig,
@@ -566,15 +656,11 @@ def run_ekf(
     ``gnss_mask`` withholds GNSS epochs (outages, True = keep). Raises InputError when no
     usable GNSS epoch lies within the IMU span. ``info`` counts updates and rejections.
     """
-    started = time.perf_counter()
-    run, epochs = run_filter(dataset, config, gnss_mask, options or EkfOptions(), progress)
-    filtered = time.perf_counter()
-    states, cov = filtered_output(dataset, run)
-    trajectory = make_trajectory(dataset, "ekf", states, cov, trajectory_info(run, epochs))
-    trajectory.timings.update(
-        {"filter": filtered - started, "total": time.perf_counter() - started}
+    return kalman_trajectory(
+        dataset,
+        "ekf",
+        lambda: run_filter(dataset, config, gnss_mask, options or EkfOptions(), progress),
     )
-    return trajectory
 
 
 def run_ekf_rts(
@@ -586,16 +672,9 @@ def run_ekf_rts(
     options: EkfOptions | None = None,
 ) -> Trajectory:
     """The EKF of :func:`run_ekf` followed by a Rauch-Tung-Striebel smoother (``"ekf-rts"``)."""
-    started = time.perf_counter()
-    run, epochs = run_filter(dataset, config, gnss_mask, options or EkfOptions(), progress)
-    filtered = time.perf_counter()
-    states, cov = smoothed_output(dataset, run)
-    trajectory = make_trajectory(dataset, "ekf-rts", states, cov, trajectory_info(run, epochs))
-    trajectory.timings.update(
-        {
-            "filter": filtered - started,
-            "smoother": time.perf_counter() - filtered,
-            "total": time.perf_counter() - started,
-        }
+    return kalman_trajectory(
+        dataset,
+        "ekf-rts",
+        lambda: run_filter(dataset, config, gnss_mask, options or EkfOptions(), progress),
+        smooth=True,
     )
-    return trajectory

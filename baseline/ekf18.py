@@ -45,6 +45,7 @@ from fgins.baseline.mechanization import (
     NavFrame,
     NominalState,
     block_times,
+    compose_transitions,
     propagate_nominal,
     segment_imu,
     skew_batch,
@@ -168,19 +169,6 @@ def _segment_transitions(
     q = np.einsum("nik,n,njk->nij", noise_in, variance, noise_in)
     q[:, BIAS, BIAS] += (BIAS_RANDOM_WALK**2 * dt)[:, None, None] * np.eye(model.n_sensors)
     return phi, q
-
-
-def _compose(phi: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(Phi, Q) of a block from per-segment ones by an associative tree reduction."""
-    dim = phi.shape[-1]
-    while phi.shape[0] > 1:
-        if phi.shape[0] % 2:
-            phi = np.concatenate([phi, np.eye(dim)[None]])
-            q = np.concatenate([q, np.zeros((1, dim, dim))])
-        early, late = phi[0::2], phi[1::2]
-        q = late @ q[0::2] @ np.swapaxes(late, 1, 2) + q[1::2]
-        phi = late @ early
-    return phi[0], q[0]
 
 
 def _interpolate_readings(data: AccelArrayData, times: np.ndarray) -> np.ndarray:
@@ -404,7 +392,7 @@ def run_ekf18(
         phi, q = _segment_transitions(
             model, nominal.rotation[:-1], nominal.specific_force_nav, mean_rate, dt, frame
         )
-        phi_block, q_block = _compose(phi, q)
+        phi_block, q_block = compose_transitions(phi, q)
         cov = phi_block @ cov @ phi_block.T + q_block
         cov = 0.5 * (cov + cov.T)
         nav = nominal.end(nav)

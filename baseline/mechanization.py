@@ -287,11 +287,13 @@ def sample_process_noise(noise: ImuNoise, dt: np.ndarray, white_scale: np.ndarra
 
 def compose_transitions(phi: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(Phi, Q) of a whole block from per-sample ones, by an associative tree reduction:
-    (Phi_a, Q_a) then (Phi_b, Q_b) -> (Phi_b Phi_a, Phi_b Q_a Phi_b^T + Q_b)."""
+    (Phi_a, Q_a) then (Phi_b, Q_b) -> (Phi_b Phi_a, Phi_b Q_a Phi_b^T + Q_b). Any state
+    dimension (the 18-state gyro-free EKF composes its own)."""
+    dim = phi.shape[-1]
     while phi.shape[0] > 1:
         if phi.shape[0] % 2:
-            phi = np.concatenate([phi, np.eye(STATE_DIM)[None]])
-            q = np.concatenate([q, np.zeros((1, STATE_DIM, STATE_DIM))])
+            phi = np.concatenate([phi, np.eye(dim)[None]])
+            q = np.concatenate([q, np.zeros((1, dim, dim))])
         early, late = phi[0::2], phi[1::2]
         q = late @ q[0::2] @ np.swapaxes(late, 1, 2) + q[1::2]
         phi = late @ early

@@ -43,28 +43,20 @@ covariance reset are the EKF's.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
-from tqdm import tqdm
 
 from fgins.baseline.ekf import (
     FilterRecorder,
     FilterRun,
-    filtered_output,
-    make_trajectory,
+    GnssUpdater,
+    forward_pass,
+    kalman_trajectory,
     prepare_filter,
-    trajectory_info,
 )
-from fgins.baseline.measurements import (
-    GnssEpochs,
-    chi2_quantile,
-    huber_variances,
-    linearize_gnss,
-    reset_jacobian,
-)
+from fgins.baseline.measurements import GnssEpochs, reset_jacobian
 from fgins.baseline.mechanization import (
     ACC_BIAS,
     ATT,
@@ -75,7 +67,6 @@ from fgins.baseline.mechanization import (
     BlockNominal,
     NavFrame,
     NominalState,
-    block_transition,
     propagate_nominal,
 )
 from fgins.config import RunConfig
@@ -185,25 +176,17 @@ def _gnss_predictions(
     return np.concatenate(rows, axis=1)
 
 
-@dataclass
-class _UnscentedUpdater:
+@dataclass(kw_only=True)
+class _UnscentedUpdater(GnssUpdater):
     """GNSS update at a block boundary through the unscented transform (closed loop)."""
 
-    epochs: GnssEpochs
-    lever_arm: np.ndarray
     weights: SigmaWeights
-    huber_k: float | None
-    gate_probability: float | None
-    frame: NavFrame
-    counts: dict[str, int]
-    rejected_times: list[float] = field(default_factory=list)
 
     def __call__(
         self, g: int, state: NominalState, cov: np.ndarray, gyro: np.ndarray
     ) -> tuple[NominalState, np.ndarray]:
-        body_rate = gyro - state.gyro_bias - state.rotation.T @ self.frame.earth_rate
         # Measured values, rows and variances as the EKF forms them; residual = z - h(state).
-        lin = linearize_gnss(self.epochs, g, state, body_rate, self.lever_arm)
+        lin = self.linearize(g, state, gyro)
 
         def predict(offsets: np.ndarray) -> np.ndarray:
             points = state.boxplus(offsets)
@@ -214,26 +197,16 @@ class _UnscentedUpdater:
         )
         # residual = z - h(state), so the innovation z - y_mean is:
         innovation = lin.residual - (y_mean - predict(np.zeros((1, len(cov))))[0])
-        variance = lin.variance
-        if self.huber_k is not None:
-            variance, n_down = huber_variances(
-                innovation, np.diag(predicted) + variance, variance, self.huber_k
-            )
-            self.counts["huber_downweighted"] += n_down
-        s = predicted + np.diag(variance)
-        if self.gate_probability is not None:
-            nis = float(innovation @ np.linalg.solve(s, innovation))
-            if nis > chi2_quantile(self.gate_probability, len(innovation)):
-                self.counts["rejected_innovation"] += 1
-                self.rejected_times.append(float(self.epochs.t[g]))
-                return state, cov
+        screened = self.screen(g, innovation, predicted, lin.variance)
+        if screened is None:
+            return state, cov
+        _, s = screened
         gain = np.linalg.solve(s, cross.T).T
         correction = gain @ innovation
         cov = cov - gain @ s @ gain.T
         reset = reset_jacobian(correction[ATT], len(cov))
         cov = reset @ cov @ reset.T
-        self.counts["gnss_updates"] += 1
-        self.counts["velocity_updates"] += int(lin.n_velocity > 0)
+        self.count_update(lin)
         return state.boxplus(correction), 0.5 * (cov + cov.T)
 
 
@@ -284,29 +257,24 @@ def run_ukf_filter(
     setup = prepare_filter(dataset, config, gnss_mask, options.max_block_s)
     recorder = FilterRecorder(setup, dataset.imu.t, dataset.imu.gyro)
     weights = sigma_weights(len(setup.cov), options.alpha, options.beta, options.kappa)
-    update = _UnscentedUpdater(
-        epochs=setup.epochs,
-        lever_arm=np.asarray(config.gnss.lever_arm_m, dtype=float),
-        weights=weights,
-        huber_k=config.gnss.huber_k,
-        gate_probability=options.innovation_gate_probability,
-        frame=setup.frame,
-        counts=setup.counts,
+    update = _UnscentedUpdater.for_setup(
+        setup, config, options.innovation_gate_probability, weights=weights
     )
-    segments = setup.segments
-    state, cov = recorder.boundary(0, setup.state, setup.cov, update)
-    n_blocks = len(setup.times) - 1
-    for b in tqdm(range(n_blocks), desc="UKF", unit="block", disable=not progress, leave=False):
-        span = segments.block(b)
-        dt = segments.dt[span]
+
+    def predict(
+        b: int, span: slice, state: NominalState, cov: np.ndarray
+    ) -> tuple[NominalState, np.ndarray]:
         means, sigma_cov, central = _predict_block(
-            state, cov, setup.gyro_at[span], setup.accel_at[span], dt, setup.frame, weights
+            state,
+            cov,
+            setup.gyro_at[span],
+            setup.accel_at[span],
+            setup.segments.dt[span],
+            setup.frame,
+            weights,
         )
         recorder.store_nodes(span, means)
-        phi, q = block_transition(central, dt, setup.frame, setup.noise, setup.white_scale[span])
-        phi, q = setup.block_process_noise(b, phi, q)
-        recorder.transition[b] = phi
-        cov = sigma_cov + q
+        _, q = recorder.block_noise(b, span, central)
         assert means.extra is not None
         end = NominalState(
             means.rotation[-1].copy(),
@@ -316,8 +284,9 @@ def run_ukf_filter(
             means.gyro_bias[-1].copy(),
             means.extra[-1].copy(),
         )
-        state, cov = recorder.boundary(b + 1, end, 0.5 * (cov + cov.T), update)
-    return recorder.finish(state, update.rejected_times), setup.epochs
+        return end, sigma_cov + q
+
+    return forward_pass(recorder, update, predict, "UKF", progress), setup.epochs
 
 
 def run_ukf(
@@ -335,14 +304,11 @@ def run_ukf(
     records the unscented-transform parameters.
     """
     options = options or UkfOptions()
-    started = time.perf_counter()
-    run, epochs = run_ukf_filter(dataset, config, gnss_mask, options, progress)
-    filtered = time.perf_counter()
-    states, cov = filtered_output(dataset, run)
-    info = trajectory_info(run, epochs)
-    info["unscented"] = {"alpha": options.alpha, "beta": options.beta, "kappa": options.kappa}
-    trajectory = make_trajectory(dataset, "ukf", states, cov, info)
-    trajectory.timings.update(
-        {"filter": filtered - started, "total": time.perf_counter() - started}
+    return kalman_trajectory(
+        dataset,
+        "ukf",
+        lambda: run_ukf_filter(dataset, config, gnss_mask, options, progress),
+        extra_info={
+            "unscented": {"alpha": options.alpha, "beta": options.beta, "kappa": options.kappa}
+        },
     )
-    return trajectory

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import csv
 import tomllib
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -96,13 +97,21 @@ def _read_columns(path: Path, warnings: list[str]) -> dict[str, np.ndarray]:
     return {name: table[:, i] for i, name in enumerate(header)}
 
 
+def _read_required(
+    path: Path, warnings: list[str], kind: str, required: Iterable[str]
+) -> dict[str, np.ndarray]:
+    """The columns of a CSV file that must hold all ``required`` ones (InputError if not)."""
+    columns = _read_columns(path, warnings)
+    missing = [c for c in required if c not in columns]
+    if missing:
+        raise InputError(f"{path}: missing {kind} column(s) {', '.join(missing)}")
+    return columns
+
+
 def read_imu_csv(path: str | Path, warnings: list[str] | None = None) -> ImuData:
     path = Path(path)
     warnings = [] if warnings is None else warnings
-    columns = _read_columns(path, warnings)
-    missing = [c for c in IMU_COLUMNS if c not in columns]
-    if missing:
-        raise InputError(f"{path}: missing IMU column(s) {', '.join(missing)}")
+    columns = _read_required(path, warnings, "IMU", IMU_COLUMNS)
     gyro = np.column_stack([columns[f"gyro_{a}"] for a in "xyz"])
     accel = np.column_stack([columns[f"accel_{a}"] for a in "xyz"])
     return clean_imu(columns["time"], gyro, accel, source=path.name, warnings=warnings)
@@ -111,10 +120,7 @@ def read_imu_csv(path: str | Path, warnings: list[str] | None = None) -> ImuData
 def read_gnss_csv(path: str | Path, warnings: list[str] | None = None) -> GnssData:
     path = Path(path)
     warnings = [] if warnings is None else warnings
-    columns = _read_columns(path, warnings)
-    missing = [c for c in GNSS_REQUIRED if c not in columns]
-    if missing:
-        raise InputError(f"{path}: missing GNSS column(s) {', '.join(missing)}")
+    columns = _read_required(path, warnings, "GNSS", GNSS_REQUIRED)
     t = columns["time"]
     lla = np.column_stack([columns["lat"], columns["lon"], columns["alt"]])
     keep = np.isfinite(t) & np.all(np.isfinite(lla), axis=1)

@@ -148,6 +148,36 @@ def simulate_run(
     )
 
 
+def _preset_run(
+    name: str,
+    seed: int,
+    options: dict[str, Any],
+    *,
+    preset: str,
+    profile: motion.MotionProfile,
+    origin: Origin,
+    gnss_model: GnssModel,
+    description: str,
+    baro_model: BaroModel | None = None,
+) -> SimRun:
+    """A run whose IMU has the noise and errors of an ``[imu]`` preset, starting at the
+    ``start_time_s`` option."""
+    noise = imu_noise_from_config({"preset": preset})
+    return simulate_run(
+        name=name,
+        seed=seed,
+        profile=profile,
+        origin=origin,
+        imu_preset=preset,
+        noise=noise,
+        errors=ImuErrorModel.from_noise(noise),
+        gnss_model=gnss_model,
+        baro_model=baro_model,
+        description=description,
+        start_time_s=float(options.get("start_time_s", 0.0)),
+    )
+
+
 def aircraft_ekf(seed: int = 0, **options: Any) -> SimRun:
     """Aircraft at ~100 m/s, tactical IMU with large constant biases, 60 s outage at 500 s."""
     _check_options("aircraft-ekf", options, {"duration_s", "start_time_s", "outage_start_s"})
@@ -198,28 +228,25 @@ def mems_car_pdop(seed: int = 0, **options: Any) -> SimRun:
     if len(offset_values) != 3:
         raise InputError("mems-car-pdop: bias_offset_m needs 3 values (east, north, up) in m")
     offset = (offset_values[0], offset_values[1], offset_values[2])
-    noise = imu_noise_from_config({"preset": "consumer-mems"})
     gnss_model = GnssModel(
         rate_hz=2.0,
         uere_m=3.0,
         dop_stretches=(DopStretch(start, start + 30.0, 3.3), DopStretch(40.0, 60.0, 2.0)),
         biased_stretches=(BiasedStretch(start, start + 30.0, offset),),
     )
-    return simulate_run(
-        name="mems-car-pdop",
-        seed=seed,
+    return _preset_run(
+        "mems-car-pdop",
+        seed,
+        options,
+        preset="consumer-mems",
         profile=motion.urban_car(20.0, duration),
         origin=Origin(48.1372, 11.5755, 520.0),
-        imu_preset="consumer-mems",
-        noise=noise,
-        errors=ImuErrorModel.from_noise(noise),
         gnss_model=gnss_model,
         description=(
             "Urban car, consumer MEMS IMU 20 Hz, GNSS 2 Hz (UERE 3 m x DOP). From "
             f"{start:g} s for 30 s the geometry degrades to PDOP > 5 and the fixes are biased "
             f"by {offset} m (ENU): a gate on PDOP should reject them."
         ),
-        start_time_s=float(options.get("start_time_s", 0.0)),
     )
 
 
@@ -230,27 +257,24 @@ def uav_loop_baro(seed: int = 0, **options: Any) -> SimRun:
     gnss_rate = float(options.get("gnss_rate_hz", 1.0))
     if gnss_rate not in (1.0, 0.5):
         raise InputError(f"uav-loop-baro: gnss_rate_hz must be 1 or 0.5, got {gnss_rate}")
-    noise = imu_noise_from_config({"preset": "consumer-mems"})
     gnss_model = GnssModel(
         rate_hz=gnss_rate,
         uere_m=2.0,
         dop_stretches=(DopStretch(90.0, 120.0, 2.5),),
     )
-    return simulate_run(
-        name="uav-loop-baro",
-        seed=seed,
+    return _preset_run(
+        "uav-loop-baro",
+        seed,
+        options,
+        preset="consumer-mems",
         profile=motion.circular_loop(20.0, duration, radius_m=25.0, speed_m_per_s=11.0 / 3.6),
         origin=Origin(52.52, 13.405, 60.0),
-        imu_preset="consumer-mems",
-        noise=noise,
-        errors=ImuErrorModel.from_noise(noise),
         gnss_model=gnss_model,
         baro_model=BaroModel(rate_hz=20.0, noise_m=0.3, bias_rw_m_per_sqrt_s=0.01),
         description=(
             "Loop of radius 25 m at 11 km/h; consumer IMU and barometer at 20 Hz, GNSS "
             f"{gnss_rate:g} Hz with UERE 2 m x DOP (HDOP ~1, 2.5 from 90 to 120 s)."
         ),
-        start_time_s=float(options.get("start_time_s", 0.0)),
     )
 
 
@@ -266,7 +290,6 @@ def car_urban(seed: int = 0, **options: Any) -> SimRun:
     _check_options("car-urban", options, {"duration_s", "start_time_s", "grade"})
     grade = _grade("car-urban", options)
     duration = float(options.get("duration_s", 300.0))
-    noise = imu_noise_from_config({"preset": grade})
     gnss_model = GnssModel(
         rate_hz=1.0,
         uere_m=3.0,
@@ -276,21 +299,19 @@ def car_urban(seed: int = 0, **options: Any) -> SimRun:
         outlier_fraction=0.02,
         outlier_size_m=25.0,
     )
-    return simulate_run(
-        name="car-urban",
-        seed=seed,
+    return _preset_run(
+        "car-urban",
+        seed,
+        options,
+        preset=grade,
         profile=motion.urban_car(100.0, duration),
         origin=Origin(48.1372, 11.5755, 520.0),
-        imu_preset=grade,
-        noise=noise,
-        errors=ImuErrorModel.from_noise(noise),
         gnss_model=gnss_model,
         description=(
             f"Urban car, {grade} IMU 100 Hz, GNSS 1 Hz (UERE 3 m x DOP, HDOP 3.5 at 60-95 s and "
             "7 at 180-200 s), velocity 0.2 m/s, antenna lever arm (0.5, 0, 1.2) m, 2 % outliers "
             "of 25 m."
         ),
-        start_time_s=float(options.get("start_time_s", 0.0)),
     )
 
 
@@ -299,7 +320,6 @@ def highway(seed: int = 0, **options: Any) -> SimRun:
     _check_options("highway", options, {"duration_s", "start_time_s", "grade"})
     grade = _grade("highway", options)
     duration = float(options.get("duration_s", 240.0))
-    noise = imu_noise_from_config({"preset": grade})
     gnss_model = GnssModel(
         rate_hz=1.0,
         uere_m=2.5,
@@ -307,20 +327,18 @@ def highway(seed: int = 0, **options: Any) -> SimRun:
         velocity_sigma_m_per_s=0.1,
         dop_stretches=(DopStretch(150.0, 165.0, 2.5),),
     )
-    return simulate_run(
-        name="highway",
-        seed=seed,
+    return _preset_run(
+        "highway",
+        seed,
+        options,
+        preset=grade,
         profile=motion.highway(100.0, duration),
         origin=Origin(50.11, 8.68, 110.0),
-        imu_preset=grade,
-        noise=noise,
-        errors=ImuErrorModel.from_noise(noise),
         gnss_model=gnss_model,
         description=(
             f"Highway at 27-32 m/s, {grade} IMU 100 Hz, GNSS 1 Hz (UERE 2.5 m x DOP, an "
             "overpass stretch with HDOP 2.5 at 150-165 s), velocity 0.1 m/s."
         ),
-        start_time_s=float(options.get("start_time_s", 0.0)),
     )
 
 
