@@ -99,6 +99,7 @@ def _finite_difference_velocity(problem: Problem) -> np.ndarray:
 # A fix whose whitened residual exceeds this at the solution (chi-square, 3 dof, 99.9 %) is
 # reported as rejected: the robust kernel has all but removed its weight.
 REJECT_WHITENED = 4.03
+RELINEARIZE_SKIP = 10  # GTSAM's default: relinearisation checks every 10 updates
 
 
 def _extra_states(values: gtsam.Values) -> dict[str, object]:
@@ -357,7 +358,7 @@ def _run_isam2_with(problem: Problem, progress: bool, online_covariance: bool, f
     problem.zupt_keyframes.clear()
     params = gtsam.ISAM2Params()
     params.setRelinearizeThreshold(problem.config.smoother.isam2_relinearize_threshold)
-    params.relinearizeSkip = 1
+    params.relinearizeSkip = RELINEARIZE_SKIP
     params.setFactorization(factorization)
     isam = gtsam.ISAM2(params)
     n = problem.n_keyframes
@@ -390,14 +391,24 @@ def _run_isam2_with(problem: Problem, progress: bool, online_covariance: bool, f
         online_values.insert(V(k), velocity)
         online_values.insert(B(k), bias)
         if online_covariance:
-            attitude, position = _nav_covariances(
-                isam.marginalCovariance(X(k)), pose.rotation().matrix()
-            )
-            online["attitude"][k], online["position"][k] = attitude, position
-            online["velocity"][k] = isam.marginalCovariance(V(k))
+            try:
+                attitude, position = _nav_covariances(
+                    isam.marginalCovariance(X(k)), pose.rotation().matrix()
+                )
+                online["attitude"][k], online["position"][k] = attitude, position
+                online["velocity"][k] = isam.marginalCovariance(V(k))
+            except RuntimeError:
+                if factorization == "CHOLESKY":
+                    raise _IndeterminateUpdate from None
+                # QR could not resolve this marginal either: leave it NaN (reported as unknown).
     # A few extra relinearisation passes let the final estimate settle like the batch one.
     for _ in range(3):
-        isam.update()
+        try:
+            isam.update()
+        except RuntimeError:
+            if factorization == "CHOLESKY":
+                raise _IndeterminateUpdate from None
+            break
     return isam, online_values, online
 
 
