@@ -292,7 +292,8 @@ def smooth_batch(problem: Problem, progress: bool = True) -> Trajectory:
     if _suspect_solution(graph, result, iterations, max_iterations):
         # The filter's guess led Levenberg-Marquardt astray (e.g. the EKF diverged in an
         # outage): restart from iSAM2, whose incremental relinearisation is far more robust.
-        isam, _, _ = _run_isam2(problem, progress, online_covariance=False)
+        # Relinearise at every update here: the start is known to be poor.
+        isam, _, _ = _run_isam2(problem, progress, online_covariance=False, relinearize_skip=1)
         graph = _batch_graph(problem, None)
         retry, more = _optimize(graph, isam.calculateEstimate(), max_iterations)
         iterations += more
@@ -336,7 +337,12 @@ def smooth_batch(problem: Problem, progress: bool = True) -> Trajectory:
     return trajectory
 
 
-def _run_isam2(problem: Problem, progress: bool, online_covariance: bool = True):
+def _run_isam2(
+    problem: Problem,
+    progress: bool,
+    online_covariance: bool = True,
+    relinearize_skip: int = RELINEARIZE_SKIP,
+):
     """Incremental iSAM2, one update per keyframe.
 
     Returns (isam, online values, online covariances): each keyframe's state and covariance
@@ -345,20 +351,26 @@ def _run_isam2(problem: Problem, progress: bool, online_covariance: bool = True)
     is at fault) the run restarts with QR.
     """
     try:
-        return _run_isam2_with(problem, progress, online_covariance, "CHOLESKY")
+        return _run_isam2_with(problem, progress, online_covariance, "CHOLESKY", relinearize_skip)
     except _IndeterminateUpdate:
-        return _run_isam2_with(problem, progress, online_covariance, "QR")
+        return _run_isam2_with(problem, progress, online_covariance, "QR", relinearize_skip)
 
 
 class _IndeterminateUpdate(Exception):
     pass
 
 
-def _run_isam2_with(problem: Problem, progress: bool, online_covariance: bool, factorization: str):
+def _run_isam2_with(
+    problem: Problem,
+    progress: bool,
+    online_covariance: bool,
+    factorization: str,
+    relinearize_skip: int,
+):
     problem.zupt_keyframes.clear()
     params = gtsam.ISAM2Params()
     params.setRelinearizeThreshold(problem.config.smoother.isam2_relinearize_threshold)
-    params.relinearizeSkip = RELINEARIZE_SKIP
+    params.relinearizeSkip = relinearize_skip
     params.setFactorization(factorization)
     isam = gtsam.ISAM2(params)
     n = problem.n_keyframes
