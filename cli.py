@@ -1,4 +1,4 @@
-"""The ``fgins`` command: smooth, demo, sim, convert, inspect.
+"""The ``fgins`` command: smooth, demo, sim, bench, fleet, convert, inspect.
 
 Every failure is one line on stderr and a non-zero exit; outputs are written atomically.
 """
@@ -103,6 +103,36 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("-o", "--output-dir", type=Path, default=Path("out/bench"))
     _add_sensor_options(bench)
 
+    fleet = sub.add_parser(
+        "fleet", help="smooth many drives in parallel on Dask (one output per drive)"
+    )
+    fleet.add_argument(
+        "inputs", nargs="+", metavar="INPUT",
+        help="drives: folders from 'fgins sim' or with imu.csv + gnss.csv, FILE.mcap, or "
+        "@LIST.txt with one drive per line (relative to the list's folder)",
+    )  # fmt: skip
+    fleet.add_argument(
+        "-o", "--output-dir", type=Path, required=True,
+        help="folder for <drive>.<format> and fleet.json",
+    )  # fmt: skip
+    fleet.add_argument("--method", choices=METHODS, default="batch")
+    fleet.add_argument(
+        "--format", choices=["csv", "geojson", "kml", "mcap"], default="csv",
+        help="output format of each drive",
+    )  # fmt: skip
+    fleet.add_argument(
+        "--workers", type=int, help="local worker processes (default: number of CPUs)"
+    )
+    fleet.add_argument(
+        "--scheduler", metavar="tcp://HOST:PORT",
+        help="use an existing Dask scheduler (workers must see the same paths)",
+    )  # fmt: skip
+    fleet.add_argument(
+        "--gnss-outage", metavar="A:B[,C:D...]",
+        help="withhold GNSS epochs with A <= t - t0 < B in every drive",
+    )  # fmt: skip
+    _add_sensor_options(fleet)
+
     convert = sub.add_parser("convert", help="write GNSS fixes of a log as gnss.csv/.geojson/.kml")
     convert.add_argument("input", type=Path)
     convert.add_argument("-o", "--output", type=Path, required=True)
@@ -118,9 +148,15 @@ def _progress(args: argparse.Namespace) -> bool:
 
 
 def _config_for(dataset: Dataset, args: argparse.Namespace) -> RunConfig:
-    return config_for_dataset(
+    config = config_for_dataset(
         dataset, args.config, imu_preset=args.imu_preset, vehicle=args.vehicle
     )
+    robust = getattr(args, "robust", None)
+    if robust == "huber":
+        config.gnss.huber_k, config.gnss.cauchy_k = 2.0, None
+    elif robust == "cauchy":
+        config.gnss.cauchy_k = 3.0
+    return config
 
 
 def write_output(
@@ -344,6 +380,26 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_fleet(args: argparse.Namespace) -> int:
+    from fgins.fleet import FleetOptions, expand_drives, print_report, run_fleet
+
+    if args.workers is not None and args.workers < 1:
+        raise FginsError(f"--workers {args.workers}: need at least 1 worker")
+    parse_windows(args.gnss_outage)  # a bad window is one error now, not one per drive
+    drives = expand_drives(args.inputs)
+    options = FleetOptions(
+        method=args.method, output_format=args.format, config=args.config,
+        imu_preset=args.imu_preset, vehicle=args.vehicle, robust=args.robust,
+        gnss_outage=args.gnss_outage,
+    )  # fmt: skip
+    result = run_fleet(
+        drives, options, args.output_dir, workers=args.workers, scheduler=args.scheduler,
+        progress=_progress(args),
+    )  # fmt: skip
+    print_report(result, args.output_dir)
+    return 1 if result.failed else 0
+
+
 def cmd_convert(args: argparse.Namespace) -> int:
     from fgins.io.gnss_export import write_gnss
 
@@ -419,6 +475,7 @@ COMMANDS = {
     "demo": cmd_demo,
     "sim": cmd_sim,
     "bench": cmd_bench,
+    "fleet": cmd_fleet,
     "convert": cmd_convert,
     "inspect": cmd_inspect,
 }

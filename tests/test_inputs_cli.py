@@ -175,3 +175,19 @@ def test_long_imu_gap_and_gnss_clock_jump_are_reported_not_fatal(tmp_path, sim_d
     assert "IMU gap" in err and "time jump" in err and "outside the IMU time span" in err
     table = np.loadtxt(out, delimiter=",", skiprows=1)
     assert np.all(np.isfinite(table[:, :16]))
+
+
+def test_robust_flag_reaches_the_gnss_model_and_outputs_are_readable(tmp_path, sim_dir, capsys):
+    import stat
+
+    from fgins.cli import _config_for, build_parser
+    from fgins.io.csv_pair import read_csv_dataset
+
+    dataset = read_csv_dataset([sim_dir])
+    for flag, field in (("huber", "huber_k"), ("cauchy", "cauchy_k")):
+        args = build_parser().parse_args(["smooth", str(sim_dir), "-o", "x.csv", "--robust", flag])
+        assert getattr(_config_for(dataset, args).gnss, field) is not None
+    out = tmp_path / "robust.csv"
+    assert main(["smooth", str(sim_dir), "--robust", "cauchy", "-o", str(out)]) == 0
+    assert "GNSS outliers" in capsys.readouterr().err
+    assert out.stat().st_mode & stat.S_IRGRP  # not the 0600 of a temporary file

@@ -1,0 +1,435 @@
+"""Fleets: smooth many drives in parallel on Dask, one task per drive.
+
+A local ``distributed.LocalCluster`` (worker processes, one thread each, since GTSAM and numpy
+bring their own threads) is used by default; a scheduler address connects to an existing
+cluster instead. With a remote cluster, every worker needs fgins installed and must see the
+drives and the output folder under the same absolute paths (a shared file system).
+
+Each task loads, configures, smooths and writes one drive and returns a small summary dict,
+never the trajectory, so results stay cheap to ship back. A failing drive is a summary with
+a one-line error; it never stops the rest of the fleet.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import logging
+import math
+import os
+import sys
+import time
+from collections.abc import Iterator
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any, TextIO
+
+from fgins.datatypes import FginsError, InputError
+
+FORMATS = ("csv", "geojson", "kml", "mcap")
+FLEET_JSON = "fleet.json"
+
+
+@dataclass(frozen=True)
+class Drive:
+    """One drive: the INPUT items ``load_dataset`` receives and the name of its output."""
+
+    name: str
+    inputs: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class FleetOptions:
+    """What every drive of a fleet is smoothed with (mirrors ``fgins smooth`` options).
+
+    The attribute names match the CLI's, so ``fgins.cli._config_for`` reads them unchanged.
+    """
+
+    method: str = "batch"
+    output_format: str = "csv"
+    config: Path | None = None
+    imu_preset: str | None = None
+    vehicle: str | None = None
+    robust: str | None = None
+    gnss_outage: str | None = None
+
+
+@dataclass
+class FleetResult:
+    """Per-drive summaries (in input order) and the timing of the whole fleet."""
+
+    summaries: list[dict[str, Any]]
+    wall_seconds: float
+    startup_seconds: float
+    workers: int
+    scheduler: str
+    method: str
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def failed(self) -> list[dict[str, Any]]:
+        return [s for s in self.summaries if s.get("error")]
+
+    @property
+    def busy_seconds(self) -> float:
+        """Sum of per-drive task times: what one worker alone would have needed."""
+        return float(sum(s.get("seconds") or 0.0 for s in self.summaries))
+
+    @property
+    def speedup(self) -> float:
+        return self.busy_seconds / self.wall_seconds if self.wall_seconds > 0 else float("nan")
+
+    @property
+    def efficiency(self) -> float:
+        return self.speedup / self.workers if self.workers else float("nan")
+
+    def to_json(self) -> dict[str, Any]:
+        return _json_safe(
+            {
+                "method": self.method,
+                "scheduler": self.scheduler,
+                "workers": self.workers,
+                "drives_total": len(self.summaries),
+                "drives_failed": len(self.failed),
+                "wall_seconds": self.wall_seconds,
+                "startup_seconds": self.startup_seconds,
+                "sum_drive_seconds": self.busy_seconds,
+                "speedup": self.speedup,
+                "parallel_efficiency": self.efficiency,
+                "drives": self.summaries,
+            }
+        )
+
+
+# ---------------------------------------------------------------------------------------------
+# Which drives
+
+
+def _read_list_file(item: str) -> list[str]:
+    """``@list.txt``: one drive per line; blank lines and ``#`` comments are skipped.
+    Relative paths are taken relative to the list file's folder."""
+    list_path = Path(item[1:])
+    try:
+        lines = list_path.read_text().splitlines()
+    except OSError as exc:
+        raise InputError(
+            f"{list_path}: cannot read the drive list ({exc.strerror}); give @FILE with one "
+            "drive per line"
+        ) from None
+    drives = []
+    for line in lines:
+        entry = line.split("#", 1)[0].strip()
+        if entry:
+            path = Path(entry).expanduser()
+            drives.append(str(path if path.is_absolute() else list_path.parent / path))
+    if not drives:
+        raise InputError(f"{list_path}: the drive list is empty; put one drive per line")
+    return drives
+
+
+def _drive_stem(path: Path) -> str:
+    return path.stem if path.suffix.lower() == ".mcap" else path.name
+
+
+def expand_drives(items: list[str]) -> list[Drive]:
+    """INPUT items (folders, .mcap files, ``@list.txt``) -> drives with unique output names.
+
+    Paths are made absolute so that workers in other processes (or machines sharing the file
+    system) find them. Drives whose names collide (e.g. ``a/log.mcap``, ``b/log.mcap``) are
+    named after their path below the common folder instead (``a_log``, ``b_log``).
+    """
+    paths: list[Path] = []
+    for item in items:
+        entries = _read_list_file(item) if item.startswith("@") else [item]
+        paths.extend(Path(os.path.abspath(Path(entry).expanduser())) for entry in entries)
+    if not paths:
+        raise InputError("no drives given; pass folders, .mcap files or @list.txt")
+    seen: set[Path] = set()
+    unique = [p for p in paths if not (p in seen or seen.add(p))]
+    stems = [_drive_stem(p) for p in unique]
+    common = Path(os.path.commonpath([str(p.parent) for p in unique]))
+    names = []
+    for path, stem in zip(unique, stems, strict=True):
+        if stems.count(stem) > 1:
+            relative = path.with_name(stem).relative_to(common)
+            stem = "_".join(relative.parts)
+        names.append(stem or "drive")
+    return [Drive(name, (str(path),)) for name, path in zip(names, unique, strict=True)]
+
+
+# ---------------------------------------------------------------------------------------------
+# One drive (runs on a worker; top level so that it pickles by reference)
+
+
+def one_line(exc: BaseException) -> str:
+    """An exception as one line: the message for fgins errors, the type for anything else."""
+    text = str(exc).strip()
+    first = text.splitlines()[0] if text else ""
+    if isinstance(exc, FginsError):
+        return first or type(exc).__name__
+    return f"{type(exc).__name__}: {first}" if first else type(exc).__name__
+
+
+def smooth_drive(drive: Drive, options: FleetOptions, out_dir: str) -> dict[str, Any]:
+    """Load, configure, smooth and write one drive; return its small summary.
+
+    Never raises for a bad drive: the error is the summary's one-line ``error``.
+    """
+    output = Path(out_dir) / f"{drive.name}.{options.output_format}"
+    summary: dict[str, Any] = {
+        "drive": drive.name,
+        "input": drive.inputs[0] if len(drive.inputs) == 1 else list(drive.inputs),
+        "method": options.method,
+        "states": 0,
+        "seconds": None,
+        "smooth_seconds": None,
+        "imu_samples_per_s": None,
+        "h_rms_aided_m": None,
+        "warnings": 0,
+        "output": None,
+        "error": None,
+    }
+    started = time.perf_counter()
+    try:
+        summary.update(_smooth_and_write(drive, options, output))
+    except Exception as exc:  # a failing drive must not stop the fleet
+        summary["error"] = one_line(exc)
+    summary["seconds"] = time.perf_counter() - started
+    return summary
+
+
+def _smooth_and_write(drive: Drive, options: FleetOptions, output: Path) -> dict[str, Any]:
+    # Imported here: fgins.cli imports this module lazily, and workers import only on demand.
+    from fgins.bench.metrics import errors_against
+    from fgins.cli import _config_for, write_output
+    from fgins.io.inputs import load_dataset
+    from fgins.outages import outage_mask, parse_windows
+    from fgins.pipeline import run_method
+
+    windows = parse_windows(options.gnss_outage)
+    dataset = load_dataset(list(drive.inputs), progress=False)
+    config = _config_for(dataset, argparse.Namespace(**asdict(options)))
+    mask = outage_mask(dataset, windows)
+    started = time.perf_counter()
+    trajectory = run_method(dataset, config, options.method, gnss_mask=mask, progress=False)
+    elapsed = time.perf_counter() - started
+    write_output(trajectory, output, dataset)
+    # Horizontal RMS against the drive's own GNSS at the epochs the smoother was given.
+    errors = errors_against(trajectory, dataset.gnss.t, dataset.gnss_enu(), dataset.t0, windows)
+    return {
+        "method": trajectory.method or options.method,
+        "states": len(trajectory),
+        "smooth_seconds": elapsed,
+        "imu_samples_per_s": len(dataset.imu) / max(elapsed, 1e-9),
+        "h_rms_aided_m": errors.summary()["h_rms_aided"],
+        "warnings": len(dataset.warnings),
+        "output": str(output),
+    }
+
+
+# ---------------------------------------------------------------------------------------------
+# The fleet
+
+
+@contextlib.contextmanager
+def _client(
+    workers: int | None, scheduler: str | None, connect_timeout_s: float = 10.0
+) -> Iterator[Any]:
+    """A Dask client on a new local cluster, or on the scheduler at ``scheduler``.
+
+    The local cluster is closed on any exit (also Ctrl-C), which stops its worker processes.
+    """
+    from distributed import Client, LocalCluster
+
+    if scheduler:
+        try:
+            client = Client(scheduler, timeout=f"{connect_timeout_s}s")
+        except (OSError, TimeoutError) as exc:
+            raise FginsError(
+                f"cannot connect to the Dask scheduler {scheduler} ({one_line(exc)}); check the "
+                "address (tcp://host:port) or omit --scheduler for a local cluster"
+            ) from None
+        with client:
+            yield client
+        return
+    n_workers = workers or os.cpu_count() or 1
+    if n_workers < 1:
+        raise InputError(f"--workers {n_workers}: need at least 1 worker")
+    with _workers_ignore_ctrl_c():
+        cluster = LocalCluster(
+            n_workers=n_workers,
+            threads_per_worker=1,  # GTSAM and numpy already use threads of their own
+            processes=True,
+            dashboard_address=None,
+            silence_logs=logging.WARNING,
+        )
+    with cluster, Client(cluster) as client:
+        yield client
+
+
+@contextlib.contextmanager
+def _workers_ignore_ctrl_c() -> Iterator[None]:
+    """Start worker processes with SIGINT ignored (an ignored signal survives exec).
+
+    A terminal's Ctrl-C reaches every process of the group: the workers would each die with a
+    traceback. This way only this process sees it, and it closes the cluster, which stops them.
+    """
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield  # signal handlers can only be changed from the main thread
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _failed_task_summary(drive: Drive, options: FleetOptions, exc: BaseException) -> dict:
+    """Summary of a drive whose task itself failed (worker died, could not unpickle, ...)."""
+    return {
+        "drive": drive.name,
+        "input": drive.inputs[0] if len(drive.inputs) == 1 else list(drive.inputs),
+        "method": options.method,
+        "states": 0,
+        "seconds": None,
+        "error": f"task failed: {one_line(exc)}",
+    }
+
+
+def run_fleet(
+    drives: list[Drive],
+    options: FleetOptions,
+    out_dir: str | Path,
+    *,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    progress: bool = True,
+    connect_timeout_s: float = 10.0,
+) -> FleetResult:
+    """Smooth ``drives`` in parallel; write ``out_dir/<drive>.<format>`` and ``fleet.json``."""
+    from distributed import as_completed
+    from tqdm import tqdm
+
+    if options.output_format not in FORMATS:
+        raise InputError(
+            f"output format {options.output_format!r}: choose one of {', '.join(FORMATS)}"
+        )
+    names = [d.name for d in drives]
+    if len(set(names)) != len(names):
+        raise InputError("two drives share an output name; rename one of them")
+    out_path = Path(os.path.abspath(out_dir))
+    if out_path.exists() and not out_path.is_dir():
+        raise InputError(f"{out_path}: exists and is not a folder; choose another -o")
+    out_path.mkdir(parents=True, exist_ok=True)
+    # Workers may run in other processes or on other machines: give them absolute paths.
+    if options.config is not None:
+        options = replace(options, config=Path(os.path.abspath(options.config)))
+    logging.getLogger("distributed").setLevel(logging.WARNING)
+
+    started = time.perf_counter()
+    with _client(workers, scheduler, connect_timeout_s) as client:
+        n_workers = sum(w["nthreads"] for w in client.scheduler_info()["workers"].values())
+        address = client.scheduler.address if scheduler else "local"
+        submitted = time.perf_counter()
+        futures = client.map(
+            smooth_drive, drives, options=options, out_dir=str(out_path), pure=False
+        )
+        drive_of = {future.key: drive for future, drive in zip(futures, drives, strict=True)}
+        summaries: dict[str, dict[str, Any]] = {}
+        bar = tqdm(total=len(drives), desc="drives", unit="drive", disable=not progress)
+        try:
+            for future in as_completed(futures):
+                drive = drive_of[future.key]
+                try:
+                    summary = future.result()
+                except Exception as exc:
+                    summary = _failed_task_summary(drive, options, exc)
+                summaries[drive.name] = summary
+                bar.update()
+                bar.set_postfix(failed=sum(1 for s in summaries.values() if s.get("error")))
+        except BaseException:
+            # Ctrl-C: a shared scheduler drops our queued work; a local cluster just closes.
+            if scheduler:
+                client.cancel(futures)
+            raise
+        finally:
+            bar.close()
+        finished = time.perf_counter()
+    result = FleetResult(
+        summaries=[summaries[d.name] for d in drives],
+        wall_seconds=finished - submitted,
+        startup_seconds=submitted - started,
+        workers=n_workers,
+        scheduler=address,
+        method=options.method,
+    )
+    write_fleet_json(result, out_path / FLEET_JSON)
+    return result
+
+
+def write_fleet_json(result: FleetResult, path: Path) -> None:
+    from fgins.io.atomic import atomic_path
+
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(result.to_json(), indent=2) + "\n")
+
+
+def _json_safe(value: Any) -> Any:
+    """NaN/inf are not JSON: write them as null."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _json_safe(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_json_safe(v) for v in value]
+    return value
+
+
+# ---------------------------------------------------------------------------------------------
+# Reporting
+
+
+def _number(value: Any, fmt: str) -> str:
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "-"
+    return format(value, fmt)
+
+
+def markdown_table(summaries: list[dict[str, Any]]) -> str:
+    """The summaries as a markdown table, one row per drive, in input order."""
+    header = (
+        "| drive | method | states | seconds | IMU samples/s | aided h RMS (m) | warnings "
+        "| result |"
+    )
+    lines = [header, "|---|---|---:|---:|---:|---:|---:|---|"]
+    for s in summaries:
+        result = f"FAILED: {s['error']}" if s.get("error") else Path(s["output"]).name
+        result = result.replace("|", "\\|")
+        lines.append(
+            f"| {s['drive']} | {s['method']} | {s.get('states', 0)} "
+            f"| {_number(s.get('seconds'), '.2f')} | {_number(s.get('imu_samples_per_s'), ',.0f')} "
+            f"| {_number(s.get('h_rms_aided_m'), '.3f')} | {s.get('warnings', 0)} | {result} |"
+        )
+    return "\n".join(lines)
+
+
+def timing_line(result: FleetResult) -> str:
+    return (
+        f"fleet: {len(result.summaries)} drives ({len(result.failed)} failed) on "
+        f"{result.workers} workers ({result.scheduler}): wall {result.wall_seconds:.2f} s "
+        f"(+{result.startup_seconds:.2f} s cluster start), sum of per-drive times "
+        f"{result.busy_seconds:.2f} s, speed-up {result.speedup:.2f}x, parallel efficiency "
+        f"{100 * result.efficiency:.0f}%"
+    )
+
+
+def print_report(result: FleetResult, out_dir: Path, stream: TextIO | None = None) -> None:
+    stream = stream or sys.stdout  # looked up at call time (tests and callers redirect it)
+    print(markdown_table(result.summaries), file=stream)
+    print(file=stream)
+    print(timing_line(result), file=stream)
+    print(f"summaries in {out_dir / FLEET_JSON}", file=stream)
