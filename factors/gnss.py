@@ -107,6 +107,9 @@ class GateResult:
     outside_span: int = 0
     pdop_max: float | None = None
     used: np.ndarray | None = None
+    # False when the caller gave no outage mask: then "used" cannot be claimed, only "pass
+    # the gates" (the caller may still withhold some of them).
+    outage_applied: bool = True
 
     def __post_init__(self) -> None:
         if self.used is None:
@@ -124,7 +127,10 @@ class GateResult:
         """One line whose counts add up to the number of epochs, e.g. ``GNSS: 469 epochs:
         409 used, 60 withheld by outage, 0 gated by PDOP > 5, 0 by fix quality``."""
         pdop = f"PDOP > {self.pdop_max:g}" if self.pdop_max is not None else "PDOP"
-        parts = [f"{self.n_used} used", f"{self.withheld} withheld by outage"]
+        if self.outage_applied:
+            parts = [f"{self.n_used} used", f"{self.withheld} withheld by outage"]
+        else:
+            parts = [f"{self.n_used} pass the gates (outages not counted here)"]
         if self.rejected_position:
             parts.append(f"{self.rejected_position} without a position")
         if self.outside_span:
@@ -150,7 +156,8 @@ def gate_epochs(
         The fixes and the GNSS settings (``min_fix_quality``, ``pdop_max``).
     withheld
         Optional bool mask (M,), True where the caller withholds the epoch (an outage). Such an
-        epoch is counted as withheld only, whatever its PDOP or quality.
+        epoch is counted as withheld only, whatever its PDOP or quality. Without it the
+        summary says "pass the gates", not "used", as it cannot know the outages.
     imu_span
         Optional (start, end) time of the IMU; epochs outside it cannot be used and are
         counted as such (and are not ``usable``).
@@ -162,6 +169,7 @@ def gate_epochs(
         reason, each epoch counted once (see :class:`GateResult` for the order).
     """
     n = len(gnss)
+    outage_applied = withheld is not None
     if withheld is None:
         withheld = np.zeros(n, dtype=bool)
     withheld = np.asarray(withheld, dtype=bool)
@@ -194,7 +202,58 @@ def gate_epochs(
         outside_span=counts[1],
         pdop_max=config.pdop_max,
         used=usable & ~withheld,
+        outage_applied=outage_applied,
     )
+
+
+# 3-D whitened residual norm above which a fix is a "large residual": chi-square, 3 dof,
+# 99.9 % (the level graph/smoother.py reports at), so 0.1 % of good fixes exceed it.
+LARGE_RESIDUAL_SIGMA = 4.03
+LARGE_RESIDUAL_EXPECTED = 0.001
+
+
+def kernel_weights(whitened_norms: np.ndarray, config: GnssConfig) -> np.ndarray:
+    """Weight the robust kernel gives each GNSS factor at its whitened residual norm (GTSAM's
+    mEstimator weights: Cauchy k^2 / (k^2 + r^2), Huber min(1, k / r)); 1 without a kernel."""
+    r = np.abs(np.asarray(whitened_norms, dtype=float))
+    if config.cauchy_k is not None:
+        return config.cauchy_k**2 / (config.cauchy_k**2 + r**2)
+    if config.huber_k is not None:
+        return np.minimum(1.0, config.huber_k / np.maximum(r, 1e-300))
+    return np.ones_like(r)
+
+
+def residual_summary(
+    whitened_norms: np.ndarray, config: GnssConfig, downweighted_below: float = 0.5
+) -> str:
+    """One honest line about GNSS residuals at the solution.
+
+    A residual above :data:`LARGE_RESIDUAL_SIGMA` is a *large residual*; only a robust
+    kernel really down-weights a fix, so "rejected"/"down-weighted" is said only with one
+    on, counting fixes whose kernel weight is below ``downweighted_below``.
+    """
+    norms = np.asarray(whitened_norms, dtype=float)
+    n, large = len(norms), int((norms > LARGE_RESIDUAL_SIGMA).sum())
+    line = f"GNSS residuals: {large} of {n} fixes above {LARGE_RESIDUAL_SIGMA:g} sigma"
+    if config.cauchy_k is not None or config.huber_k is not None:
+        kind, k = (
+            ("cauchy", config.cauchy_k)
+            if config.cauchy_k is not None
+            else ("huber", config.huber_k)
+        )
+        weak = int((kernel_weights(norms, config) < downweighted_below).sum())
+        line += (
+            f"; robust kernel {kind} (k={k:g}) down-weighted {weak} of them below "
+            f"{100 * downweighted_below:.0f} % weight"
+        )
+    else:
+        line += " (no robust kernel: they keep full weight; --robust cauchy down-weights them)"
+    if n and large > max(3, 10 * LARGE_RESIDUAL_EXPECTED * n):
+        line += (
+            f"; {100 * large / n:.0f} % is far above the {100 * LARGE_RESIDUAL_EXPECTED:g} % "
+            "expected: the GNSS sigmas are too small for these fixes"
+        )
+    return line
 
 
 def position_noise_model(sigma: np.ndarray, config: GnssConfig):  # -> gtsam noise model

@@ -105,12 +105,47 @@ def test_gate_without_outage_counts_as_before():
     gnss = _gnss(pdop=np.array([1.0, 6.0, 6.0, 2.0]), fix_quality=np.array([1, 1, 0, 1]))
     gate = gate_epochs(gnss, GnssConfig(pdop_max=5.0))
     assert (gate.n_used, gate.withheld, gate.rejected_pdop, gate.rejected_quality) == (2, 0, 1, 1)
+    assert gate.summary() == (
+        "GNSS: 4 epochs: 2 pass the gates (outages not counted here), 1 gated by PDOP > 5, "
+        "1 by fix quality"
+    )
     # The same epochs with the PDOP-5+ one inside an outage: withheld, not gated by PDOP.
     gate = gate_epochs(gnss, GnssConfig(pdop_max=5.0), withheld=np.array([0, 1, 0, 0], bool))
     assert (gate.n_used, gate.withheld, gate.rejected_pdop, gate.rejected_quality) == (2, 1, 0, 1)
     assert gate.summary() == (
         "GNSS: 4 epochs: 2 used, 1 withheld by outage, 0 gated by PDOP > 5, 1 by fix quality"
     )
+
+
+def test_residual_summary_says_rejected_only_with_a_kernel():
+    """Gaussian 3-D whitened residuals (chi, 3 dof) plus gross outliers: the counts follow
+    from the draw; without a kernel nothing is called down-weighted; GTSAM's own Cauchy and
+    Huber weights agree with kernel_weights."""
+    import gtsam
+
+    from fgins.factors.gnss import LARGE_RESIDUAL_SIGMA, kernel_weights, residual_summary
+
+    rng = np.random.default_rng(4)
+    norms = np.linalg.norm(rng.standard_normal((2000, 3)), axis=1)
+    norms[:40] = rng.uniform(20, 60, 40)  # 2 % gross outliers
+    large = int((norms > LARGE_RESIDUAL_SIGMA).sum())
+    plain = residual_summary(norms, GnssConfig())
+    assert plain.startswith(f"GNSS residuals: {large} of 2000 fixes above 4.03 sigma (no robust")
+    assert "down-weighted" not in plain.split("(")[0] and "rejected" not in plain
+    assert "too small" in plain  # 2 % against 0.1 % expected
+    config = GnssConfig(cauchy_k=3.0)
+    weights = kernel_weights(norms, config)
+    cauchy = gtsam.noiseModel.mEstimator.Cauchy.Create(3.0)
+    huber = gtsam.noiseModel.mEstimator.Huber.Create(2.0)
+    for r, w in zip(norms[:50:7], weights[:50:7], strict=True):
+        assert w == pytest.approx(cauchy.weight(r))
+        assert kernel_weights(np.array([r]), GnssConfig(huber_k=2.0))[0] == pytest.approx(
+            huber.weight(r)
+        )
+    line = residual_summary(norms, config)
+    assert f"down-weighted {int((weights < 0.5).sum())} of them below 50 % weight" in line
+    clean = residual_summary(np.linalg.norm(rng.standard_normal((2000, 3)), axis=1), config)
+    assert "too small" not in clean
 
 
 def test_corrupt_dops_and_sigmas_are_missing_not_precise():
