@@ -171,11 +171,12 @@ def check_value(where: str, name: str, value: object, check: Check) -> Any:
             raise _fail(where, name, value, f"expected one of {', '.join(check.choices)}")
         return value
     if check.kind == "vec3":
+        given = value
         if check.scalar_ok and _is_number(value):
             value = [value] * 3
         if not isinstance(value, (list, tuple, np.ndarray)) or len(value) != 3:
             raise _fail(where, name, value, f"expected {_expected(check)}")
-        return tuple(_number(where, name, v, check, shown=value) for v in value)
+        return tuple(_number(where, name, v, check, shown=given) for v in value)
     if check.kind == "table":
         if not isinstance(value, dict):
             raise _fail(where, name, value, "expected a table")
@@ -467,7 +468,7 @@ class SmootherConfig:
         return self.use_zupt if self.use_zupt is not None else self.vehicle == "car"
 
 
-SIGMA_HINT = "a zero sigma gives an infinitely certain measurement; give a real 1-sigma error"
+SIGMA_HINT = "a 1-sigma error; 0 would make the measurement infinitely certain"
 GNSS_SCHEMA = _schema_from_fields(
     GnssConfig,
     {
