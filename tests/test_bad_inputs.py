@@ -528,3 +528,27 @@ def test_good_inputs_pass_the_same_harness(sim_dir, tmp_path, capsys):
         assert _snapshot(folder / "drive") == before
         rows = out.read_text().count("\n") - 1
         assert rows == int(DURATION_S * 100), (case.name, rows)
+
+
+@OTHER_BRANCH
+def test_output_inside_a_sim_folder_keeps_it_readable(sim_dir, tmp_path, capsys):
+    """``-o drive/out.csv`` inside a sim folder: either refused up front (one error line) or
+    written, and then the folder still reads as the same drive (the reader takes only its
+    own file names, not every CSV with a GNSS-like header)."""
+    drive = tmp_path / "drive"
+    shutil.copytree(sim_dir, drive)
+    before = _snapshot(drive)
+    code, _, stderr = _run(
+        ["smooth", str(drive), "--method", "ekf", "-o", str(drive / "out.csv")], capsys
+    )
+    assert "Traceback" not in stderr and "internal error" not in stderr, stderr
+    if code == 2:
+        assert len([line for line in stderr.splitlines() if "error:" in line]) == 1
+        assert _snapshot(drive) == before
+        return
+    assert code == 0, stderr
+    assert all(_snapshot(drive).get(name) == digest for name, digest in before.items())
+    code, _, stderr = _run(
+        ["smooth", str(drive), "--method", "ekf", "-o", str(tmp_path / "again.csv")], capsys
+    )
+    assert code == 0, f"the folder no longer reads after writing into it: {stderr}"
