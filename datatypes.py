@@ -21,6 +21,11 @@ class InputError(FginsError):
     """The input data is unusable as given."""
 
 
+class ConfigError(FginsError):
+    """A configuration value (TOML file, a dataset's own settings, a CLI or API choice) is
+    of the wrong type or out of range; the message names the key and the value."""
+
+
 def _as_float_array(name: str, value: object, shape_tail: tuple[int, ...]) -> np.ndarray:
     array = np.asarray(value, dtype=float)
     if array.ndim != 1 + len(shape_tail) or array.shape[1:] != shape_tail:
