@@ -47,7 +47,11 @@ GYRO_TURN_RATIO_MAX = 8.0
 TURN_WINDOW_S = 10.0
 TURN_MIN_RAD = 0.5  # a turn far above the course noise of the window's end points
 TURN_MIN_SPEED_M_PER_S = 3.0
-TURN_MIN_WINDOWS = 2
+TURN_MIN_WINDOWS = 1  # ratio > 8 needs > 4 rad of gyro rotation in one window: not noise
+# Without turns: the gyro integrated over a window of straight driving stays below this
+# (biases of 1 deg/s and body oscillations give ~0.2 rad in 10 s; deg/s values give rad-sized).
+STRAIGHT_MAX_ROTATION_RAD = 1.5
+STRAIGHT_MIN_WINDOWS = 10
 G = 9.80665
 ACCEL_G_RANGE = (0.5, 2.0)  # a median specific-force norm here is g, not m/s^2
 ACCEL_PLAUSIBLE_RANGE = (5.0, 20.0)  # m/s^2: gravity plus any vehicle's mean acceleration
@@ -344,9 +348,10 @@ def _check_units(imu, gnss: GnssData, origin: Origin, *, has_accel_array: bool) 
     ratio, turns = _gyro_turn_ratio(imu, gnss, origin)
     if turns >= TURN_MIN_WINDOWS and ratio > GYRO_TURN_RATIO_MAX:
         raise InputError(
-            f"imu: the gyro looks like deg/s, not rad/s: over {turns} turns of the GNSS track "
-            f"it integrates to {ratio:.1f} times the turn the fixes show (57.3 for deg/s, ~1 "
-            f"for rad/s); multiply gyro_x, gyro_y, gyro_z by pi/180 = {math.pi / 180:.6f}"
+            f"imu: the gyro looks like deg/s, not rad/s: over {turns} {TURN_WINDOW_S:g}-s windows "
+            f"of the GNSS track it integrates to {ratio:.1f} times the turn the fixes show "
+            f"(57.3 for deg/s, ~1 for rad/s); multiply gyro_x, gyro_y, gyro_z by "
+            f"pi/180 = {math.pi / 180:.6f}"
         )
 
 
@@ -390,8 +395,15 @@ def _gyro_turn_ratio(imu, gnss: GnssData, origin: Origin) -> tuple[float, int]:
             for k in range(3)
         ]
     )
-    use = good[i0] & good[i1] & (turn > TURN_MIN_RAD)
-    if not use.any():
-        return math.nan, 0
-    ratio = np.linalg.norm(rotation[use], axis=1) / turn[use]
-    return float(np.median(ratio)), int(use.sum())
+    moving = good[i0] & good[i1]
+    rotated = np.linalg.norm(rotation, axis=1)
+    use = moving & (turn > TURN_MIN_RAD)
+    if use.any():
+        return float(np.median(rotated[use] / turn[use])), int(use.sum())
+    # No clear turn (a motorway): driving straight, the gyro must not say it rotated far.
+    if moving.sum() >= STRAIGHT_MIN_WINDOWS:
+        median_rotation = float(np.median(rotated[moving]))
+        median_turn = float(np.median(turn[moving]))
+        if median_rotation > STRAIGHT_MAX_ROTATION_RAD:
+            return median_rotation / max(median_turn, median_rotation / 1e3), int(moving.sum())
+    return math.nan, 0
