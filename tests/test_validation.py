@@ -183,7 +183,9 @@ def test_gnss_epochs_outside_the_imu_span_are_counted(tmp_path, urban):
     checked = load_dataset(_pair(tmp_path, replace(urban.dataset, gnss=gnss)))
     expected = int(np.sum(gnss.t > urban.dataset.imu.t[-1]))
     assert expected > 0
-    assert any(f"{expected} of {len(gnss)} GNSS epoch(s) lie outside" in w for w in checked.warnings)
+    assert any(
+        f"{expected} of {len(gnss)} GNSS epoch(s) lie outside" in w for w in checked.warnings
+    )
 
 
 # --- corrupt NMEA end to end ------------------------------------------------------------------
@@ -491,12 +493,18 @@ def test_kitti_as_a_ros2_bag_fits_all_gnss_with_the_default_preset_warning(tmp_p
 def test_kitti_as_a_ros2_bag_bridges_35s_outages(tmp_path, capsys):
     bag = _kitti_bag(tmp_path)
     out = tmp_path / "kitti_out.csv"
-    windows = "100:135,250:285"
+    starts = (40, 120, 200, 280, 360)  # spread over the drive, not chosen windows
+    windows = ",".join(f"{a}:{a + 35}" for a in starts)
     args = ["smooth", str(bag), "--vehicle", "car", "--gnss-outage", windows, "-o", str(out)]
     assert main(args) == 0
     dataset = load_dataset([str(bag)], progress=False)
     rel = dataset.gnss.t - dataset.t0
-    inside = ((rel >= 100) & (rel < 135)) | ((rel >= 250) & (rel < 285))
-    rms = _horizontal_rms_at_gnss(out, dataset, inside)
-    print(f"KITTI bag, 35 s outages: horizontal RMS {rms:.3f} m")
-    assert rms <= 4.4
+    per_window = [
+        _horizontal_rms_at_gnss(out, dataset, (rel >= a) & (rel < a + 35)) for a in starts
+    ]
+    print(
+        "KITTI bag, 35 s outages: horizontal RMS per window "
+        + ", ".join(f"{v:.2f}" for v in per_window)
+        + " m"
+    )
+    assert max(per_window) <= 4.4
