@@ -626,4 +626,14 @@ def config_for_dataset(
         config.smoother.vehicle = chosen
     if vehicle:
         config.smoother.vehicle = vehicle
+    if not config.imu:
+        # Neither the data nor the user said anything about the IMU's noise: the default
+        # preset is a guess, and results depend on it. Say so once, where it is chosen.
+        line = (
+            "imu: the data say nothing about the IMU's noise and no --imu-preset/--config "
+            "[imu] was given; using the consumer-mems preset. Override with --imu-preset NAME "
+            f"({', '.join(IMU_PRESETS)}) or --config FILE.toml with an [imu] table"
+        )
+        if line not in dataset.warnings:
+            dataset.warnings.append(line)
     return config

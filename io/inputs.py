@@ -1,7 +1,9 @@
-"""Open whatever the user gave as INPUT... and return one :class:`Dataset`.
+"""Open whatever the user gave as INPUT... and return one checked :class:`Dataset`.
 
 ``demo:kitti``; an MCAP file; an NMEA file plus an IMU CSV; the CSV pair ``imu.csv gnss.csv``
-(any order, recognised by header); or a folder written by ``fgins sim``.
+(any order, recognised by header); or a folder written by ``fgins sim``. Readers only parse;
+every dataset then passes through the one input-validation layer
+(:func:`fgins.io.validate.validate_dataset`), here and nowhere else.
 """
 
 from __future__ import annotations
@@ -22,6 +24,13 @@ def _looks_like_nmea(path: Path) -> bool:
     return b"$GP" in head or b"$GN" in head or b"$GL" in head or b"$GB" in head or b"$BD" in head
 
 
+def validated(dataset: Dataset) -> Dataset:
+    """The one call of the input-validation layer (checks, repairs, counted warnings)."""
+    from fgins.io.validate import validate_dataset
+
+    return validate_dataset(dataset)
+
+
 def load_dataset(
     inputs: list[str],
     *,
@@ -30,12 +39,32 @@ def load_dataset(
     gnss_topic: str | None = None,
     progress: bool = True,
 ) -> Dataset:
+    """Read ``inputs`` with the reader for their format and check the result (see module)."""
+    return validated(
+        _parse(
+            inputs,
+            time_offset_s=time_offset_s,
+            imu_topic=imu_topic,
+            gnss_topic=gnss_topic,
+            progress=progress,
+        )
+    )
+
+
+def _parse(
+    inputs: list[str],
+    *,
+    time_offset_s: float,
+    imu_topic: str | None,
+    gnss_topic: str | None,
+    progress: bool,
+) -> Dataset:
     if not inputs:
         raise InputError("no input given")
     if inputs == ["demo:kitti"]:
-        from fgins.io.kitti import read_kitti
+        from fgins.io.kitti import parse_kitti
 
-        return read_kitti()
+        return parse_kitti()
     if any(item.startswith("demo:") for item in inputs):
         raise InputError(f"unknown built-in input among {inputs}; the demo input is demo:kitti")
     paths = [Path(item) for item in inputs]
