@@ -26,8 +26,9 @@ __version__ = "0.1.0"
 _EXPORTS = {
     "load": "fgins.api",
     "smooth": "fgins.api",
-    "bench": "fgins.api",
+    "bench": "fgins.bench",  # the subpackage, callable: fgins.bench(...) is fgins.api.bench
     "plot": "fgins.api",
+    "simulate": "fgins.api",
     "configure": "fgins.api",
     "write": "fgins.api",
     "check_output": "fgins.api",
@@ -62,18 +63,20 @@ __all__ = [
     "configure",
     "load",
     "plot",
+    "simulate",
     "smooth",
     "write",
 ]
 
 if TYPE_CHECKING:  # for type checkers and IDEs; at run time __getattr__ does this lazily
+    from fgins import bench
     from fgins.api import (
         FginsWarning,
-        bench,
         check_output,
         configure,
         load,
         plot,
+        simulate,
         smooth,
         write,
     )
@@ -95,7 +98,8 @@ def __getattr__(name: str) -> object:
     module = _EXPORTS.get(name)
     if module is None:
         raise AttributeError(f"module 'fgins' has no attribute {name!r}")
-    value = getattr(importlib.import_module(module), name)
+    imported = importlib.import_module(module)
+    value = imported if module == f"fgins.{name}" else getattr(imported, name)
     globals()[name] = value  # resolve once
     return value
 

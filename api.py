@@ -58,6 +58,7 @@ __all__ = [
     "configure",
     "load",
     "plot",
+    "simulate",
     "smooth",
     "summary",
     "to_dataframe",
@@ -219,6 +220,72 @@ def load(
     for message in dataset.warnings:
         warnings.warn(message, FginsWarning, stacklevel=2)
     return dataset
+
+
+def _simulate(
+    scenario: str,
+    output_dir: str | os.PathLike[str],
+    seed: int = 0,
+    duration: float | None = None,
+    options: dict[str, Any] | None = None,
+) -> tuple[Path, Any]:
+    """Simulate and write; (folder, the scenario run with its dataset and truth)."""
+    try:
+        from fgins.sim.scenarios import SCENARIOS
+        from fgins.sim.writer import write_sim_dir
+    except ImportError:
+        raise FginsError("the simulator is not available in this build") from None
+    if scenario not in SCENARIOS:
+        raise ConfigError(f"unknown scenario {scenario!r}; choose one of {', '.join(SCENARIOS)}")
+    options = dict(options or {})
+    if duration is not None:
+        options["duration_s"] = duration
+    try:
+        run = SCENARIOS[scenario](seed=seed, **options)
+    except TypeError as exc:
+        raise ConfigError(f"scenario {scenario}: {exc}") from None
+    folder = Path(output_dir)
+    if folder.exists() and not folder.is_dir():
+        raise OutputError(f"{folder}: exists and is not a folder")
+    write_sim_dir(run, folder)
+    return folder, run
+
+
+def simulate(
+    scenario: str,
+    output_dir: str | os.PathLike[str],
+    *,
+    seed: int = 0,
+    duration: float | None = None,
+    **options: Any,
+) -> Path:
+    """Simulate a drive or flight with exact truth and write it as a folder :func:`load` reads.
+
+    Parameters
+    ----------
+    scenario : str
+        ``car-urban``, ``highway``, ``mems-car-pdop``, ``uav-loop-baro``, ``aircraft-ekf``,
+        ``gyrofree-cube`` (``fgins sim list`` describes them).
+    output_dir : path
+        Folder for ``imu.csv``, ``gnss.csv`` (and other sensors' CSVs), ``config.toml`` and
+        ``truth.csv`` (the trajectory CSV layout).
+    seed : int, default 0
+        Random seed of the sensor errors.
+    duration : float, optional
+        Shorten the scenario to this many seconds.
+    **options
+        Scenario options, as ``fgins sim --set KEY=VALUE`` (e.g. ``grade="tactical"``).
+
+    Returns
+    -------
+    pathlib.Path
+        ``output_dir``.
+
+    Example
+    -------
+    >>> drive = fgins.simulate("car-urban", tmp_path / "drive", duration=60)  # doctest: +SKIP
+    """
+    return _simulate(scenario, output_dir, seed, duration, options)[0]
 
 
 # ---------------------------------------------------------------------------------------------

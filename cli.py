@@ -188,7 +188,9 @@ def cmd_smooth(args: argparse.Namespace) -> int:
     # Every output is checked before any work (a bad path is not found after the solve).
     api.check_output(args.output, args.inputs)
     if args.plot:
-        api.check_output(args.plot, [*args.inputs, args.output], suffixes=PLOT_SUFFIXES, what="plot")
+        api.check_output(
+            args.plot, [*args.inputs, args.output], suffixes=PLOT_SUFFIXES, what="plot"
+        )
     windows = parse_windows(args.gnss_outage)
     dataset = _load(
         args, args.inputs, time_offset=args.time_offset, imu_topic=args.imu_topic,
@@ -263,20 +265,15 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def cmd_sim(args: argparse.Namespace) -> int:
-    try:
-        from fgins.sim.scenarios import SCENARIOS
-        from fgins.sim.writer import write_sim_dir
-    except ImportError:
-        raise FginsError("the simulator is not available in this build") from None
     if args.scenario == "list":
+        try:
+            from fgins.sim.scenarios import SCENARIOS
+        except ImportError:
+            raise FginsError("the simulator is not available in this build") from None
         for name, function in SCENARIOS.items():
             doc = (function.__doc__ or "").strip().splitlines()
             print(f"{name:18s} {doc[0] if doc else ''}")
         return 0
-    if args.scenario not in SCENARIOS:
-        raise FginsError(
-            f"unknown scenario {args.scenario!r}; choose one of {', '.join(SCENARIOS)}"
-        )
     if args.output_dir is None:
         raise FginsError("fgins sim: -o DIR is required")
     options: dict[str, object] = {}
@@ -285,13 +282,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
         if not _:
             raise FginsError(f"--set {item!r}: expected KEY=VALUE")
         options[key.strip()] = _parse_value(value.strip())
-    if args.duration is not None:
-        options["duration_s"] = args.duration
-    try:
-        run = SCENARIOS[args.scenario](seed=args.seed, **options)
-    except TypeError as exc:
-        raise FginsError(f"scenario {args.scenario}: {exc}") from None
-    write_sim_dir(run, args.output_dir)
+    _, run = api._simulate(args.scenario, args.output_dir, args.seed, args.duration, options)
     print(
         f"{args.scenario}: wrote {args.output_dir} ({len(run.dataset.imu)} IMU samples, "
         f"{len(run.dataset.gnss)} GNSS epochs)"
@@ -326,7 +317,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
         outage_start=args.outage_start, output_dir=args.output_dir, progress=_progress(args),
     )  # fmt: skip
     print(frame_to_markdown(table, baseline=args.baseline))
-    reference = "simulator truth" if table.attrs["reference"] == "truth" else "the withheld GNSS fixes"
+    reference = (
+        "simulator truth" if table.attrs["reference"] == "truth" else "the withheld GNSS fixes"
+    )
     print(f"\nreference: {reference}; outages {table.attrs['outages']}")
     print(
         f"benchmark wall time {time.perf_counter() - started:.1f} s; results in {args.output_dir}/"
