@@ -226,3 +226,15 @@ def test_readme_python_example_runs(tmp_path, monkeypatch):
         exec(compile(_readme_python_example(), "README.md", "exec"), namespace)
     assert (tmp_path / "drive" / "truth.csv").exists()
     assert (tmp_path / "track.csv").exists() and (tmp_path / "track.tum").exists()
+
+
+def test_api_docstring_examples_run(monkeypatch, tmp_path):
+    import doctest
+
+    import fgins.api
+
+    monkeypatch.chdir(tmp_path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", fgins.FginsWarning)
+        result = doctest.testmod(fgins.api, optionflags=doctest.ELLIPSIS)
+    assert result.attempted >= 5 and result.failed == 0
