@@ -55,6 +55,7 @@ def plot_track_and_errors(
     if errors is None:
         errors = [errors_against(tr, gnss_t, gnss_enu, t0, windows) for tr in items]
     withheld = in_windows(gnss_t, t0, windows)
+    single = len(items) == 1  # one trajectory: the bridged stretch in magenta, as always
     fig = Figure(figsize=(14, 6))
     ax_track, ax_err = fig.subplots(1, 2)
     ax_track.plot(gnss_enu[~withheld, 0], gnss_enu[~withheld, 1], "k.", ms=2, label="GNSS used")
@@ -73,8 +74,8 @@ def plot_track_and_errors(
             ax_track.plot(
                 np.where(inside, trajectory.position[:, 0], np.nan),
                 np.where(inside, trajectory.position[:, 1], np.nan),
-                "-", color=color, lw=2.5, alpha=0.6,
-                label="bridged by IMU" if len(items) == 1 else None,
+                "-", color="m" if single else color, lw=2, alpha=1.0 if single else 0.6,
+                label="bridged by IMU" if single else None,
             )  # fmt: skip
         rel = error.t - t0
         ax_err.plot(rel, error.horizontal, ".-", color=color, ms=2, lw=0.8, label=label)
