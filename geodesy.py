@@ -17,6 +17,7 @@ class Origin(Protocol):
     lon: float
     alt: float
 
+
 WGS84_A = 6378137.0
 WGS84_F = 1.0 / 298.257223563
 WGS84_E2 = WGS84_F * (2.0 - WGS84_F)
