@@ -72,7 +72,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fgins.datatypes import GnssData, ImuData, InputError, OdometerData
+from fgins.datatypes import Dataset, GnssData, ImuData, InputError, OdometerData
 
 UBX_SYNC = b"\xb5\x62"
 GPS_EPOCH_POSIX = 315964800  # 1980-01-06T00:00:00Z
@@ -101,6 +101,8 @@ TICK_TYPES = (6, 7, 8, 9, 10)
 SPEED_TYPE = 11
 GYRO_SCALE = 2.0**-12  # deg/s per LSB
 ACCEL_SCALE = 2.0**-10  # m/s^2 per LSB
+_SCALE = {14: GYRO_SCALE, 13: GYRO_SCALE, 5: GYRO_SCALE, 16: ACCEL_SCALE, 17: ACCEL_SCALE,
+          18: ACCEL_SCALE, TEMP_TYPE: 1e-2, SPEED_TYPE: 1e-3}  # fmt: skip
 
 _NAV_CLASS = 0x01
 _ESF_CLASS = 0x10
@@ -254,6 +256,7 @@ class UbxResult:
     imu_raw_accel: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     time_maps: list[TimeMap] = field(default_factory=list)
     wheel_ticks: int = 0
+    esf_meas_messages: list[tuple[int, dict[int, float]]] = field(default_factory=list)
     first_time: float = math.nan
     last_time: float = math.nan
 
@@ -557,7 +560,6 @@ class _EpochBuilder:
         position = self._position(e) if status is not None else None
         if status is None or position is None:
             self.without_fix += 1
-            self.histogram[0] += 1
             return None
         quality, fix_type = status
         self.histogram[quality] += 1
@@ -975,6 +977,10 @@ def _attach_imu(result: UbxResult, scanner: _Scanner, anchors: list[tuple[int, f
 
     raw = _raw_rows(scanner)
     meas = _meas_rows(scanner)
+    result.esf_meas_messages = [
+        (tag, {k: v * _SCALE.get(k, 1.0) for k, v in values})
+        for _, tag, values in scanner.esf_meas
+    ]
     source, rows, nominal = "", None, 0.0
     if raw is not None and len(raw.tags) >= 2:
         source, rows, nominal = "ESF-RAW", raw, ESF_RAW_TICK_S
@@ -1074,8 +1080,10 @@ def summarize_ubx(path: str | Path) -> str:
     result = read_ubx(path)
     lines = [f"u-blox UBX log {result.path}"]
     span = result.last_time - result.first_time
+    if result.gnss is not None and len(result.gnss) > 1:
+        span += float(np.median(np.diff(result.gnss.t)))  # n epochs cover n periods
     by_name = ", ".join(
-        f"{k} {v}" + (f" ({v / span:.2f} Hz)" if span > 0 and v > 1 else "")
+        f"{k} {v}" + (f" (~{v / span:.2f} Hz)" if span > 0 and v > 1 else "")
         for k, v in sorted(result.counts.items())
     )
     lines.append(f"  messages: {by_name or 'none'}")
@@ -1099,7 +1107,7 @@ def summarize_ubx(path: str | Path) -> str:
             f"{rate:.2f} Hz, time {t[0]:.3f} .. {t[-1]:.3f} POSIX UTC ({t[-1] - t[0]:.1f} s)"
         )
         histogram = ", ".join(f"{q}: {n}" for q, n in sorted(result.fix_histogram.items()))
-        lines.append(f"  fix quality (GGA codes; 0 = epoch without fix): {histogram}")
+        lines.append(f"  fix quality of the fixes (GGA codes; 0 = flagged invalid): {histogram}")
         lines.append(f"  hAcc: {_stats(gnss.std[:, 0], 'm')}")
         lines.append(f"  vAcc: {_stats(gnss.std[:, 2], 'm')}")
         lines.append(f"  sAcc: {_stats(gnss.velocity_std[:, 0], 'm/s')}")
@@ -1133,4 +1141,91 @@ def summarize_ubx(path: str | Path) -> str:
     if result.wheel_ticks:
         lines.append(f"  wheel ticks: {result.wheel_ticks} values (not used: no tick scale)")
     lines.extend(f"  warning: {w}" for w in result.warnings)
+    return "\n".join(lines)
+
+
+def load_ubx_dataset(
+    ubx: list[Path], others: list[Path], *, imu_topic: str | None = None, progress: bool = False
+) -> Dataset:
+    """A :class:`Dataset` from one UBX log, with its own IMU or an ``imu.csv``/MCAP IMU beside it.
+
+    Another IMU given beside the log replaces the receiver's (it must be on the same time base:
+    POSIX UTC seconds). Raises :class:`InputError` for a log without a fix, or without an IMU
+    when none is given beside it.
+    """
+    from fgins.datatypes import Origin
+
+    if len(ubx) > 1:
+        raise InputError(f"give one UBX log, got {len(ubx)}: {', '.join(map(str, ubx))}")
+    path = ubx[0]
+    result = read_ubx(path)
+    gnss = require_fix(result)
+    warnings = list(result.warnings)
+    imu = None
+    imu_from = result.imu_source
+    for other in others:
+        if other.is_file() and other.suffix.lower() == ".mcap":
+            from fgins.io.mcap import read_mcap
+
+            mcap = read_mcap(other, imu_topic=imu_topic, progress=progress)
+            imu, imu_from = mcap.dataset.imu, f"{other} (MCAP)"
+            warnings.extend(mcap.warnings)
+        elif other.is_file():
+            from fgins.io.csv_pair import csv_kind, read_imu_csv
+
+            if csv_kind(other) != "imu":
+                raise InputError(
+                    f"{other}: beside a UBX log give an imu.csv (header time,gyro_x,gyro_y,"
+                    "gyro_z,accel_x,accel_y,accel_z) or an MCAP with an IMU"
+                )
+            imu, imu_from = read_imu_csv(other, warnings), str(other)
+        else:
+            raise InputError(f"{other}: not a file; beside a UBX log give an imu.csv or an MCAP")
+    if imu is None:
+        imu = result.imu
+    if imu is None:
+        reason = (
+            f" ({result.imu_source} present but unusable: see the warnings)"
+            if result.imu_source else ""
+        )
+        raise InputError(f"no IMU in {path}{reason}; give an imu.csv beside it")
+    usable = gnss.fix_quality >= 1
+    first = int(np.flatnonzero(usable)[0])
+    return Dataset(
+        imu=imu,
+        gnss=gnss,
+        origin=Origin(*map(float, gnss.lla[first])),
+        odometer=result.odometer if imu is result.imu else None,
+        name=path.stem,
+        warnings=warnings,
+        metadata={"ubx_counts": result.counts, "imu_source": imu_from,
+                  "ubx_time_maps": [m.describe() for m in result.time_maps]},
+    )  # fmt: skip
+
+
+def read_ubx_gnss(path: str | Path, time_offset_s: float = 0.0) -> tuple[GnssData, list[str]]:
+    """The fixes of a UBX log (for ``fgins convert``) and the reader's warnings."""
+    result = read_ubx(path)
+    gnss = require_fix(result) if result.gnss is None else result.gnss
+    if time_offset_s:
+        gnss.t = gnss.t + time_offset_s
+    return gnss, result.warnings
+
+
+def convert_ubx_imu(path: str | Path, output: str | Path) -> str:
+    """``fgins convert LOG --imu -o imu.csv``: write the receiver's IMU; a one-line summary."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: no such file")
+    if not looks_like_ubx(path):
+        raise InputError(f"{path}: --imu needs a u-blox UBX log (no valid UBX frame found)")
+    if Path(output).suffix.lower() != ".csv":
+        raise InputError(f"{output}: --imu writes the imu.csv layout; give an output ending .csv")
+    result = read_ubx(path)
+    rows = write_ubx_imu_csv(result, output)
+    lines = [f"warning: {w}" for w in result.warnings]
+    lines.append(
+        f"wrote {rows} {result.imu_source} IMU samples ({result.imu.rate_hz:.1f} Hz, receiver "
+        f"IMU axes, rad/s and m/s^2, time POSIX UTC) to {output}"
+    )
     return "\n".join(lines)
