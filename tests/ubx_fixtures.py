@@ -76,10 +76,16 @@ def nav_hpposllh(t: float, lat: float, lon: float, height_m: float, h_acc_m: flo
     lat_main, lat_hp = split(round(lat * 1e9), 100)
     lon_main, lon_hp = split(round(lon * 1e9), 100)
     h_main, h_hp = split(round(height_m * 1e4), 10)
+    def nudge(count: int, unit: float) -> float:
+        # pyubx2 truncates value / scale: move a quarter unit away from zero so that it lands
+        # on the intended integer whatever the float rounding.
+        return (count + math.copysign(0.25, count)) * unit if count else 0.0
+
     return UBXMessage(
-        "NAV", "NAV-HPPOSLLH", GET, iTOW=itow, lat=lat_main * 1e-7, lon=lon_main * 1e-7,
-        _HPlat=lat_hp * 1e-9, _HPlon=lon_hp * 1e-9, height=h_main, _HPheight=h_hp * 0.1,
-        hMSL=h_main - 47000, hAcc=round(h_acc_m * 1000, 1), vAcc=round(v_acc_m * 1000, 1),
+        "NAV", "NAV-HPPOSLLH", GET, iTOW=itow, lat=nudge(lat_main, 1e-7),
+        lon=nudge(lon_main, 1e-7), _HPlat=nudge(lat_hp, 1e-9), _HPlon=nudge(lon_hp, 1e-9),
+        height=h_main, _HPheight=nudge(h_hp, 0.1), hMSL=h_main - 47000,
+        hAcc=nudge(round(h_acc_m * 1e4), 0.1), vAcc=nudge(round(v_acc_m * 1e4), 0.1),
     ).serialize()  # fmt: skip
 
 
