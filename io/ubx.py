@@ -66,6 +66,7 @@ from __future__ import annotations
 import calendar
 import math
 import re
+import struct
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -125,6 +126,13 @@ def _leap_from_table(gps_seconds: float) -> int:
 
 
 def _fletcher_ok(frame: bytes) -> bool:
+    """8-bit Fletcher checksum over class, id, length and payload (the last two bytes)."""
+    if len(frame) < 256:  # a plain loop beats numpy's call overhead on short frames
+        a = b = 0
+        for byte in frame[2:-2]:
+            a += byte
+            b += a
+        return (a & 0xFF) == frame[-2] and (b & 0xFF) == frame[-1]
     body = np.frombuffer(frame, dtype=np.uint8, count=len(frame) - 4, offset=2).astype(np.int64)
     ck_a = int(body.sum()) & 0xFF
     ck_b = int(np.dot(np.arange(len(body), 0, -1, dtype=np.int64), body)) & 0xFF
@@ -277,7 +285,7 @@ class _Scanner:
         self._last_itow: int | None = None
         self.index = 0  # running message index (all protocols)
         # ESF messages: (stream index, [(tag, type, value)], message tag)
-        self.esf_raw: list[tuple[int, list[tuple[int, int, int]]]] = []
+        self.esf_raw: list[tuple[int, bytes]] = []  # (stream index, data/sTag groups)
         self.esf_meas: list[tuple[int, int, list[tuple[int, int]]]] = []
         self.valid_leaps: list[int] = []
 
@@ -356,23 +364,23 @@ class _Scanner:
 
     # -- decoding --------------------------------------------------------------------------
     def _decode(self, frame: bytes) -> None:
-        from pyubx2 import UBX_MSGIDS, UBXReader
-
-        name = UBX_MSGIDS.get(frame[2:4], f"UBX-{frame[2]:02X}-{frame[3]:02X}")
+        msgids, reader = _pyubx2()
+        name = msgids.get(frame[2:4]) or f"UBX-{frame[2]:02X}-{frame[3]:02X}"
         self.counts[name] += 1
+        if name == "ESF-RAW":
+            self._esf_raw(frame)
+            return
+        if name == "ESF-MEAS":
+            self._esf_meas(frame)
+            return
         if name not in _DECODED:
             return
         try:
-            msg = UBXReader.parse(frame, validate=1, msgmode=0, parsebitfield=1)
+            msg = reader.parse(frame, validate=1, msgmode=0, parsebitfield=1)
         except Exception:  # pyubx2 raises several types for a payload it cannot lay out
             self.undecodable += 1
             return
-        if name == "ESF-RAW":
-            self._esf_raw(msg)
-        elif name == "ESF-MEAS":
-            self._esf_meas(msg)
-        else:
-            self._nav(name, msg)
+        self._nav(name, msg)
 
     def _nav(self, name: str, msg: object) -> None:
         itow = getattr(msg, "iTOW", None)
@@ -391,39 +399,55 @@ class _Scanner:
             self.epochs.append(epoch)
         epoch.msgs.setdefault(name, msg)
 
-    def _esf_raw(self, msg: object) -> None:
-        values: list[tuple[int, int, int]] = []
-        k = 1
-        while True:
-            data = getattr(msg, f"data_{k:02d}", None)
-            tag = getattr(msg, f"sTag_{k:02d}", None)
-            if data is None or tag is None:
-                break
-            data, tag = bytes(data), bytes(tag)
-            values.append(
-                (
-                    int.from_bytes(tag[:4], "little"),
-                    data[3] & 0x3F,
-                    int.from_bytes(data[:3], "little", signed=True),
-                )
-            )
-            k += 1
-        if values:
-            self.esf_raw.append((self.index, values))
+    # The ESF messages are the high-rate stream (one a sample or ten samples a message): their
+    # fixed u-blox layout is decoded here, vectorised later, because pyubx2 takes about 1 ms a
+    # message (an hour at 100 Hz would take minutes). The gpsd test checks these decodings
+    # against gpsd's, value by value, and the builder-made fixtures against pyubx2's layout.
+    def _esf_raw(self, frame: bytes) -> None:
+        # payload: reserved U4, then N x (data X4: bits 0-23 value, 24-29 type; sTag U4)
+        length = len(frame) - 8
+        if length < 4 or (length - 4) % 8:
+            self.undecodable += 1
+            return
+        if length > 4:
+            self.esf_raw.append((self.index, frame[10 : 6 + length]))
 
-    def _esf_meas(self, msg: object) -> None:
-        count = int(getattr(msg, "numMeas", 0))
-        values = []
-        for k in range(1, count + 1):
-            raw = getattr(msg, f"dataField_{k:02d}", None)
-            kind = getattr(msg, f"dataType_{k:02d}", None)
-            if raw is None or kind is None:
-                continue
-            raw = int(raw) & 0xFFFFFF
-            value = raw - (1 << 24) if raw & 0x800000 else raw  # 24-bit two's complement
-            values.append((int(kind), value if int(kind) not in TICK_TYPES else raw))
-        if values:
-            self.esf_meas.append((self.index, int(msg.timeTag), values))
+    def _esf_meas(self, frame: bytes) -> None:
+        # payload: timeTag U4, flags X2 (bit 3 calibTtagValid, bits 11-15 numMeas), id U2,
+        # numMeas x data X4, then calibTtag U4 when flagged
+        length = len(frame) - 8
+        if length < 8:
+            self.undecodable += 1
+            return
+        tag, flags = struct.unpack_from("<IH", frame, 6)
+        count = flags >> 11
+        expected = 8 + 4 * count + (4 if flags & 0x08 else 0)
+        if length not in (expected, 8 + 4 * count) or count == 0:
+            self.undecodable += 1
+            return
+        words = np.frombuffer(frame, dtype="<u4", count=count, offset=14).astype(np.int64)
+        kinds = (words >> 24) & 0x3F
+        values = _signed24(words & 0xFFFFFF)
+        values = np.where(np.isin(kinds, TICK_TYPES), words & 0xFFFFFF, values)
+        self.esf_meas.append((self.index, int(tag), list(zip(kinds.tolist(), values.tolist(),
+                                                             strict=True))))  # fmt: skip
+
+
+def _signed24(raw: np.ndarray) -> np.ndarray:
+    return ((raw & 0xFFFFFF) ^ 0x800000) - 0x800000
+
+
+_PYUBX2: tuple | None = None
+
+
+def _pyubx2() -> tuple:
+    """pyubx2's message-id table and reader, imported once, on first use."""
+    global _PYUBX2
+    if _PYUBX2 is None:
+        from pyubx2 import UBX_MSGIDS, UBXReader
+
+        _PYUBX2 = (UBX_MSGIDS, UBXReader)
+    return _PYUBX2
 
 
 # ----------------------------------------------------------------------------------------------
@@ -758,26 +782,50 @@ class _ImuRows:
 def _raw_rows(scanner: _Scanner) -> _ImuRows | None:
     if not scanner.esf_raw:
         return None
-    all_tags = [tag for _, values in scanner.esf_raw for tag, _, _ in values]
-    modulus = 1 << 24 if max(all_tags) < (1 << 24) else 1 << 32
-    flat_tags = _unwrap(np.array(all_tags), modulus)
-    i = 0
-    samples: dict[int, dict[int, int]] = {}
-    order: list[int] = []
-    msg_index, msg_last = [], []
-    for index, values in scanner.esf_raw:
-        last = None
-        for _, kind, value in values:
-            tag = int(flat_tags[i])
-            i += 1
-            if tag not in samples:
-                samples[tag] = {}
-                order.append(tag)
-            samples[tag].setdefault(kind, value)
-            last = tag if last is None else max(last, tag)
-        msg_index.append(index)
-        msg_last.append(last)
-    return _rows_from_samples(samples, order, np.array(msg_index), np.array(msg_last))
+    counts = np.array([len(groups) // 8 for _, groups in scanner.esf_raw])
+    words = np.frombuffer(b"".join(g for _, g in scanner.esf_raw), dtype="<u4").reshape(-1, 2)
+    words = words.astype(np.int64)
+    kinds = (words[:, 0] >> 24) & 0x3F
+    values = _signed24(words[:, 0])
+    modulus = 1 << 24 if int(words[:, 1].max()) < (1 << 24) else 1 << 32
+    tags = _unwrap(words[:, 1], modulus)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    msg_last = np.maximum.reduceat(tags, starts)
+    msg_index = np.array([index for index, _ in scanner.esf_raw])
+    unique, inverse = np.unique(tags, return_inverse=True)
+    table = np.full((len(unique), 64), np.nan)
+    # The first value of a type at a tag counts: assign in reverse so the first lands last.
+    table[inverse[::-1], kinds[::-1]] = values[::-1]
+    return _rows_from_table(unique.astype(float), table, msg_index, msg_last)
+
+
+def _rows_from_table(
+    tags: np.ndarray,
+    table: np.ndarray,
+    msg_index: np.ndarray,
+    msg_last: np.ndarray,
+    max_pair_gap: float = 0.0,
+    dropped: int = 0,
+) -> _ImuRows:
+    """Rows of (time tag, ESF data type 0..63) raw values -> IMU samples (NaN = absent)."""
+    imu_columns = table[:, [*GYRO_TYPES, *ACCEL_TYPES]]
+    present = np.isfinite(imu_columns)
+    complete = present.all(axis=1)
+    dropped += int((present.any(axis=1) & ~complete).sum())
+    speed_rows = np.isfinite(table[:, SPEED_TYPE])
+    return _ImuRows(
+        tags=tags[complete],
+        gyro=table[complete][:, list(GYRO_TYPES)] * GYRO_SCALE,
+        accel=table[complete][:, list(ACCEL_TYPES)] * ACCEL_SCALE,
+        temp=table[complete, TEMP_TYPE] * 1e-2,
+        speed_tags=tags[speed_rows],
+        speed=table[speed_rows, SPEED_TYPE] * 1e-3,
+        ticks=int(np.isfinite(table[:, list(TICK_TYPES)]).sum()),
+        dropped=dropped,
+        msg_index=np.asarray(msg_index),
+        msg_last_tag=np.asarray(msg_last),
+        max_pair_gap=max_pair_gap,
+    )
 
 
 def _rows_from_samples(
@@ -788,28 +836,12 @@ def _rows_from_samples(
     max_pair_gap: float = 0.0,
     dropped: int = 0,
 ) -> _ImuRows:
-    tags, gyro, accel, temp, speed_tags, speed = [], [], [], [], [], []
-    ticks = 0
-    for tag in order:
-        values = samples[tag]
-        ticks += sum(1 for k in values if k in TICK_TYPES)
-        if SPEED_TYPE in values:
-            speed_tags.append(tag)
-            speed.append(values[SPEED_TYPE] * 1e-3)
-        has_imu = [k in values for k in (*GYRO_TYPES, *ACCEL_TYPES)]
-        if all(has_imu):
-            tags.append(tag)
-            gyro.append([values[k] * GYRO_SCALE for k in GYRO_TYPES])
-            accel.append([values[k] * ACCEL_SCALE for k in ACCEL_TYPES])
-            temp.append(values[TEMP_TYPE] * 1e-2 if TEMP_TYPE in values else math.nan)
-        elif any(has_imu):
-            dropped += 1
-    return _ImuRows(
-        np.array(tags, dtype=float), np.array(gyro, dtype=float).reshape(-1, 3),
-        np.array(accel, dtype=float).reshape(-1, 3), np.array(temp, dtype=float),
-        np.array(speed_tags, dtype=float), np.array(speed, dtype=float), ticks, dropped,
-        msg_index, msg_last, max_pair_gap,
-    )  # fmt: skip
+    table = np.full((len(order), 64), np.nan)
+    for row, tag in enumerate(order):
+        for kind, value in samples[tag].items():
+            table[row, kind] = value
+    return _rows_from_table(np.array(order, dtype=float), table, msg_index, msg_last,
+                            max_pair_gap, dropped)  # fmt: skip
 
 
 def _meas_rows(scanner: _Scanner) -> _ImuRows | None:
