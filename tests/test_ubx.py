@@ -365,3 +365,21 @@ def test_fuzz_mutated_log(tmp_path, flips, cut, insert_at, insert):
         data[index] ^= mask
     data = data[:insert_at] + insert + data[insert_at:]
     _read_or_no_data(tmp_path, bytes(data[: cut + len(insert)]))
+
+
+def test_mcap_imu_beside_a_ubx_log(tmp_path):
+    """A UBX log with no IMU of its own plus an MCAP (rosbags-written) IMU on the same clock."""
+    from fgins.io.inputs import load_dataset
+    from fgins.tests.mcap_fixtures import T0_NS, make_drive, write_ros2_bag
+
+    drive = make_drive(duration_s=6.0)
+    bag = write_ros2_bag(tmp_path / "bag", drive)
+    t0 = T0_NS / 1e9
+    log = _write(tmp_path, b"".join(nav_pvt(t0 + k, LAT, LON, H) for k in range(6)), "gnss.ubx")
+    with pytest.raises(InputError, match="no IMU in"):
+        load_dataset([str(log)], progress=False)
+    dataset = load_dataset([str(log), str(bag)], progress=False)
+    assert dataset.metadata["imu_source"].endswith("(MCAP)")
+    np.testing.assert_allclose(dataset.imu.t, drive.imu_ns / 1e9, atol=1e-6)
+    np.testing.assert_allclose(dataset.imu.gyro, drive.gyro, atol=1e-12)
+    np.testing.assert_allclose(dataset.gnss.t, t0 + np.arange(6), atol=1e-6)
