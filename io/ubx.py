@@ -706,10 +706,18 @@ def _nmea_rows(
             t = t + midnight
     warnings.extend(f"NMEA sentences: {w}" for w in result.warnings)
     columns = gnss_columns(result.gnss)
+    # The UBX epoch of the same instant is better (sigmas, full precision): NMEA fixes only
+    # where no UBX epoch is within 0.5 ms (ubx_times is sorted).
+    covered = np.zeros(len(t), dtype=bool)
+    if ubx_times.size:
+        k = np.clip(np.searchsorted(ubx_times, t), 1, max(len(ubx_times) - 1, 1))
+        left = ubx_times[np.minimum(k - 1, len(ubx_times) - 1)]
+        right = ubx_times[np.minimum(k, len(ubx_times) - 1)]
+        covered = np.minimum(np.abs(t - left), np.abs(t - right)) < 5e-4
     rows = []
     for i, ti in enumerate(t):
-        if ubx_times.size and np.min(np.abs(ubx_times - ti)) < 5e-4:
-            continue  # the UBX epoch of the same instant is better (sigmas, full precision)
+        if covered[i]:
+            continue
         rows.append(
             [ti] + [float(columns[k][i]) for k in (
                 "lat", "lon", "alt", "vel_east", "vel_north", "vel_up",
@@ -875,9 +883,9 @@ def _meas_rows(scanner: _Scanner) -> _ImuRows | None:
         for (ta, a), (tg, g) in pairs:
             key = (ta + tg) // 2
             max_gap = max(max_gap, abs(ta - tg) * ESF_MEAS_TICK_S)
-            merged = samples.setdefault(key, {})
-            if key not in order:
+            if key not in samples:
                 order.append(key)
+            merged = samples.setdefault(key, {})
             for k, v in {**g, **a}.items():
                 merged.setdefault(k, v)
     order.sort()
