@@ -58,7 +58,9 @@ over ``MIN_FIT_SPAN_S`` the scale and offset are fitted by least squares, else t
 scale is kept and the offset is the median. The anchors' residuals are the check of the mapping
 against the fixes: their spread is reported (one NAV output latency, tens of ms, is the
 uncertainty of this mapping on real receivers), and a spread above ``ANCHOR_SPREAD_WARN_S``
-or a fitted scale far from nominal is reported as a warning.
+or a fitted scale far from nominal is reported as a warning. Tags that go back by more than
+``RESTART_BACKWARDS_S`` (a receiver restart, not a wrap) leave the IMU unused, with a warning:
+sorting would interleave two runs of the sensor clock.
 """
 
 from __future__ import annotations
@@ -85,6 +87,7 @@ MIN_FIT_ANCHORS = 5
 MIN_FIT_SPAN_S = 20.0
 ANCHOR_SPREAD_WARN_S = 0.15
 SCALE_WARN = 0.01  # fitted tick scale more than 1 % from nominal
+RESTART_BACKWARDS_S = 1.0  # sensor tags going back more than this (not a wrap): a restart
 HEAD_BYTES = 65536
 
 # GPS - UTC leap seconds from these UTC dates on (IERS bulletins; none announced after 2017).
@@ -284,7 +287,6 @@ class _Scanner:
         self._week_wraps = 0
         self._last_itow: int | None = None
         self.index = 0  # running message index (all protocols)
-        # ESF messages: (stream index, [(tag, type, value)], message tag)
         self.esf_raw: list[tuple[int, bytes]] = []  # (stream index, data/sTag groups)
         self.esf_meas: list[tuple[int, int, list[tuple[int, int]]]] = []
         self.valid_leaps: list[int] = []
@@ -1045,6 +1047,14 @@ def _attach_imu(result: UbxResult, scanner: _Scanner, anchors: list[tuple[int, f
             f"ESF-MEAS: accelerometer and gyro sent in separate messages, paired by nearest time "
             f"tag (largest tag difference {1e3 * rows.max_pair_gap:.0f} ms)"
         )
+    back = np.flatnonzero(np.diff(rows.msg_last_tag) * nominal < -RESTART_BACKWARDS_S)
+    if back.size:
+        # Sorting by tag would interleave two runs of the sensor clock: refuse, clearly.
+        result.warnings.append(
+            f"{source}: sensor time tags jump back {back.size} time(s) (first after message "
+            f"{int(back[0]) + 1}; a receiver restart?): IMU not used; split the log there"
+        )
+        return
     mapping = _time_map(source, rows.msg_index, rows.msg_last_tag, anchors, nominal)
     if mapping is None:
         result.warnings.append(

@@ -383,3 +383,12 @@ def test_mcap_imu_beside_a_ubx_log(tmp_path):
     np.testing.assert_allclose(dataset.imu.t, drive.imu_ns / 1e9, atol=1e-6)
     np.testing.assert_allclose(dataset.imu.gyro, drive.gyro, atol=1e-12)
     np.testing.assert_allclose(dataset.gnss.t, t0 + np.arange(6), atol=1e-6)
+
+
+def test_sensor_clock_restart_is_refused_not_interleaved(tmp_path):
+    tags = np.concatenate([256 * np.arange(500) + 5_000_000, 256 * np.arange(500) + 100])
+    n = len(tags)
+    data = _imu_log(tags, np.zeros((n, 3)), np.tile([0.0, 0.0, 9.8], (n, 1)), fixes_every=100)
+    result = read_ubx(_write(tmp_path, data))
+    assert result.imu is None and len(result.gnss) == 10
+    assert any("jump back" in w for w in result.warnings)
