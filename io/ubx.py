@@ -41,13 +41,13 @@ sensor frame, not rotated into the vehicle frame); fgins uses them as logged, li
 the IMU-to-vehicle rotation comes from the configuration. On the gpsd NEO-M8U log the z
 accelerometer reads +9.8 m/s^2 at rest: z points up out of the module.
 
-One IMU sample is one sensor time tag carrying all six of gyro x/y/z and accel x/y/z.
-ESF-RAW (preferred: the raw high-rate stream) tags each value; values sharing a tag form a
-sample, incomplete tags are counted and dropped. ESF-MEAS may send accelerometer and gyro in
-separate messages with different time tags: each accelerometer message is paired with the
-gyro message nearest in time tag when both are each other's nearest and closer than half the
-median message interval; the pair gets the mean of the two tags. Unpaired messages are
-dropped and counted; nothing is interpolated, so no sample is invented.
+One IMU sample is one sensor time tag carrying all six of gyro x/y/z and accel x/y/z; values
+sharing a tag (in one message or several) are merged. ESF-RAW is preferred (the raw high-rate
+stream) over ESF-MEAS. Either may send accelerometer and gyro with different time tags (ESF-MEAS
+in separate messages, 5 ms apart on the NEO-M8U): each accelerometer-only tag is paired with the
+gyro-only tag nearest to it when both are each other's nearest and closer than half the median
+tag interval; the pair gets the mean of the two tags. Unpaired or partial tags are dropped and
+counted; nothing is interpolated, so no sample is invented.
 
 Sensor time tags (ESF-RAW sTag: 24-bit counter wrapping at 2^24, nominally 1/25600 s;
 ESF-MEAS timeTag: 32-bit ms) are unwrapped and mapped linearly onto the GNSS time base with
@@ -789,6 +789,15 @@ class _ImuRows:
     max_pair_gap: float = 0.0
 
 
+def _table(tags: np.ndarray, kinds: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(unique tags, table of raw values by tag x ESF data type 0..63, NaN where absent)."""
+    unique, inverse = np.unique(tags, return_inverse=True)
+    table = np.full((len(unique), 64), np.nan)
+    # The first value of a type at a tag counts: assign in reverse so the first lands last.
+    table[inverse[::-1], kinds[::-1]] = values[::-1]
+    return unique.astype(float), table
+
+
 def _raw_rows(scanner: _Scanner) -> _ImuRows | None:
     if not scanner.esf_raw:
         return None
@@ -802,127 +811,86 @@ def _raw_rows(scanner: _Scanner) -> _ImuRows | None:
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
     msg_last = np.maximum.reduceat(tags, starts)
     msg_index = np.array([index for index, _ in scanner.esf_raw])
-    unique, inverse = np.unique(tags, return_inverse=True)
-    table = np.full((len(unique), 64), np.nan)
-    # The first value of a type at a tag counts: assign in reverse so the first lands last.
-    table[inverse[::-1], kinds[::-1]] = values[::-1]
-    return _rows_from_table(unique.astype(float), table, msg_index, msg_last)
+    unique, table = _table(tags, kinds, values)
+    return _rows_from_table(unique, table, msg_index, msg_last, ESF_RAW_TICK_S)
+
+
+def _meas_rows(scanner: _Scanner) -> _ImuRows | None:
+    if not scanner.esf_meas:
+        return None
+    msg_tags = _unwrap(np.array([tag for _, tag, _ in scanner.esf_meas]), 1 << 32)
+    msg_index = np.array([index for index, _, _ in scanner.esf_meas])
+    sizes = [len(values) for _, _, values in scanner.esf_meas]
+    pairs = np.array([kv for _, _, values in scanner.esf_meas for kv in values], dtype=np.int64)
+    tags = np.repeat(msg_tags, sizes)
+    unique, table = _table(tags, pairs[:, 0], pairs[:, 1])
+    return _rows_from_table(unique, table, msg_index, msg_tags.copy(), ESF_MEAS_TICK_S)
 
 
 def _rows_from_table(
-    tags: np.ndarray,
-    table: np.ndarray,
-    msg_index: np.ndarray,
-    msg_last: np.ndarray,
-    max_pair_gap: float = 0.0,
-    dropped: int = 0,
+    tags: np.ndarray, table: np.ndarray, msg_index: np.ndarray, msg_last: np.ndarray, tick_s: float
 ) -> _ImuRows:
-    """Rows of (time tag, ESF data type 0..63) raw values -> IMU samples (NaN = absent)."""
-    imu_columns = table[:, [*GYRO_TYPES, *ACCEL_TYPES]]
-    present = np.isfinite(imu_columns)
-    complete = present.all(axis=1)
-    dropped += int((present.any(axis=1) & ~complete).sum())
+    """Rows of (time tag, ESF data type) raw values -> IMU samples.
+
+    A tag with all six axes is a sample. Tags with only the gyro or only the accelerometer
+    (sent in separate messages) are paired, mutually nearest and closer than half the median
+    interval, at the mean tag; the rest are dropped and counted. Nothing is interpolated.
+    """
+    has_gyro = np.isfinite(table[:, list(GYRO_TYPES)]).all(axis=1)
+    has_accel = np.isfinite(table[:, list(ACCEL_TYPES)]).all(axis=1)
+    any_imu = np.isfinite(table[:, [*GYRO_TYPES, *ACCEL_TYPES]]).any(axis=1)
+    complete = has_gyro & has_accel
+    gyro_only = np.flatnonzero(has_gyro & ~has_accel)
+    accel_only = np.flatnonzero(has_accel & ~has_gyro)
+    ia, ig = _pair(tags[accel_only], tags[gyro_only])
+    ia, ig = accel_only[ia], gyro_only[ig]
+    merged = np.where(np.isfinite(table[ia]), table[ia], table[ig])
+    merged_tags = np.floor((tags[ia] + tags[ig]) / 2.0)
+    max_gap = float(np.max(np.abs(tags[ia] - tags[ig]))) * tick_s if len(ia) else 0.0
+    dropped = int((any_imu & ~complete).sum()) - 2 * len(ia)
+    imu_tags = np.concatenate([tags[complete], merged_tags])
+    imu = np.concatenate([table[complete], merged])
+    order = np.argsort(imu_tags, kind="stable")
+    imu_tags, imu = imu_tags[order], imu[order]
     speed_rows = np.isfinite(table[:, SPEED_TYPE])
     return _ImuRows(
-        tags=tags[complete],
-        gyro=table[complete][:, list(GYRO_TYPES)] * GYRO_SCALE,
-        accel=table[complete][:, list(ACCEL_TYPES)] * ACCEL_SCALE,
-        temp=table[complete, TEMP_TYPE] * 1e-2,
+        tags=imu_tags,
+        gyro=imu[:, list(GYRO_TYPES)] * GYRO_SCALE,
+        accel=imu[:, list(ACCEL_TYPES)] * ACCEL_SCALE,
+        temp=imu[:, TEMP_TYPE] * 1e-2,
         speed_tags=tags[speed_rows],
         speed=table[speed_rows, SPEED_TYPE] * 1e-3,
         ticks=int(np.isfinite(table[:, list(TICK_TYPES)]).sum()),
         dropped=dropped,
         msg_index=np.asarray(msg_index),
         msg_last_tag=np.asarray(msg_last),
-        max_pair_gap=max_pair_gap,
+        max_pair_gap=max_gap,
     )
 
 
-def _rows_from_samples(
-    samples: dict[int, dict[int, int]],
-    order: list[int],
-    msg_index: np.ndarray,
-    msg_last: np.ndarray,
-    max_pair_gap: float = 0.0,
-    dropped: int = 0,
-) -> _ImuRows:
-    table = np.full((len(order), 64), np.nan)
-    for row, tag in enumerate(order):
-        for kind, value in samples[tag].items():
-            table[row, kind] = value
-    return _rows_from_table(np.array(order, dtype=float), table, msg_index, msg_last,
-                            max_pair_gap, dropped)  # fmt: skip
-
-
-def _meas_rows(scanner: _Scanner) -> _ImuRows | None:
-    if not scanner.esf_meas:
-        return None
-    tags = _unwrap(np.array([tag for _, tag, _ in scanner.esf_meas]), 1 << 32)
-    msg_index = np.array([index for index, _, _ in scanner.esf_meas])
-    msg_last = tags.copy()
-    samples: dict[int, dict[int, int]] = {}
-    order: list[int] = []
-    accel_msgs, gyro_msgs = [], []
-    for (_, _, values), tag in zip(scanner.esf_meas, tags, strict=True):
-        kinds = dict(values)
-        has_g = all(k in kinds for k in GYRO_TYPES)
-        has_a = all(k in kinds for k in ACCEL_TYPES)
-        if (has_g and has_a) or not (has_g or has_a):
-            key = int(tag)
-            if key not in samples:
-                samples[key] = {}
-                order.append(key)
-            for k, v in kinds.items():
-                samples[key].setdefault(k, v)
-        elif has_a:
-            accel_msgs.append((int(tag), kinds))
-        else:
-            gyro_msgs.append((int(tag), kinds))
-    dropped = 0
-    max_gap = 0.0
-    if accel_msgs or gyro_msgs:
-        pairs, dropped = _pair(accel_msgs, gyro_msgs)
-        for (ta, a), (tg, g) in pairs:
-            key = (ta + tg) // 2
-            max_gap = max(max_gap, abs(ta - tg) * ESF_MEAS_TICK_S)
-            if key not in samples:
-                order.append(key)
-            merged = samples.setdefault(key, {})
-            for k, v in {**g, **a}.items():
-                merged.setdefault(k, v)
-    order.sort()
-    return _rows_from_samples(samples, order, msg_index, msg_last, max_gap, dropped)
-
-
-def _pair(
-    accel: list[tuple[int, dict[int, int]]], gyro: list[tuple[int, dict[int, int]]]
-) -> tuple[list, int]:
-    """Mutually nearest accel/gyro messages closer than half the median message interval."""
-    if not accel or not gyro:
-        return [], len(accel) + len(gyro)
-    ta = np.array([t for t, _ in accel], dtype=float)
-    tg = np.array([t for t, _ in gyro], dtype=float)
-    both = np.sort(np.concatenate([ta, tg]))
-    intervals = [np.diff(ta), np.diff(tg)]
-    period = float(np.median(np.concatenate([d[d > 0] for d in intervals] + [np.zeros(0)])))
-    limit = 0.5 * period if math.isfinite(period) and period > 0 else float(np.ptp(both) + 1)
+def _pair(ta: np.ndarray, tg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Indices of mutually nearest accel/gyro tags closer than half the median interval."""
+    empty = np.zeros(0, dtype=int)
+    if len(ta) == 0 or len(tg) == 0:
+        return empty, empty
+    steps = np.concatenate([np.diff(ta), np.diff(tg)])
+    steps = steps[steps > 0]
+    if steps.size == 0:
+        return empty, empty  # one message each: no interval to judge "nearest" by
+    limit = 0.5 * float(np.median(steps))
 
     def nearest(x: np.ndarray, ref: np.ndarray) -> np.ndarray:
-        k = np.clip(np.searchsorted(ref, x), 1, len(ref) - 1) if len(ref) > 1 else np.zeros(
-            len(x), dtype=int)  # fmt: skip
-        if len(ref) > 1:
-            left = k - 1
-            k = np.where(np.abs(ref[left] - x) <= np.abs(ref[k] - x), left, k)
-        return k
+        k = np.clip(np.searchsorted(ref, x), 1, max(len(ref) - 1, 1))
+        left = np.minimum(k - 1, len(ref) - 1)
+        right = np.minimum(k, len(ref) - 1)
+        return np.where(np.abs(ref[left] - x) <= np.abs(ref[right] - x), left, right)
 
     a_to_g = nearest(ta, tg)
     g_to_a = nearest(tg, ta)
-    pairs = []
-    for i, j in enumerate(a_to_g):
-        if g_to_a[j] == i and abs(ta[i] - tg[j]) < limit:
-            pairs.append((accel[i], gyro[j]))
-    dropped = len(accel) + len(gyro) - 2 * len(pairs)
-    return pairs, dropped
+    mutual = g_to_a[a_to_g] == np.arange(len(ta))
+    close = np.abs(ta - tg[a_to_g]) < limit
+    ia = np.flatnonzero(mutual & close)
+    return ia, a_to_g[ia]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -1032,9 +1000,9 @@ def _attach_imu(result: UbxResult, scanner: _Scanner, anchors: list[tuple[int, f
         if r is not None:
             result.wheel_ticks += r.ticks
             if r.dropped:
-                kind = "incomplete time tags" if stream == "ESF-RAW" else "unpaired messages"
-                result.warnings.append(f"{stream}: {r.dropped} {kind} without all six IMU "
-                                       "axes dropped (no sample interpolated)")  # fmt: skip
+                result.warnings.append(f"{stream}: {r.dropped} time tag(s) with only part of the "
+                                       "six IMU axes and no partner: dropped (no sample "
+                                       "interpolated)")  # fmt: skip
     if rows is None:
         return
     result.imu_source = source
@@ -1042,9 +1010,9 @@ def _attach_imu(result: UbxResult, scanner: _Scanner, anchors: list[tuple[int, f
     result.imu_temp = rows.temp
     result.imu_raw_gyro_deg_s = rows.gyro
     result.imu_raw_accel = rows.accel
-    if source == "ESF-MEAS" and rows.max_pair_gap > 0:
+    if rows.max_pair_gap > 0:
         result.warnings.append(
-            f"ESF-MEAS: accelerometer and gyro sent in separate messages, paired by nearest time "
+            f"{source}: accelerometer and gyro sent with separate time tags, paired by nearest time "
             f"tag (largest tag difference {1e3 * rows.max_pair_gap:.0f} ms)"
         )
     back = np.flatnonzero(np.diff(rows.msg_last_tag) * nominal < -RESTART_BACKWARDS_S)

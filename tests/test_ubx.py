@@ -206,7 +206,23 @@ def test_esf_raw_incomplete_tag_dropped(tmp_path):
     data += esf_raw([(256 * 50, {14: 1, 13: 2})])  # gyro x/y only
     result = read_ubx(_write(tmp_path, bytes(data)))
     assert len(result.imu) == 50
-    assert any("incomplete time tags" in w for w in result.warnings)
+    assert any("1 time tag(s) with only part of the six IMU axes" in w for w in result.warnings)
+
+
+def test_esf_raw_with_separate_accel_and_gyro_tags_is_paired(tmp_path):
+    n = 200
+    out = bytearray()
+    for k in range(n):
+        tag = 10_000 + 256 * k
+        out += esf_raw([(tag, {16: k, 17: 0, 18: 10_045}), (tag + 64, {14: -k, 13: 0, 5: 3})])
+        if k % 20 == 0:
+            out += nav_pvt(T0 + 0.01 * k, LAT, LON, H)
+    result = read_ubx(_write(tmp_path, bytes(out)))
+    assert len(result.imu) == n  # one sample per accel/gyro pair, none invented
+    np.testing.assert_array_equal(result.imu_tags, 10_000 + 256 * np.arange(n) + 32)
+    np.testing.assert_allclose(result.imu_raw_accel[:, 0], np.arange(n) * 2.0**-10)
+    np.testing.assert_allclose(result.imu_raw_gyro_deg_s[:, 0], -np.arange(n) * 2.0**-12)
+    assert any("paired by nearest time tag" in w for w in result.warnings)
 
 
 def test_esf_meas_pairing_and_wheel_speed(tmp_path):
@@ -228,7 +244,7 @@ def test_esf_meas_pairing_and_wheel_speed(tmp_path):
     k = (result.imu_tags - 4_999_997) // 100
     np.testing.assert_allclose(result.imu_raw_gyro_deg_s[:, 0], 4 * k * 2.0**-12)
     np.testing.assert_allclose(result.imu_temp, 25.0)
-    assert any("2 unpaired" in w or "1 unpaired" in w for w in result.warnings)
+    assert any("1 time tag(s) with only part" in w for w in result.warnings)  # accel 7
     np.testing.assert_allclose(result.odometer.speed, 12.345)
     assert len(result.odometer.t) == n
     # ESF-MEAS time tags are ms: 10 Hz, mapped onto the fixes' time.
