@@ -71,6 +71,7 @@ import re
 import struct
 from collections import Counter
 from dataclasses import dataclass, field
+from itertools import accumulate
 from pathlib import Path
 
 import numpy as np
@@ -130,16 +131,9 @@ def _leap_from_table(gps_seconds: float) -> int:
 
 def _fletcher_ok(frame: bytes) -> bool:
     """8-bit Fletcher checksum over class, id, length and payload (the last two bytes)."""
-    if len(frame) < 256:  # a plain loop beats numpy's call overhead on short frames
-        a = b = 0
-        for byte in frame[2:-2]:
-            a += byte
-            b += a
-        return (a & 0xFF) == frame[-2] and (b & 0xFF) == frame[-1]
-    body = np.frombuffer(frame, dtype=np.uint8, count=len(frame) - 4, offset=2).astype(np.int64)
-    ck_a = int(body.sum()) & 0xFF
-    ck_b = int(np.dot(np.arange(len(body), 0, -1, dtype=np.int64), body)) & 0xFF
-    return ck_a == frame[-2] and ck_b == frame[-1]
+    body = frame[2:-2]
+    # ck_a is the running sum, ck_b the sum of the running sums (both C loops here).
+    return (sum(body) & 0xFF) == frame[-2] and (sum(accumulate(body)) & 0xFF) == frame[-1]
 
 
 def _crc24q_table() -> list[int]:
