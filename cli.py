@@ -50,7 +50,7 @@ def build_parser() -> argparse.ArgumentParser:
     smooth = sub.add_parser("smooth", help="estimate the trajectory of a recorded drive")
     smooth.add_argument(
         "inputs", nargs="+", metavar="INPUT",
-        help="demo:kitti | FILE.mcap | NMEA + imu.csv | imu.csv gnss.csv | folder from 'fgins sim'",
+        help="demo:kitti | FILE.mcap | UBX log | NMEA + imu.csv | imu.csv gnss.csv | 'fgins sim' folder",
     )  # fmt: skip
     smooth.add_argument("--method", choices=METHODS, default="batch")
     smooth.add_argument(
@@ -141,6 +141,9 @@ def build_parser() -> argparse.ArgumentParser:
     convert.add_argument("input", type=Path)
     convert.add_argument("-o", "--output", type=Path, required=True)
     convert.add_argument("--time-offset", type=float, default=0.0)
+    convert.add_argument(
+        "--imu", action="store_true", help="UBX: write the receiver's IMU as imu.csv instead"
+    )
 
     inspect = sub.add_parser("inspect", help="summarise what a log (NMEA, MCAP, CSV) contains")
     inspect.add_argument("input", type=Path)
@@ -350,6 +353,12 @@ def cmd_fleet(args: argparse.Namespace) -> int:
 def cmd_convert(args: argparse.Namespace) -> int:
     from fgins.io.gnss_export import write_gnss
 
+    if args.imu:
+        from fgins.io.ubx import convert_ubx_imu
+
+        api.check_output(args.output, [args.input], suffixes=(".csv",), what="IMU output")
+        print(convert_ubx_imu(args.input, args.output), file=sys.stderr)
+        return 0
     api.check_output(args.output, [args.input], suffixes=GNSS_OUTPUT_SUFFIXES, what="GNSS output")
     gnss, warnings = _read_gnss_only(args.input, args.time_offset)
     if args.output.suffix.lower() == ".tum":
@@ -381,6 +390,10 @@ def _read_gnss_only(path: Path, time_offset: float):
 
         result = read_mcap(path, progress=False)
         return result.dataset.gnss, result.warnings
+    from fgins.io.ubx import looks_like_ubx, read_ubx_gnss
+
+    if looks_like_ubx(path):
+        return read_ubx_gnss(path, time_offset)
     from fgins.io.csv_pair import csv_kind, read_gnss_csv
 
     if path.suffix.lower() == ".csv" and csv_kind(path) == "gnss":
@@ -403,6 +416,11 @@ def cmd_inspect(args: argparse.Namespace) -> int:
         return 0
     if path.suffix.lower() == ".csv":
         print(_summarize_csv(path))
+        return 0
+    from fgins.io.ubx import looks_like_ubx, summarize_ubx
+
+    if looks_like_ubx(path):
+        print(summarize_ubx(path))
         return 0
     from fgins.io.nmea import summarize_nmea
 

@@ -1,9 +1,9 @@
 """Open whatever the user gave as INPUT... and return one checked :class:`Dataset`.
 
-``demo:kitti``; an MCAP file; an NMEA file plus an IMU CSV; the CSV pair ``imu.csv gnss.csv``
-(any order, recognised by header); or a folder written by ``fgins sim``. Readers only parse;
-every dataset then passes through the one input-validation layer
-(:func:`fgins.io.validate.validate_dataset`), here and nowhere else.
+``demo:kitti``; an MCAP file; a u-blox UBX log (alone, or with an imu.csv / MCAP IMU); an NMEA
+file plus an IMU CSV; the CSV pair ``imu.csv gnss.csv`` (any order, recognised by header); or
+a folder written by ``fgins sim``. Readers only parse; every dataset then passes through the
+one input-validation layer (:func:`fgins.io.validate.validate_dataset`), here and nowhere else.
 """
 
 from __future__ import annotations
@@ -16,6 +16,10 @@ NMEA_SUFFIXES = {".nmea", ".log", ".txt", ".gps", ".ubx_nmea"}
 
 
 def _looks_like_nmea(path: Path) -> bool:
+    from fgins.io.ubx import looks_like_ubx
+
+    if looks_like_ubx(path):  # UBX logs often carry NMEA sentences too: never read as NMEA
+        return False
     try:
         with path.open("rb") as handle:
             head = handle.read(4096)
@@ -77,6 +81,14 @@ def _parse(
         result = read_mcap(paths[0], imu_topic=imu_topic, gnss_topic=gnss_topic, progress=progress)
         result.dataset.metadata["mcap_report"] = result.report
         return result.dataset
+    from fgins.io.ubx import looks_like_ubx
+
+    ubx = [p for p in paths if p.is_file() and looks_like_ubx(p)]
+    if ubx:
+        from fgins.io.ubx import load_ubx_dataset
+
+        others = [p for p in paths if p not in ubx]
+        return load_ubx_dataset(ubx, others, imu_topic=imu_topic, progress=progress)
     nmea = [p for p in paths if p.is_file() and _looks_like_nmea(p)]
     if nmea:
         return _nmea_with_imu(nmea, [p for p in paths if p not in nmea], time_offset_s)
