@@ -396,6 +396,10 @@ def smooth(
     }
     # The raw fixes, for outputs that carry them beside the trajectory (MCAP).
     trajectory.info["source_gnss"] = dataset.gnss
+    # What the solver found doubtful (an inconsistent fit, a mounting the vehicle constraints
+    # contradict, unknown covariances) is said, never only stored.
+    for message in trajectory.info.get("fit_warnings", []):
+        warnings.warn(message, FginsWarning, stacklevel=2)
     return trajectory
 
 

@@ -177,9 +177,11 @@ def _report(dataset: Dataset, trajectory: Trajectory) -> None:
     for warning in dataset.warnings:
         print(f"warning: {warning}", file=sys.stderr)
     summary = trajectory.summary()
-    for key in ("gnss_gating", "gnss_rejected"):
+    for key in ("gnss_gating", "gnss_rejected", "imu_bias_model", "solver"):
         if key in summary:
             print(summary[key], file=sys.stderr)
+    for warning in summary.get("fit_warnings", []):
+        print(f"warning: {warning}", file=sys.stderr)
     if "odometer_scale_error" in summary:
         print(
             f"odometer scale-factor error: {100 * summary['odometer_scale_error']:+.2f} %",
@@ -465,7 +467,10 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        return COMMANDS[args.command](args)
+        with warnings.catch_warnings():
+            # The CLI prints every finding itself, as counted one-line `warning:`s.
+            warnings.simplefilter("ignore", api.FginsWarning)
+            return COMMANDS[args.command](args)
     except FginsError as exc:
         print(f"fgins: error: {exc}", file=sys.stderr)
         return 2

@@ -147,8 +147,8 @@ def initial_values(
         try:
             guess = initial_guess(problem.segments.times)
         except FginsError as exc:
-            problem.info.setdefault("notes", []).append(
-                f"initial guess filter failed ({exc}); dead reckoning used instead"
+            problem.info.setdefault("fit_warnings", []).append(
+                f"the initial-guess filter failed ({exc}); started from dead reckoning instead"
             )
     n = problem.n_keyframes
     if _usable_guess(guess, n):
@@ -262,7 +262,7 @@ def _vehicle_fit_report(problem: Problem, values: gtsam.Values) -> dict[str, obj
     out: dict[str, object] = {"nhc_normalised_rms": [float(r) for r in rms]}
     if np.max(rms) > NHC_FIT_WARN:
         lateral, vertical = np.sqrt(np.mean(residual**2, axis=0))
-        out.setdefault("warnings", []).append(
+        out.setdefault("fit_warnings", []).append(
             f"vehicle constraints fit poorly while moving: lateral/vertical velocity RMS "
             f"{lateral:.2f}/{vertical:.2f} m/s against sigmas "
             f"{problem.config.smoother.nhc_sigma_lateral_m_per_s:g}/"
@@ -295,18 +295,17 @@ def _solver_report(report: SolveReport) -> dict[str, object]:
         "chi2_per_dof": report.chi2_per_dof,
         "dof": report.dof,
         "fallback": report.fallback,
-        "warnings": warnings,
+        "fit_warnings": warnings,
     }
 
 
 def _merge_info(trajectory: Trajectory, *parts: dict[str, object]) -> None:
     for part in parts:
         part = dict(part)
-        warnings = part.pop("warnings", [])
+        warnings = part.pop("fit_warnings", [])
         trajectory.info.update(part)
         if warnings:
-            trajectory.info.setdefault("warnings", [])
-            trajectory.info["warnings"] = [*trajectory.info["warnings"], *warnings]
+            trajectory.info["fit_warnings"] = [*trajectory.info.get("fit_warnings", []), *warnings]
 
 
 # -- states, covariances, output --------------------------------------------------------------
@@ -411,7 +410,7 @@ def _covariance_report(covariances: dict[str, np.ndarray]) -> dict[str, object]:
         return {}
     return {
         "covariance_unknown_keyframes": int(bad.sum()),
-        "warnings": [
+        "fit_warnings": [
             f"position uncertainty could not be computed at {int(bad.sum())} of {len(bad)} "
             "keyframes (std_* is NaN there): the system is indeterminate there"
         ],
