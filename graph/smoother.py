@@ -65,6 +65,8 @@ ROUND_ITERATIONS = 15  # LM iterations per outer round while the linearisation s
 # solution is suspect (batch restarts from iSAM2) and reported as inconsistent.
 CHI2_SUSPECT = 10.0
 CHI2_WARN = 4.0
+# Beyond this the solution is not a fit of the data at all (diverged): an error, no output.
+CHI2_FAIL = 100.0
 
 
 @dataclass
@@ -87,10 +89,15 @@ class SolveReport:
         return 2.0 * self.final_error / max(self.dof, 1)
 
     def line(self) -> str:
+        steps = "updates" if self.solver.startswith("iSAM2") else "iterations"
+        error = (
+            f"error {self.final_error:.4g}"
+            if math.isnan(self.initial_error)
+            else f"error {self.initial_error:.4g} -> {self.final_error:.4g}"
+        )
         text = (
-            f"{self.solver}: {self.iterations} iterations in {self.rounds} round(s)"
-            f" ({self.repreintegrated} interval(s) re-preintegrated), error "
-            f"{self.initial_error:.4g} -> {self.final_error:.4g}, chi2/dof "
+            f"{self.solver}: {self.iterations} {steps}, {self.rounds} relinearisation round(s)"
+            f" ({self.repreintegrated} interval(s) re-preintegrated), {error}, chi2/dof "
             f"{self.chi2_per_dof:.2f} over {self.dof} dof"
         )
         if self.fallback:
@@ -540,6 +547,16 @@ def _finish(report: SolveReport, graph: gtsam.NonlinearFactorGraph, values: gtsa
     report.dof = _dof(graph, values)
 
 
+def _fail_if_diverged(report: SolveReport) -> None:
+    if report.chi2_per_dof > CHI2_FAIL:
+        other = "--method batch" if report.solver.startswith("iSAM2") else "--method isam2"
+        raise FginsError(
+            f"{report.solver} diverged: the solution does not fit the data (chi2/dof "
+            f"{report.chi2_per_dof:.3g}, ~1 expected); no output written. Try {other}, or "
+            "check the IMU preset and the axis and unit conventions of the IMU data"
+        )
+
+
 def _suspect(report: SolveReport) -> bool:
     return not report.converged or report.chi2_per_dof > CHI2_SUSPECT
 
@@ -592,6 +609,7 @@ def smooth_batch(
             report.repreintegrated += zupt_report.repreintegrated
             report.converged = zupt_report.converged
             _finish(report, graph, result)
+    _fail_if_diverged(report)
     if not report.converged:
         raise FginsError(
             f"batch: Levenberg-Marquardt did not converge ({report.iterations} iterations in "
@@ -803,6 +821,13 @@ def smooth_isam2(problem: Problem, progress: bool = True) -> tuple[Trajectory, T
     """One iSAM2 update per keyframe. Returns (final smoothed, online filtered) trajectories."""
     started = time.perf_counter()
     isam, result, online_values, online, report, update_s = _run_isam2(problem, progress)
+    if _suspect(report):
+        # Relinearising at every update follows a poor start (large biases) much better.
+        retry = _run_isam2(problem, progress, relinearize_skip=1)
+        if retry[4].final_error < report.final_error:
+            isam, result, online_values, online, report, update_s = retry
+            report.fallback = "relinearised at every update (the default schedule diverged)"
+    _fail_if_diverged(report)
     incremental = time.perf_counter()
     report.notes = []
     # Final marginals through one batch factorisation of the final graph: iSAM2's own
