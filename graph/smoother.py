@@ -54,13 +54,19 @@ LARGE_RESIDUAL_WHITENED = 4.03
 RELINEARIZE_SKIP = 10  # GTSAM's default: relinearisation checks every 10 updates
 # Re-preintegrate an interval when its bias estimate moved this far from the one it was
 # integrated about (GTSAM's bias correction is first order).
-REPREINTEGRATE_GYRO_RAD_S = 0.005
-REPREINTEGRATE_ACCEL_M_S2 = 0.1
+REPREINTEGRATE_GYRO_RAD_S = 0.01
+REPREINTEGRATE_ACCEL_M_S2 = 0.2
+# An outer round that changes the error by less than this (relative) has settled, whatever
+# small bias or attitude moves remain (they are then below what the data can resolve).
+SETTLED_RELATIVE_ERROR = 1e-5
 # The linearised vehicle constraints are rebuilt until no attitude moves more than this.
 RELINEARIZE_ATTITUDE_RAD = 1e-3
 RELINEARIZE_VELOCITY_M_S = 0.05
-MAX_OUTER_ROUNDS = 12
-ROUND_ITERATIONS = 15  # LM iterations per outer round while the linearisation still moves
+# While the linearisation still moves, every LM iteration is followed by a rebuild of the
+# linearised factors (vectorised, O(K)): the iterations then follow the exact Jacobians, as
+# with a nonlinear factor, and converge as fast. Once nothing moves LM gets its full budget.
+MAX_OUTER_ROUNDS = 60
+ROUND_ITERATIONS = 1
 # chi-square / dof of a fit whose noise model describes the data is ~1; far above, the
 # solution is suspect (batch restarts from iSAM2) and reported as inconsistent.
 CHI2_SUSPECT = 10.0
@@ -477,14 +483,21 @@ def _full_graph(
     return graph
 
 
-def _lm(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iterations: int):
+def _lm(
+    graph: gtsam.NonlinearFactorGraph,
+    initial: gtsam.Values,
+    max_iterations: int,
+    lambda_initial: float = 1e-5,
+):
+    """Levenberg-Marquardt; returns (result, iterations, final damping)."""
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(max_iterations)
     params.setRelativeErrorTol(1e-6)
     params.setAbsoluteErrorTol(1e-6)
+    params.setlambdaInitial(lambda_initial)
     optimizer = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
     result = optimizer.optimize()
-    return result, optimizer.iterations()
+    return result, optimizer.iterations(), optimizer.lambda_()
 
 
 def _linearisation_moved(problem: Problem, before: gtsam.Values, after: gtsam.Values) -> bool:
@@ -510,14 +523,16 @@ def _solve(
     has_linear = problem.config.smoother.nhc or problem.has_odometer
     nonlinear = _nonlinear_graph(problem, speeds)
     settled = False
+    previous_error = math.inf
+    damping = 1e-5  # carried across rounds: LM's trust region survives the rebuilds
     for _ in range(MAX_OUTER_ROUNDS):
         graph = _full_graph(problem, nonlinear, values)
         start_error = graph.error(values)
         _check_finite(start_error, "at the initial guess", report.solver)
         if math.isnan(report.initial_error):
             report.initial_error = start_error
-        budget = max_iterations if settled else ROUND_ITERATIONS
-        result, iterations = _lm(graph, values, budget)
+        budget = max_iterations if (settled or not has_linear) else ROUND_ITERATIONS
+        result, iterations, damping = _lm(graph, values, budget, damping)
         report.iterations += iterations
         report.rounds += 1
         end_error = graph.error(result)
@@ -531,9 +546,11 @@ def _solve(
         values = result
         if redone:
             nonlinear = _nonlinear_graph(problem, speeds)
+        steady = abs(previous_error - end_error) <= SETTLED_RELATIVE_ERROR * end_error
+        previous_error = end_error
+        if converged and (steady or (not redone and not moved)):
+            break
         if not redone and not moved:
-            if converged:
-                break
             settled = True  # only iterations are missing: give LM its full budget
     else:
         report.converged = False
