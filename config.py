@@ -529,6 +529,7 @@ def load_config(
     dataset_gnss: dict[str, Any] | None = None,
     imu_preset: str | None = None,
     dataset_name: str = "",
+    dataset_smoother: dict[str, Any] | None = None,
 ) -> RunConfig:
     """Merge (lowest first) the dataset's own settings, a TOML file and a CLI preset.
 
@@ -576,11 +577,13 @@ def load_config(
     }
     if "uere_m" in gnss_table:
         gnss_table["uere_m"] = {**DEFAULT_UERE_M, **gnss_table["uere_m"]}
+    # The data's own [smoother] settings (a sim folder's IMU mounting) under the user's.
+    data_smoother = check_table(data_where, "smoother", dataset_smoother, SMOOTHER_SCHEMA)
     smoother_table = check_table(file_where, "smoother", table.get("smoother"), SMOOTHER_SCHEMA)
     return RunConfig(
         imu=imu,
         gnss=GnssConfig(**gnss_table),
-        smoother=_checked_smoother(file_where, smoother_table),
+        smoother=_checked_smoother(file_where, {**data_smoother, **smoother_table}),
         explicit_smoother_keys=frozenset(smoother_table),
     )
 
@@ -616,6 +619,7 @@ def config_for_dataset(
         dataset_gnss=dataset.gnss_config,
         imu_preset=imu_preset,
         dataset_name=dataset.name,
+        dataset_smoother=dataset.smoother_config,
     )
     if vehicle is not None:
         check_vehicle("", vehicle, name="vehicle (--vehicle)")

@@ -270,6 +270,8 @@ class Dataset:
     name: str = ""
     imu_config: dict[str, object] = field(default_factory=dict)
     gnss_config: dict[str, object] = field(default_factory=dict)
+    # Smoother settings that come with the data (a sim folder's IMU mounting).
+    smoother_config: dict[str, object] = field(default_factory=dict)
     vehicle: str | None = None
     warnings: list[str] = field(default_factory=list)
     metadata: dict[str, object] = field(default_factory=dict)

@@ -329,6 +329,7 @@ def read_csv_dataset(paths: list[Path]) -> Dataset:
         name=name or by_kind.get("imu", by_kind.get("accel_array", Path())).parent.name,
         imu_config=dict(config.get("imu", {})),
         gnss_config=dict(config.get("gnss", {})),
+        smoother_config=dict(config.get("smoother", {})),
         vehicle=config.get("scenario", {}).get("vehicle"),
         warnings=warnings,
         accel_array=accel_array,
