@@ -61,9 +61,9 @@ def speed_factors(
             np.array([-residual[i]]), noise,
         )  # fmt: skip
         point = gtsam.Values()
-        point.insert(int(pose_keys[i]), poses[i])
-        point.insert(int(velocity_keys[i]), velocity[i])
-        point.insert(scale_key(), scale_error)
+        point.insert_or_assign(int(pose_keys[i]), poses[i])
+        point.insert_or_assign(int(velocity_keys[i]), velocity[i])
+        point.insert_or_assign(scale_key(), scale_error)
         out.append(gtsam.LinearContainerFactor(linear, point))
     return out
 

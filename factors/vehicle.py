@@ -68,8 +68,8 @@ def nhc_factors(
             -residual[i], gtsam.noiseModel.Diagonal.Sigmas(sigmas[i]),
         )  # fmt: skip
         point = gtsam.Values()
-        point.insert(int(pose_keys[i]), poses[i])
-        point.insert(int(velocity_keys[i]), velocity[i])
+        point.insert_or_assign(int(pose_keys[i]), poses[i])
+        point.insert_or_assign(int(velocity_keys[i]), velocity[i])
         out.append(gtsam.LinearContainerFactor(linear, point))
     return out
 

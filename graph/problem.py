@@ -229,14 +229,14 @@ class Problem:
         """Initial values of keyframe k's non-navigation states (barometer bias, odometer
         scale factor)."""
         if k == 0 and np.any(np.isfinite(self.odometer_speed)):
-            values.insert(odometer_model.scale_key(), 0.0)
+            values.insert_or_assign(odometer_model.scale_key(), 0.0)
         if self.has_baro:
             key = baro_model.baro_key(k)
             previous = baro_model.baro_key(k - 1) if k > 0 else None
             if estimate is not None and previous is not None and estimate.exists(previous):
-                values.insert(key, estimate.atDouble(previous))
+                values.insert_or_assign(key, estimate.atDouble(previous))
             else:
-                values.insert(key, self.baro_bias0)
+                values.insert_or_assign(key, self.baro_bias0)
 
     def gnss_whitened_residuals(self, values: gtsam.Values) -> tuple[np.ndarray, np.ndarray]:
         """(times, |whitened residual|) of every GNSS position factor at an estimate."""
