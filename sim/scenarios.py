@@ -676,3 +676,26 @@ SCENARIOS: dict[str, Callable[..., SimRun]] = {
     "highway": highway,
     "gyrofree-cube": gyrofree_cube,
 }
+
+# Scenarios that take the IMU options of IMU_OPTION_HELP.
+WITH_IMU_OPTIONS = ("aircraft-ekf", "car-urban", "highway")
+
+
+def scenario_list() -> str:
+    """The text of ``fgins sim list``: scenarios, then the ``--set`` options."""
+    lines = []
+    for name, function in SCENARIOS.items():
+        doc = (function.__doc__ or "").strip().splitlines()
+        lines.append(f"{name:18s} {doc[0] if doc else ''}")
+    lines.append("")
+    lines.append(f"--set KEY=VALUE options of {', '.join(WITH_IMU_OPTIONS)}:")
+    for key, text in IMU_OPTION_HELP.items():
+        lines.append(f"  {key:18s} {text}")
+    lines.append(
+        "  e.g. fgins sim car-urban -o DIR --set body_frame=frd --set mounting_rpy_deg=[20,-10,35]"
+    )
+    lines.append(
+        "Other options: gyrofree-cube grade, gnss_rate_hz, half_edge_m, rate_hz; uav-loop-baro "
+        "gnss_rate_hz; mems-car-pdop bias_start_s, bias_offset_m; aircraft-ekf outage_start_s."
+    )
+    return "\n".join(lines)
