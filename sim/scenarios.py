@@ -23,7 +23,7 @@ from fgins.datatypes import AccelArrayData, Dataset, ImuData, InputError, Origin
 from fgins.sim import motion
 from fgins.sim.baro import BaroModel, simulate_baro
 from fgins.sim.gnss import BiasedStretch, DopStretch, GnssModel, GnssTruthInput, simulate_gnss
-from fgins.sim.imu_errors import ImuErrorModel, apply_imu_errors
+from fgins.sim.imu_errors import ImuErrorModel, apply_imu_errors_in_axes
 from fgins.sim.strapdown import NavModel, exact_motion
 
 DEG = np.pi / 180.0
@@ -246,7 +246,11 @@ def simulate_run(
     exact = exact_motion(profile, nav, None if setup is None else setup.imu_axes())
     t = exact.t + start_time_s
     dt = float(profile.t[1] - profile.t[0])
-    gyro, accel, gyro_bias, accel_bias = apply_imu_errors(rng, exact.gyro, exact.accel, dt, errors)
+    # Errors drawn in the vehicle's FLU axes and rotated into the IMU's (isotropic model): the
+    # same seed is the same physical run in every body frame and mounting.
+    gyro, accel, gyro_bias, accel_bias = apply_imu_errors_in_axes(
+        rng, exact.gyro, exact.accel, dt, errors, None if setup is None else setup.imu_axes()
+    )
     truth = Trajectory(
         t=t,
         position=exact.position,
