@@ -328,6 +328,21 @@ def test_imu_axes_do_not_change_the_answer(rotation: str, method: str, tmp_path:
     )
 
 
+def test_sim_folder_mounting_reaches_the_run_config(tmp_path: Path) -> None:
+    """``fgins smooth DIR`` on a folder whose config.toml states the IMU mounting must use it
+    (today the folder reader keeps only [imu]/[gnss]/[origin]/[scenario], so the run silently
+    assumes no mounting); with write_mounting=false the folder states none."""
+    options = {"duration_s": 20.0, "mounting_rpy_deg": MOUNTING}
+    write_sim_dir(SCENARIOS["car-urban"](seed=0, **options), tmp_path / "with")
+    config = config_for_dataset(load_dataset([str(tmp_path / "with")]))
+    assert tuple(config.smoother.imu_to_vehicle_rpy_deg) == (20.0, -10.0, 35.0)
+    write_sim_dir(
+        SCENARIOS["car-urban"](seed=0, write_mounting=False, **options), tmp_path / "without"
+    )
+    config = config_for_dataset(load_dataset([str(tmp_path / "without")]))
+    assert tuple(config.smoother.imu_to_vehicle_rpy_deg) == (0.0, 0.0, 0.0)
+
+
 def row(name: str, result: dict[str, Any]) -> str:
     r = result
     return (
