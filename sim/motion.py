@@ -129,28 +129,29 @@ def build_profile(
     pitch = np.zeros(n)
     start, index = 0.0, 0
     current_speed, current_pitch = float(initial_speed), 0.0
+    # t is sorted: each segment is a slice (O(segment) work, not O(N) per segment, so a long
+    # drive of many segments stays linear); the samples after the last segment keep its end.
+    tail = 0
     while start < t[-1]:
         seg = segments[index % len(segments)]
         index += 1
         if seg.duration_s <= 0:
             continue
         end = start + seg.duration_s
-        inside = (t >= start) & (t < end)
-        after = t >= end
+        inside = slice(int(np.searchsorted(t, start)), int(np.searchsorted(t, end)))
+        tail = inside.stop
         u = (t[inside] - start) / seg.duration_s
         if seg.speed_end is not None:
             speed[inside] = current_speed + (seg.speed_end - current_speed) * _smooth_step(u)
             current_speed = seg.speed_end
         else:
             speed[inside] = current_speed
-        speed[after] = current_speed
         if seg.pitch_end_deg is not None:
             target = np.radians(seg.pitch_end_deg)
             pitch[inside] = current_pitch + (target - current_pitch) * _smooth_step(u)
             current_pitch = target
         else:
             pitch[inside] = current_pitch
-        pitch[after] = current_pitch
         if seg.radius_m is not None:
             yaw_rate[inside] = speed[inside] / seg.radius_m
         elif seg.turn_deg:
@@ -159,6 +160,8 @@ def build_profile(
                 np.radians(seg.turn_deg) / seg.duration_s * (1.0 - np.cos(2.0 * np.pi * u))
             )
         start = end
+    speed[tail:] = current_speed
+    pitch[tail:] = current_pitch
     if np.any(speed < 0):
         raise InputError("profile: a segment asks for a negative speed")
     yaw = np.radians(90.0 - initial_heading_deg) + np.concatenate(

@@ -97,8 +97,12 @@ def exact_motion(
     r_k, r_next = rotation[:-1], rotation[1:]
     v_k, v_next = velocity[:-1], velocity[1:]
     r_k_t = np.swapaxes(r_k, -1, -2)
-    # Body rate relative to the navigation frame that takes R_k exactly onto R_k+1.
-    w_nb = rotation_log(r_k_t @ r_next) / dt
+    # Body rate relative to the navigation frame that takes R_k exactly onto R_k+1 (in
+    # blocks: the (N, 3, 3) temporaries of the log stay small on hour-long drives).
+    w_nb = np.empty((len(r_k), 3))
+    block = 100_000
+    for i in range(0, len(r_k), block):
+        w_nb[i : i + block] = rotation_log(r_k_t[i : i + block] @ r_next[i : i + block]) / dt
     gyro = w_nb + r_k_t @ nav.earth_rate
     a_n = (v_next - v_k) / dt
     specific_force_n = a_n - nav.gravity + 2.0 * np.cross(nav.earth_rate, v_k)
