@@ -38,7 +38,7 @@ IMU_OPTION_HELP = {
     "grade": f"IMU grade / preset: {' | '.join(GRADES)}",
     "body_frame": "IMU axes: flu (x fwd, y left, z up; default) | frd (x fwd, y right, z down)",
     "mounting_rpy_deg": "IMU orientation in the vehicle, [roll,pitch,yaw] ZYX, default [0,0,0]",
-    "write_mounting": "write the mounting into config.toml [smoother] (default true)",
+    "write_mounting": "write the IMU orientation (frd and/or mounting) to config.toml [smoother]",
     "bias_model": "random_walk (preset densities) | constant (turn-on bias, instability 0)",
     "gnss_velocity": "GNSS velocity output (default true)",
 }
@@ -143,12 +143,15 @@ def _option_float(name: str, value: Any, low: float, high: float) -> float:
 class ImuSetup:
     """How the simulated IMU is sampled, oriented and corrupted.
 
-    Frames: the motion profile moves the *vehicle*, whose axes follow ``body_frame`` (flu: x
-    forward, y left, z up; frd: x forward, y right, z down). ``mounting_rpy_deg`` is the IMU's
-    orientation in the vehicle (roll, pitch, yaw; ZYX: R_vehicle_imu = Rz(yaw) Ry(pitch)
-    Rx(roll) maps IMU-axis vectors into vehicle axes). The IMU samples, the truth attitude
-    and the GNSS lever arm are all expressed in the IMU's own axes; the truth attitude is the
-    IMU body's attitude in ENU (not the vehicle's).
+    Frames: the motion profile moves the *vehicle* (x forward, y left, z up, as in
+    fgins.mounting). ``body_frame`` is the IMU's base axis convention (flu, or frd: x forward,
+    y right, z down) and ``mounting_rpy_deg`` its rotation from those base axes (roll, pitch,
+    yaw; ZYX: Rz(yaw) Ry(pitch) Rx(roll) maps IMU-axis vectors into base axes). The IMU's
+    orientation in the vehicle is F R(mounting) (F = diag(1, -1, -1) for frd), written to
+    ``[smoother] imu_to_vehicle_rpy_deg`` (an FRD IMU alone: [180, 0, 0]; FLU with a
+    mounting: the mounting itself). The IMU samples, the truth attitude and the GNSS lever
+    arm are all expressed in the IMU's own axes; the truth attitude is the IMU body's
+    attitude in ENU (not the vehicle's).
     """
 
     rate_hz: float = 100.0
@@ -197,6 +200,23 @@ class ImuSetup:
     @property
     def mounted(self) -> bool:
         return any(a != 0.0 for a in self.mounting_rpy_deg)
+
+    def imu_to_vehicle_rpy_deg(self) -> tuple[float, float, float]:
+        """The IMU's orientation in the FLU vehicle frame (fgins.mounting's convention) as
+        [roll, pitch, yaw] deg: F R_vehicle_imu, so an FRD IMU alone is roll 180."""
+        r = self.imu_axes()
+        pitch = -np.arcsin(np.clip(r[2, 0], -1.0, 1.0))
+        if abs(r[2, 0]) > 1.0 - 1e-12:  # gimbal lock: put it all into yaw
+            roll, yaw = 0.0, np.arctan2(-r[0, 1], r[1, 1])
+        else:
+            roll, yaw = np.arctan2(r[2, 1], r[2, 2]), np.arctan2(r[1, 0], r[0, 0])
+        angles = np.round(np.degrees([roll, pitch, yaw]), 9) + 0.0  # no -0.0
+        return float(angles[0]), float(angles[1]), float(angles[2])
+
+    @property
+    def rotated(self) -> bool:
+        """The IMU's axes differ from the FLU vehicle's (a mounting must be stated)."""
+        return self.body_frame != "flu" or self.mounted
 
 
 def _check_options(name: str, options: dict[str, Any], allowed: set[str]) -> None:
@@ -274,8 +294,8 @@ def simulate_run(
     info: dict[str, Any] = {"gnss": gnss_info, "turns": profile.turns()}
     if setup is not None:
         info["setup"] = setup
-        if setup.mounted and setup.write_mounting:
-            config["smoother"] = {"imu_to_vehicle_rpy_deg": list(setup.mounting_rpy_deg)}
+        if setup.rotated and setup.write_mounting:
+            config["smoother"] = {"imu_to_vehicle_rpy_deg": list(setup.imu_to_vehicle_rpy_deg())}
     if baro_model is not None:
         baro, baro_bias = simulate_baro(rng, t, exact.position[:, 2] + origin.alt, baro_model)
         config["baro"] = baro_model.config_table()
@@ -366,8 +386,12 @@ def _setup_description(setup: ImuSetup) -> str:
     if setup.body_frame != "flu":
         parts.append(f"IMU axes {setup.body_frame.upper()}")
     if setup.mounted:
+        parts.append(f"IMU mounted at rpy {list(setup.mounting_rpy_deg)} deg")
+    if setup.rotated:
         where = "in config.toml" if setup.write_mounting else "NOT written to config.toml"
-        parts.append(f"IMU mounted at rpy {list(setup.mounting_rpy_deg)} deg ({where})")
+        parts.append(
+            f"IMU orientation in the vehicle {list(setup.imu_to_vehicle_rpy_deg())} deg ({where})"
+        )
     parts.append(f"bias model {setup.bias_model}")
     if not setup.gnss_velocity:
         parts.append("no GNSS velocity")

@@ -427,7 +427,21 @@ def test_frd_and_mounting_are_the_flu_samples_rotated() -> None:
     assert np.allclose(r_vi @ lever_mounted, lever_flat, atol=1e-12)
     assert frd.config["gnss"]["lever_arm_m"] == [0.0, 0.0, -1.5]
     assert mounted.config["smoother"] == {"imu_to_vehicle_rpy_deg": [20.0, -10.0, 35.0]}
-    assert "smoother" not in flat.config and "smoother" not in frd.config
+    # The vehicle frame is FLU (fgins.mounting): an FRD IMU is stated as roll 180.
+    assert frd.config["smoother"] == {"imu_to_vehicle_rpy_deg": [180.0, 0.0, 0.0]}
+    assert "smoother" not in flat.config and "smoother" not in base.config
+
+
+@pytest.mark.parametrize("mounting", [(20, -10, 35), (0, 0, 90), (180, 0, -30), (5, 89.9, 10)])
+def test_written_orientation_is_the_imu_axes_in_the_flu_vehicle(mounting) -> None:
+    """FRD plus a mounting: the [smoother] angles, turned into R_vi by GTSAM's Ypr, are
+    F R(mounting), and the truth is R_n_vehicle R_vi."""
+    options = {"duration_s": 20.0, "body_frame": "frd", "mounting_rpy_deg": list(mounting)}
+    run = SCENARIOS["car-urban"](seed=0, **options)
+    flat = SCENARIOS["car-urban"](seed=0, duration_s=20.0)
+    written = _ypr(*run.config["smoother"]["imu_to_vehicle_rpy_deg"])
+    assert np.allclose(written, FRD @ _ypr(*mounting), atol=1e-9)
+    assert np.allclose(run.truth.rotation, flat.truth.rotation @ written, atol=1e-9)
 
 
 @pytest.mark.parametrize(
@@ -472,7 +486,9 @@ def test_written_imu_integrates_to_written_truth(tmp_path: Path) -> None:
     assert np.abs(vel - truth.velocity).max() < 0.01
     assert max(_angle(a, b) for a, b in zip(rot[::100], truth.rotation[::100], strict=True)) < 3e-4
     table = tomllib.loads((tmp_path / "drive" / "config.toml").read_text())
-    assert table["smoother"]["imu_to_vehicle_rpy_deg"] == [20.0, -10.0, 35.0]
+    assert np.allclose(
+        _ypr(*table["smoother"]["imu_to_vehicle_rpy_deg"]), FRD @ _ypr(20, -10, 35), atol=1e-9
+    )
     assert table["scenario"]["body_frame"] == "frd"
     assert table["scenario"]["turns"][0][0] == pytest.approx(37.0, abs=1.0)
 
