@@ -272,12 +272,10 @@ def cmd_demo(args: argparse.Namespace) -> int:
 def cmd_sim(args: argparse.Namespace) -> int:
     if args.scenario == "list":
         try:
-            from fgins.sim.scenarios import SCENARIOS
+            from fgins.sim.scenarios import scenario_list
         except ImportError:
             raise FginsError("the simulator is not available in this build") from None
-        for name, function in SCENARIOS.items():
-            doc = (function.__doc__ or "").strip().splitlines()
-            print(f"{name:18s} {doc[0] if doc else ''}")
+        print(scenario_list())
         return 0
     if args.output_dir is None:
         raise FginsError("fgins sim: -o DIR is required")

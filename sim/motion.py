@@ -47,6 +47,7 @@ class MotionProfile:
     pitch: np.ndarray
     roll: np.ndarray
     vehicle: str
+    yaw_rate: np.ndarray | None = None  # rad/s, ENU yaw rate as commanded (None: not known)
 
     def __len__(self) -> int:
         return int(self.t.shape[0])
@@ -54,6 +55,21 @@ class MotionProfile:
     def rotation(self) -> np.ndarray:
         """Body-to-ENU rotations (N, 3, 3): R = Rz(yaw) Ry(-pitch) Rx(roll)."""
         return euler_to_rotation(self.roll, self.pitch, self.yaw)
+
+    def turns(
+        self, min_rate_deg_per_s: float = 0.5, min_duration_s: float = 2.0
+    ) -> list[tuple[float, float]]:
+        """Windows (start, end) in profile time where |yaw rate| exceeds ``min_rate_deg_per_s``
+        for at least ``min_duration_s``: where outages in turns should be placed."""
+        rate = self.yaw_rate if self.yaw_rate is not None else np.gradient(self.yaw, self.t)
+        turning = np.abs(rate) > np.radians(min_rate_deg_per_s)
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], turning.astype(np.int8), [0]])))
+        windows = []
+        for a, b in zip(edges[::2], edges[1::2], strict=True):
+            start, end = float(self.t[a]), float(self.t[b - 1])
+            if end - start >= min_duration_s:
+                windows.append((start, end))
+        return windows
 
     def velocity(self) -> np.ndarray:
         """ENU velocity (N, 3): speed along the body x axis."""
@@ -113,28 +129,29 @@ def build_profile(
     pitch = np.zeros(n)
     start, index = 0.0, 0
     current_speed, current_pitch = float(initial_speed), 0.0
+    # t is sorted: each segment is a slice (O(segment) work, not O(N) per segment, so a long
+    # drive of many segments stays linear); the samples after the last segment keep its end.
+    tail = 0
     while start < t[-1]:
         seg = segments[index % len(segments)]
         index += 1
         if seg.duration_s <= 0:
             continue
         end = start + seg.duration_s
-        inside = (t >= start) & (t < end)
-        after = t >= end
+        inside = slice(int(np.searchsorted(t, start)), int(np.searchsorted(t, end)))
+        tail = inside.stop
         u = (t[inside] - start) / seg.duration_s
         if seg.speed_end is not None:
             speed[inside] = current_speed + (seg.speed_end - current_speed) * _smooth_step(u)
             current_speed = seg.speed_end
         else:
             speed[inside] = current_speed
-        speed[after] = current_speed
         if seg.pitch_end_deg is not None:
             target = np.radians(seg.pitch_end_deg)
             pitch[inside] = current_pitch + (target - current_pitch) * _smooth_step(u)
             current_pitch = target
         else:
             pitch[inside] = current_pitch
-        pitch[after] = current_pitch
         if seg.radius_m is not None:
             yaw_rate[inside] = speed[inside] / seg.radius_m
         elif seg.turn_deg:
@@ -143,6 +160,8 @@ def build_profile(
                 np.radians(seg.turn_deg) / seg.duration_s * (1.0 - np.cos(2.0 * np.pi * u))
             )
         start = end
+    speed[tail:] = current_speed
+    pitch[tail:] = current_pitch
     if np.any(speed < 0):
         raise InputError("profile: a segment asks for a negative speed")
     yaw = np.radians(90.0 - initial_heading_deg) + np.concatenate(
@@ -151,7 +170,9 @@ def build_profile(
     roll = np.zeros(n)
     if coordinated_turns:
         roll = -np.arctan(speed * yaw_rate / STANDARD_GRAVITY)
-    return MotionProfile(t=t, speed=speed, yaw=yaw, pitch=pitch, roll=roll, vehicle=vehicle)
+    return MotionProfile(
+        t=t, speed=speed, yaw=yaw, pitch=pitch, roll=roll, vehicle=vehicle, yaw_rate=yaw_rate
+    )
 
 
 # --- ready-made profiles -------------------------------------------------------------------
