@@ -579,7 +579,18 @@ def summary(trajectory: Trajectory) -> dict[str, Any]:
             value = value.item()
         if _plain(value):
             out[key] = value
-    out["timings"] = {k: float(v) for k, v in trajectory.timings.items()}
+    out["timings"] = {
+        k: float(v) for k, v in trajectory.timings.items() if isinstance(v, (int, float))
+    }
+    for k, v in trajectory.timings.items():
+        if isinstance(v, (list, tuple, np.ndarray)) and len(v):
+            # Per-step latencies (iSAM2's per-keyframe update) as their distribution.
+            ms = 1e3 * np.asarray(v, dtype=float)
+            out["timings"][f"{k.removesuffix('_s')}_ms"] = {
+                "p50": float(np.percentile(ms, 50)),
+                "p99": float(np.percentile(ms, 99)),
+                "max": float(ms.max()),
+            }
     return out
 
 
