@@ -58,9 +58,9 @@ def read_kitti(folder: Path | None = None) -> Dataset:
 
     Same as ``load_dataset(["demo:kitti"])`` for the built-in files.
     """
-    from fgins.io.inputs import validated
+    from fgins.io.validate import validate_dataset
 
-    return validated(parse_kitti(folder))
+    return validate_dataset(parse_kitti(folder))
 
 
 def parse_kitti(folder: Path | None = None) -> Dataset:

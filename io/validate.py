@@ -51,6 +51,11 @@ TURN_MIN_WINDOWS = 1  # ratio > 8 needs > 4 rad of gyro rotation in one window: 
 # Without turns: the gyro integrated over a window of straight driving stays below this
 # (biases of 1 deg/s and body oscillations give ~0.2 rad in 10 s; deg/s values give rad-sized).
 STRAIGHT_MAX_ROTATION_RAD = 1.5
+# At rest a gyro reads its bias plus Earth rate: 0.2 rad/s (11 deg/s) is beyond any real gyro
+# bias (consumer MEMS: < 5 deg/s), while a 0.2-deg/s bias read as rad/s is exactly this.
+GYRO_REST_MAX_RAD_PER_S = 0.2
+REST_ACCEL_STD_M_S2 = 0.05
+REST_ACCEL_NORM_TOL_M_S2 = 0.3
 STRAIGHT_MIN_WINDOWS = 10
 G = 9.80665
 ACCEL_G_RANGE = (0.5, 2.0)  # a median specific-force norm here is g, not m/s^2
@@ -345,6 +350,14 @@ def _check_units(imu, gnss: GnssData, origin: Origin, *, has_accel_array: bool) 
             f"(no vehicle turns at {routine:.0f} rad/s routinely); multiply gyro_x, gyro_y, "
             f"gyro_z by pi/180 = {math.pi / 180:.6f}"
         )
+    at_rest = _gyro_at_rest(imu)
+    if at_rest > GYRO_REST_MAX_RAD_PER_S:
+        raise InputError(
+            f"imu: the gyro looks like deg/s, not rad/s: it reads {at_rest:.2f} while the "
+            f"accelerometer shows the IMU at rest (a bias of {math.degrees(at_rest):.0f} deg/s, "
+            f"far beyond any gyro's); multiply gyro_x, gyro_y, gyro_z by "
+            f"pi/180 = {math.pi / 180:.6f}"
+        )
     ratio, turns = _gyro_turn_ratio(imu, gnss, origin)
     if turns >= TURN_MIN_WINDOWS and ratio > GYRO_TURN_RATIO_MAX:
         raise InputError(
@@ -353,6 +366,24 @@ def _check_units(imu, gnss: GnssData, origin: Origin, *, has_accel_array: bool) 
             f"(57.3 for deg/s, ~1 for rad/s); multiply gyro_x, gyro_y, gyro_z by "
             f"pi/180 = {math.pi / 180:.6f}"
         )
+
+
+def _gyro_at_rest(imu, window_s: float = 1.0) -> float:
+    """Median gyro-rate norm over 1-s windows where the accelerometer shows rest (steady
+    specific force of ~g): the gyro bias plus Earth rate (NaN-free 0.0 when never at rest)."""
+    rate = 1.0 / float(np.median(np.diff(imu.t)))
+    n = max(int(round(window_s * rate)), 5)
+    blocks = len(imu.t) // n
+    if blocks == 0:
+        return 0.0
+    accel = imu.accel[: blocks * n].reshape(blocks, n, 3)
+    gyro = imu.gyro[: blocks * n].reshape(blocks, n, 3)
+    steady = np.all(accel.std(axis=1) < REST_ACCEL_STD_M_S2, axis=1)
+    level = np.abs(np.linalg.norm(accel.mean(axis=1), axis=1) - G) < REST_ACCEL_NORM_TOL_M_S2
+    rest = steady & level
+    if rest.sum() < 3:
+        return 0.0
+    return float(np.median(np.linalg.norm(gyro[rest].mean(axis=1), axis=1)))
 
 
 def _gyro_turn_ratio(imu, gnss: GnssData, origin: Origin) -> tuple[float, int]:

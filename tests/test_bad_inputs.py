@@ -8,7 +8,6 @@ no output file for an error, and every input byte-identical afterwards. For an e
 must not run at all: ``run_method`` is replaced by one that fails the test, so an error
 raised only after the solve (the old ``-o somefile.csv/out.csv`` behaviour) is caught.
 
-Cases whose fix lives on another branch are marked xfail (non-strict) until that is merged.
 """
 
 from __future__ import annotations
@@ -28,7 +27,6 @@ import pytest
 from fgins import cli, pipeline
 
 DURATION_S = 20.0
-OTHER_BRANCH = pytest.mark.xfail(reason="fixed on branch validate/api", strict=False)
 
 
 @pytest.fixture(scope="module")
@@ -324,12 +322,10 @@ OUTPUT_CASES = [
             out="{tmp}/somefile.csv/out.csv",
             extra_files={"somefile.csv": b"not a folder\n"},
         ),
-        marks=OTHER_BRANCH,
         id="output-under-a-file",
     ),
     pytest.param(
         Case("output-is-the-input", SMOOTH, r"imu\.csv", out="{drive}/imu.csv"),
-        marks=OTHER_BRANCH,
         id="output-is-the-input",
     ),
     pytest.param(
@@ -339,7 +335,6 @@ OUTPUT_CASES = [
             r"gnss\.csv",
             out="{drive}/gnss.csv",
         ),
-        marks=OTHER_BRANCH,
         id="output-is-the-input-pair",
     ),
     Case("output-bad-suffix", SMOOTH, r"output format must be one of", out="{tmp}/out.txt"),
@@ -354,7 +349,6 @@ DATA_CASES = [
             edit_gnss=_set_fix("lat", 91.0),
             warning_ok=True,
         ),
-        marks=OTHER_BRANCH,
         id="latitude-91",
     ),
     pytest.param(
@@ -365,7 +359,6 @@ DATA_CASES = [
             edit_gnss=_set_fix("alt", 1e7),
             warning_ok=True,
         ),
-        marks=OTHER_BRANCH,
         id="altitude-1e7",
     ),
     pytest.param(
@@ -375,7 +368,6 @@ DATA_CASES = [
             r"deg/s",
             edit_imu=_scale_imu(("gyro_x", "gyro_y", "gyro_z"), 180.0 / math.pi),
         ),
-        marks=OTHER_BRANCH,
         id="gyro-in-deg-per-s",
     ),
     pytest.param(
@@ -385,7 +377,6 @@ DATA_CASES = [
             r"\bg\b|units? of g|in g",
             edit_imu=_scale_imu(("accel_x", "accel_y", "accel_z"), 1.0 / 9.80665),
         ),
-        marks=OTHER_BRANCH,
         id="accel-in-g",
     ),
     pytest.param(
@@ -396,7 +387,6 @@ DATA_CASES = [
             nmea="corrupt",
             warning_ok=True,
         ),
-        marks=OTHER_BRANCH,
         id="corrupt-nmea-with-imu-csv",
     ),
 ]
@@ -530,7 +520,6 @@ def test_good_inputs_pass_the_same_harness(sim_dir, tmp_path, capsys):
         assert rows == int(DURATION_S * 100), (case.name, rows)
 
 
-@OTHER_BRANCH
 def test_output_inside_a_sim_folder_keeps_it_readable(sim_dir, tmp_path, capsys):
     """``-o drive/out.csv`` inside a sim folder: either refused up front (one error line) or
     written, and then the folder still reads as the same drive (the reader takes only its
