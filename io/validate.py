@@ -370,9 +370,9 @@ def _check_units(imu, gnss: GnssData, origin: Origin, *, has_accel_array: bool) 
 
 def _gyro_at_rest(imu, window_s: float = 1.0) -> float:
     """Median gyro-rate norm over 1-s windows where the accelerometer shows rest (steady
-    specific force of ~g): the gyro bias plus Earth rate (NaN-free 0.0 when never at rest)."""
+    specific force of ~g): the gyro bias plus Earth rate (0.0 when it is never at rest)."""
     rate = 1.0 / float(np.median(np.diff(imu.t)))
-    n = max(int(round(window_s * rate)), 5)
+    n = max(round(window_s * rate), 5)
     blocks = len(imu.t) // n
     if blocks == 0:
         return 0.0
