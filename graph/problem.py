@@ -7,6 +7,7 @@ priors from the initial alignment, and an initial guess for every keyframe.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import gtsam
 import numpy as np
@@ -101,7 +102,7 @@ class Problem:
             raise RuntimeError(f"interval {i} has not been preintegrated")  # a bug, not input
         return imu_model.combined_imu_factor(i, i + 1, pim)
 
-    @property
+    @cached_property
     def has_odometer(self) -> bool:
         return bool(np.any(np.isfinite(self.odometer_speed)))
 
@@ -122,7 +123,7 @@ class Problem:
         """
         graph = gtsam.NonlinearFactorGraph()
         all_k = np.arange(self.n_keyframes) if keyframes is None else np.asarray(keyframes)
-        nhc_k = np.intersect1d(all_k, self.nhc_keyframes)
+        nhc_k = all_k if self.config.smoother.nhc else all_k[:0]
         if len(nhc_k):
             poses = [values.atPose3(X(int(k))) for k in nhc_k]
             velocity = np.array([values.atVector(V(int(k))) for k in nhc_k])
@@ -211,7 +212,7 @@ class Problem:
                 )
             )
 
-    @property
+    @cached_property
     def has_baro(self) -> bool:
         return bool(np.any(np.isfinite(self.baro_pressure)))
 

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from fgins.config import load_config
+from fgins.datatypes import OdometerData
 from fgins.graph.problem import build_problem
 from fgins.graph.smoother import _callback_factors, _full_graph, _nonlinear_graph, initial_values
 from fgins.sim.scenarios import SCENARIOS
@@ -21,8 +22,12 @@ from fgins.sim.scenarios import SCENARIOS
 def _car_problem(duration_s: float, wheel: bool):
     run = SCENARIOS["car-urban"](seed=1, duration_s=duration_s)
     dataset = run.dataset
-    if not wheel:
-        dataset.odometer = None
+    dataset.odometer = None
+    if wheel:
+        # A wheel-speed sensor reading the true forward speed 3 % high, at 10 Hz.
+        t = run.truth.t[::10]
+        body = np.einsum("kji,kj->ki", run.truth.rotation[::10], run.truth.velocity[::10])
+        dataset.odometer = OdometerData(t=t, speed=1.03 * body[:, 0])
     config = load_config(dataset_imu=dataset.imu_config, dataset_gnss=dataset.gnss_config)
     config.smoother.vehicle = "car"
     problem = build_problem(dataset, config, progress=False)
@@ -35,17 +40,17 @@ def test_no_python_callback_factor_and_linear_factor_count(wheel):
     counts = []
     for duration in (40.0, 80.0):
         problem, values = _car_problem(duration, wheel)
-        if wheel and problem.dataset.odometer is None:
-            pytest.skip("car-urban has no wheel speed")
+        assert problem.has_odometer == wheel
         graph = _full_graph(problem, _nonlinear_graph(problem, None), values)
         assert _callback_factors(graph) == 0
         assert not any(
             isinstance(graph.at(i), gtsam.CustomFactor) for i in range(graph.size())
         )
         counts.append((problem.n_keyframes, graph.size()))
-    (k1, f1), (k2, f2) = counts
-    # Factors per keyframe: the same for a drive twice as long (a constant, not O(K)).
-    assert abs(f2 / k2 - f1 / k1) < 0.5
+    # Factors per keyframe are bounded by a constant (IMU, GNSS position and velocity, NHC,
+    # odometer, a stop's two): a drive twice as long has twice the factors, not four times.
+    for keyframes, factors in counts:
+        assert factors <= 7 * keyframes + 5, counts
 
 
 def test_vehicle_factors_are_linearised_and_exact_at_their_point():
@@ -62,3 +67,13 @@ def test_vehicle_factors_are_linearised_and_exact_at_their_point():
     residual = vehicle.nhc_residuals(rotation, velocity, vehicle.nhc_rows(problem.imu_to_vehicle))
     exact = 0.5 * np.sum((residual / problem.nhc_sigma) ** 2)
     assert np.isclose(linear.error(values), exact, rtol=1e-9)
+
+
+def test_odometer_scale_is_estimated_through_the_linearised_factors():
+    """The odometer's scale-factor error (3 % here) comes out of the batch solve."""
+    from fgins.graph.smoother import smooth_batch
+
+    problem, _ = _car_problem(80.0, wheel=True)
+    trajectory = smooth_batch(problem, progress=False)
+    assert trajectory.info["python_callback_factors"] == 0
+    assert abs(trajectory.info["odometer_scale_error"] - 0.03) < 0.01
