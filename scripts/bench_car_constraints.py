@@ -108,9 +108,8 @@ def car_config(dataset: Dataset, overrides: dict[str, object]) -> RunConfig:
     return config
 
 
-def nocar_config(dataset: Dataset) -> RunConfig:
-    config = config_for_dataset(dataset, vehicle="car")
-    config = copy.deepcopy(config)
+def nocar_config(dataset: Dataset, overrides: dict[str, object]) -> RunConfig:
+    config = copy.deepcopy(car_config(dataset, overrides))
     config.smoother.use_nhc = False
     config.smoother.use_zupt = False
     return config
@@ -225,6 +224,8 @@ def main() -> int:
                         help="GNSS kept after the last window (s)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="[smoother] override for the car runs (repeatable)")
+    parser.add_argument("--set-both", action="append", default=[], metavar="KEY=VALUE",
+                        help="[smoother] override for both variants (repeatable)")
     parser.add_argument("--baseline", type=Path, help="reuse no-car results of this JSON")
     parser.add_argument("--check-sharing", action="store_true",
                         help="also solve 3 windows alone and compare with the shared runs")
@@ -234,6 +235,9 @@ def main() -> int:
         args.lengths, args.step = "50", 20.0
     lengths = [float(x) for x in args.lengths.split(",") if x.strip()]
     overrides = parse_set(args.set)
+    both = parse_set(args.set_both)
+    if both and args.baseline:
+        raise SystemExit("--set-both changes the no-car runs: do not combine with --baseline")
 
     from fgins.io.inputs import load_dataset
 
@@ -241,8 +245,8 @@ def main() -> int:
     duration = float(dataset.gnss.t[-1] - dataset.t0)
     windows = sweep_windows(duration, lengths, args.step, args.margin)
     runs = pack_windows(windows, args.separation)
-    car_cfg = car_config(dataset, overrides)
-    nocar_cfg = nocar_config(dataset)
+    car_cfg = car_config(dataset, {**both, **overrides})
+    nocar_cfg = nocar_config(dataset, both)
 
     nocar: dict[Window, float] = {}
     if args.baseline:
@@ -251,7 +255,8 @@ def main() -> int:
         nocar = {w: nocar[w] for w in windows if w in nocar}
     print(f"demo:kitti, {duration:.0f} s of GNSS; {len(windows)} windows in {len(runs)} runs "
           f"per variant (windows sharing a run >= {args.separation:g} s apart)"
-          + (f"; car overrides {overrides}" if overrides else ""))
+          + (f"; car overrides {overrides}" if overrides else "")
+          + (f"; overrides for both {both}" if both else ""))
     car: dict[Window, float] = {}
     started = time.perf_counter()
     timings = {"car": 0.0, "nocar": 0.0}
@@ -285,7 +290,7 @@ def main() -> int:
     title = "demo:kitti batch, car constraints vs none" + (f" ({overrides})" if overrides else "")
     plot(results, args.out / "car_constraints.png", title)
     (args.out / "car_constraints.json").write_text(json.dumps({
-        "overrides": {k: v for k, v in overrides.items()},
+        "overrides": dict(overrides), "overrides_both": dict(both),
         "lengths": lengths, "step": args.step, "separation": args.separation,
         "stats": stats, "sharing_check": sharing,
         "windows": [{"start": r.start, "length": r.length, "car": r.car, "nocar": r.nocar,
