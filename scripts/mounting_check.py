@@ -102,6 +102,9 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--quick", action="store_true", help="convention cases only")
     parser.add_argument("--errors-only", action="store_true", help="mounting-error cases only")
+    parser.add_argument("--fixed-convention", action="store_true",
+                        help="the code reads imu_to_vehicle_rpy_deg as R_vehicle_imu (after the "
+                             "issue-12 fix); default: today's code (reads it as R_imu_vehicle)")
     args = parser.parse_args()
     from fgins.sim.scenarios import SCENARIOS
 
@@ -129,8 +132,9 @@ def main() -> int:
                            ("roll", 20.0)]:
             error = {"roll": (size, 0, 0), "pitch": (0, size, 0), "yaw": (0, 0, size)}[axis]
             wrong = rotation_zyx(*error) @ true  # true mounting, then an error in vehicle axes
-            cases.append((mounted, rpy_of(wrong.T), f"rotated, {axis} error {size:g} deg"))
-    print("| case | configured rpy (deg, as today's code reads it) | outage RMS (m) | "
+            angles = rpy_of(wrong if args.fixed_convention else wrong.T)
+            cases.append((mounted, angles, f"rotated, {axis} error {size:g} deg"))
+    print("| case | configured rpy (deg, as the code reads it) | outage RMS (m) | "
           "aided RMS (m) | nhc_rms | mount_err (deg) | est. rpy (deg) | time (s) |")
     print("|---|---|---|---|---|---|---|---|")
     for sim_mounting, configured, label in cases:
@@ -149,7 +153,9 @@ def main() -> int:
             trajectory, run.truth.t, run.truth.position, run.dataset.t0, windows
         ).summary()
         # Today's code uses Ypr(angles) as R_imu_vehicle (v_vehicle = M^T v_imu).
-        used_vehicle_imu = rotation_zyx(*configured).T
+        used_vehicle_imu = rotation_zyx(*configured)
+        if not args.fixed_convention:
+            used_vehicle_imu = used_vehicle_imu.T
         smoother = config.smoother
         sigma = (smoother.nhc_sigma_lateral_m_per_s, smoother.nhc_sigma_vertical_m_per_s)
         stat = nhc_rms(trajectory.rotation, trajectory.velocity, used_vehicle_imu, sigma)
