@@ -37,7 +37,8 @@ class Problem:
     # Interval i's preintegration (keyframes i -> i+1), made lazily about a bias estimate.
     pims: list[gtsam.PreintegratedCombinedMeasurements | None]
     params: gtsam.PreintegrationCombinedParams
-    suspect_params: gtsam.PreintegrationCombinedParams
+    # Interval -> the preintegration parameters of the suspect stretch it lies in.
+    suspect_params: dict[int, gtsam.PreintegrationCombinedParams]
     gnss_at: np.ndarray  # (K,) index into the usable GNSS epochs, -1 where none
     gnss_enu: np.ndarray  # usable epochs, ENU
     gnss_sigma: np.ndarray
@@ -253,7 +254,7 @@ class Problem:
 
     def preintegrate(self, i: int, bias: gtsam.imuBias.ConstantBias) -> None:
         """(Re)do interval i's preintegration about ``bias``."""
-        params = self.suspect_params if self.segments.suspect[i] else self.params
+        params = self.suspect_params.get(i, self.params)
         self.pims[i] = _preintegrate(self.dataset.imu, self.segments, i, params, bias)
 
     def preintegrate_all(self, accel_bias: np.ndarray, gyro_bias: np.ndarray, progress: bool) -> None:
@@ -380,9 +381,7 @@ def build_problem(
     gnss_at[position[matched]] = np.flatnonzero(matched)
 
     params = imu_model.preintegration_params(noise, dataset.origin)
-    suspect_params = imu_model.preintegration_params(
-        noise.scaled(config.smoother.suspect_noise_factor), dataset.origin
-    )
+    suspect_params = _suspect_params(imu, segments, noise, config, dataset)
     smoother = config.smoother
     quiet = (
         stationary.quiet_imu(imu, times, noise)
@@ -441,6 +440,23 @@ def _preintegrate(
     pim = gtsam.PreintegratedCombinedMeasurements(params, bias)
     imu_model.integrate(pim, imu.accel[samples], imu.gyro[samples], segments.dt[span])
     return pim
+
+
+def _suspect_params(
+    imu, segments: Segments, noise: ImuNoise, config: RunConfig, dataset: Dataset
+) -> dict[int, gtsam.PreintegrationCombinedParams]:
+    """Per suspect interval, the inflated noise of its stretch (by the stretch's length:
+    :meth:`fgins.config.ImuNoise.suspect`); one parameter set per stretch."""
+    out: dict[int, gtsam.PreintegrationCombinedParams] = {}
+    mid = 0.5 * (segments.times[:-1] + segments.times[1:])
+    for a, b in imu.suspect:
+        inside = np.flatnonzero((mid > a) & (mid < b))
+        if len(inside):
+            params = imu_model.preintegration_params(
+                noise.suspect(config.smoother.suspect_noise_factor, b - a), dataset.origin
+            )
+            out.update({int(i): params for i in inside})
+    return out
 
 
 def _decimate(t: np.ndarray, min_interval: float) -> np.ndarray:
