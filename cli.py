@@ -299,9 +299,9 @@ def cmd_sim(args: argparse.Namespace) -> int:
     except ImportError:
         raise FginsError("the simulator is not available in this build") from None
     if args.scenario == "list":
-        for name, function in SCENARIOS.items():
-            doc = (function.__doc__ or "").strip().splitlines()
-            print(f"{name:18s} {doc[0] if doc else ''}")
+        from fgins.sim.scenarios import scenario_list
+
+        print(scenario_list())
         return 0
     if args.scenario not in SCENARIOS:
         raise FginsError(

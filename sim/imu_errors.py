@@ -104,3 +104,31 @@ def apply_imu_errors(
     gyro_m, gyro_bias = corrupt_triad(rng, gyro, model.gyro, dt)
     accel_m, accel_bias = corrupt_triad(rng, accel, model.accel, dt)
     return gyro_m, accel_m, gyro_bias, accel_bias
+
+
+def apply_imu_errors_in_axes(
+    rng: np.random.Generator,
+    gyro: np.ndarray,
+    accel: np.ndarray,
+    dt: float,
+    model: ImuErrorModel,
+    axes: np.ndarray | None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Like :func:`apply_imu_errors` for samples in IMU axes that ``axes`` maps into base axes.
+
+    The errors (white noise, turn-on bias, random walk; given turn-on biases are in the base
+    axes) are drawn in the base axes and rotated into the IMU's. The error model is isotropic
+    (equal densities per axis, no scale factor), so this is the same distribution as drawing
+    per IMU axis, and one seed is the same physical experiment whatever the IMU's axes: an
+    estimator's result must not depend on the convention. ``axes`` None or identity: exactly
+    :func:`apply_imu_errors`.
+    """
+    if axes is None or np.array_equal(axes, np.eye(3)):
+        return apply_imu_errors(rng, gyro, accel, dt, model)
+    if any(np.any(np.asarray(s.scale_factor) != 0.0) for s in (model.gyro, model.accel)):
+        raise InputError("IMU error model: a scale factor needs the IMU's own axes (axes=None)")
+    zeros = np.zeros_like(gyro)
+    gyro_error, accel_error, gyro_bias, accel_bias = apply_imu_errors(rng, zeros, zeros, dt, model)
+    a = np.asarray(axes, dtype=float)
+    # Rows v_base -> v_imu = A^T v_base, i.e. row @ A.
+    return gyro + gyro_error @ a, accel + accel_error @ a, gyro_bias @ a, accel_bias @ a

@@ -47,6 +47,7 @@ class MotionProfile:
     pitch: np.ndarray
     roll: np.ndarray
     vehicle: str
+    yaw_rate: np.ndarray | None = None  # rad/s, ENU yaw rate as commanded (None: not known)
 
     def __len__(self) -> int:
         return int(self.t.shape[0])
@@ -54,6 +55,21 @@ class MotionProfile:
     def rotation(self) -> np.ndarray:
         """Body-to-ENU rotations (N, 3, 3): R = Rz(yaw) Ry(-pitch) Rx(roll)."""
         return euler_to_rotation(self.roll, self.pitch, self.yaw)
+
+    def turns(
+        self, min_rate_deg_per_s: float = 0.5, min_duration_s: float = 2.0
+    ) -> list[tuple[float, float]]:
+        """Windows (start, end) in profile time where |yaw rate| exceeds ``min_rate_deg_per_s``
+        for at least ``min_duration_s``: where outages in turns should be placed."""
+        rate = self.yaw_rate if self.yaw_rate is not None else np.gradient(self.yaw, self.t)
+        turning = np.abs(rate) > np.radians(min_rate_deg_per_s)
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], turning.astype(np.int8), [0]])))
+        windows = []
+        for a, b in zip(edges[::2], edges[1::2], strict=True):
+            start, end = float(self.t[a]), float(self.t[b - 1])
+            if end - start >= min_duration_s:
+                windows.append((start, end))
+        return windows
 
     def velocity(self) -> np.ndarray:
         """ENU velocity (N, 3): speed along the body x axis."""
@@ -151,7 +167,9 @@ def build_profile(
     roll = np.zeros(n)
     if coordinated_turns:
         roll = -np.arctan(speed * yaw_rate / STANDARD_GRAVITY)
-    return MotionProfile(t=t, speed=speed, yaw=yaw, pitch=pitch, roll=roll, vehicle=vehicle)
+    return MotionProfile(
+        t=t, speed=speed, yaw=yaw, pitch=pitch, roll=roll, vehicle=vehicle, yaw_rate=yaw_rate
+    )
 
 
 # --- ready-made profiles -------------------------------------------------------------------

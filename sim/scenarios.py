@@ -4,12 +4,16 @@ Every scenario is ``fn(seed: int = 0, **options) -> SimRun`` in :data:`SCENARIOS
 ``duration_s`` (to shorten them in tests) and ``start_time_s`` (time of the first sample).
 The config tables are valid ``[imu]`` / ``[gnss]`` tables (fgins.config) that state the
 simulated sensors exactly (``*_si`` keys), so estimators can be tuned with the truth.
+
+``car-urban``, ``highway`` and ``aircraft-ekf`` also take the IMU options of
+:data:`IMU_OPTION_HELP` (rate, body-axis convention, mounting, bias model, grade, GNSS
+velocity); see :class:`ImuSetup`.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -19,12 +23,26 @@ from fgins.datatypes import AccelArrayData, Dataset, ImuData, InputError, Origin
 from fgins.sim import motion
 from fgins.sim.baro import BaroModel, simulate_baro
 from fgins.sim.gnss import BiasedStretch, DopStretch, GnssModel, GnssTruthInput, simulate_gnss
-from fgins.sim.imu_errors import ImuErrorModel, apply_imu_errors
+from fgins.sim.imu_errors import ImuErrorModel, apply_imu_errors_in_axes
 from fgins.sim.strapdown import NavModel, exact_motion
 
 DEG = np.pi / 180.0
 MG = 1e-3 * 9.80665
-GRADES = ("consumer-mems", "industrial-mems")
+GRADES = ("consumer-mems", "industrial-mems", "tactical", "navigation")
+BODY_FRAMES = ("flu", "frd")
+BIAS_MODELS = ("random_walk", "constant")
+
+IMU_OPTION_HELP = {
+    "imu_rate_hz": "IMU sample rate (default 100; the GNSS rate must divide it)",
+    "duration_s": "length of the run in s (vectorised: 1 h at 200 Hz takes seconds)",
+    "grade": f"IMU grade / preset: {' | '.join(GRADES)}",
+    "body_frame": "IMU axes: flu (x fwd, y left, z up; default) | frd (x fwd, y right, z down)",
+    "mounting_rpy_deg": "IMU orientation in the vehicle, [roll,pitch,yaw] ZYX, default [0,0,0]",
+    "write_mounting": "write the mounting into config.toml [smoother] (default true)",
+    "bias_model": "random_walk (preset densities) | constant (turn-on bias, instability 0)",
+    "gnss_velocity": "GNSS velocity output (default true)",
+}
+IMU_OPTIONS = set(IMU_OPTION_HELP) | {"start_time_s"}
 
 
 @dataclass
@@ -68,6 +86,119 @@ def gnss_table(model: GnssModel) -> dict[str, Any]:
     return table
 
 
+def _rotation_zyx(roll_deg: float, pitch_deg: float, yaw_deg: float) -> np.ndarray:
+    """Rz(yaw) Ry(pitch) Rx(roll): maps vectors in the rotated (IMU) axes into the base axes."""
+    r, p, y = np.radians([roll_deg, pitch_deg, yaw_deg])
+    rx = np.array([[1, 0, 0], [0, np.cos(r), -np.sin(r)], [0, np.sin(r), np.cos(r)]])
+    ry = np.array([[np.cos(p), 0, np.sin(p)], [0, 1, 0], [-np.sin(p), 0, np.cos(p)]])
+    rz = np.array([[np.cos(y), -np.sin(y), 0], [np.sin(y), np.cos(y), 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
+def _option_vector(name: str, value: Any) -> tuple[float, float, float]:
+    """Three numbers from a list/tuple or a string such as "[20,-10,35]" (as ``--set`` gives)."""
+    items = value
+    if isinstance(value, str):
+        items = [v for v in value.strip().strip("[]()").replace(" ", ",").split(",") if v]
+    try:
+        numbers = [float(v) for v in items]
+    except (TypeError, ValueError):
+        numbers = []
+    if len(numbers) != 3 or not all(np.isfinite(numbers)):
+        raise InputError(
+            f"option {name}: expected three numbers such as [20,-10,35], got {value!r}"
+        )
+    return numbers[0], numbers[1], numbers[2]
+
+
+def _option_bool(name: str, value: Any) -> bool:
+    if isinstance(value, bool):
+        return value
+    text = str(value).strip().lower()
+    if text in ("true", "1", "yes", "on"):
+        return True
+    if text in ("false", "0", "no", "off"):
+        return False
+    raise InputError(f"option {name}: expected true or false, got {value!r}")
+
+
+def _option_choice(name: str, value: Any, choices: tuple[str, ...]) -> str:
+    text = str(value).strip().lower()
+    if text not in choices:
+        raise InputError(f"option {name}: choose one of {', '.join(choices)}, got {value!r}")
+    return text
+
+
+def _option_float(name: str, value: Any, low: float, high: float) -> float:
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise InputError(f"option {name}: expected a number, got {value!r}") from None
+    if not low <= number <= high:
+        raise InputError(f"option {name}: {number:g} is outside [{low:g}, {high:g}]")
+    return number
+
+
+@dataclass(frozen=True)
+class ImuSetup:
+    """How the simulated IMU is sampled, oriented and corrupted.
+
+    Frames: the motion profile moves the *vehicle*, whose axes follow ``body_frame`` (flu: x
+    forward, y left, z up; frd: x forward, y right, z down). ``mounting_rpy_deg`` is the IMU's
+    orientation in the vehicle (roll, pitch, yaw; ZYX: R_vehicle_imu = Rz(yaw) Ry(pitch)
+    Rx(roll) maps IMU-axis vectors into vehicle axes). The IMU samples, the truth attitude
+    and the GNSS lever arm are all expressed in the IMU's own axes; the truth attitude is the
+    IMU body's attitude in ENU (not the vehicle's).
+    """
+
+    rate_hz: float = 100.0
+    body_frame: str = "flu"
+    mounting_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    write_mounting: bool = True
+    bias_model: str = "random_walk"
+    gnss_velocity: bool = True
+
+    @classmethod
+    def from_options(
+        cls, options: dict[str, Any], *, rate_hz: float = 100.0, bias_model: str = "random_walk"
+    ) -> ImuSetup:
+        """Parse and range-check the ``IMU_OPTION_HELP`` options (one clear error each)."""
+        return cls(
+            rate_hz=_option_float("imu_rate_hz", options.get("imu_rate_hz", rate_hz), 1.0, 2000.0),
+            body_frame=_option_choice("body_frame", options.get("body_frame", "flu"), BODY_FRAMES),
+            mounting_rpy_deg=_option_vector(
+                "mounting_rpy_deg", options.get("mounting_rpy_deg", (0.0, 0.0, 0.0))
+            ),
+            write_mounting=_option_bool("write_mounting", options.get("write_mounting", True)),
+            bias_model=_option_choice(
+                "bias_model", options.get("bias_model", bias_model), BIAS_MODELS
+            ),
+            gnss_velocity=_option_bool("gnss_velocity", options.get("gnss_velocity", True)),
+        )
+
+    def frame_matrix(self) -> np.ndarray:
+        """Maps vectors in ``body_frame`` vehicle axes into FLU vehicle axes."""
+        return np.eye(3) if self.body_frame == "flu" else np.diag([1.0, -1.0, -1.0])
+
+    def vehicle_imu(self) -> np.ndarray:
+        """R_vehicle_imu of the mounting angles."""
+        return _rotation_zyx(*self.mounting_rpy_deg)
+
+    def imu_axes(self) -> np.ndarray:
+        """Maps IMU-axis vectors into the profile's FLU vehicle axes."""
+        return self.frame_matrix() @ self.vehicle_imu()
+
+    def lever_in_imu(self, lever_flu: tuple[float, float, float]) -> tuple[float, float, float]:
+        """A lever arm given in FLU vehicle axes, expressed in the IMU's axes."""
+        v = self.imu_axes().T @ np.asarray(lever_flu, dtype=float)
+        v = np.where(np.abs(v) < 1e-12, 0.0, v)  # no -0.0 / 1e-17 noise in config.toml
+        return float(v[0]), float(v[1]), float(v[2])
+
+    @property
+    def mounted(self) -> bool:
+        return any(a != 0.0 for a in self.mounting_rpy_deg)
+
+
 def _check_options(name: str, options: dict[str, Any], allowed: set[str]) -> None:
     unknown = set(options) - allowed
     if unknown:
@@ -92,14 +223,34 @@ def simulate_run(
     initial_errors: dict[str, float] | None = None,
     start_time_s: float = 0.0,
     imu_table_extra: dict[str, Any] | None = None,
+    setup: ImuSetup | None = None,
 ) -> SimRun:
-    """Truth, error-free IMU, corrupted sensors, and the settings tables for one run."""
+    """Truth, error-free IMU, corrupted sensors, and the settings tables for one run.
+
+    With ``setup`` the IMU axes (body frame, mounting) follow it, the GNSS lever arm of
+    ``gnss_model`` (given in FLU vehicle axes) is re-expressed in the IMU's axes, the GNSS
+    velocity is dropped when ``setup.gnss_velocity`` is false, and a mounting is written as
+    ``[smoother] imu_to_vehicle_rpy_deg`` unless ``setup.write_mounting`` is false. The
+    caller builds ``errors`` / ``noise`` for the bias model (:func:`_bias_model`).
+    """
     rng = np.random.default_rng(seed)
     nav = NavModel.at(origin)
-    exact = exact_motion(profile, nav)
+    if setup is not None:
+        gnss_model = replace(
+            gnss_model,
+            lever_arm_m=setup.lever_in_imu(gnss_model.lever_arm_m),
+            velocity_sigma_m_per_s=gnss_model.velocity_sigma_m_per_s
+            if setup.gnss_velocity
+            else None,
+        )
+    exact = exact_motion(profile, nav, None if setup is None else setup.imu_axes())
     t = exact.t + start_time_s
     dt = float(profile.t[1] - profile.t[0])
-    gyro, accel, gyro_bias, accel_bias = apply_imu_errors(rng, exact.gyro, exact.accel, dt, errors)
+    # Errors drawn in the vehicle's FLU axes and rotated into the IMU's (isotropic model): the
+    # same seed is the same physical run in every body frame and mounting.
+    gyro, accel, gyro_bias, accel_bias = apply_imu_errors_in_axes(
+        rng, exact.gyro, exact.accel, dt, errors, None if setup is None else setup.imu_axes()
+    )
     truth = Trajectory(
         t=t,
         position=exact.position,
@@ -120,7 +271,11 @@ def simulate_run(
         "imu": {**imu_table(imu_preset, noise, 1.0 / dt), **(imu_table_extra or {})},
         "gnss": gnss_table(gnss_model),
     }
-    info: dict[str, Any] = {"gnss": gnss_info}
+    info: dict[str, Any] = {"gnss": gnss_info, "turns": profile.turns()}
+    if setup is not None:
+        info["setup"] = setup
+        if setup.mounted and setup.write_mounting:
+            config["smoother"] = {"imu_to_vehicle_rpy_deg": list(setup.mounting_rpy_deg)}
     if baro_model is not None:
         baro, baro_bias = simulate_baro(rng, t, exact.position[:, 2] + origin.alt, baro_model)
         config["baro"] = baro_model.config_table()
@@ -148,6 +303,30 @@ def simulate_run(
     )
 
 
+def _bias_model(
+    noise: ImuNoise,
+    setup: ImuSetup | None,
+    *,
+    gyro_bias: tuple[float, float, float] | None = None,
+    accel_bias: tuple[float, float, float] | None = None,
+) -> tuple[ImuNoise, ImuErrorModel, dict[str, Any]]:
+    """(noise the ``[imu]`` table states, the simulated error model, extra ``[imu]`` keys).
+
+    ``constant``: the truth bias is the turn-on bias only and the table says so exactly
+    (bias random walk 0 = bias instability 0), the case a smoother must handle as a constant
+    bias. ``random_walk``: the preset's random walk, stated as such.
+    """
+    if setup is not None and setup.bias_model == "constant":
+        errors = ImuErrorModel.from_noise(
+            noise, gyro_bias=gyro_bias, accel_bias=accel_bias, bias_random_walk=False
+        )
+        stated = replace(noise, gyro_bias_rw=0.0, accel_bias_rw=0.0)
+        extra = {"gyro_bias_instability_deg_per_hr": 0.0, "accel_bias_instability_mg": 0.0}
+        return stated, errors, extra
+    errors = ImuErrorModel.from_noise(noise, gyro_bias=gyro_bias, accel_bias=accel_bias)
+    return noise, errors, {}
+
+
 def _preset_run(
     name: str,
     seed: int,
@@ -159,10 +338,11 @@ def _preset_run(
     gnss_model: GnssModel,
     description: str,
     baro_model: BaroModel | None = None,
+    setup: ImuSetup | None = None,
 ) -> SimRun:
-    """A run whose IMU has the noise and errors of an ``[imu]`` preset, starting at the
-    ``start_time_s`` option."""
-    noise = imu_noise_from_config({"preset": preset})
+    """A run whose IMU has the noise and errors of an ``[imu]`` preset (and ``setup``'s bias
+    model), starting at the ``start_time_s`` option."""
+    noise, errors, extra = _bias_model(imu_noise_from_config({"preset": preset}), setup)
     return simulate_run(
         name=name,
         seed=seed,
@@ -170,28 +350,54 @@ def _preset_run(
         origin=origin,
         imu_preset=preset,
         noise=noise,
-        errors=ImuErrorModel.from_noise(noise),
+        errors=errors,
         gnss_model=gnss_model,
         baro_model=baro_model,
         description=description,
         start_time_s=float(options.get("start_time_s", 0.0)),
+        imu_table_extra=extra,
+        setup=setup,
     )
+
+
+def _setup_description(setup: ImuSetup) -> str:
+    """The non-default IMU options, for the scenario description."""
+    parts = []
+    if setup.body_frame != "flu":
+        parts.append(f"IMU axes {setup.body_frame.upper()}")
+    if setup.mounted:
+        where = "in config.toml" if setup.write_mounting else "NOT written to config.toml"
+        parts.append(f"IMU mounted at rpy {list(setup.mounting_rpy_deg)} deg ({where})")
+    parts.append(f"bias model {setup.bias_model}")
+    if not setup.gnss_velocity:
+        parts.append("no GNSS velocity")
+    return "; ".join(parts) + "."
 
 
 def aircraft_ekf(seed: int = 0, **options: Any) -> SimRun:
     """Aircraft at ~100 m/s, tactical IMU with large constant biases, 60 s outage at 500 s."""
-    _check_options("aircraft-ekf", options, {"duration_s", "start_time_s", "outage_start_s"})
-    duration = float(options.get("duration_s", 720.0))
+    _check_options("aircraft-ekf", options, IMU_OPTIONS | {"outage_start_s"})
+    duration = _option_float("duration_s", options.get("duration_s", 720.0), 1.0, 86400.0)
     outage_start = float(options.get("outage_start_s", 500.0))
-    rate = 100.0
-    noise = imu_noise_from_config({"preset": "tactical"})
-    gyro_bias = tuple(np.array([-50.0, 50.0, -50.0]) * DEG / 3600.0)
-    accel_bias = tuple(np.array([10.0, -10.0, 10.0]) * MG)
-    # Constant biases: the truth has no bias random walk (the table keeps the preset's small
-    # random walk as estimator tuning).
-    errors = ImuErrorModel.from_noise(
-        noise, gyro_bias=gyro_bias, accel_bias=accel_bias, bias_random_walk=False
-    )
+    grade = _grade("aircraft-ekf", options, default="tactical")
+    # Default bias model: constant biases in the truth while the table keeps the preset's
+    # small random walk as estimator tuning; bias_model=constant states 0 instead.
+    setup = ImuSetup.from_options(options, bias_model="random_walk")
+    explicit_bias_model = "bias_model" in options
+    noise = imu_noise_from_config({"preset": grade})
+    gyro_bias = accel_bias = None
+    if grade == "tactical":
+        gyro_bias = tuple(np.array([-50.0, 50.0, -50.0]) * DEG / 3600.0)
+        accel_bias = tuple(np.array([10.0, -10.0, 10.0]) * MG)
+    if explicit_bias_model:
+        stated, errors, extra = _bias_model(
+            noise, setup, gyro_bias=gyro_bias, accel_bias=accel_bias
+        )
+    else:
+        stated, extra = noise, {}
+        errors = ImuErrorModel.from_noise(
+            noise, gyro_bias=gyro_bias, accel_bias=accel_bias, bias_random_walk=False
+        )
     gnss_model = GnssModel(
         rate_hz=1.0,
         sigma_m=(5.0, 5.0, 8.0),
@@ -199,22 +405,29 @@ def aircraft_ekf(seed: int = 0, **options: Any) -> SimRun:
         open_sky_hdop=0.9,
         outages=((outage_start, outage_start + 60.0),),
     )
+    biases = (
+        "constant biases accel [10,-10,10] mg, gyro [-50,50,-50] deg/h"
+        if grade == "tactical"
+        else "turn-on biases drawn from the preset"
+    )
     return simulate_run(
         name="aircraft-ekf",
         seed=seed,
-        profile=motion.aircraft(rate, duration),
+        profile=motion.aircraft(setup.rate_hz, duration),
         origin=Origin(47.4581, 8.5555, 432.0),
-        imu_preset="tactical",
-        noise=noise,
+        imu_preset=grade,
+        noise=stated,
         errors=errors,
         gnss_model=gnss_model,
         description=(
-            "Aircraft: take-off roll, climb, coordinated turns and cruise at ~100 m/s. Tactical "
-            "IMU at 100 Hz with constant biases accel [10,-10,10] mg, gyro [-50,50,-50] deg/h; "
-            "GNSS 1 Hz, sigma (5,5,8) m, velocity 0.1 m/s; 60 s GNSS outage from 500 s."
+            "Aircraft: take-off roll, climb, coordinated turns and cruise at ~100 m/s. "
+            f"{grade} IMU at {setup.rate_hz:g} Hz with {biases}; GNSS 1 Hz, sigma (5,5,8) m, "
+            "velocity 0.1 m/s; 60 s GNSS outage from 500 s. " + _setup_description(setup)
         ),
         initial_errors={"position_m": 50.0, "velocity_m_per_s": 0.1, "attitude_deg": 1.0},
         start_time_s=float(options.get("start_time_s", 0.0)),
+        imu_table_extra=extra,
+        setup=setup,
     )
 
 
@@ -278,18 +491,21 @@ def uav_loop_baro(seed: int = 0, **options: Any) -> SimRun:
     )
 
 
-def _grade(name: str, options: dict[str, Any]) -> str:
-    grade = str(options.get("grade", "consumer-mems"))
+def _grade(name: str, options: dict[str, Any], default: str = "consumer-mems") -> str:
+    grade = str(options.get("grade", default))
     if grade not in GRADES:
-        raise InputError(f"scenario {name}: grade must be one of {', '.join(GRADES)}")
+        raise InputError(
+            f"scenario {name}: grade must be one of {', '.join(GRADES)}, got {grade!r}"
+        )
     return grade
 
 
 def car_urban(seed: int = 0, **options: Any) -> SimRun:
     """City drive with stops and junction turns; urban stretches with HDOP 3-7."""
-    _check_options("car-urban", options, {"duration_s", "start_time_s", "grade"})
+    _check_options("car-urban", options, IMU_OPTIONS)
     grade = _grade("car-urban", options)
-    duration = float(options.get("duration_s", 300.0))
+    setup = ImuSetup.from_options(options)
+    duration = _option_float("duration_s", options.get("duration_s", 300.0), 1.0, 86400.0)
     gnss_model = GnssModel(
         rate_hz=1.0,
         uere_m=3.0,
@@ -304,22 +520,24 @@ def car_urban(seed: int = 0, **options: Any) -> SimRun:
         seed,
         options,
         preset=grade,
-        profile=motion.urban_car(100.0, duration),
+        profile=motion.urban_car(setup.rate_hz, duration),
         origin=Origin(48.1372, 11.5755, 520.0),
         gnss_model=gnss_model,
         description=(
-            f"Urban car, {grade} IMU 100 Hz, GNSS 1 Hz (UERE 3 m x DOP, HDOP 3.5 at 60-95 s and "
-            "7 at 180-200 s), velocity 0.2 m/s, antenna lever arm (0.5, 0, 1.2) m, 2 % outliers "
-            "of 25 m."
+            f"Urban car, {grade} IMU {setup.rate_hz:g} Hz, GNSS 1 Hz (UERE 3 m x DOP, HDOP 3.5 "
+            "at 60-95 s and 7 at 180-200 s), velocity 0.2 m/s, antenna lever arm (0.5, 0, 1.2) "
+            "m (vehicle FLU), 2 % outliers of 25 m. " + _setup_description(setup)
         ),
+        setup=setup,
     )
 
 
 def highway(seed: int = 0, **options: Any) -> SimRun:
     """Motorway drive at ~30 m/s with gentle curves and grades, open sky."""
-    _check_options("highway", options, {"duration_s", "start_time_s", "grade"})
+    _check_options("highway", options, IMU_OPTIONS)
     grade = _grade("highway", options)
-    duration = float(options.get("duration_s", 240.0))
+    setup = ImuSetup.from_options(options)
+    duration = _option_float("duration_s", options.get("duration_s", 240.0), 1.0, 86400.0)
     gnss_model = GnssModel(
         rate_hz=1.0,
         uere_m=2.5,
@@ -332,13 +550,15 @@ def highway(seed: int = 0, **options: Any) -> SimRun:
         seed,
         options,
         preset=grade,
-        profile=motion.highway(100.0, duration),
+        profile=motion.highway(setup.rate_hz, duration),
         origin=Origin(50.11, 8.68, 110.0),
         gnss_model=gnss_model,
         description=(
-            f"Highway at 27-32 m/s, {grade} IMU 100 Hz, GNSS 1 Hz (UERE 2.5 m x DOP, an "
-            "overpass stretch with HDOP 2.5 at 150-165 s), velocity 0.1 m/s."
+            f"Highway at 27-32 m/s, {grade} IMU {setup.rate_hz:g} Hz, GNSS 1 Hz (UERE 2.5 m x "
+            "DOP, an overpass stretch with HDOP 2.5 at 150-165 s), velocity 0.1 m/s. "
+            + _setup_description(setup)
         ),
+        setup=setup,
     )
 
 
@@ -460,3 +680,26 @@ SCENARIOS: dict[str, Callable[..., SimRun]] = {
     "highway": highway,
     "gyrofree-cube": gyrofree_cube,
 }
+
+# Scenarios that take the IMU options of IMU_OPTION_HELP.
+WITH_IMU_OPTIONS = ("aircraft-ekf", "car-urban", "highway")
+
+
+def scenario_list() -> str:
+    """The text of ``fgins sim list``: scenarios, then the ``--set`` options."""
+    lines = []
+    for name, function in SCENARIOS.items():
+        doc = (function.__doc__ or "").strip().splitlines()
+        lines.append(f"{name:18s} {doc[0] if doc else ''}")
+    lines.append("")
+    lines.append(f"--set KEY=VALUE options of {', '.join(WITH_IMU_OPTIONS)}:")
+    for key, text in IMU_OPTION_HELP.items():
+        lines.append(f"  {key:18s} {text}")
+    lines.append(
+        "  e.g. fgins sim car-urban -o DIR --set body_frame=frd --set mounting_rpy_deg=[20,-10,35]"
+    )
+    lines.append(
+        "Other options: gyrofree-cube grade, gnss_rate_hz, half_edge_m, rate_hz; uav-loop-baro "
+        "gnss_rate_hz; mems-car-pdop bias_start_s, bias_offset_m; aircraft-ekf outage_start_s."
+    )
+    return "\n".join(lines)

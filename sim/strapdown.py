@@ -66,8 +66,17 @@ def rotation_log(r: np.ndarray) -> np.ndarray:
     return v * factor[..., None]
 
 
-def exact_motion(profile: MotionProfile, nav: NavModel) -> ExactMotion:
+def exact_motion(
+    profile: MotionProfile, nav: NavModel, imu_axes: np.ndarray | None = None
+) -> ExactMotion:
     """IMU commands that make the discrete mechanization follow ``profile`` exactly.
+
+    ``imu_axes`` (3x3) maps IMU-axis vectors into the profile's body axes (x forward, y left,
+    z up); the IMU's attitude is then ``profile.rotation() @ imu_axes`` and its samples and the
+    truth rotation are in the IMU's axes (FRD: diag(1, -1, -1); a mounting: F R_vehicle_imu).
+    The commands are solved from that rotation sequence itself, so they stay exact (and
+    consistent with GTSAM's preintegration) whatever the axes. Position and velocity are the
+    IMU's (it sits at the profile's reference point).
 
     The last profile sample only closes the last IMU interval: truth and IMU have
     ``len(profile) - 1`` samples.
@@ -79,6 +88,11 @@ def exact_motion(profile: MotionProfile, nav: NavModel) -> ExactMotion:
     if not np.allclose(dt_all, dt, rtol=1e-9, atol=0.0):
         raise InputError("strapdown: the profile must be sampled uniformly")
     rotation = profile.rotation()
+    if imu_axes is not None:
+        axes = np.asarray(imu_axes, dtype=float)
+        if axes.shape != (3, 3) or not np.allclose(axes.T @ axes, np.eye(3), atol=1e-9):
+            raise InputError("strapdown: imu_axes must be a 3x3 rotation or axis permutation")
+        rotation = rotation @ axes
     velocity = profile.velocity()
     r_k, r_next = rotation[:-1], rotation[1:]
     v_k, v_next = velocity[:-1], velocity[1:]

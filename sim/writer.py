@@ -98,8 +98,17 @@ def write_sim_dir(run: SimRun, out_dir: str | Path) -> None:
             "outages": [[a, b] for a, b in run.outages],
             "description": run.description,
             "initial_errors": dict(run.initial_errors),
+            # Turns of the motion (s from the first GNSS epoch): where outages hurt most.
+            "turns": [[round(a, 3), round(b, 3)] for a, b in run.info.get("turns", [])],
         },
     }
+    setup = run.info.get("setup")
+    if setup is not None:
+        # Documentation of the truth's axes; the mounting the smoother should use is the
+        # [smoother] table (absent with write_mounting=false).
+        tables["scenario"]["body_frame"] = setup.body_frame
+        tables["scenario"]["imu_mounting_rpy_deg"] = list(setup.mounting_rpy_deg)
+        tables["scenario"]["bias_model"] = setup.bias_model
     with atomic_path(folder / "config.toml") as tmp:
         tmp.write_text(dumps_toml(tables))
     write_trajectory_csv(run.truth, folder / "truth.csv")

@@ -368,3 +368,185 @@ def test_toml_emitter_round_trips_awkward_values() -> None:
         "b": {"nested": {"x": [1.0, 2.0], "y": "z"}, "empty": [], "arrays": [[1.5, 2.5]]},
     }
     assert tomllib.loads(dumps_toml(tables)) == tables
+
+
+# --- IMU rate, body-axis conventions, mounting, bias model (issue 12) ------------------------
+
+FRD = np.diag([1.0, -1.0, -1.0])
+
+
+def _ypr(roll_deg: float, pitch_deg: float, yaw_deg: float) -> np.ndarray:
+    """R_vehicle_imu of mounting angles, built by GTSAM (independent of the simulator)."""
+    r, p, y = np.radians([roll_deg, pitch_deg, yaw_deg])
+    return gtsam.Rot3.Ypr(y, p, r).matrix()
+
+
+@pytest.mark.parametrize("frame, z_sign", [("flu", 1.0), ("frd", -1.0)])
+def test_specific_force_at_rest_points_up_and_left_turn_rate_sign(frame, z_sign) -> None:
+    run = SCENARIOS["car-urban"](seed=0, duration_s=60.0, body_frame=frame, grade="navigation")
+    imu, truth = run.dataset.imu, run.truth
+    g = 9.80665
+    rest = (imu.t - imu.t[0]) < 9.0  # the drive starts standing
+    # At rest the accelerometer measures the reaction to gravity: up, i.e. +z in FLU, -z in FRD.
+    assert np.allclose(imu.accel[rest].mean(axis=0), [0.0, 0.0, z_sign * g], atol=2e-3)
+    # The first junction turn is a 90-degree LEFT turn (37-45 s): positive yaw rate about an
+    # up axis, negative about a down axis.
+    turning = ((imu.t - imu.t[0]) > 39.0) & ((imu.t - imu.t[0]) < 43.0)
+    assert z_sign * imu.gyro[turning, 2].mean() > np.radians(10.0)
+    # The truth attitude is the IMU's: the body x axis is the travel direction in both frames
+    # and the body z axis points up (FLU) or down (FRD) on level ground.
+    body_z_up = truth.rotation[rest][:, 2, 2]
+    assert np.allclose(body_z_up, z_sign, atol=1e-9)
+    moving = np.linalg.norm(truth.velocity, axis=1) > 5.0
+    forward = np.einsum("nji,nj->ni", truth.rotation[moving], truth.velocity[moving])
+    assert np.abs(forward[:, 1:]).max() < 1e-9 and forward[:, 0].min() > 5.0
+
+
+def test_frd_and_mounting_are_the_flu_samples_rotated() -> None:
+    base = SCENARIOS["highway"](seed=5, duration_s=60.0)
+    frd = SCENARIOS["highway"](seed=5, duration_s=60.0, body_frame="frd")
+    mounted = SCENARIOS["car-urban"](seed=5, duration_s=60.0, mounting_rpy_deg="[20,-10,35]")
+    flat = SCENARIOS["car-urban"](seed=5, duration_s=60.0)
+    # Truth: R_n_imu = R_n_vehicle F (FRD), R_n_vehicle R_vehicle_imu (mounting); positions equal.
+    assert np.allclose(frd.truth.rotation, base.truth.rotation @ FRD, atol=1e-12)
+    r_vi = _ypr(20.0, -10.0, 35.0)
+    assert np.allclose(mounted.truth.rotation, flat.truth.rotation @ r_vi, atol=1e-12)
+    assert np.allclose(mounted.truth.position, flat.truth.position, atol=1e-9)
+    # The samples rotate as vectors, omega_imu = A^T omega_vehicle (rows: omega @ A), errors
+    # included: they are drawn in the vehicle's axes, so one seed is one physical run.
+    for a, b, axes in ((frd, base, FRD), (mounted, flat, r_vi)):
+        assert np.allclose(a.dataset.imu.gyro, b.dataset.imu.gyro @ axes, rtol=0, atol=1e-12)
+        assert np.allclose(a.dataset.imu.accel, b.dataset.imu.accel @ axes, rtol=0, atol=1e-11)
+        assert np.allclose(a.truth.gyro_bias, b.truth.gyro_bias @ axes, rtol=0, atol=1e-15)
+        assert np.allclose(a.truth.accel_bias, b.truth.accel_bias @ axes, rtol=0, atol=1e-14)
+        # The GNSS fixes are the same draws of the same antenna positions.
+        assert np.allclose(a.dataset.gnss.lla, b.dataset.gnss.lla, rtol=0, atol=1e-9)
+    # The lever arm of the antenna is the same physical point, written in the IMU's axes.
+    lever_flat = np.array(flat.config["gnss"]["lever_arm_m"])
+    lever_mounted = np.array(mounted.config["gnss"]["lever_arm_m"])
+    assert np.allclose(r_vi @ lever_mounted, lever_flat, atol=1e-12)
+    assert frd.config["gnss"]["lever_arm_m"] == [0.0, 0.0, -1.5]
+    assert mounted.config["smoother"] == {"imu_to_vehicle_rpy_deg": [20.0, -10.0, 35.0]}
+    assert "smoother" not in flat.config and "smoother" not in frd.config
+
+
+@pytest.mark.parametrize(
+    "frame, mounting", [("flu", (0, 0, 0)), ("frd", (0, 0, 0)), ("frd", (20, -10, 35))]
+)
+def test_rotated_exact_imu_is_consistent_with_strapdown_and_gtsam(frame, mounting) -> None:
+    """In any IMU axes the error-free samples reproduce the truth through the step-by-step
+    mechanization and through GTSAM's per-sample preintegration."""
+    axes = (FRD if frame == "frd" else np.eye(3)) @ _ypr(*mounting)
+    nav = NavModel.at(ORIGIN)
+    exact = exact_motion(motion.aircraft(100.0, 125.0), nav, imu_axes=axes)
+    k = slice(9500, None)  # the climbing, banked 60-degree turn at 100-120 s
+    rot, vel, pos = mechanize(
+        exact.t[k], exact.gyro[k], exact.accel[k], exact.rotation[9500], exact.velocity[9500],
+        exact.position[9500], nav,
+    )  # fmt: skip
+    assert np.abs(pos - exact.position[k]).max() < 1e-7
+    assert np.abs(vel - exact.velocity[k]).max() < 1e-8
+    assert (
+        max(_angle(a, b) for a, b in zip(rot[::250], exact.rotation[k][::250], strict=True)) < 1e-11
+    )
+    nav0 = NavModel.at(ORIGIN, with_earth_rate=False)
+    exact0 = exact_motion(motion.aircraft(100.0, 125.0), nav0, imu_axes=axes)
+    pos_err, att_err = _gtsam_chain(exact0, nav0, 9500, 2500, 1, coriolis=False)
+    assert pos_err < 1e-6 and att_err < 1e-6
+
+
+def test_written_imu_integrates_to_written_truth(tmp_path: Path) -> None:
+    """imu.csv minus truth.csv's biases, strapdown-integrated from truth.csv's first row,
+    follows truth.csv (navigation grade: the white noise is far below the tolerance)."""
+    options = {"duration_s": 60.0, "grade": "navigation", "body_frame": "frd"}
+    run = SCENARIOS["car-urban"](seed=8, mounting_rpy_deg=[20, -10, 35], **options)
+    write_sim_dir(run, tmp_path / "drive")
+    dataset = read_csv_dataset([tmp_path / "drive"])
+    truth = read_trajectory_csv(tmp_path / "drive" / "truth.csv")
+    nav = NavModel.at(dataset.origin)
+    rot, vel, pos = mechanize(
+        dataset.imu.t, dataset.imu.gyro - truth.gyro_bias, dataset.imu.accel - truth.accel_bias,
+        truth.rotation[0], truth.velocity[0], truth.position[0], nav,
+    )  # fmt: skip
+    assert np.abs(pos - truth.position).max() < 0.2
+    assert np.abs(vel - truth.velocity).max() < 0.01
+    assert max(_angle(a, b) for a, b in zip(rot[::100], truth.rotation[::100], strict=True)) < 3e-4
+    table = tomllib.loads((tmp_path / "drive" / "config.toml").read_text())
+    assert table["smoother"]["imu_to_vehicle_rpy_deg"] == [20.0, -10.0, 35.0]
+    assert table["scenario"]["body_frame"] == "frd"
+    assert table["scenario"]["turns"][0][0] == pytest.approx(37.0, abs=1.0)
+
+
+def test_write_mounting_false_leaves_the_mounting_out(tmp_path: Path) -> None:
+    run = SCENARIOS["car-urban"](
+        seed=0, duration_s=30.0, mounting_rpy_deg="20,-10,35", write_mounting="false"
+    )
+    write_sim_dir(run, tmp_path / "d")
+    table = tomllib.loads((tmp_path / "d" / "config.toml").read_text())
+    assert "smoother" not in table
+    # The data are still rotated: at rest the specific force is not along the IMU's z axis.
+    f = run.dataset.imu.accel[:500].mean(axis=0)
+    assert abs(f[2]) < 0.95 * np.linalg.norm(f)
+
+
+@pytest.mark.parametrize("name", ["car-urban", "highway", "aircraft-ekf"])
+def test_constant_bias_model_states_zero_instability(name) -> None:
+    run = SCENARIOS[name](seed=1, duration_s=60.0, bias_model="constant")
+    assert np.ptp(run.truth.gyro_bias, axis=0).max() == 0.0
+    assert np.ptp(run.truth.accel_bias, axis=0).max() == 0.0
+    assert np.abs(run.truth.gyro_bias[0]).max() > 0.0  # a turn-on bias is there
+    imu = run.config["imu"]
+    assert imu["gyro_bias_instability_deg_per_hr"] == 0.0
+    assert imu["accel_bias_instability_mg"] == 0.0
+    noise = imu_noise_from_config(imu)
+    assert noise.gyro_bias_rw == 0.0 and noise.accel_bias_rw == 0.0
+    walk = SCENARIOS[name](seed=1, duration_s=60.0, bias_model="random_walk")
+    assert np.ptp(walk.truth.gyro_bias, axis=0).min() > 0.0
+    assert imu_noise_from_config(walk.config["imu"]).gyro_bias_rw > 0.0
+
+
+@pytest.mark.parametrize("grade", ["tactical", "navigation"])
+def test_grades_and_gnss_velocity_option(grade) -> None:
+    run = SCENARIOS["highway"](seed=2, duration_s=30.0, grade=grade, gnss_velocity=False)
+    assert imu_noise_from_config(run.config["imu"]) == imu_noise_from_config({"preset": grade})
+    velocity = run.dataset.gnss.velocity
+    assert velocity is None or not np.isfinite(velocity).any()
+    assert GnssConfig.from_dict(run.config["gnss"]).use_velocity is False
+
+
+@pytest.mark.parametrize("rate", [50, 200, 400])
+def test_imu_rate_option(rate) -> None:
+    run = SCENARIOS["highway"](seed=0, duration_s=20.0, imu_rate_hz=rate)
+    dt = np.diff(run.dataset.imu.t)
+    assert np.allclose(dt, 1.0 / rate, rtol=1e-9, atol=1e-12)
+    assert len(run.dataset.imu) == 20 * rate
+    assert run.config["imu"]["rate_hz"] == pytest.approx(rate)
+    assert len(run.dataset.gnss) == 20
+
+
+def test_long_high_rate_drive_is_generated_quickly() -> None:
+    """An hour at 200 Hz is vectorised: here 20 min, linear in length (bounded per sample)."""
+    import time
+
+    start = time.perf_counter()
+    run = SCENARIOS["highway"](seed=0, duration_s=1200.0, imu_rate_hz=200)
+    elapsed = time.perf_counter() - start
+    assert len(run.dataset.imu) == 240_000
+    assert elapsed < 10.0  # ~0.6 s here; a per-sample Python loop would take minutes
+
+
+def test_bad_imu_options_are_one_clear_error() -> None:
+    bad = [
+        {"body_frame": "ned"},
+        {"mounting_rpy_deg": "[1,2]"},
+        {"mounting_rpy_deg": "a,b,c"},
+        {"bias_model": "gauss-markov"},
+        {"write_mounting": "maybe"},
+        {"imu_rate_hz": 0},
+        {"imu_rate_hz": 150.5},  # the 1 Hz GNSS does not divide it
+        {"duration_s": -5},
+        {"grade": "military"},
+    ]
+    for options in bad:
+        with pytest.raises(InputError, match=r"option|grade|GNSS rate"):
+            SCENARIOS["car-urban"](seed=0, **{"duration_s": 10.0, **options})
