@@ -193,3 +193,23 @@ def test_trajectory_csv_bytes_equal_savetxt(tmp_path, seed):
     assert out.read_bytes() == reference.read_bytes()
     back = read_trajectory_csv(out, origin=trajectory.origin)
     assert np.allclose(back.position, trajectory.position, atol=1e-4, rtol=0)
+
+
+@pytest.mark.parametrize(
+    "cells",
+    [
+        ["nan", "-nan", "inf", "-inf"],
+        ["Infinity", "NaN", "+inf", "1e400"],
+        ["+1.5", "-0", "", "5."],
+        ['"1.5"', '""', "1E5", "-.5"],
+        ["4.9e-324", "2.2250738585072014e-308", "0.1000000000000000055511151231257827", "1_0"],
+    ],
+)
+def test_reader_special_cells_on_the_fast_and_the_string_path(tmp_path, cells):
+    """Files with only numbers (pyarrow's float parser) and with one odd cell (the string
+    path) give Python's float bits, NaN signs included."""
+    path = tmp_path / "t.csv"
+    path.write_text("a,b,c,d\n" + ",".join(cells) + "\n1,2,3,4\n")
+    assert_same_read(path)
+    path.write_text("a,b,c,d\n" + ",".join(cells) + "\n1,2,3, 4\n")  # padded: string path
+    assert_same_read(path)
