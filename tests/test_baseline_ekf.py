@@ -420,6 +420,13 @@ def test_gyrofree_keyframe_states_equal_the_ekf18_output():
     for name, value in expected.items():
         np.testing.assert_array_equal(getattr(guess, name), value, err_msg=name)
     assert guess.method == "ekf18"
+    # The pipeline's entry point with the array filter: the same pass, guess configuration.
+    from fgins.initial_guess import filter_guess, guess_config
+
+    chosen = filter_guess(run.dataset, config, times, array_filter=True)
+    direct = ekf18_states_at(run.dataset, guess_config(config), times)
+    assert chosen.method == "ekf18"
+    np.testing.assert_array_equal(chosen.position, direct.position)
 
 
 def test_keyframe_states_memory_does_not_grow_per_imu_sample():
