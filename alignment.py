@@ -22,8 +22,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fgins.config import SmootherConfig
 from fgins.datatypes import Dataset, InputError
-from fgins.geodesy import normal_gravity, roll_pitch_heading_to_rotation, so3_exp
+from fgins.geodesy import normal_gravity, so3_exp
+from fgins.mounting import mounting_rotation
 
 
 @dataclass
@@ -86,11 +88,19 @@ def initial_alignment(
     dataset: Dataset,
     gnss_mask: np.ndarray | None = None,
     *,
+    smoother: SmootherConfig | None = None,
     heading_deg: float | None = None,
     moving_speed: float = 2.0,
     fit_window_s: float = 6.0,
+    forward_axis: np.ndarray | None = None,
 ) -> Alignment:
     """Initial state at the first IMU sample (see module docstring).
+
+    ``smoother`` (the run's settings) supplies the configured initial heading and the IMU
+    mounting; ``heading_deg``/``forward_axis`` give them directly instead. ``forward_axis``
+    is the vehicle's forward direction in IMU axes (row 0 of the mounting rotation,
+    :func:`fgins.mounting.mounting_rotation`), the IMU's x axis by default: in motion it is
+    the body axis aligned with the velocity, and the heading is that axis's.
 
     When the first usable fix comes well after the IMU starts (GNSS withheld or lost at the
     start), the state is aligned at that fix and carried back to the first IMU sample by
@@ -103,14 +113,20 @@ def initial_alignment(
     gnss_enu = dataset.gnss_enu()[mask]
     if len(gnss_t) < 2:
         raise InputError("alignment needs at least 2 usable GNSS fixes")
+    if smoother is not None:
+        heading_deg = smoother.initial_heading_deg if heading_deg is None else heading_deg
+        if forward_axis is None:
+            forward_axis = mounting_rotation(smoother.imu_to_vehicle_rpy_deg)[0]
+    forward = np.array([1.0, 0.0, 0.0]) if forward_axis is None else np.asarray(forward_axis, float)
     t_start = float(imu.t[0])
     lead = float(gnss_t[0]) - t_start
     if lead <= MAX_LEAD_S:
         return _align_at(
-            dataset, t_start, gnss_t, gnss_enu, heading_deg, moving_speed, fit_window_s
+            dataset, t_start, gnss_t, gnss_enu, heading_deg, moving_speed, fit_window_s, forward
         )
     later = _align_at(
-        dataset, float(gnss_t[0]), gnss_t, gnss_enu, heading_deg, moving_speed, fit_window_s
+        dataset, float(gnss_t[0]), gnss_t, gnss_enu, heading_deg, moving_speed, fit_window_s,
+        forward,
     )
     rotation, velocity, position = _propagate_back(dataset, later, t_start)
     # Dead reckoning over `lead` seconds: ~0.1 m/s^2 of unknown acceleration (tilt, bias).
@@ -163,6 +179,7 @@ def _align_at(
     heading_deg: float | None,
     moving_speed: float,
     fit_window_s: float,
+    forward_axis: np.ndarray,
 ) -> Alignment:
     """Alignment at time ``t0`` from the fixes around it and the IMU's first second there."""
     imu = dataset.imu
@@ -190,9 +207,9 @@ def _align_at(
     if speed >= moving_speed and not static:
         nav_force = acceleration - gravity
         forward = np.array([velocity[0], velocity[1], velocity[2]])
-        rotation = _triad(specific_force, np.array([1.0, 0.0, 0.0]), nav_force, forward)
+        rotation = _triad(specific_force, forward_axis, nav_force, forward)
         if heading_deg is not None:
-            rotation = _with_heading(rotation, heading_deg)
+            rotation = _with_heading(rotation, heading_deg, forward_axis)
         return Alignment(
             t=t0,
             rotation=rotation,
@@ -208,13 +225,13 @@ def _align_at(
     heading_configured = heading_deg is not None
     up_body = specific_force / np.linalg.norm(specific_force)
     if heading_deg is None:
-        heading_deg, known = _heading_from_first_motion(dataset, gnss_t, gnss_enu, moving_speed, t0)
+        heading_deg, known = _heading_from_first_motion(
+            dataset, gnss_t, gnss_enu, moving_speed, t0, up_body
+        )
     else:
         known = True
-    level = _triad(
-        up_body, np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0])
-    )
-    rotation = _with_heading(level, heading_deg)
+    level = _triad(up_body, forward_axis, np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0]))
+    rotation = _with_heading(level, heading_deg, forward_axis)
     return Alignment(
         t=t0,
         rotation=rotation,
@@ -229,12 +246,14 @@ def _align_at(
     )
 
 
-def _with_heading(rotation: np.ndarray, heading_deg: float) -> np.ndarray:
-    """Replace the heading of ``rotation`` keeping its roll and pitch."""
-    from fgins.geodesy import rotation_to_roll_pitch_heading
-
-    roll, pitch, _ = rotation_to_roll_pitch_heading(rotation[None])[0]
-    return roll_pitch_heading_to_rotation(roll, pitch, heading_deg)
+def _with_heading(rotation: np.ndarray, heading_deg: float, forward_axis: np.ndarray) -> np.ndarray:
+    """Turn ``rotation`` about the vertical so that the vehicle's forward axis (in IMU axes)
+    points at ``heading_deg`` (from north, clockwise), keeping the tilt."""
+    forward = rotation @ forward_axis
+    current = np.degrees(np.arctan2(forward[0], forward[1]))
+    turn = np.radians(current - heading_deg)  # counter-clockwise about up lowers the heading
+    c, s = np.cos(turn), np.sin(turn)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ rotation
 
 
 def _imu_static(gyro: np.ndarray, accel: np.ndarray, gravity: float) -> bool:
@@ -254,6 +273,7 @@ def _heading_from_first_motion(
     gnss_enu: np.ndarray,
     moving_speed: float,
     t0: float,
+    up_body: np.ndarray,
     chord_s: float = 5.0,
     min_chord_m: float = 20.0,
 ) -> tuple[float, bool]:
@@ -275,7 +295,9 @@ def _heading_from_first_motion(
             heading = float(np.degrees(np.arctan2(chord[0], chord[1])))
             imu = dataset.imu
             before = (imu.t >= t0) & (imu.t <= t_move)
-            # Yaw turned since the start, from the body z rate (near level on the ground).
-            yaw_turned = float(np.sum(imu.gyro[before][:-1, 2] * np.diff(imu.t[before])))
+            # Yaw turned since the start: the rate about the body's up direction (gravity at
+            # rest), whatever the IMU's axis convention (z up or z down).
+            rate_up = imu.gyro[before][:-1] @ up_body
+            yaw_turned = float(np.sum(rate_up * np.diff(imu.t[before])))
             return float(np.mod(heading + np.degrees(yaw_turned), 360.0)), True
     return 0.0, False

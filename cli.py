@@ -7,18 +7,20 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
+import warnings
 from pathlib import Path
 
 import numpy as np
 
-from fgins import __version__
-from fgins.config import IMU_PRESETS, RunConfig, config_for_dataset
+from fgins import __version__, api
+from fgins.config import IMU_PRESETS, RunConfig
 from fgins.datatypes import Dataset, FginsError, Trajectory
-from fgins.outages import outage_mask, parse_windows, periodic_windows
-from fgins.pipeline import METHODS, run_method
+from fgins.outages import parse_windows
+from fgins.pipeline import METHODS
 
-OUTPUT_SUFFIXES = (".csv", ".geojson", ".kml", ".mcap")
+OUTPUT_SUFFIXES = api.OUTPUT_SUFFIXES
+PLOT_SUFFIXES = (".png", ".pdf", ".svg")
+GNSS_OUTPUT_SUFFIXES = (".csv", ".geojson", ".kml", ".tum")
 
 
 def _add_sensor_options(parser: argparse.ArgumentParser) -> None:
@@ -48,7 +50,7 @@ def build_parser() -> argparse.ArgumentParser:
     smooth = sub.add_parser("smooth", help="estimate the trajectory of a recorded drive")
     smooth.add_argument(
         "inputs", nargs="+", metavar="INPUT",
-        help="demo:kitti | FILE.mcap | NMEA + imu.csv | imu.csv gnss.csv | folder from 'fgins sim'",
+        help="demo:kitti | FILE.mcap | UBX log | NMEA + imu.csv | imu.csv gnss.csv | 'fgins sim' folder",
     )  # fmt: skip
     smooth.add_argument("--method", choices=METHODS, default="batch")
     smooth.add_argument(
@@ -56,7 +58,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="withhold GNSS epochs with A <= t - t0 < B (seconds after the first GNSS epoch)",
     )  # fmt: skip
     smooth.add_argument(
-        "-o", "--output", type=Path, required=True, help="OUT.csv|.geojson|.kml|.mcap"
+        "-o", "--output", type=Path, required=True, help="OUT.csv|.geojson|.kml|.mcap|.tum"
     )
     smooth.add_argument(
         "--online", action="store_true",
@@ -133,10 +135,15 @@ def build_parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     _add_sensor_options(fleet)
 
-    convert = sub.add_parser("convert", help="write GNSS fixes of a log as gnss.csv/.geojson/.kml")
+    convert = sub.add_parser(
+        "convert", help="write GNSS fixes of a log as gnss.csv/.geojson/.kml or a TUM reference"
+    )
     convert.add_argument("input", type=Path)
     convert.add_argument("-o", "--output", type=Path, required=True)
     convert.add_argument("--time-offset", type=float, default=0.0)
+    convert.add_argument(
+        "--imu", action="store_true", help="UBX: write the receiver's IMU as imu.csv instead"
+    )
 
     inspect = sub.add_parser("inspect", help="summarise what a log (NMEA, MCAP, CSV) contains")
     inspect.add_argument("input", type=Path)
@@ -148,35 +155,20 @@ def _progress(args: argparse.Namespace) -> bool:
 
 
 def _config_for(dataset: Dataset, args: argparse.Namespace) -> RunConfig:
-    config = config_for_dataset(
-        dataset, args.config, imu_preset=args.imu_preset, vehicle=args.vehicle
-    )
-    robust = getattr(args, "robust", None)
-    if robust == "huber":
-        config.gnss.huber_k, config.gnss.cauchy_k = 2.0, None
-    elif robust == "cauchy":
-        config.gnss.cauchy_k = 3.0
-    return config
+    return api.configure(
+        dataset, args.config, imu_preset=args.imu_preset, vehicle=args.vehicle,
+        robust=getattr(args, "robust", None),
+    )  # fmt: skip
 
 
-def write_output(
-    trajectory: Trajectory, path: Path, dataset: Dataset, with_input: str | None = None
-) -> None:
-    suffix = path.suffix.lower()
-    if suffix == ".csv":
-        from fgins.io.trajectory_csv import write_trajectory_csv
-
-        write_trajectory_csv(trajectory, path)
-    elif suffix in (".geojson", ".kml"):
-        from fgins.io.trajectory_geo import write_trajectory_geo
-
-        write_trajectory_geo(trajectory, path)
-    elif suffix == ".mcap":
-        from fgins.io.mcap_writer import write_mcap
-
-        write_mcap(trajectory, path, gnss=dataset.gnss, input_path=with_input)
-    else:
-        raise FginsError(f"{path}: output format must be one of {', '.join(OUTPUT_SUFFIXES)}")
+def _load(args: argparse.Namespace, inputs: list[str], **options) -> Dataset:
+    """``fgins.load`` with the sensor options; its warnings are printed by :func:`_report`."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", api.FginsWarning)
+        return api.load(
+            *inputs, config=args.config, imu_preset=args.imu_preset, vehicle=args.vehicle,
+            robust=getattr(args, "robust", None), progress=_progress(args), **options,
+        )  # fmt: skip
 
 
 def _report(dataset: Dataset, trajectory: Trajectory) -> None:
@@ -184,75 +176,66 @@ def _report(dataset: Dataset, trajectory: Trajectory) -> None:
         print(line, file=sys.stderr)
     for warning in dataset.warnings:
         print(f"warning: {warning}", file=sys.stderr)
-    for key in ("gnss_gating", "gnss_rejected"):
-        if key in trajectory.info:
-            print(trajectory.info[key], file=sys.stderr)
-    if "odometer_scale_error" in trajectory.info:
+    summary = trajectory.summary()
+    for key in ("gnss_gating", "gnss_rejected", "imu_bias_model", "solver"):
+        if key in summary:
+            print(summary[key], file=sys.stderr)
+    for warning in summary.get("fit_warnings", []):
+        print(f"warning: {warning}", file=sys.stderr)
+    if "odometer_scale_error" in summary:
         print(
-            f"odometer scale-factor error: {100 * trajectory.info['odometer_scale_error']:+.2f} %",
+            f"odometer scale-factor error: {100 * summary['odometer_scale_error']:+.2f} %",
             file=sys.stderr,
         )
 
 
 def cmd_smooth(args: argparse.Namespace) -> int:
-    if args.output.suffix.lower() not in OUTPUT_SUFFIXES:
-        raise FginsError(
-            f"{args.output}: output format must be one of {', '.join(OUTPUT_SUFFIXES)}"
+    # Every output is checked before any work (a bad path is not found after the solve).
+    api.check_output(args.output, args.inputs)
+    if args.plot:
+        api.check_output(
+            args.plot, [*args.inputs, args.output], suffixes=PLOT_SUFFIXES, what="plot"
         )
     windows = parse_windows(args.gnss_outage)
-    from fgins.io.inputs import load_dataset
-
-    dataset = load_dataset(
-        args.inputs, time_offset_s=args.time_offset, imu_topic=args.imu_topic,
-        gnss_topic=args.gnss_topic, progress=_progress(args),
+    dataset = _load(
+        args, args.inputs, time_offset=args.time_offset, imu_topic=args.imu_topic,
+        gnss_topic=args.gnss_topic,
     )  # fmt: skip
-    config = _config_for(dataset, args)
-    method = "isam2-online" if (args.online and args.method == "isam2") else args.method
-    mask = outage_mask(dataset, windows)
-    started = time.perf_counter()
-    trajectory = run_method(dataset, config, method, gnss_mask=mask, progress=_progress(args))
-    elapsed = time.perf_counter() - started
-    write_output(trajectory, args.output, dataset, str(args.inputs[0]) if args.with_input else None)
+    trajectory = api.smooth(
+        dataset, args.method, gnss_outage=windows, online=args.online, progress=_progress(args)
+    )
+    trajectory.write(args.output, with_input=args.with_input)
     _report(dataset, trajectory)
+    summary = trajectory.summary()
+    elapsed = summary["wall_s"]
     print(
-        f"{method}: {len(trajectory)} states over {trajectory.t[-1] - trajectory.t[0]:.1f} s "
-        f"in {elapsed:.2f} s ({len(dataset.imu) / max(elapsed, 1e-9):,.0f} IMU samples/s) "
+        f"{summary['method']}: {summary['states']} states over {summary['duration_s']:.1f} s "
+        f"in {elapsed:.2f} s ({summary['imu_samples'] / max(elapsed, 1e-9):,.0f} IMU samples/s) "
         f"-> {args.output}",
         file=sys.stderr,
     )
     if args.plot:
-        _plot(trajectory, dataset, windows, args.plot)
+        api.plot(trajectory, dataset, gnss_outage=windows, path=args.plot,
+                 title=f"{dataset.name}: {trajectory.method}")  # fmt: skip
     return 0
 
 
-def _plot(trajectory: Trajectory, dataset: Dataset, windows, path: Path):
-    from fgins.bench.metrics import errors_against
-    from fgins.bench.plots import plot_track_and_errors
-
-    gnss_enu = dataset.gnss_enu()
-    errors = errors_against(trajectory, dataset.gnss.t, gnss_enu, dataset.t0, windows)
-    plot_track_and_errors(
-        trajectory, dataset.gnss.t, gnss_enu, dataset.t0, windows, errors, path,
-        title=f"{dataset.name}: {trajectory.method}",
-    )  # fmt: skip
-    return errors
-
-
 def cmd_demo(args: argparse.Namespace) -> int:
-    from fgins.io.kitti import read_kitti
-    from fgins.io.trajectory_csv import write_trajectory_csv
+    from fgins.bench.metrics import errors_against
 
-    windows = parse_windows(args.gnss_outage)
-    dataset = read_kitti()
-    config = _config_for(dataset, args)
-    mask = outage_mask(dataset, windows)
-    started = time.perf_counter()
-    trajectory = run_method(dataset, config, args.method, gnss_mask=mask, progress=_progress(args))
-    elapsed = time.perf_counter() - started
     out_csv = args.output_dir / f"kitti_{args.method}.csv"
     out_png = args.output_dir / f"kitti_{args.method}.png"
-    write_trajectory_csv(trajectory, out_csv)
-    errors = _plot(trajectory, dataset, windows, out_png)
+    api.check_output(out_csv)
+    api.check_output(out_png, suffixes=PLOT_SUFFIXES, what="plot")
+    windows = parse_windows(args.gnss_outage)
+    dataset = _load(args, ["demo:kitti"])
+    trajectory = api.smooth(dataset, args.method, gnss_outage=windows, progress=_progress(args))
+    elapsed = trajectory.summary()["wall_s"]
+    trajectory.write(out_csv)
+    gnss_enu = dataset.gnss_enu()
+    errors = errors_against(trajectory, dataset.gnss.t, gnss_enu, dataset.t0, windows)
+    api.plot(trajectory, dataset, gnss_outage=windows, path=out_png,
+             title=f"{dataset.name}: {trajectory.method}")  # fmt: skip
     summary = errors.summary()
     print(
         f"fgins demo: KITTI drive ({len(dataset.imu)} IMU samples, {len(dataset.gnss)} GNSS epochs, "
@@ -275,38 +258,25 @@ def cmd_demo(args: argparse.Namespace) -> int:
     print(f"  wall time {elapsed:.2f} s ({len(dataset.imu) / elapsed:,.0f} IMU samples/s)")
     if args.method != "ekf":
         # The same data and outage through the forward EKF baseline, for scale.
-        from fgins.bench.metrics import errors_against
-
-        started = time.perf_counter()
-        ekf = run_method(dataset, config, "ekf", gnss_mask=mask, progress=False)
-        ekf_elapsed = time.perf_counter() - started
-        ekf_summary = errors_against(
-            ekf, dataset.gnss.t, dataset.gnss_enu(), dataset.t0, windows
-        ).summary()
+        ekf = api.smooth(dataset, "ekf", gnss_outage=windows, progress=False)
+        ekf_summary = errors_against(ekf, dataset.gnss.t, gnss_enu, dataset.t0, windows).summary()
         ratio = summary["h_rms_outage"] / ekf_summary["h_rms_outage"]
         print(
             f"  forward EKF on the same data: RMS {ekf_summary['h_rms_outage']:.2f} m in the "
-            f"outage ({args.method}/EKF = {ratio:.2f}), {ekf_elapsed:.2f} s"
+            f"outage ({args.method}/EKF = {ratio:.2f}), {ekf.summary()['wall_s']:.2f} s"
         )
     print(f"  wrote {out_csv} and {out_png}")
     return 0
 
 
 def cmd_sim(args: argparse.Namespace) -> int:
-    try:
-        from fgins.sim.scenarios import SCENARIOS
-        from fgins.sim.writer import write_sim_dir
-    except ImportError:
-        raise FginsError("the simulator is not available in this build") from None
     if args.scenario == "list":
-        from fgins.sim.scenarios import scenario_list
-
+        try:
+            from fgins.sim.scenarios import scenario_list
+        except ImportError:
+            raise FginsError("the simulator is not available in this build") from None
         print(scenario_list())
         return 0
-    if args.scenario not in SCENARIOS:
-        raise FginsError(
-            f"unknown scenario {args.scenario!r}; choose one of {', '.join(SCENARIOS)}"
-        )
     if args.output_dir is None:
         raise FginsError("fgins sim: -o DIR is required")
     options: dict[str, object] = {}
@@ -315,13 +285,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
         if not _:
             raise FginsError(f"--set {item!r}: expected KEY=VALUE")
         options[key.strip()] = _parse_value(value.strip())
-    if args.duration is not None:
-        options["duration_s"] = args.duration
-    try:
-        run = SCENARIOS[args.scenario](seed=args.seed, **options)
-    except TypeError as exc:
-        raise FginsError(f"scenario {args.scenario}: {exc}") from None
-    write_sim_dir(run, args.output_dir)
+    _, run = api._simulate(args.scenario, args.output_dir, args.seed, args.duration, options)
     print(
         f"{args.scenario}: wrote {args.output_dir} ({len(run.dataset.imu)} IMU samples, "
         f"{len(run.dataset.gnss)} GNSS epochs)"
@@ -341,39 +305,25 @@ def _parse_value(text: str) -> object:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    from fgins.bench.outages import BenchCase, markdown_table, run_case, write_results
-    from fgins.io.inputs import load_dataset
-    from fgins.pipeline import METHODS
+    import time
 
-    methods = [m for m in args.methods.split(",") if m]
-    unknown = sorted(set(methods) - set(METHODS))
-    if unknown:
-        raise FginsError(
-            f"--methods: unknown {', '.join(unknown)}; choose from {', '.join(METHODS)}"
-        )
+    from fgins.bench.outages import frame_to_markdown
+
+    methods = api.check_methods([m for m in args.methods.split(",") if m])
+    api.check_output(args.output_dir / "outages.json", args.inputs, suffixes=(".json",))
+    windows = parse_windows(args.gnss_outage)
     started = time.perf_counter()
-    dataset = load_dataset(args.inputs, progress=_progress(args))
-    config = _config_for(dataset, args)
-    if args.gnss_outage:
-        windows = parse_windows(args.gnss_outage)
-    else:
-        span = float(dataset.gnss.t[-1] - dataset.t0)
-        windows = periodic_windows(
-            args.outage_duration, args.outage_period, args.outage_start, span
-        )
-    truth = None
-    truth_path = Path(args.inputs[0]) / "truth.csv"
-    if len(args.inputs) == 1 and truth_path.exists():
-        from fgins.io.trajectory_csv import read_trajectory_csv
-
-        truth = read_trajectory_csv(truth_path, dataset.origin)
-    name = dataset.name.replace(":", "-") or "input"
-    case = BenchCase(name, dataset, config, windows, truth=truth)
-    run_case(case, methods, progress=_progress(args))
-    print(markdown_table([case], baseline=args.baseline))
-    write_results([case], args.output_dir, baseline=args.baseline)
-    reference = "simulator truth" if truth is not None else "the withheld GNSS fixes"
-    print(f"\nreference: {reference}; outages {windows}")
+    dataset = _load(args, args.inputs)
+    table = api.bench(
+        dataset, methods, windows or None, baseline=args.baseline,
+        outage_duration=args.outage_duration, outage_period=args.outage_period,
+        outage_start=args.outage_start, output_dir=args.output_dir, progress=_progress(args),
+    )  # fmt: skip
+    print(frame_to_markdown(table, baseline=args.baseline))
+    reference = (
+        "simulator truth" if table.attrs["reference"] == "truth" else "the withheld GNSS fixes"
+    )
+    print(f"\nreference: {reference}; outages {table.attrs['outages']}")
     print(
         f"benchmark wall time {time.perf_counter() - started:.1f} s; results in {args.output_dir}/"
     )
@@ -403,12 +353,33 @@ def cmd_fleet(args: argparse.Namespace) -> int:
 def cmd_convert(args: argparse.Namespace) -> int:
     from fgins.io.gnss_export import write_gnss
 
+    if args.imu:
+        from fgins.io.ubx import convert_ubx_imu
+
+        api.check_output(args.output, [args.input], suffixes=(".csv",), what="IMU output")
+        print(convert_ubx_imu(args.input, args.output), file=sys.stderr)
+        return 0
+    api.check_output(args.output, [args.input], suffixes=GNSS_OUTPUT_SUFFIXES, what="GNSS output")
     gnss, warnings = _read_gnss_only(args.input, args.time_offset)
-    write_gnss(gnss, args.output)
+    if args.output.suffix.lower() == ".tum":
+        _write_gnss_tum(gnss, args.output)
+    else:
+        write_gnss(gnss, args.output)
     for warning in warnings:
         print(f"warning: {warning}", file=sys.stderr)
     print(f"wrote {len(gnss)} fixes to {args.output}", file=sys.stderr)
     return 0
+
+
+def _write_gnss_tum(gnss, path: Path) -> None:
+    """The fixes as a TUM reference: ENU at the first fix (the origin ``fgins smooth`` takes
+    for a log without one), identity orientation."""
+    from fgins.datatypes import InputError, Origin
+    from fgins.io.trajectory_tum import write_gnss_tum
+
+    if len(gnss) == 0:
+        raise InputError(f"{path}: the log has no GNSS fix with a position")
+    write_gnss_tum(gnss.t, gnss.lla, Origin(*map(float, gnss.lla[0])), path)
 
 
 def _read_gnss_only(path: Path, time_offset: float):
@@ -419,6 +390,10 @@ def _read_gnss_only(path: Path, time_offset: float):
 
         result = read_mcap(path, progress=False)
         return result.dataset.gnss, result.warnings
+    from fgins.io.ubx import looks_like_ubx, read_ubx_gnss
+
+    if looks_like_ubx(path):
+        return read_ubx_gnss(path, time_offset)
     from fgins.io.csv_pair import csv_kind, read_gnss_csv
 
     if path.suffix.lower() == ".csv" and csv_kind(path) == "gnss":
@@ -441,6 +416,11 @@ def cmd_inspect(args: argparse.Namespace) -> int:
         return 0
     if path.suffix.lower() == ".csv":
         print(_summarize_csv(path))
+        return 0
+    from fgins.io.ubx import looks_like_ubx, summarize_ubx
+
+    if looks_like_ubx(path):
+        print(summarize_ubx(path))
         return 0
     from fgins.io.nmea import summarize_nmea
 
@@ -485,7 +465,10 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        return COMMANDS[args.command](args)
+        with warnings.catch_warnings():
+            # The CLI prints every finding itself, as counted one-line `warning:`s.
+            warnings.simplefilter("ignore", api.FginsWarning)
+            return COMMANDS[args.command](args)
     except FginsError as exc:
         print(f"fgins: error: {exc}", file=sys.stderr)
         return 2

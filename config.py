@@ -6,13 +6,19 @@ place that converts them to SI. Every key is optional over a preset.
 
 from __future__ import annotations
 
+import difflib
 import math
+import numbers
 import tomllib
+import types
+import typing
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
-from fgins.datatypes import Dataset, FginsError
+import numpy as np
+
+from fgins.datatypes import ConfigError, Dataset
 
 STANDARD_GRAVITY = 9.80665
 DEG = math.pi / 180.0
@@ -55,6 +61,211 @@ IMU_PRESETS: dict[str, dict[str, float]] = {
     },
 }
 
+# ---------------------------------------------------------------------------------------------
+# Value checking. Every config value, whatever its source (a TOML file, a dataset's own
+# settings, a CLI or API choice), goes through check_value() against one Check, so the rules
+# live in the schemas below, not in per-key code. An error names the source, the key and the
+# value: "config run.toml: [imu].gyro_arw_deg_per_sqrt_hr = "abc": expected a number".
+
+VEHICLES = ("car", "aircraft", "uav", "pedestrian", "other")
+
+
+@dataclass(frozen=True)
+class Check:
+    """What one config value must be.
+
+    ``kind`` is "number", "int", "bool", "str", "vec3" (3 numbers; a scalar when
+    ``scalar_ok``) or "table" (str -> number, keys from ``choices``). Numbers are finite;
+    ``low`` bounds them from below (exclusive when ``strict``), ``abs_max`` in magnitude.
+    ``hint`` is appended to a range error: what to do instead.
+    """
+
+    kind: str
+    low: float | None = None
+    strict: bool = False
+    abs_max: float | None = None
+    optional: bool = False
+    choices: tuple[str, ...] = ()
+    scalar_ok: bool = False
+    hint: str = ""
+
+
+def _show(value: object) -> str:
+    """A value as the user wrote it (TOML spelling)."""
+    if isinstance(value, (bool, np.bool_)):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return '"' + value.replace('"', '\\"') + '"'
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return "[" + ", ".join(_show(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{k} = {_show(v)}" for k, v in value.items()) + "}"
+    if isinstance(value, numbers.Real):
+        number = float(value)
+        if math.isnan(number):
+            return "nan"
+        if math.isinf(number):
+            return "inf" if number > 0 else "-inf"
+        return str(int(number)) if isinstance(value, numbers.Integral) else repr(number)
+    return repr(value)
+
+
+_TYPE_NAMES = {
+    "bool": "a boolean",
+    "bool_": "a boolean",
+    "str": "a string",
+    "list": "a list",
+    "tuple": "a list",
+    "dict": "a table",
+    "NoneType": "nothing",
+}
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
+
+
+def _fail(where: str, name: str, value: object, problem: str) -> ConfigError:
+    return ConfigError(f"{where}{name} = {_show(value)}: {problem}")
+
+
+def _number(where: str, name: str, value: object, check: Check, shown: object = None) -> float:
+    shown = value if shown is None else shown
+    if not _is_number(value):
+        article = "a number" if check.kind != "vec3" else "numbers"
+        kind = _TYPE_NAMES.get(type(value).__name__, type(value).__name__)
+        hint = " (write it without quotes)" if isinstance(value, str) else ""
+        raise _fail(where, name, shown, f"expected {article}, got {kind}{hint}")
+    number = float(value)
+    if not math.isfinite(number):
+        raise _fail(where, name, shown, "expected a finite number")
+    if check.low is not None and (number <= check.low if check.strict else number < check.low):
+        problem = f"must be {'>' if check.strict else '>='} {check.low:g}"
+        raise _fail(where, name, shown, problem + (f" ({check.hint})" if check.hint else ""))
+    if check.abs_max is not None and abs(number) > check.abs_max:
+        problem = f"must be within +-{check.abs_max:g}"
+        raise _fail(where, name, shown, problem + (f" ({check.hint})" if check.hint else ""))
+    return number
+
+
+def check_value(where: str, name: str, value: object, check: Check) -> Any:
+    """``value`` converted to its kind (float, int, bool, str, 3-tuple, dict), or a
+    :class:`ConfigError` naming ``where`` (the source, e.g. "config run.toml: "), ``name``
+    (e.g. "[imu].gyro_arw_deg_per_sqrt_hr") and the value."""
+    if value is None:
+        if check.optional:
+            return None
+        raise _fail(where, name, value, f"a value is required ({_expected(check)})")
+    if check.kind == "number":
+        return _number(where, name, value, check)
+    if check.kind == "int":
+        if not _is_number(value) or float(value) != math.floor(float(value)):
+            raise _fail(where, name, value, "expected a whole number")
+        return int(_number(where, name, value, check))
+    if check.kind == "bool":
+        if not isinstance(value, (bool, np.bool_)):
+            raise _fail(where, name, value, "expected true or false")
+        return bool(value)
+    if check.kind == "str":
+        if not isinstance(value, str) or (check.choices and value not in check.choices):
+            raise _fail(where, name, value, f"expected one of {', '.join(check.choices)}")
+        return value
+    if check.kind == "vec3":
+        given = value
+        if check.scalar_ok and _is_number(value):
+            value = [value] * 3
+        if not isinstance(value, (list, tuple, np.ndarray)) or len(value) != 3:
+            raise _fail(where, name, value, f"expected {_expected(check)}")
+        return tuple(_number(where, name, v, check, shown=given) for v in value)
+    if check.kind == "table":
+        if not isinstance(value, dict):
+            raise _fail(where, name, value, "expected a table")
+        unknown = sorted(set(value) - set(check.choices))
+        if unknown:
+            raise _fail(
+                where, f"{name}.{unknown[0]}", value[unknown[0]],
+                f"unknown key; valid keys are {', '.join(check.choices)}",
+            )  # fmt: skip
+        return {
+            k: _number(where, f"{name}.{k}", v, replace(check, kind="number"))
+            for k, v in value.items()
+        }
+    return value  # a kind without rules (a field type added later): passed through
+
+
+def _expected(check: Check) -> str:
+    if check.kind == "vec3":
+        return "3 numbers [x, y, z]" + (" or one number" if check.scalar_ok else "")
+    return {"number": "a number", "int": "a whole number", "bool": "true or false"}.get(
+        check.kind, check.kind
+    )
+
+
+def check_table(
+    where: str, section: str, table: object, schema: dict[str, Check]
+) -> dict[str, Any]:
+    """Every key of one ``[section]`` table checked against ``schema`` (unknown keys are an
+    error, with the nearest valid key suggested)."""
+    if table is None:
+        return {}
+    if not isinstance(table, dict):
+        raise _fail(where, f"[{section}]", table, "expected a table of key = value settings")
+    checked: dict[str, Any] = {}
+    for key, value in table.items():
+        if key not in schema:
+            close = difflib.get_close_matches(str(key), list(schema), n=1, cutoff=0.5)
+            suggestion = f"; did you mean {close[0]}?" if close else ""
+            raise ConfigError(
+                f"{where}[{section}]: unknown key(s) {key}{suggestion} "
+                f"(valid keys: {', '.join(sorted(schema))})"
+            )
+        checked[key] = check_value(where, f"[{section}].{key}", value, schema[key])
+    return checked
+
+
+def _schema_from_fields(cls: type, rules: dict[str, Check]) -> dict[str, Check]:
+    """A Check per dataclass field, its kind from the declared type and its range from
+    ``rules`` (a field without a rule still gets its type checked, numbers finite)."""
+    schema: dict[str, Check] = {}
+    for name, hint in typing.get_type_hints(cls).items():
+        if name not in {f.name for f in fields(cls)}:
+            continue
+        args = typing.get_args(hint)
+        optional = isinstance(hint, types.UnionType) and type(None) in args
+        if optional:
+            hint = next(a for a in args if a is not type(None))
+        origin = typing.get_origin(hint)
+        if hint is bool:
+            kind = "bool"
+        elif hint is int:
+            kind = "int"
+        elif hint is float:
+            kind = "number"
+        elif hint is str:
+            kind = "str"
+        elif origin is tuple and len(typing.get_args(hint)) == 3:
+            kind = "vec3"
+        elif origin is dict:
+            kind = "table"
+        else:
+            kind = "any"
+        rule = rules.get(name, Check(kind))
+        schema[name] = replace(rule, kind=kind, optional=optional or rule.optional)
+    return schema
+
+
+POSITIVE = Check("number", low=0.0, strict=True)
+NON_NEGATIVE = Check("number", low=0.0)
+WHITE_NOISE_HINT = (
+    "zero white noise makes the IMU factors singular; give the datasheet value, or a small "
+    "one such as 1% of the preset's for a near-perfect sensor"
+)
+BIAS_HINT = "0 means a constant bias; a negative density is meaningless"
+TURN_ON_HINT = (
+    "it is the prior sigma of the initial bias; use a small value for a bias calibrated out"
+)
+
+
 # Keys accepted in [imu] besides "preset". The *_si keys let data sources that already know
 # continuous-time densities (KITTI metadata, the simulator) state them exactly.
 IMU_KEYS = {
@@ -72,6 +283,26 @@ IMU_KEYS = {
     "integration_sigma_m_per_s2_per_sqrt_hz",
     "rate_hz",
 }
+
+IMU_SCHEMA: dict[str, Check] = {
+    "preset": Check("str", choices=tuple(IMU_PRESETS)),
+    "gyro_arw_deg_per_sqrt_hr": replace(POSITIVE, hint=WHITE_NOISE_HINT),
+    "accel_vrw_m_per_s_per_sqrt_hr": replace(POSITIVE, hint=WHITE_NOISE_HINT),
+    "gyro_noise_rad_per_s_per_sqrt_hz": replace(POSITIVE, hint=WHITE_NOISE_HINT),
+    "accel_noise_m_per_s2_per_sqrt_hz": replace(POSITIVE, hint=WHITE_NOISE_HINT),
+    # Zero bias instability / random walk is valid: a constant bias (the smoother models it).
+    "gyro_bias_instability_deg_per_hr": replace(NON_NEGATIVE, hint=BIAS_HINT),
+    "accel_bias_instability_mg": replace(NON_NEGATIVE, hint=BIAS_HINT),
+    "gyro_bias_rw_rad_per_s_per_sqrt_s": replace(NON_NEGATIVE, hint=BIAS_HINT),
+    "accel_bias_rw_m_per_s2_per_sqrt_s": replace(NON_NEGATIVE, hint=BIAS_HINT),
+    # The turn-on bias is the prior sigma of the initial bias: 0 would be a hard constraint.
+    "gyro_turn_on_bias_deg_per_s": replace(POSITIVE, hint=TURN_ON_HINT),
+    "accel_turn_on_bias_mg": replace(POSITIVE, hint=TURN_ON_HINT),
+    "bias_correlation_time_s": POSITIVE,
+    "integration_sigma_m_per_s2_per_sqrt_hz": NON_NEGATIVE,
+    "rate_hz": POSITIVE,
+}
+assert set(IMU_SCHEMA) == IMU_KEYS | {"preset"}
 
 
 @dataclass(frozen=True)
@@ -97,18 +328,21 @@ class ImuNoise:
         )
 
 
-def imu_noise_from_config(imu: dict[str, Any] | None = None) -> ImuNoise:
-    """Datasheet-unit ``[imu]`` table (over its preset) -> :class:`ImuNoise` in SI."""
+def imu_noise_from_config(imu: dict[str, Any] | None = None, *, where: str = "") -> ImuNoise:
+    """Datasheet-unit ``[imu]`` table (over its preset) -> :class:`ImuNoise` in SI.
+
+    Every value is checked first (:data:`IMU_SCHEMA`); ``where`` names the source in errors.
+    """
     imu = dict(imu or {})
-    preset_name = str(imu.pop("preset", "consumer-mems"))
-    if preset_name not in IMU_PRESETS:
-        raise FginsError(
-            f"unknown IMU preset {preset_name!r}; choose one of {', '.join(IMU_PRESETS)}"
+    preset_name = imu.pop("preset", "consumer-mems")
+    if isinstance(preset_name, str) and preset_name not in IMU_PRESETS:
+        raise ConfigError(
+            f"{where}[imu].preset = {_show(preset_name)}: unknown IMU preset; choose one of "
+            f"{', '.join(IMU_PRESETS)}"
         )
-    unknown = set(imu) - IMU_KEYS
-    if unknown:
-        raise FginsError(f"[imu]: unknown key(s) {', '.join(sorted(unknown))}")
-    values: dict[str, float] = {**IMU_PRESETS[preset_name], **{k: float(v) for k, v in imu.items()}}
+    check_value(where, "[imu].preset", preset_name, IMU_SCHEMA["preset"])
+    checked = check_table(where, "imu", imu, IMU_SCHEMA)
+    values: dict[str, float] = {**IMU_PRESETS[preset_name], **checked}
     tau = values.get("bias_correlation_time_s", 600.0)
     gyro_noise = values.get(
         "gyro_noise_rad_per_s_per_sqrt_hz", values["gyro_arw_deg_per_sqrt_hr"] * DEG / 60.0
@@ -124,7 +358,7 @@ def imu_noise_from_config(imu: dict[str, Any] | None = None) -> ImuNoise:
         "accel_bias_rw_m_per_s2_per_sqrt_s",
         values["accel_bias_instability_mg"] * 1e-3 * STANDARD_GRAVITY / math.sqrt(tau),
     )
-    return ImuNoise(
+    noise = ImuNoise(
         gyro_noise=gyro_noise,
         accel_noise=accel_noise,
         gyro_bias_rw=gyro_bias_rw,
@@ -133,6 +367,11 @@ def imu_noise_from_config(imu: dict[str, Any] | None = None) -> ImuNoise:
         accel_bias_prior=values["accel_turn_on_bias_mg"] * 1e-3 * STANDARD_GRAVITY,
         integration_sigma=values.get("integration_sigma_m_per_s2_per_sqrt_hz", 1e-4),
     )
+    # Each input was finite and in range; a product of huge ones could still overflow.
+    derived = [getattr(noise, f.name) for f in fields(noise)]
+    if not all(math.isfinite(v) for v in derived):
+        raise ConfigError(f"{where}[imu]: the values give a non-finite noise model: {noise}")
+    return noise
 
 
 # UERE (m, 1 sigma) per NMEA fix quality: GNSS sigma = UERE x DOP.
@@ -165,24 +404,28 @@ class GnssConfig:
     velocity_sigma_m_per_s: float | None = None
     course_min_speed_m_per_s: float = 3.0
 
+    def __post_init__(self) -> None:
+        # Values set in code (not through from_dict) are checked too, then normalised.
+        for name, value in check_fields(self, GNSS_SCHEMA, "gnss").items():
+            setattr(self, name, value)
+
     @classmethod
-    def from_dict(cls, table: dict[str, Any] | None) -> GnssConfig:
-        table = dict(table or {})
-        known = {f.name for f in fields(cls)}
-        unknown = set(table) - known
-        if unknown:
-            raise FginsError(f"[gnss]: unknown key(s) {', '.join(sorted(unknown))}")
-        for key in ("lever_arm_m", "sigma_m", "default_sigma_m"):
-            if table.get(key) is not None:
-                value = table[key]
-                if isinstance(value, (int, float)):
-                    value = (float(value), float(value), float(value))
-                if len(value) != 3:
-                    raise FginsError(f"[gnss].{key} must have 3 values (east/x, north/y, up/z)")
-                table[key] = tuple(float(v) for v in value)
-        if "uere_m" in table:
-            table["uere_m"] = {**DEFAULT_UERE_M, **table["uere_m"]}
-        return cls(**table)
+    def from_dict(cls, table: dict[str, Any] | None, *, where: str = "") -> GnssConfig:
+        """A ``[gnss]`` table (every key optional) -> :class:`GnssConfig`, every value
+        checked; ``where`` names the source in errors ("config run.toml: ")."""
+        checked = check_table(where, "gnss", table, GNSS_SCHEMA)
+        if "uere_m" in checked:
+            checked["uere_m"] = {**DEFAULT_UERE_M, **checked["uere_m"]}
+        return cls(**checked)
+
+
+def check_fields(instance: object, schema: dict[str, Check], section: str) -> dict[str, Any]:
+    """The checked, normalised value of every field of a config dataclass instance."""
+    return {
+        f.name: check_value("", f"[{section}].{f.name}", getattr(instance, f.name), schema[f.name])
+        for f in fields(instance)  # type: ignore[arg-type]
+        if f.name in schema
+    }
 
 
 @dataclass
@@ -212,6 +455,10 @@ class SmootherConfig:
     isam2_relinearize_threshold: float = 0.1
     batch_max_iterations: int = 100
 
+    def __post_init__(self) -> None:
+        for name, value in check_fields(self, SMOOTHER_SCHEMA, "smoother").items():
+            setattr(self, name, value)
+
     @property
     def nhc(self) -> bool:
         return self.use_nhc if self.use_nhc is not None else self.vehicle == "car"
@@ -219,6 +466,47 @@ class SmootherConfig:
     @property
     def zupt(self) -> bool:
         return self.use_zupt if self.use_zupt is not None else self.vehicle == "car"
+
+
+SIGMA_HINT = "a 1-sigma error; 0 would make the measurement infinitely certain"
+GNSS_SCHEMA = _schema_from_fields(
+    GnssConfig,
+    {
+        "lever_arm_m": Check("vec3", abs_max=100.0, hint="metres, antenna in the IMU frame"),
+        "uere_m": Check("table", low=0.0, strict=True, choices=tuple(DEFAULT_UERE_M)),
+        "sigma_m": Check("vec3", low=0.0, strict=True, scalar_ok=True, hint=SIGMA_HINT),
+        "default_sigma_m": Check("vec3", low=0.0, strict=True, scalar_ok=True, hint=SIGMA_HINT),
+        "min_sigma_m": Check("number", low=0.0, strict=True, hint=SIGMA_HINT),
+        "pdop_max": Check("number", low=0.0, strict=True),
+        "min_fix_quality": Check("int", low=0.0, abs_max=9.0),
+        "huber_k": POSITIVE,
+        "cauchy_k": POSITIVE,
+        "velocity_sigma_m_per_s": replace(POSITIVE, hint=SIGMA_HINT),
+        "course_min_speed_m_per_s": NON_NEGATIVE,
+    },
+)
+SMOOTHER_SCHEMA = _schema_from_fields(
+    SmootherConfig,
+    {
+        "outage_keyframe_interval_s": POSITIVE,
+        "max_keyframe_interval_s": POSITIVE,
+        "min_keyframe_interval_s": NON_NEGATIVE,
+        "suspect_noise_factor": Check("number", low=1.0),
+        "initial_heading_deg": Check("number", abs_max=360.0),
+        "vehicle": Check("str", choices=VEHICLES),
+        "nhc_sigma_lateral_m_per_s": replace(POSITIVE, hint=SIGMA_HINT),
+        "nhc_sigma_vertical_m_per_s": replace(POSITIVE, hint=SIGMA_HINT),
+        "imu_to_vehicle_rpy_deg": Check("vec3", abs_max=360.0, hint="degrees"),
+        "zupt_sigma_m_per_s": replace(POSITIVE, hint=SIGMA_HINT),
+        "zupt_max_speed_m_per_s": NON_NEGATIVE,
+        "odometer_sigma_m_per_s": replace(POSITIVE, hint=SIGMA_HINT),
+        "odometer_scale_sigma": replace(POSITIVE, hint=SIGMA_HINT),
+        "baro_sigma_m": replace(POSITIVE, hint=SIGMA_HINT),
+        "baro_bias_walk_m_per_sqrt_s": POSITIVE,
+        "isam2_relinearize_threshold": NON_NEGATIVE,
+        "batch_max_iterations": Check("int", low=1.0),
+    },
+)
 
 
 @dataclass
@@ -240,43 +528,77 @@ def load_config(
     dataset_imu: dict[str, Any] | None = None,
     dataset_gnss: dict[str, Any] | None = None,
     imu_preset: str | None = None,
+    dataset_name: str = "",
 ) -> RunConfig:
-    """Merge (lowest first) the dataset's own settings, a TOML file and a CLI preset."""
+    """Merge (lowest first) the dataset's own settings, a TOML file and a CLI preset.
+
+    Every value of every source is checked (type, range, known key) before anything is
+    merged, so an error names the source it came from; errors are :class:`ConfigError`.
+    """
     table: dict[str, Any] = {}
+    file_where = f"config {path}: "
     if path is not None:
         try:
             table = tomllib.loads(Path(path).read_text())
         except FileNotFoundError:
-            raise FginsError(f"config file {path} not found") from None
+            raise ConfigError(f"config file {path} not found") from None
+        except IsADirectoryError:
+            raise ConfigError(f"config file {path} is a folder; give a .toml file") from None
+        except UnicodeDecodeError:
+            raise ConfigError(f"config file {path}: not a text (TOML) file") from None
+        except OSError as exc:
+            raise ConfigError(f"config file {path}: cannot read it ({exc.strerror})") from None
         except tomllib.TOMLDecodeError as exc:
-            raise FginsError(f"config file {path}: {exc}") from None
+            raise ConfigError(f"config file {path}: {exc}") from None
     unknown = set(table) - {"imu", "gnss", "smoother"}
     if unknown:
-        raise FginsError(f"config {path}: unknown section(s) {', '.join(sorted(unknown))}")
-    imu = {**(dataset_imu or {})}
-    user_imu = dict(table.get("imu", {}))
+        raise ConfigError(
+            f"config {path}: unknown section(s) {', '.join(sorted(unknown))} "
+            "(valid: [imu], [gnss], [smoother])"
+        )
+    data_where = f"sensor settings of {dataset_name or 'the input'}: "
+    # Each source alone: its values must be valid, whatever the others say.
+    dataset_imu = check_table(data_where, "imu", dataset_imu, IMU_SCHEMA)
+    user_imu = check_table(file_where, "imu", table.get("imu"), IMU_SCHEMA)
+    if imu_preset is not None:
+        check_value("", "imu preset (--imu-preset)", imu_preset, IMU_SCHEMA["preset"])
+    imu = dict(dataset_imu)
     if "preset" in user_imu or imu_preset:
         # A preset chosen by the user replaces the dataset's own numbers entirely.
         imu = {}
     imu.update(user_imu)
     if imu_preset:
         imu["preset"] = imu_preset
-    imu_noise_from_config(imu)  # validate early: one clear error before any work
-    gnss = GnssConfig.from_dict({**(dataset_gnss or {}), **table.get("gnss", {})})
-    smoother_table = table.get("smoother", {})
-    known = {f.name for f in fields(SmootherConfig)}
-    if set(smoother_table) - known:
-        raise FginsError(
-            f"[smoother]: unknown key(s) {', '.join(sorted(set(smoother_table) - known))}"
-        )
-    if "imu_to_vehicle_rpy_deg" in smoother_table:
-        smoother_table["imu_to_vehicle_rpy_deg"] = tuple(smoother_table["imu_to_vehicle_rpy_deg"])
+    imu_noise_from_config(imu, where=file_where if path is not None else data_where)
+    gnss_table = {
+        **check_table(data_where, "gnss", dataset_gnss, GNSS_SCHEMA),
+        **check_table(file_where, "gnss", table.get("gnss"), GNSS_SCHEMA),
+    }
+    if "uere_m" in gnss_table:
+        gnss_table["uere_m"] = {**DEFAULT_UERE_M, **gnss_table["uere_m"]}
+    smoother_table = check_table(file_where, "smoother", table.get("smoother"), SMOOTHER_SCHEMA)
     return RunConfig(
         imu=imu,
-        gnss=gnss,
-        smoother=SmootherConfig(**smoother_table),
+        gnss=GnssConfig(**gnss_table),
+        smoother=_checked_smoother(file_where, smoother_table),
         explicit_smoother_keys=frozenset(smoother_table),
     )
+
+
+def _checked_smoother(where: str, table: dict[str, Any]) -> SmootherConfig:
+    """SmootherConfig from checked values, plus the checks that involve two keys."""
+    smoother = SmootherConfig(**table)
+    if smoother.min_keyframe_interval_s > smoother.max_keyframe_interval_s:
+        raise ConfigError(
+            f"{where}[smoother].min_keyframe_interval_s = {_show(smoother.min_keyframe_interval_s)}"
+            f": must not exceed max_keyframe_interval_s = {_show(smoother.max_keyframe_interval_s)}"
+        )
+    return smoother
+
+
+def check_vehicle(where: str, vehicle: object, name: str = "vehicle") -> str:
+    """A vehicle type from the CLI, the API or a dataset, or a :class:`ConfigError`."""
+    return check_value(where, name, vehicle, SMOOTHER_SCHEMA["vehicle"])
 
 
 def config_for_dataset(
@@ -293,10 +615,25 @@ def config_for_dataset(
         dataset_imu=dataset.imu_config,
         dataset_gnss=dataset.gnss_config,
         imu_preset=imu_preset,
+        dataset_name=dataset.name,
     )
+    if vehicle is not None:
+        check_vehicle("", vehicle, name="vehicle (--vehicle)")
+    if dataset.vehicle:  # "" or None: the data do not say
+        check_vehicle(f"sensor settings of {dataset.name or 'the input'}: ", dataset.vehicle)
     chosen = vehicle or dataset.vehicle
     if chosen and "vehicle" not in config.explicit_smoother_keys:
         config.smoother.vehicle = chosen
     if vehicle:
         config.smoother.vehicle = vehicle
+    if not config.imu:
+        # Neither the data nor the user said anything about the IMU's noise: the default
+        # preset is a guess, and results depend on it. Say so once, where it is chosen.
+        line = (
+            "imu: the data say nothing about the IMU's noise and no --imu-preset/--config "
+            "[imu] was given; using the consumer-mems preset. Override with --imu-preset NAME "
+            f"({', '.join(IMU_PRESETS)}) or --config FILE.toml with an [imu] table"
+        )
+        if line not in dataset.warnings:
+            dataset.warnings.append(line)
     return config

@@ -21,6 +21,15 @@ class InputError(FginsError):
     """The input data is unusable as given."""
 
 
+class ConfigError(FginsError):
+    """A configuration value (TOML file, a dataset's own settings, a CLI or API choice) is
+    of the wrong type or out of range; the message names the key and the value."""
+
+
+class OutputError(FginsError):
+    """An output cannot be written where asked (format, folder, permissions, an input)."""
+
+
 def _as_float_array(name: str, value: object, shape_tail: tuple[int, ...]) -> np.ndarray:
     array = np.asarray(value, dtype=float)
     if array.ndim != 1 + len(shape_tail) or array.shape[1:] != shape_tail:
@@ -340,3 +349,32 @@ class Trajectory:
     def at(self, t: np.ndarray) -> np.ndarray:
         """Position interpolated to times ``t`` (linear), (len(t), 3)."""
         return np.column_stack([np.interp(t, self.t, self.position[:, i]) for i in range(3)])
+
+    # Thin entry points of the public API (fgins.api), imported on use so the data model
+    # stays numpy-only.
+    def to_dataframe(self):  # -> pandas.DataFrame
+        """The trajectory as a pandas DataFrame with the trajectory CSV's columns, in order.
+
+        See :func:`fgins.api.to_dataframe`.
+        """
+        from fgins.api import to_dataframe
+
+        return to_dataframe(self)
+
+    def write(self, path, *, with_input: bool = False) -> None:
+        """Write the trajectory; the format follows the extension (.csv .geojson .kml .mcap .tum).
+
+        See :func:`fgins.api.write`.
+        """
+        from fgins.api import write
+
+        write(self, path, with_input=with_input)
+
+    def summary(self) -> dict[str, object]:
+        """The run summary as a dict (method, counts, GNSS gating, rejected fixes, timings...).
+
+        See :func:`fgins.api.summary`.
+        """
+        from fgins.api import summary
+
+        return summary(self)

@@ -12,7 +12,6 @@ a one-line error; it never stops the rest of the fleet.
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import json
 import logging
@@ -20,8 +19,9 @@ import math
 import os
 import sys
 import time
+import warnings
 from collections.abc import Iterator
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -43,7 +43,7 @@ class Drive:
 class FleetOptions:
     """What every drive of a fleet is smoothed with (mirrors ``fgins smooth`` options).
 
-    The attribute names match the CLI's, so ``fgins.cli._config_for`` reads them unchanged.
+    The attribute names match the CLI's options.
     """
 
     method: str = "batch"
@@ -200,21 +200,22 @@ def smooth_drive(drive: Drive, options: FleetOptions, out_dir: str) -> dict[str,
 
 
 def _smooth_and_write(drive: Drive, options: FleetOptions, output: Path) -> dict[str, Any]:
-    # Imported here: fgins.cli imports this module lazily, and workers import only on demand.
+    # Imported here: workers import only on demand. The public API, not the CLI (which imports
+    # this module): no import cycle, and a drive runs exactly as `fgins smooth` would.
+    from fgins import api
     from fgins.bench.metrics import errors_against
-    from fgins.cli import _config_for, write_output
-    from fgins.io.inputs import load_dataset
-    from fgins.outages import outage_mask, parse_windows
-    from fgins.pipeline import run_method
+    from fgins.outages import parse_windows
 
     windows = parse_windows(options.gnss_outage)
-    dataset = load_dataset(list(drive.inputs), progress=False)
-    config = _config_for(dataset, argparse.Namespace(**asdict(options)))
-    mask = outage_mask(dataset, windows)
-    started = time.perf_counter()
-    trajectory = run_method(dataset, config, options.method, gnss_mask=mask, progress=False)
-    elapsed = time.perf_counter() - started
-    write_output(trajectory, output, dataset)
+    with warnings.catch_warnings():  # counted in the summary, not printed by every worker
+        warnings.simplefilter("ignore", api.FginsWarning)
+        dataset = api.load(
+            *drive.inputs, config=options.config, imu_preset=options.imu_preset,
+            vehicle=options.vehicle, robust=options.robust,
+        )  # fmt: skip
+    trajectory = api.smooth(dataset, options.method, gnss_outage=windows)
+    elapsed = trajectory.summary()["wall_s"]
+    trajectory.write(output)
     # Horizontal RMS against the drive's own GNSS at the epochs the smoother was given.
     errors = errors_against(trajectory, dataset.gnss.t, dataset.gnss_enu(), dataset.t0, windows)
     return {

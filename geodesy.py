@@ -2,13 +2,21 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 import pymap3d
 
-if TYPE_CHECKING:
-    from fgins.datatypes import Origin
+
+class Origin(Protocol):
+    """Anything with ``lat``, ``lon`` (deg) and ``alt`` (ellipsoidal m), e.g.
+    :class:`fgins.datatypes.Origin`. A protocol, not an import, so that ``geodesy`` (numpy
+    only) does not depend on the data model that uses it."""
+
+    lat: float
+    lon: float
+    alt: float
+
 
 WGS84_A = 6378137.0
 WGS84_F = 1.0 / 298.257223563
@@ -118,3 +126,42 @@ def so3_log(r: np.ndarray) -> np.ndarray:
     s = np.sin(angle)
     factor = np.where(angle < 1e-8, 0.5, angle / (2.0 * np.where(angle < 1e-8, 1.0, s)))
     return v * factor[..., None]
+
+
+def rotation_to_quaternion(rotation: np.ndarray) -> np.ndarray:
+    """Rotation matrices (N, 3, 3) -> unit quaternions (N, 4) as x, y, z, w (w >= 0).
+
+    Shepperd's method: branch on the largest of w, x, y, z so the square root never sees a
+    near-zero argument.
+    """
+    r = np.asarray(rotation, dtype=float).reshape(-1, 3, 3)
+    trace = r[:, 0, 0] + r[:, 1, 1] + r[:, 2, 2]
+    diag = np.stack([r[:, 0, 0], r[:, 1, 1], r[:, 2, 2], trace], axis=1)
+    branch = np.argmax(diag, axis=1)
+    q = np.empty((r.shape[0], 4))
+    for k in range(4):
+        sel = branch == k
+        if not np.any(sel):
+            continue
+        m = r[sel]
+        if k == 3:  # w largest
+            s = 2.0 * np.sqrt(1.0 + trace[sel])
+            q[sel] = np.column_stack(
+                [
+                    (m[:, 2, 1] - m[:, 1, 2]) / s,
+                    (m[:, 0, 2] - m[:, 2, 0]) / s,
+                    (m[:, 1, 0] - m[:, 0, 1]) / s,
+                    0.25 * s,
+                ]
+            )
+            continue
+        i, j, l = k, (k + 1) % 3, (k + 2) % 3
+        s = 2.0 * np.sqrt(np.clip(1.0 + m[:, i, i] - m[:, j, j] - m[:, l, l], 0.0, None))
+        part = np.empty((m.shape[0], 4))
+        part[:, i] = 0.25 * s
+        part[:, j] = (m[:, j, i] + m[:, i, j]) / s
+        part[:, l] = (m[:, l, i] + m[:, i, l]) / s
+        part[:, 3] = (m[:, l, j] - m[:, j, l]) / s
+        q[sel] = part
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    return q * np.where(q[:, 3:4] < 0, -1.0, 1.0)

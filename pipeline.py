@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import importlib
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -35,7 +37,10 @@ def run_method(
     if method in GRAPH_METHODS:
         from fgins.graph.smoother import smooth
 
-        return smooth(dataset, config, method, gnss_mask=gnss_mask, progress=progress)
+        return smooth(
+            dataset, config, method, gnss_mask=gnss_mask, progress=progress,
+            initial_guess=filter_initial_guess(dataset, config, gnss_mask),
+        )  # fmt: skip
     if dataset.accel_array is not None:
         method = ACCEL_ARRAY_METHODS.get(method, method)
     if method in BASELINE_METHODS:
@@ -46,3 +51,65 @@ def run_method(
             raise FginsError(f"method {method!r} is not available in this build") from None
         return function(dataset, config, gnss_mask=gnss_mask, progress=progress)
     raise FginsError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+
+
+@dataclass
+class KeyframeStates:
+    """Navigation states and IMU biases at given times (K rows): a filter's initial guess."""
+
+    rotation: np.ndarray  # (K, 3, 3) body -> ENU
+    position: np.ndarray  # (K, 3)
+    velocity: np.ndarray  # (K, 3)
+    accel_bias: np.ndarray  # (K, 3)
+    gyro_bias: np.ndarray  # (K, 3)
+
+
+def filter_initial_guess(
+    dataset: Dataset, config: RunConfig, gnss_mask: np.ndarray | None
+) -> Callable[[np.ndarray], KeyframeStates]:
+    """The initial guess the factor graph starts from: the Kalman filter that matches the
+    input (the 18-state gyro-free EKF for an accelerometer array, else the 15-state EKF),
+    with Huber-weighted GNSS updates, sampled at the keyframe times.
+
+    Huber-weighted updates bound what a gross outlier can do to the guess; a hard innovation
+    gate would be worse: once it rejects a few fixes the filter can lock out.
+    """
+    guess_config = replace(config, gnss=replace(config.gnss, huber_k=2.0, cauchy_k=None))
+    name = "ekf18" if dataset.accel_array is not None else "ekf"
+
+    def guess(times: np.ndarray) -> KeyframeStates:
+        module_name, function_name = BASELINE_METHODS[name].split(":")
+        function = getattr(importlib.import_module(module_name), function_name)
+        filtered = function(dataset, guess_config, gnss_mask=gnss_mask, progress=False)
+        return sample_states(filtered, times)
+
+    return guess
+
+
+def sample_states(trajectory: Trajectory, times: np.ndarray) -> KeyframeStates:
+    """A trajectory's states at ``times``: position and velocity interpolated, attitude at
+    the nearest sample, biases averaged over each keyframe interval [t_k, t_k+1) (a gyro-free
+    front end's rate error is noisy sample to sample; its mean is what preintegration needs)."""
+    t = trajectory.t
+    nearest = np.clip(np.searchsorted(t, times), 0, len(t) - 1)
+    position = np.column_stack([np.interp(times, t, trajectory.position[:, i]) for i in range(3)])
+    velocity = np.column_stack([np.interp(times, t, trajectory.velocity[:, i]) for i in range(3)])
+
+    def interval_mean(values: np.ndarray | None) -> np.ndarray:
+        if values is None:
+            return np.zeros((len(times), 3))
+        values = np.nan_to_num(np.asarray(values, dtype=float))
+        cumulative = np.vstack([np.zeros((1, 3)), np.cumsum(values, axis=0)])
+        lo = np.searchsorted(t, times)
+        hi = np.append(lo[1:], len(t))
+        hi = np.maximum(hi, lo + 1)
+        lo, hi = np.clip(lo, 0, len(t) - 1), np.clip(hi, 1, len(t))
+        return (cumulative[hi] - cumulative[lo]) / (hi - lo)[:, None]
+
+    return KeyframeStates(
+        rotation=trajectory.rotation[nearest],
+        position=position,
+        velocity=velocity,
+        accel_bias=interval_mean(trajectory.accel_bias),
+        gyro_bias=interval_mean(trajectory.gyro_bias),
+    )

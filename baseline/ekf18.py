@@ -55,6 +55,7 @@ from fgins.config import RunConfig, SmootherConfig
 from fgins.datatypes import AccelArrayData, Dataset, InputError, Trajectory
 from fgins.factors.accel_array import AccelArray, rate_monomials
 from fgins.initial_guess import KeyframeGuess
+from fgins.mounting import mounting_rotation
 
 STATE_DIM = 18
 POS = slice(0, 3)
@@ -242,7 +243,7 @@ def nhc_measurement(
 
     Same model as :func:`fgins.factors.vehicle.nhc_factor`, in this filter's left (ENU)
     attitude error R_true = Exp(phi) R: v_b = R^T v + R^T dv + R^T [v]x phi."""
-    select = mounting.T[1:3]  # vehicle y and z axes in IMU axes
+    select = mounting[1:3]  # R_vi rows: the vehicle's y and z axes in IMU axes
     rotation_t = nav.rotation.T
     h = np.zeros((2, STATE_DIM))
     h[:, VEL] = select @ rotation_t
@@ -392,9 +393,7 @@ def _ekf18_pass(
     model = _ArrayModel(data)
     frame = NavFrame.at(dataset.origin)
     epochs = select_gnss(dataset, config, gnss_mask)
-    align = initial_alignment(
-        dataset, epochs.usable, heading_deg=config.smoother.initial_heading_deg
-    )
+    align = initial_alignment(dataset, epochs.usable, smoother=config.smoother)
     lever_arm = np.asarray(config.gnss.lever_arm_m, dtype=float)
     times = block_times(float(data.t[0]), float(data.t[-1]), epochs.t, max_block_s)
     segments = segment_imu(data.t, times)
@@ -429,8 +428,7 @@ def _ekf18_pass(
     cov[BIAS, BIAS] = np.eye(data.n_sensors) * max(bias_sigma, 1e-9) ** 2
     counts = {"gnss_updates": 0, "velocity_updates": 0, "nhc_updates": 0, "zupt_updates": 0}
     smoother = config.smoother
-    roll, pitch, yaw = np.radians(smoother.imu_to_vehicle_rpy_deg)
-    mounting = rotation_from_rpy(roll, pitch, yaw)
+    mounting = mounting_rotation(smoother.imu_to_vehicle_rpy_deg)
     zupt_max_speed = smoother.zupt_max_speed_m_per_s
     quiet = quiet_array(model, data, times) if smoother.zupt else np.zeros(len(times), bool)
 

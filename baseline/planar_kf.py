@@ -107,9 +107,7 @@ class PlanarInputs:
 
 def planar_inputs(dataset: Dataset, config: RunConfig, epochs: GnssEpochs) -> PlanarInputs:
     """Level-frame inputs and the initial state from the shared alignment."""
-    align = initial_alignment(
-        dataset, epochs.usable, heading_deg=config.smoother.initial_heading_deg
-    )
+    align = initial_alignment(dataset, epochs.usable, smoother=config.smoother)
     rotation = np.asarray(align.rotation, dtype=float)
     yaw = float(np.arctan2(rotation[1, 0], rotation[0, 0]))
     c, s = np.cos(yaw), np.sin(yaw)

@@ -6,7 +6,7 @@ configuration keys and sigmas, applied at the filter's block boundaries:
 
 - **NHC** (``config.smoother.nhc``): vehicle-frame lateral and vertical velocity are zero,
   ``S R^T v = 0`` with ``S`` the vehicle y, z axes in IMU axes (mounting
-  ``imu_to_vehicle_rpy_deg``), sigmas ``nhc_sigma_lateral/vertical_m_per_s``. Rate: at block
+  ``imu_to_vehicle_rpy_deg``, :mod:`fgins.mounting`), sigmas ``nhc_sigma_lateral/vertical_m_per_s``. Rate: at block
   boundaries no closer than ``min_keyframe_interval_s`` -- i.e. once per graph keyframe (every
   GNSS epoch, decimated like the graph, and every ``max_block_s`` = 1 s in outages). The NHC
   error (side-slip, mounting) is strongly time-correlated, so applying the same sigma at 10 or
@@ -49,7 +49,8 @@ from fgins.baseline.mechanization import ATT, GYRO_BIAS, POS, STATE_DIM, VEL, No
 from fgins.config import ImuNoise, RunConfig
 from fgins.datatypes import Dataset
 from fgins.factors import stationary
-from fgins.geodesy import skew, so3_exp
+from fgins.geodesy import skew
+from fgins.mounting import mounting_rotation
 
 BARO_BIAS = STATE_DIM  # index of the barometer bias in the augmented error state
 BARO_BIAS_PRIOR_SIGMA_M = 100.0  # as the graph's prior on its first bias key
@@ -58,17 +59,6 @@ BARO_WINDOW_S = 0.25
 # Half-window means of a stop differ by noise only: a difference beyond this many of its own
 # standard errors is a trend (starting or stopping), not rest.
 NO_MOTION_RATE_SIGMA = np.radians(0.01)  # the graph's no-motion rotation sigma per ~1 s keyframe
-
-
-def imu_to_vehicle_rotation(rpy_deg: tuple[float, float, float]) -> np.ndarray:
-    """Mounting rotation from roll, pitch, yaw (deg) as GTSAM's ``Rot3.Ypr(yaw, pitch, roll)``
-    (Rz Ry Rx), which is how the graph builds it."""
-    roll, pitch, yaw = np.radians(np.asarray(rpy_deg, dtype=float))
-    return (
-        so3_exp(np.array([0.0, 0.0, yaw]))
-        @ so3_exp(np.array([0.0, pitch, 0.0]))
-        @ so3_exp(np.array([roll, 0.0, 0.0]))
-    )
 
 
 @dataclass
@@ -187,7 +177,7 @@ def vehicle_aiding(
     """The pseudo-measurements of ``dataset`` at the block boundaries ``times``."""
     smoother = config.smoother
     imu = dataset.imu
-    mounting = imu_to_vehicle_rotation(smoother.imu_to_vehicle_rpy_deg)
+    mounting = mounting_rotation(smoother.imu_to_vehicle_rpy_deg)
     if smoother.zupt:
         quiet = stationary.quiet_imu(imu, times, noise, before_s=QUIET_WINDOW_S, after_s=0.0)
         rest_gyro, n_samples = stationary.mean_gyro(imu, times, before_s=QUIET_WINDOW_S)
@@ -203,7 +193,7 @@ def vehicle_aiding(
         nhc_sigma=np.array(
             [smoother.nhc_sigma_lateral_m_per_s, smoother.nhc_sigma_vertical_m_per_s]
         ),
-        nhc_rows=mounting.T[1:3],
+        nhc_rows=mounting[1:3],  # R_vi rows: the vehicle's left and up axes in IMU axes
         nhc_min_interval_s=smoother.min_keyframe_interval_s,
         zupt=smoother.zupt,
         zupt_sigma=smoother.zupt_sigma_m_per_s,

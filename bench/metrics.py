@@ -64,3 +64,43 @@ def errors_against(
         inside=in_windows(t, t0, windows),
         horizontal_std=np.linalg.norm(std, axis=1),
     )
+
+
+def relative_position_error(
+    trajectory: Trajectory,
+    reference_t: np.ndarray,
+    reference_enu: np.ndarray,
+    segment_m: float = 100.0,
+) -> float:
+    """RMS relative position error (m) over consecutive segments of ``segment_m`` of path.
+
+    Definition (orientation-free, so it works against GNSS fixes as well as truth): the
+    reference epochs inside the trajectory's span are cut into consecutive, non-overlapping
+    segments; a segment starts where the previous one ended (the first at the first epoch)
+    and ends at the first epoch whose reference path length since its start is at least
+    ``segment_m``. For a segment (i, j) the error is
+    ``|(p_est(t_j) - p_est(t_i)) - (p_ref(t_j) - p_ref(t_i))|`` with the estimate linearly
+    interpolated at the reference times; the result is the RMS over segments (NaN if the
+    reference path is shorter than one segment). This is evo's RPE (translation part, delta
+    in metres, consecutive pairs taken on the reference path) on positions alone, i.e. with
+    both orientations set to identity; it differs from evo's default by the attitude error at
+    each segment start, which rotates the estimate's displacement.
+    """
+    span = (reference_t >= trajectory.t[0]) & (reference_t <= trajectory.t[-1])
+    t = np.asarray(reference_t)[span]
+    ref = np.asarray(reference_enu)[span]
+    if t.size < 2:
+        return float("nan")
+    path = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(ref, axis=0), axis=1))])
+    # Segment ends: one searchsorted per segment (drive length / segment_m of them).
+    ends = [0]
+    while True:
+        nxt = int(np.searchsorted(path, path[ends[-1]] + segment_m, side="left"))
+        if nxt >= t.size:
+            break
+        ends.append(max(nxt, ends[-1] + 1))
+    if len(ends) < 2:
+        return float("nan")
+    ends_index = np.array(ends)
+    error = np.diff(trajectory.at(t[ends_index]), axis=0) - np.diff(ref[ends_index], axis=0)
+    return float(np.sqrt(np.mean(np.sum(error**2, axis=1))))

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fgins.bench.metrics import Errors, errors_against
+from fgins.bench.metrics import Errors, errors_against, relative_position_error
 from fgins.config import RunConfig
 from fgins.datatypes import Dataset, FginsError, Trajectory
 from fgins.io.atomic import atomic_path
@@ -97,6 +97,11 @@ def run_case(case: BenchCase, methods: list[str], progress: bool = False) -> Ben
                     case.windows,
                 )
             metrics = errors.summary()
+            if case.truth is not None:
+                reference_t, reference_enu = case.truth.t, case.truth.position
+            else:
+                reference_t, reference_enu = case.dataset.gnss.t, case.dataset.gnss_enu()
+            metrics["rpe_100m"] = relative_position_error(traj, reference_t, reference_enu)
             ends = end_of_outage_errors(errors, case.dataset.t0, case.windows)
             metrics["h_end_outage_mean"] = float(np.mean(ends)) if ends else float("nan")
             metrics["imu_samples_per_s"] = len(case.dataset.imu) / wall
@@ -125,13 +130,19 @@ def _attitude_bias_errors(trajectory: Trajectory, truth: Trajectory) -> dict[str
     return out
 
 
-def markdown_table(cases: list[BenchCase], baseline: str = "ekf") -> str:
-    """One row per case and method; ratios against ``baseline`` in the same case."""
-    lines = [
-        "| case | method | h RMS outage (m) | h max outage (m) | h end (m) | h RMS aided (m) | "
-        f"in 3σ | wall (s) | IMU samples/s | RMS / {baseline} |",
-        "|---|---|---|---|---|---|---|---|---|---|",
-    ]
+# Benchmark table: (column, unit-suffixed name, metric key or None for computed columns).
+FRAME_COLUMNS = (
+    "case", "method", "h_rms_outage_m", "h_max_outage_m", "h_end_outage_m", "h_rms_aided_m",
+    "rpe_100m_m", "within_3sigma_outage", "wall_s", "imu_samples_per_s", "rms_ratio",
+)  # fmt: skip
+
+
+def results_frame(cases: list[BenchCase], baseline: str = "ekf"):  # -> pandas.DataFrame
+    """One row per case and method (:data:`FRAME_COLUMNS`); ``rms_ratio`` is the outage RMS
+    over ``baseline``'s in the same case (NaN without it)."""
+    import pandas as pd
+
+    rows = []
     for case in cases:
         reference = next((r for r in case.results if r.method == baseline), None)
         for result in case.results:
@@ -141,13 +152,37 @@ def markdown_table(cases: list[BenchCase], baseline: str = "ekf") -> str:
                 if reference is not None and reference.metrics["h_rms_outage"] > 0
                 else float("nan")
             )
-            lines.append(
-                f"| {case.name} | {result.method} | {m['h_rms_outage']:.2f} | {m['h_max_outage']:.2f} | "
-                f"{m['h_end_outage_mean']:.2f} | {m['h_rms_aided']:.2f} | "
-                f"{100 * m.get('within_3sigma_outage', float('nan')):.0f}% | {result.wall_s:.2f} | "
-                f"{m['imu_samples_per_s']:,.0f} | {ratio:.2f} |"
-            )
+            rows.append(
+                (
+                    case.name, result.method, m["h_rms_outage"], m["h_max_outage"],
+                    m["h_end_outage_mean"], m["h_rms_aided"], m.get("rpe_100m", float("nan")),
+                    m.get("within_3sigma_outage", float("nan")), result.wall_s,
+                    m["imu_samples_per_s"], ratio,
+                )
+            )  # fmt: skip
+    return pd.DataFrame(rows, columns=list(FRAME_COLUMNS))
+
+
+def frame_to_markdown(frame, baseline: str = "ekf") -> str:
+    """The benchmark table (from :func:`results_frame`) as markdown, as ``fgins bench`` prints it."""
+    lines = [
+        "| case | method | h RMS outage (m) | h max outage (m) | h end (m) | h RMS aided (m) | "
+        f"RPE/100 m (m) | in 3σ | wall (s) | IMU samples/s | RMS / {baseline} |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for row in frame.itertuples(index=False):
+        lines.append(
+            f"| {row.case} | {row.method} | {row.h_rms_outage_m:.2f} | {row.h_max_outage_m:.2f} | "
+            f"{row.h_end_outage_m:.2f} | {row.h_rms_aided_m:.2f} | {row.rpe_100m_m:.2f} | "
+            f"{100 * row.within_3sigma_outage:.0f}% | {row.wall_s:.2f} | "
+            f"{row.imu_samples_per_s:,.0f} | {row.rms_ratio:.2f} |"
+        )
     return "\n".join(lines)
+
+
+def markdown_table(cases: list[BenchCase], baseline: str = "ekf") -> str:
+    """One row per case and method; ratios against ``baseline`` in the same case."""
+    return frame_to_markdown(results_frame(cases, baseline), baseline)
 
 
 def write_results(cases: list[BenchCase], out_dir: Path, baseline: str = "ekf") -> None:

@@ -12,10 +12,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgins.config import GnssConfig
-from fgins.datatypes import GnssData
+from fgins.datatypes import GnssData, InputError
 
 # NMEA GGA fix-quality codes -> UERE table key.
 QUALITY_UERE_KEY = {1: "autonomous", 2: "dgps", 9: "dgps", 4: "rtk_fixed", 5: "rtk_float"}
+
+
+def _positive(values: np.ndarray) -> np.ndarray:
+    """``values`` with every entry that is not a finite number > 0 set to NaN (missing)."""
+    values = np.asarray(values, dtype=float)
+    with np.errstate(invalid="ignore"):
+        return np.where(np.isfinite(values) & (values > 0), values, np.nan)
 
 
 def position_sigmas(gnss: GnssData, config: GnssConfig) -> np.ndarray:
@@ -37,7 +44,9 @@ def position_sigmas(gnss: GnssData, config: GnssConfig) -> np.ndarray:
             for q in gnss.fix_quality
         ]
     )
-    hdop, vdop, pdop = gnss.hdop, gnss.vdop, gnss.pdop
+    # A DOP or sigma <= 0 is corrupt, not "very precise": treated as missing, so it can never
+    # be floored to min_sigma_m and turn a bad fix into the most trusted one.
+    hdop, vdop, pdop = (_positive(x) for x in (gnss.hdop, gnss.vdop, gnss.pdop))
     has_h = np.isfinite(hdop)
     # The low-cost UAV study's convention, per axis: sigma_E = sigma_N = UERE x HDOP. (Strictly
     # HDOP bounds sqrt(sE^2 + sN^2), so this is conservative by sqrt(2); receivers' HDOP
@@ -47,7 +56,7 @@ def position_sigmas(gnss: GnssData, config: GnssConfig) -> np.ndarray:
     vertical_dop = np.where(np.isfinite(vertical_dop), vertical_dop, 1.5 * hdop)
     has_v = np.isfinite(vertical_dop)
     sigma[has_v, 2] = uere[has_v] * vertical_dop[has_v]
-    data_sigma = gnss.std
+    data_sigma = _positive(gnss.std)
     has_data = np.isfinite(data_sigma)
     sigma[has_data] = data_sigma[has_data]
     return np.maximum(sigma, config.min_sigma_m)
@@ -61,9 +70,10 @@ def velocity_sigmas(gnss: GnssData, config: GnssConfig) -> np.ndarray:
     if config.velocity_sigma_m_per_s is not None:
         sigma[has_velocity] = config.velocity_sigma_m_per_s
     else:
-        data = gnss.velocity_std
+        data = _positive(gnss.velocity_std)
         # Doppler velocity is typically ~0.1 m/s x DOP; without data sigmas use that.
-        hdop = np.where(np.isfinite(gnss.hdop), gnss.hdop, 1.0)
+        hdop = _positive(gnss.hdop)
+        hdop = np.where(np.isfinite(hdop), hdop, 1.0)
         fallback = np.column_stack([0.1 * hdop, 0.1 * hdop, 0.2 * hdop])
         sigma[has_velocity] = np.where(np.isfinite(data), data, fallback)[has_velocity]
     no_up = ~np.isfinite(gnss.velocity[:, 2])
@@ -77,30 +87,173 @@ def velocity_sigmas(gnss: GnssData, config: GnssConfig) -> np.ndarray:
 
 @dataclass
 class GateResult:
-    """Which epochs are used, and why the others are not."""
+    """Which epochs are used, and why the others are not.
+
+    Every epoch is counted exactly once, in this priority order (the first reason that
+    applies): withheld by the caller's outage mask, no finite position, outside the IMU time
+    span (when given), fix quality below the minimum (or dead reckoning), PDOP above
+    ``pdop_max``. So ``total == n_used + withheld + rejected_position + outside_span +
+    rejected_quality + rejected_pdop``; an epoch in an outage is never "gated by PDOP".
+
+    ``usable`` keeps its old meaning: epochs that pass the gates, ignoring the outage mask
+    (callers AND it with their own mask); ``used`` is ``usable & ~withheld``.
+    """
 
     usable: np.ndarray
     rejected_pdop: int
     rejected_quality: int
+    withheld: int = 0
+    rejected_position: int = 0
+    outside_span: int = 0
+    pdop_max: float | None = None
+    used: np.ndarray | None = None
+    # False when the caller gave no outage mask: then "used" cannot be claimed, only "pass
+    # the gates" (the caller may still withhold some of them).
+    outage_applied: bool = True
+
+    def __post_init__(self) -> None:
+        if self.used is None:
+            self.used = self.usable
+
+    @property
+    def total(self) -> int:
+        return len(self.usable)
+
+    @property
+    def n_used(self) -> int:
+        return int(self.used.sum())
 
     def summary(self) -> str:
-        return (
-            f"GNSS gating: {int(self.usable.sum())} epochs used, {self.rejected_pdop} rejected "
-            f"for PDOP, {self.rejected_quality} for fix quality"
+        """One line whose counts add up to the number of epochs, e.g. ``GNSS: 469 epochs:
+        409 used, 60 withheld by outage, 0 gated by PDOP > 5, 0 by fix quality``."""
+        pdop = f"PDOP > {self.pdop_max:g}" if self.pdop_max is not None else "PDOP"
+        if self.outage_applied:
+            parts = [f"{self.n_used} used", f"{self.withheld} withheld by outage"]
+        else:
+            parts = [f"{self.n_used} pass the gates (outages not counted here)"]
+        if self.rejected_position:
+            parts.append(f"{self.rejected_position} without a position")
+        if self.outside_span:
+            parts.append(f"{self.outside_span} outside the IMU time span")
+        parts += [
+            f"{self.rejected_pdop} gated by {pdop}",
+            f"{self.rejected_quality} by fix quality",
+        ]
+        return f"GNSS: {self.total} epochs: " + ", ".join(parts)
+
+
+def gate_epochs(
+    gnss: GnssData,
+    config: GnssConfig,
+    withheld: np.ndarray | None = None,
+    imu_span: tuple[float, float] | None = None,
+) -> GateResult:
+    """PDOP and fix-quality gates (the MEMS study rejects PDOP > 5); gated epochs are outages.
+
+    Parameters
+    ----------
+    gnss, config
+        The fixes and the GNSS settings (``min_fix_quality``, ``pdop_max``).
+    withheld
+        Optional bool mask (M,), True where the caller withholds the epoch (an outage). Such an
+        epoch is counted as withheld only, whatever its PDOP or quality. Without it the
+        summary says "pass the gates", not "used", as it cannot know the outages.
+    imu_span
+        Optional (start, end) time of the IMU; epochs outside it cannot be used and are
+        counted as such (and are not ``usable``).
+
+    Returns
+    -------
+    GateResult
+        ``usable`` (gates only, as before), ``used`` (also not withheld) and the counts per
+        reason, each epoch counted once (see :class:`GateResult` for the order).
+    """
+    n = len(gnss)
+    outage_applied = withheld is not None
+    if withheld is None:
+        withheld = np.zeros(n, dtype=bool)
+    withheld = np.asarray(withheld, dtype=bool)
+    if withheld.shape != (n,):
+        raise InputError(
+            f"withheld has shape {withheld.shape} for {n} GNSS epochs; build it with "
+            "~fgins.outages.outage_mask(dataset, windows)"
         )
-
-
-def gate_epochs(gnss: GnssData, config: GnssConfig) -> GateResult:
-    """PDOP and fix-quality gates (the MEMS study rejects PDOP > 5); gated epochs are outages."""
+    position_ok = np.all(np.isfinite(gnss.lla), axis=1)
+    span_ok = np.ones(n, dtype=bool)
+    if imu_span is not None:
+        span_ok = (gnss.t >= imu_span[0]) & (gnss.t <= imu_span[1])
     quality_ok = (gnss.fix_quality >= config.min_fix_quality) & (gnss.fix_quality != 6)
-    pdop_ok = np.ones(len(gnss), dtype=bool)
+    pdop_ok = np.ones(n, dtype=bool)
     if config.pdop_max is not None:
         pdop_ok = ~(np.isfinite(gnss.pdop) & (gnss.pdop > config.pdop_max))
+    usable = position_ok & span_ok & quality_ok & pdop_ok
+    # Attribute each epoch to the first reason in the priority order.
+    remaining = ~withheld
+    counts = []
+    for ok in (position_ok, span_ok, quality_ok, pdop_ok):
+        counts.append(int((remaining & ~ok).sum()))
+        remaining = remaining & ok
     return GateResult(
-        usable=quality_ok & pdop_ok,
-        rejected_pdop=int((quality_ok & ~pdop_ok).sum()),
-        rejected_quality=int((~quality_ok).sum()),
+        usable=usable,
+        rejected_pdop=counts[3],
+        rejected_quality=counts[2],
+        withheld=int(withheld.sum()),
+        rejected_position=counts[0],
+        outside_span=counts[1],
+        pdop_max=config.pdop_max,
+        used=usable & ~withheld,
+        outage_applied=outage_applied,
     )
+
+
+# 3-D whitened residual norm above which a fix is a "large residual": chi-square, 3 dof,
+# 99.9 % (the level graph/smoother.py reports at), so 0.1 % of good fixes exceed it.
+LARGE_RESIDUAL_SIGMA = 4.03
+LARGE_RESIDUAL_EXPECTED = 0.001
+
+
+def kernel_weights(whitened_norms: np.ndarray, config: GnssConfig) -> np.ndarray:
+    """Weight the robust kernel gives each GNSS factor at its whitened residual norm (GTSAM's
+    mEstimator weights: Cauchy k^2 / (k^2 + r^2), Huber min(1, k / r)); 1 without a kernel."""
+    r = np.abs(np.asarray(whitened_norms, dtype=float))
+    if config.cauchy_k is not None:
+        return config.cauchy_k**2 / (config.cauchy_k**2 + r**2)
+    if config.huber_k is not None:
+        return np.minimum(1.0, config.huber_k / np.maximum(r, 1e-300))
+    return np.ones_like(r)
+
+
+def residual_summary(
+    whitened_norms: np.ndarray, config: GnssConfig, downweighted_below: float = 0.5
+) -> str:
+    """One honest line about GNSS residuals at the solution.
+
+    A residual above :data:`LARGE_RESIDUAL_SIGMA` is a *large residual*; only a robust
+    kernel really down-weights a fix, so "rejected"/"down-weighted" is said only with one
+    on, counting fixes whose kernel weight is below ``downweighted_below``.
+    """
+    norms = np.asarray(whitened_norms, dtype=float)
+    n, large = len(norms), int((norms > LARGE_RESIDUAL_SIGMA).sum())
+    line = f"GNSS residuals: {large} of {n} fixes above {LARGE_RESIDUAL_SIGMA:g} sigma"
+    if config.cauchy_k is not None or config.huber_k is not None:
+        kind, k = (
+            ("cauchy", config.cauchy_k)
+            if config.cauchy_k is not None
+            else ("huber", config.huber_k)
+        )
+        weak = int((kernel_weights(norms, config) < downweighted_below).sum())
+        line += (
+            f"; robust kernel {kind} (k={k:g}) down-weighted {weak} of them below "
+            f"{100 * downweighted_below:.0f} % weight"
+        )
+    else:
+        line += " (no robust kernel: they keep full weight; --robust cauchy down-weights them)"
+    if n and large > max(3, 10 * LARGE_RESIDUAL_EXPECTED * n):
+        line += (
+            f"; {100 * large / n:.0f} % is far above the {100 * LARGE_RESIDUAL_EXPECTED:g} % "
+            "expected: the GNSS sigmas are too small for these fixes"
+        )
+    return line
 
 
 def position_noise_model(sigma: np.ndarray, config: GnssConfig):  # -> gtsam noise model

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import gtsam
 import numpy as np
 
@@ -28,6 +30,38 @@ def preintegration_params(
     if earth_rate:
         params.setOmegaCoriolis(earth_rate_enu(origin.lat))
     return params
+
+
+# A bias instability of zero means a constant bias. GTSAM's CombinedImuFactor carries the bias
+# random walk in its noise, which a zero walk makes singular (NaN error, LM stalls at its
+# start). A constant bias is modelled by a floor on the walk tied to the run: over the whole
+# run the bias may move by at most this fraction of its turn-on sigma, i.e. it is constant to
+# the estimator while every factor stays well-conditioned.
+CONSTANT_BIAS_DRIFT_FRACTION = 1e-2
+
+
+def conditioned_noise(noise: ImuNoise, span_s: float) -> tuple[ImuNoise, list[str]]:
+    """``noise`` with zero (or vanishing) bias random walks floored for a constant bias.
+
+    Returns the noise model and one note per floored sensor, for the run summary.
+    """
+    span_s = max(float(span_s), 1.0)
+    notes: list[str] = []
+    changes: dict[str, float] = {}
+    for name, walk, prior, unit in (
+        ("gyro", noise.gyro_bias_rw, noise.gyro_bias_prior, "rad/s/sqrt(s)"),
+        ("accel", noise.accel_bias_rw, noise.accel_bias_prior, "m/s^2/sqrt(s)"),
+    ):
+        floor = CONSTANT_BIAS_DRIFT_FRACTION * max(prior, 1e-9) / np.sqrt(span_s)
+        if walk < floor:
+            changes[f"{name}_bias_rw"] = floor
+            notes.append(
+                f"{name} bias instability {walk:.3g} {unit}: modelled as a constant bias "
+                f"(random-walk floor {floor:.3g} {unit}: it moves < "
+                f"{100 * CONSTANT_BIAS_DRIFT_FRACTION:g} % of its {prior:.3g} prior sigma over "
+                f"the {span_s:.0f} s run)"
+            )
+    return (replace(noise, **changes) if changes else noise), notes
 
 
 def bias_prior_sigmas(noise: ImuNoise) -> np.ndarray:

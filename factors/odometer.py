@@ -1,9 +1,11 @@
 """Wheel speed / odometer: forward speed in the vehicle frame, with a scale-factor state.
 
-Measurement model: s = (1 + e) * u_x, where u = R_vb^T R^T v is the velocity in the vehicle
+Measurement model: s = (1 + e) * u_x, where u = R_vi R^T v is the velocity in the vehicle
 frame (x forward) and e the odometer's scale-factor error (tyre radius, calibration), one
 state for the drive with a prior. Like the non-holonomic constraint, this is what keeps a
-car's speed honest through a GNSS outage.
+car's speed honest through a GNSS outage, and like it (see :mod:`fgins.factors.vehicle`) it
+is given to GTSAM as factors linearised at an estimate that the smoother rebuilds in an
+outer loop: no Python callback runs inside an optimisation.
 """
 
 from __future__ import annotations
@@ -11,41 +13,59 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
+from fgins.factors.vehicle import _skew
+
 
 def scale_key() -> int:
     return gtsam.symbol("w", 0)
 
 
-def _skew(v: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+def speed_residuals(
+    rotation: np.ndarray, velocity: np.ndarray, scale_error: float, speed: np.ndarray,
+    forward: np.ndarray,
+) -> np.ndarray:  # fmt: skip
+    """(1 + e) u_x - s per keyframe (K,) for IMU states (K,3,3), (K,3)."""
+    body_velocity = np.einsum("kji,kj->ki", rotation, velocity)
+    return (1.0 + scale_error) * (body_velocity @ forward) - speed
 
 
-def speed_factor(
-    pose_key: int,
-    velocity_key: int,
-    speed: float,
+def speed_factors(
+    pose_keys: np.ndarray,
+    velocity_keys: np.ndarray,
+    poses: list[gtsam.Pose3],
+    velocity: np.ndarray,
+    scale_error: float,
+    speed: np.ndarray,
     sigma: float,
-    imu_to_vehicle: np.ndarray | None = None,
-) -> gtsam.CustomFactor:
-    """Odometer speed at a keyframe (see module docstring); Jacobians as in the NHC factor."""
-    mounting = np.eye(3) if imu_to_vehicle is None else np.asarray(imu_to_vehicle, dtype=float)
-    forward = mounting.T[0:1]  # vehicle x expressed in IMU axes (1 x 3)
+    forward: np.ndarray,
+) -> list[gtsam.LinearContainerFactor]:
+    """Odometer factors linearised at (poses, velocity, scale error), one per keyframe.
 
-    def error(this: gtsam.CustomFactor, values: gtsam.Values, jacobians) -> np.ndarray:
-        pose = values.atPose3(this.keys()[0])
-        velocity = values.atVector(this.keys()[1])
-        scale = 1.0 + values.atDouble(this.keys()[2])
-        rotation = pose.rotation().matrix()
-        body_velocity = rotation.T @ velocity
-        forward_speed = float((forward @ body_velocity)[0])
-        if jacobians is not None:
-            jacobians[0] = scale * np.hstack([forward @ _skew(body_velocity), np.zeros((1, 3))])
-            jacobians[1] = scale * (forward @ rotation.T)
-            jacobians[2] = np.array([[forward_speed]])
-        return np.array([scale * forward_speed - speed])
-
+    ``forward``: the vehicle's x axis in IMU axes (row 0 of the mounting ``R_vi``).
+    Jacobians as in the NHC factor, times the scale, plus d/de = u_x.
+    """
+    rotation = np.array([pose.rotation().matrix() for pose in poses]).reshape(-1, 3, 3)
+    body_velocity = np.einsum("kji,kj->ki", rotation, velocity)
+    forward_speed = body_velocity @ forward
+    scale = 1.0 + scale_error
+    residual = scale * forward_speed - speed
+    d_rotation = scale * np.einsum("j,kjl->kl", forward, _skew(body_velocity))
+    d_velocity = scale * np.einsum("j,klj->kl", forward, rotation)
     noise = gtsam.noiseModel.Isotropic.Sigma(1, sigma)
-    return gtsam.CustomFactor(noise, [pose_key, velocity_key, scale_key()], error)
+    out = []
+    for i in range(len(poses)):
+        linear = gtsam.JacobianFactor(
+            int(pose_keys[i]), np.hstack([d_rotation[i], np.zeros(3)])[None, :],
+            int(velocity_keys[i]), d_velocity[i][None, :],
+            scale_key(), np.array([[forward_speed[i]]]),
+            np.array([-residual[i]]), noise,
+        )  # fmt: skip
+        point = gtsam.Values()
+        point.insert(int(pose_keys[i]), poses[i])
+        point.insert(int(velocity_keys[i]), velocity[i])
+        point.insert(scale_key(), scale_error)
+        out.append(gtsam.LinearContainerFactor(linear, point))
+    return out
 
 
 def scale_prior(sigma: float) -> gtsam.PriorFactorDouble:

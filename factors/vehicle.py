@@ -3,6 +3,15 @@
 A wheeled vehicle does not move sideways or vertically in its own frame; when it stands
 still its velocity is zero and it does not turn. In long GNSS outages these constraints
 are what keeps velocity (and so position) from drifting.
+
+The non-holonomic constraint (NHC) ``S R^T v = 0`` has no factor in GTSAM, and a Python
+``CustomFactor`` is called with a copy of the whole ``Values`` on every evaluation, which
+makes each linearisation cost O(K^2) over a drive of K keyframes. So the NHC is given to
+GTSAM as *linearised* factors (a ``JacobianFactor`` inside a ``LinearContainerFactor``, all
+C++), built here in one vectorised pass at a linearisation point; the smoother rebuilds them
+at its newer estimate in an outer loop until the estimate stops moving (Gauss-Newton on the
+NHC, exact at convergence). The constraint is only mildly nonlinear (through the attitude),
+so one or two rebuilds settle it.
 """
 
 from __future__ import annotations
@@ -12,37 +21,57 @@ import numpy as np
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    """Cross-product matrices of (K, 3) vectors: (K, 3, 3)."""
+    out = np.zeros((*v.shape[:-1], 3, 3))
+    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
+    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
+    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
+    return out
 
 
-def nhc_factor(
-    pose_key: int,
-    velocity_key: int,
-    sigma_lateral: float,
-    sigma_vertical: float,
-    imu_to_vehicle: np.ndarray | None = None,
-) -> gtsam.CustomFactor:
-    """Vehicle-frame lateral and vertical velocity are zero (up to the given sigmas).
+def nhc_rows(imu_to_vehicle: np.ndarray) -> np.ndarray:
+    """The vehicle's left and up axes in IMU axes (2, 3): rows 1, 2 of ``R_vi``."""
+    return np.asarray(imu_to_vehicle, dtype=float)[1:3]
 
-    Error: rows y, z of R_vb^T R^T v, where R is the IMU pose's rotation (IMU->ENU) and R_vb
-    the IMU-to-vehicle mounting rotation (vehicle axes x forward, y left, z up). With GTSAM's
-    right perturbation R Exp(w), d(R^T v)/dw = [R^T v]x, and d(R^T v)/dv = R^T.
+
+def nhc_residuals(rotation: np.ndarray, velocity: np.ndarray, select: np.ndarray) -> np.ndarray:
+    """Vehicle-frame lateral and vertical velocity (K, 2) of IMU states (K,3,3), (K,3)."""
+    body_velocity = np.einsum("kji,kj->ki", rotation, velocity)  # R^T v
+    return body_velocity @ select.T
+
+
+def nhc_factors(
+    pose_keys: np.ndarray,
+    velocity_keys: np.ndarray,
+    poses: list[gtsam.Pose3],
+    velocity: np.ndarray,
+    select: np.ndarray,
+    sigmas: np.ndarray,
+) -> list[gtsam.LinearContainerFactor]:
+    """NHC factors linearised at (poses, velocity), one per keyframe given.
+
+    Error ``S R^T v`` (S: :func:`nhc_rows`). With GTSAM's right perturbation R Exp(w),
+    d(R^T v)/dw = [R^T v]x and d(R^T v)/dv = R^T; translation does not enter.
+    ``sigmas`` (K, 2): lateral and vertical, per keyframe.
     """
-    mounting = np.eye(3) if imu_to_vehicle is None else np.asarray(imu_to_vehicle, dtype=float)
-    select = mounting.T[1:3]  # vehicle y and z rows expressed in IMU axes
-
-    def error(this: gtsam.CustomFactor, values: gtsam.Values, jacobians) -> np.ndarray:
-        pose = values.atPose3(this.keys()[0])
-        velocity = values.atVector(this.keys()[1])
-        rotation = pose.rotation().matrix()
-        body_velocity = rotation.T @ velocity
-        if jacobians is not None:
-            jacobians[0] = np.hstack([select @ _skew(body_velocity), np.zeros((2, 3))])
-            jacobians[1] = select @ rotation.T
-        return select @ body_velocity
-
-    noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([sigma_lateral, sigma_vertical]))
-    return gtsam.CustomFactor(noise, [pose_key, velocity_key], error)
+    rotation = np.array([pose.rotation().matrix() for pose in poses]).reshape(-1, 3, 3)
+    body_velocity = np.einsum("kji,kj->ki", rotation, velocity)
+    residual = body_velocity @ select.T
+    d_rotation = np.einsum("ij,kjl->kil", select, _skew(body_velocity))
+    d_velocity = np.einsum("ij,klj->kil", select, rotation)  # S R^T
+    out = []
+    zeros = np.zeros((2, 3))
+    for i in range(len(poses)):
+        linear = gtsam.JacobianFactor(
+            int(pose_keys[i]), np.hstack([d_rotation[i], zeros]),
+            int(velocity_keys[i]), d_velocity[i],
+            -residual[i], gtsam.noiseModel.Diagonal.Sigmas(sigmas[i]),
+        )  # fmt: skip
+        point = gtsam.Values()
+        point.insert(int(pose_keys[i]), poses[i])
+        point.insert(int(velocity_keys[i]), velocity[i])
+        out.append(gtsam.LinearContainerFactor(linear, point))
+    return out
 
 
 def zero_velocity_factor(velocity_key: int, sigma: float) -> gtsam.PriorFactorVector:

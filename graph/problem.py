@@ -24,6 +24,7 @@ from fgins.factors import stationary
 from fgins.factors import vehicle as vehicle_model
 from fgins.geodesy import earth_rate_enu, normal_gravity
 from fgins.graph.keyframes import Segments, build_segments, keyframe_times
+from fgins.mounting import mounting_rotation
 
 
 @dataclass
@@ -32,7 +33,8 @@ class Problem:
     config: RunConfig
     noise: ImuNoise
     segments: Segments
-    pims: list[gtsam.PreintegratedCombinedMeasurements]
+    # Interval i's preintegration (keyframes i -> i+1), made lazily about a bias estimate.
+    pims: list[gtsam.PreintegratedCombinedMeasurements | None]
     params: gtsam.PreintegrationCombinedParams
     suspect_params: gtsam.PreintegrationCombinedParams
     gnss_at: np.ndarray  # (K,) index into the usable GNSS epochs, -1 where none
@@ -46,7 +48,8 @@ class Problem:
     quiet: np.ndarray  # (K,) the IMU is quiet around keyframe k (a stop, if the speed agrees)
     baro_pressure: np.ndarray  # (K,) mean pressure (Pa) around keyframe k, NaN where none
     odometer_speed: np.ndarray  # (K,) mean wheel speed (m/s) around keyframe k, NaN where none
-    imu_to_vehicle: np.ndarray
+    imu_to_vehicle: np.ndarray  # R_vi: IMU axes -> vehicle axes (fgins.mounting)
+    nhc_sigma: np.ndarray  # (K, 2) lateral, vertical NHC sigma per keyframe
     gnss_mask: np.ndarray | None = None  # the caller's withheld epochs (outages), True = keep
     info: dict[str, object] = field(default_factory=dict)
     zupt_keyframes: set[int] = field(default_factory=set)
@@ -84,12 +87,66 @@ class Problem:
         the speed at k) must confirm a stop before a quiet IMU is taken as one."""
         graph = gtsam.NonlinearFactorGraph()
         if k > 0:
-            graph.add(imu_model.combined_imu_factor(k - 1, k, self.pims[k - 1]))
+            graph.add(self.imu_factor(k - 1))
         self._add_gnss(graph, k)
-        self._add_vehicle(graph, k, predicted_speed)
-        self._add_odometer(graph, k)
+        self._add_stop(graph, k, predicted_speed)
+        if k == 0 and self.has_odometer:
+            graph.add(odometer_model.scale_prior(self.config.smoother.odometer_scale_sigma))
         self._add_baro(graph, k)
         return graph
+
+    def imu_factor(self, i: int) -> gtsam.CombinedImuFactor:
+        pim = self.pims[i]
+        if pim is None:
+            raise RuntimeError(f"interval {i} has not been preintegrated")  # a bug, not input
+        return imu_model.combined_imu_factor(i, i + 1, pim)
+
+    @property
+    def has_odometer(self) -> bool:
+        return bool(np.any(np.isfinite(self.odometer_speed)))
+
+    @property
+    def nhc_keyframes(self) -> np.ndarray:
+        """Keyframes that carry a non-holonomic constraint."""
+        if not self.config.smoother.nhc:
+            return np.zeros(0, dtype=int)
+        return np.arange(self.n_keyframes)
+
+    def linear_factors(
+        self, values: gtsam.Values, keyframes: np.ndarray | None = None
+    ) -> gtsam.NonlinearFactorGraph:
+        """NHC and odometer factors of ``keyframes`` (all by default), linearised at ``values``.
+
+        These constraints have no GTSAM factor; see :mod:`fgins.factors.vehicle` for why they
+        are linearised factors rebuilt in an outer loop rather than Python callbacks.
+        """
+        graph = gtsam.NonlinearFactorGraph()
+        all_k = np.arange(self.n_keyframes) if keyframes is None else np.asarray(keyframes)
+        nhc_k = np.intersect1d(all_k, self.nhc_keyframes)
+        if len(nhc_k):
+            poses = [values.atPose3(X(int(k))) for k in nhc_k]
+            velocity = np.array([values.atVector(V(int(k))) for k in nhc_k])
+            for factor in vehicle_model.nhc_factors(
+                _keys(X, nhc_k), _keys(V, nhc_k), poses, velocity,
+                vehicle_model.nhc_rows(self.imu_to_vehicle), self.nhc_sigma[nhc_k],
+            ):  # fmt: skip
+                graph.add(factor)
+        odo_k = all_k[np.isfinite(self.odometer_speed[all_k])] if self.has_odometer else all_k[:0]
+        if len(odo_k):
+            poses = [values.atPose3(X(int(k))) for k in odo_k]
+            velocity = np.array([values.atVector(V(int(k))) for k in odo_k])
+            for factor in odometer_model.speed_factors(
+                _keys(X, odo_k), _keys(V, odo_k), poses, velocity,
+                values.atDouble(odometer_model.scale_key()), self.odometer_speed[odo_k],
+                self.config.smoother.odometer_sigma_m_per_s, self.imu_to_vehicle[0],
+            ):  # fmt: skip
+                graph.add(factor)
+        return graph
+
+    def linear_factor_count(self, k: int) -> int:
+        """How many factors :meth:`linear_factors` makes for keyframe k."""
+        nhc = 1 if self.config.smoother.nhc else 0
+        return nhc + int(self.has_odometer and np.isfinite(self.odometer_speed[k]))
 
     def _add_gnss(self, graph: gtsam.NonlinearFactorGraph, k: int) -> None:
         g = int(self.gnss_at[k])
@@ -108,17 +165,10 @@ class Problem:
             velocity[2], sigma[2] = 0.0, 1e3  # horizontal-only (speed + course): vertical free
         graph.add(gnss_model.velocity_factor(V(k), velocity, sigma))
 
-    def _add_vehicle(
+    def _add_stop(
         self, graph: gtsam.NonlinearFactorGraph, k: int, predicted_speed: float | None
     ) -> None:
         smoother = self.config.smoother
-        if smoother.nhc:
-            graph.add(
-                vehicle_model.nhc_factor(
-                    X(k), V(k), smoother.nhc_sigma_lateral_m_per_s,
-                    smoother.nhc_sigma_vertical_m_per_s, self.imu_to_vehicle,
-                )
-            )  # fmt: skip
         stopped = (
             smoother.zupt
             and bool(self.quiet[k])
@@ -130,20 +180,6 @@ class Problem:
             if k - 1 in self.zupt_keyframes:
                 graph.add(vehicle_model.no_motion_factor(X(k - 1), X(k), np.radians(0.01), 0.01))
             self.zupt_keyframes.add(k)
-
-    def _add_odometer(self, graph: gtsam.NonlinearFactorGraph, k: int) -> None:
-        if not np.any(np.isfinite(self.odometer_speed)):
-            return
-        smoother = self.config.smoother
-        if k == 0:
-            graph.add(odometer_model.scale_prior(smoother.odometer_scale_sigma))
-        if np.isfinite(self.odometer_speed[k]):
-            graph.add(
-                odometer_model.speed_factor(
-                    X(k), V(k), float(self.odometer_speed[k]),
-                    smoother.odometer_sigma_m_per_s, self.imu_to_vehicle,
-                )
-            )  # fmt: skip
 
     def _add_baro(self, graph: gtsam.NonlinearFactorGraph, k: int) -> None:
         if not self.has_baro:
@@ -214,6 +250,19 @@ class Problem:
             norms[i] = np.linalg.norm((antenna - self.gnss_enu[g]) / self.gnss_sigma[g])
         return self.segments.times[keyframes], norms
 
+    def preintegrate(self, i: int, bias: gtsam.imuBias.ConstantBias) -> None:
+        """(Re)do interval i's preintegration about ``bias``."""
+        params = self.suspect_params if self.segments.suspect[i] else self.params
+        self.pims[i] = _preintegrate(self.dataset.imu, self.segments, i, params, bias)
+
+    def preintegrate_all(self, accel_bias: np.ndarray, gyro_bias: np.ndarray, progress: bool) -> None:
+        """Every interval about the bias estimate at its first keyframe (K, 3) each."""
+        for i in tqdm(
+            range(self.n_keyframes - 1), desc="preintegrating", unit="kf",
+            disable=not progress, leave=False,
+        ):  # fmt: skip
+            self.preintegrate(i, gtsam.imuBias.ConstantBias(accel_bias[i], gyro_bias[i]))
+
     def repreintegrate(
         self, values: gtsam.Values, gyro_threshold: float, accel_threshold: float
     ) -> int:
@@ -229,8 +278,7 @@ class Problem:
                 np.max(np.abs(estimate.gyroscope() - used.gyroscope())) > gyro_threshold
                 or np.max(np.abs(estimate.accelerometer() - used.accelerometer())) > accel_threshold
             ):
-                params = self.suspect_params if self.segments.suspect[i] else self.params
-                self.pims[i] = _preintegrate(self.dataset.imu, self.segments, i, params, estimate)
+                self.preintegrate(i, estimate)
                 redone += 1
         return redone
 
@@ -241,33 +289,81 @@ class Problem:
         return self.pims[k].predict(state, bias)
 
 
-def usable_gnss(dataset: Dataset, config: RunConfig) -> tuple[np.ndarray, str]:
-    gate = gnss_model.gate_epochs(dataset.gnss, config.gnss)
-    return gate.usable, gate.summary()
+def _keys(symbol, keyframes: np.ndarray) -> np.ndarray:
+    return np.array([symbol(int(k)) for k in keyframes], dtype=np.int64)
+
+
+def _gnss_selection(
+    dataset: Dataset, config: RunConfig, gnss_mask: np.ndarray | None
+) -> tuple[np.ndarray, dict[str, int]]:
+    """Usable epochs and counts that add up: every epoch is counted once, outage first
+    (a withheld epoch is never "rejected for PDOP"), then the gates, then the IMU span."""
+    gnss, imu = dataset.gnss, dataset.imu
+    kept = np.ones(len(gnss), dtype=bool) if gnss_mask is None else np.asarray(gnss_mask, bool)
+    gate = gnss_model.gate_epochs(gnss.subset(kept), config.gnss)
+    usable = np.zeros(len(gnss), dtype=bool)
+    usable[kept] = gate.usable
+    in_span = (gnss.t >= imu.t[0]) & (gnss.t <= imu.t[-1])
+    counts = {
+        "total": len(gnss),
+        "withheld": int((~kept).sum()),
+        "gated_pdop": gate.rejected_pdop,
+        "gated_quality": gate.rejected_quality,
+        "outside_imu_span": int((usable & ~in_span).sum()),
+    }
+    return usable & in_span, counts
+
+
+def _no_gnss_error(dataset: Dataset, config: RunConfig, counts: dict[str, int]) -> InputError:
+    """Why no GNSS epoch is usable, naming the actual cause."""
+    imu = dataset.imu
+    name = dataset.name or "input"
+    if counts["withheld"] == counts["total"]:
+        return InputError(f"{name}: the GNSS outage windows withhold every GNSS epoch")
+    if counts["outside_imu_span"]:
+        return InputError(
+            f"{name}: no usable GNSS epoch within the IMU time span "
+            f"({imu.t[0]:.3f}-{imu.t[-1]:.3f} s; GNSS {dataset.gnss.t[0]:.3f}-"
+            f"{dataset.gnss.t[-1]:.3f} s); check the time bases (--time-offset)"
+        )
+    return InputError(
+        f"{name}: no usable GNSS epoch: {counts['withheld']} withheld by outages, "
+        f"{counts['gated_pdop']} gated by PDOP > {config.gnss.pdop_max}, "
+        f"{counts['gated_quality']} by fix quality < {config.gnss.min_fix_quality}"
+    )
+
+
+def _gating_summary(counts: dict[str, int], used: int, decimated: int, config: RunConfig) -> str:
+    parts = [f"{used} used"]
+    if counts["withheld"]:
+        parts.append(f"{counts['withheld']} withheld by outage")
+    parts.append(f"{counts['gated_pdop']} gated by PDOP > {config.gnss.pdop_max}")
+    parts.append(f"{counts['gated_quality']} by fix quality")
+    if counts["outside_imu_span"]:
+        parts.append(f"{counts['outside_imu_span']} outside the IMU time span")
+    if decimated:
+        parts.append(f"{decimated} decimated (faster than the keyframe rate)")
+    return f"GNSS: {counts['total']} epochs: " + ", ".join(parts)
 
 
 def build_problem(
     dataset: Dataset, config: RunConfig, gnss_mask: np.ndarray | None = None, progress: bool = True
 ) -> Problem:
-    """Keyframes, preintegration and GNSS assignment. ``gnss_mask`` withholds epochs (outages)."""
-    usable, gate_summary = usable_gnss(dataset, config)
-    if gnss_mask is not None:
-        usable = usable & gnss_mask
+    """Keyframes and GNSS assignment (preintegration comes later, about a bias estimate).
+    ``gnss_mask`` withholds epochs (outages)."""
+    usable, counts = _gnss_selection(dataset, config, gnss_mask)
+    if not np.any(usable):
+        raise _no_gnss_error(dataset, config, counts)
     imu = dataset.imu
-    in_span = (dataset.gnss.t >= imu.t[0]) & (dataset.gnss.t <= imu.t[-1])
-    if not np.any(usable & in_span):
-        raise InputError(
-            f"{dataset.name or 'input'}: no usable GNSS epoch within the IMU time span "
-            f"({imu.t[0]:.3f}-{imu.t[-1]:.3f} s); check the time bases (--time-offset)"
-        )
-    outside = int((usable & ~in_span).sum())
-    usable &= in_span
-    noise = config.imu_noise()
+    noise, bias_notes = imu_model.conditioned_noise(
+        config.imu_noise(), float(imu.t[-1] - imu.t[0])
+    )
     gnss = dataset.gnss.subset(usable)
     enu = dataset.gnss_enu()[usable]
     sigma = gnss_model.position_sigmas(gnss, config.gnss)
     velocity_sigma = gnss_model.velocity_sigmas(gnss, config.gnss)
-    alignment = initial_alignment(dataset, usable, heading_deg=config.smoother.initial_heading_deg)
+    imu_to_vehicle = mounting_rotation(config.smoother.imu_to_vehicle_rpy_deg)
+    alignment = initial_alignment(dataset, usable, smoother=config.smoother)
 
     decimated = _decimate(gnss.t, config.smoother.min_keyframe_interval_s)
     times = keyframe_times(
@@ -285,30 +381,24 @@ def build_problem(
     suspect_params = imu_model.preintegration_params(
         noise.scaled(config.smoother.suspect_noise_factor), dataset.origin
     )
-    zero_bias = gtsam.imuBias.ConstantBias()
-    pims = [
-        _preintegrate(
-            imu, segments, i, suspect_params if segments.suspect[i] else params, zero_bias
-        )
-        for i in tqdm(
-            range(len(times) - 1),
-            desc="preintegrating",
-            unit="kf",
-            disable=not progress,
-            leave=False,
-        )
-    ]
-    quiet = stationary.quiet_imu(imu, times, noise)
+    smoother = config.smoother
+    quiet = (
+        stationary.quiet_imu(imu, times, noise)
+        if smoother.zupt
+        else np.zeros(len(times), dtype=bool)
+    )
     baro_pressure = stationary.pressure_at(dataset.baro, times)
     odometer_speed = _odometer_at(dataset, times)
-    roll, pitch, yaw = np.radians(config.smoother.imu_to_vehicle_rpy_deg)
-    imu_to_vehicle = gtsam.Rot3.Ypr(yaw, pitch, roll).matrix()
+    nhc_sigma = np.tile(
+        [smoother.nhc_sigma_lateral_m_per_s, smoother.nhc_sigma_vertical_m_per_s],
+        (len(times), 1),
+    )
     return Problem(
         dataset=dataset,
         config=config,
         noise=noise,
         segments=segments,
-        pims=pims,
+        pims=[None] * (len(times) - 1),
         params=params,
         suspect_params=suspect_params,
         gnss_at=gnss_at,
@@ -323,14 +413,19 @@ def build_problem(
         baro_pressure=baro_pressure,
         odometer_speed=odometer_speed,
         imu_to_vehicle=imu_to_vehicle,
+        nhc_sigma=nhc_sigma,
         gnss_mask=gnss_mask,
         info={
-            "gnss_gating": gate_summary
-            + (f"; {outside} usable epochs outside the IMU time span ignored" if outside else ""),
+            "gnss_gating": _gating_summary(
+                counts, int(matched.sum()), int((~decimated).sum()), config
+            ),
+            "gnss_counts": {**counts, "used": int(matched.sum()),
+                            "decimated": int((~decimated).sum())},
             "gnss_epochs_used": int(matched.sum()),
             "gnss_epochs_decimated": int((~decimated).sum()),
             "keyframes": len(times),
             "suspect_intervals": int(segments.suspect.sum()),
+            **({"imu_bias_model": "; ".join(bias_notes)} if bias_notes else {}),
         },
     )
 

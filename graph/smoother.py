@@ -3,56 +3,162 @@
 Entry point: :func:`smooth`. Both methods share the same problem (keyframes, factors,
 priors); iSAM2 also yields the online estimate: each keyframe's state as it was right after
 its own update, i.e. what a real-time system would have had.
+
+Every factor the optimiser evaluates runs in C++: the land-vehicle constraints, which GTSAM
+has no factor for, enter as factors linearised at an estimate and rebuilt in an outer loop
+(:mod:`fgins.factors.vehicle`), so one linearisation costs O(K), not O(K^2).
+
+Honesty: every solve checks that its error is finite, that it made progress and converged,
+and how consistent the fit is (chi-square per degree of freedom); the result says which
+solver produced it, how, and any fallback taken. A solve that cannot be trusted is an error,
+never an initial guess under the method's name.
 """
 
 from __future__ import annotations
 
+import math
 import time
-from dataclasses import replace
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Protocol
 
 import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import B, V, X
-from tqdm import tqdm
 
 from fgins.config import RunConfig
 from fgins.datatypes import Dataset, FginsError, Trajectory
+from fgins.factors import odometer as odometer_model
+from fgins.factors import vehicle as vehicle_model
 from fgins.graph.output import KeyframeStates, densify
 from fgins.graph.problem import Problem, build_problem
 
 
-def initial_values(problem: Problem) -> gtsam.Values:
-    """A guess for every keyframe from the forward EKF baseline (Huber-weighted GNSS).
+class KeyframeGuess(Protocol):
+    """States at the keyframe times (K rows): what an initial-guess provider returns."""
 
-    A filter is the right initialiser for a batch smoother: it corrects attitude and biases
-    as it goes, bridges outages with its own best dead reckoning and down-weights gross GNSS
-    outliers, so Levenberg-Marquardt starts in the right basin (and the ZUPT test sees a
-    sensible speed). Falls back to GNSS-reset dead reckoning if the filter cannot run.
-    """
-    from fgins.baseline.ekf import run_ekf
+    rotation: np.ndarray  # (K, 3, 3) body -> ENU
+    position: np.ndarray  # (K, 3)
+    velocity: np.ndarray  # (K, 3)
+    accel_bias: np.ndarray  # (K, 3)
+    gyro_bias: np.ndarray  # (K, 3)
 
-    # Huber-weighted updates bound what a gross outlier can do to the guess; a hard
-    # innovation gate would be worse: once it rejects a few fixes the filter can lock out.
-    config = replace(problem.config, gnss=replace(problem.config.gnss, huber_k=2.0, cauchy_k=None))
-    try:
-        ekf = run_ekf(problem.dataset, config, gnss_mask=problem.gnss_mask, progress=False)
-    except FginsError:
-        return _dead_reckoning_guess(problem)
-    times = problem.segments.times
-    nearest = np.clip(np.searchsorted(ekf.t, times), 0, len(ekf.t) - 1)
-    position = np.column_stack([np.interp(times, ekf.t, ekf.position[:, i]) for i in range(3)])
-    velocity = np.column_stack([np.interp(times, ekf.t, ekf.velocity[:, i]) for i in range(3)])
-    accel_bias = np.nan_to_num(ekf.accel_bias[nearest])
-    gyro_bias = np.nan_to_num(ekf.gyro_bias[nearest])
-    if not (np.all(np.isfinite(position)) and np.all(np.isfinite(velocity))):
-        return _dead_reckoning_guess(problem)
+
+# keyframe times (K,) -> states there; chosen and supplied by the pipeline (a Kalman filter
+# that matches the input), so graph/ does not depend on baseline/.
+InitialGuess = Callable[[np.ndarray], KeyframeGuess]
+
+# A fix whose whitened residual exceeds this at the solution (chi-square, 3 dof, 99.9 %) has a
+# large residual; only a robust kernel actually down-weights it.
+LARGE_RESIDUAL_WHITENED = 4.03
+RELINEARIZE_SKIP = 10  # GTSAM's default: relinearisation checks every 10 updates
+# Re-preintegrate an interval when its bias estimate moved this far from the one it was
+# integrated about (GTSAM's bias correction is first order).
+REPREINTEGRATE_GYRO_RAD_S = 0.005
+REPREINTEGRATE_ACCEL_M_S2 = 0.1
+# The linearised vehicle constraints are rebuilt until no attitude moves more than this.
+RELINEARIZE_ATTITUDE_RAD = 1e-3
+RELINEARIZE_VELOCITY_M_S = 0.05
+MAX_OUTER_ROUNDS = 12
+ROUND_ITERATIONS = 15  # LM iterations per outer round while the linearisation still moves
+# chi-square / dof of a fit whose noise model describes the data is ~1; far above, the
+# solution is suspect (batch restarts from iSAM2) and reported as inconsistent.
+CHI2_SUSPECT = 10.0
+CHI2_WARN = 4.0
+
+
+@dataclass
+class SolveReport:
+    """What a solve did: iterations, errors before/after, consistency, fallbacks."""
+
+    solver: str
+    iterations: int = 0
+    rounds: int = 0
+    repreintegrated: int = 0
+    initial_error: float = math.nan
+    final_error: float = math.nan
+    dof: int = 0
+    converged: bool = True
+    fallback: str | None = None
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def chi2_per_dof(self) -> float:
+        return 2.0 * self.final_error / max(self.dof, 1)
+
+    def line(self) -> str:
+        text = (
+            f"{self.solver}: {self.iterations} iterations in {self.rounds} round(s)"
+            f" ({self.repreintegrated} interval(s) re-preintegrated), error "
+            f"{self.initial_error:.4g} -> {self.final_error:.4g}, chi2/dof "
+            f"{self.chi2_per_dof:.2f} over {self.dof} dof"
+        )
+        if self.fallback:
+            text += f"; fallback: {self.fallback}"
+        return text
+
+
+def _check_finite(error: float, what: str, solver: str) -> None:
+    if not math.isfinite(error):
+        raise FginsError(
+            f"{solver}: the factor graph's error {what} is not finite (a NaN or infinite "
+            "measurement or noise value reached a factor); check the inputs and the sensor "
+            "configuration"
+        )
+
+
+def _dof(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> int:
+    dims = sum(graph.at(i).dim() for i in range(graph.size()) if graph.exists(i))
+    return int(dims - values.dim())
+
+
+# -- initial values ------------------------------------------------------------------------
+
+
+def _values_from_states(problem: Problem, guess: KeyframeGuess) -> gtsam.Values:
     values = gtsam.Values()
     for k in range(problem.n_keyframes):
-        values.insert(X(k), gtsam.Pose3(gtsam.Rot3(ekf.rotation[nearest[k]]), position[k]))
-        values.insert(V(k), velocity[k])
-        values.insert(B(k), gtsam.imuBias.ConstantBias(accel_bias[k], gyro_bias[k]))
+        values.insert(X(k), gtsam.Pose3(gtsam.Rot3(guess.rotation[k]), guess.position[k]))
+        values.insert(V(k), np.asarray(guess.velocity[k], dtype=float))
+        values.insert(B(k), gtsam.imuBias.ConstantBias(guess.accel_bias[k], guess.gyro_bias[k]))
         problem.insert_extra_values(k, values)
     return values
+
+
+def _usable_guess(guess: KeyframeGuess | None, n: int) -> bool:
+    if guess is None:
+        return False
+    arrays = (guess.rotation, guess.position, guess.velocity, guess.accel_bias, guess.gyro_bias)
+    return all(len(a) == n and np.all(np.isfinite(a)) for a in arrays)
+
+
+def initial_values(
+    problem: Problem, initial_guess: InitialGuess | None, progress: bool
+) -> tuple[gtsam.Values, str]:
+    """Initial values for every keyframe and the preintegration about their biases.
+
+    A filter is the right initialiser for a batch smoother: it corrects attitude and biases
+    as it goes and bridges outages with its own dead reckoning; preintegrating about its
+    bias estimate keeps GTSAM's first-order bias correction small from the start. Without a
+    usable guess: GNSS-reset dead reckoning about zero bias.
+    """
+    guess = None
+    if initial_guess is not None:
+        try:
+            guess = initial_guess(problem.segments.times)
+        except FginsError as exc:
+            problem.info.setdefault("fit_warnings", []).append(
+                f"the initial-guess filter failed ({exc}); started from dead reckoning instead"
+            )
+    n = problem.n_keyframes
+    if _usable_guess(guess, n):
+        accel_bias = np.asarray(guess.accel_bias, dtype=float)
+        gyro_bias = np.asarray(guess.gyro_bias, dtype=float)
+        problem.preintegrate_all(accel_bias, gyro_bias, progress)
+        return _values_from_states(problem, guess), "filter"
+    zeros = np.zeros((n, 3))
+    problem.preintegrate_all(zeros, zeros, progress)
+    return _dead_reckoning_guess(problem), "dead reckoning"
 
 
 def _dead_reckoning_guess(problem: Problem) -> gtsam.Values:
@@ -81,7 +187,7 @@ def _dead_reckoning_guess(problem: Problem) -> gtsam.Values:
 def _finite_difference_velocity(problem: Problem) -> np.ndarray:
     """GNSS velocity where given, else central differences over neighbours <= 5 s apart."""
     keyed = problem.gnss_at[problem.gnss_at >= 0]
-    t = np.empty(len(problem.gnss_enu))
+    t = np.full(len(problem.gnss_enu), np.nan)
     t[keyed] = problem.segments.times[problem.gnss_at >= 0]
     enu = problem.gnss_enu
     out = problem.gnss_velocity.copy()
@@ -96,36 +202,113 @@ def _finite_difference_velocity(problem: Problem) -> np.ndarray:
     return out
 
 
-# A fix whose whitened residual exceeds this at the solution (chi-square, 3 dof, 99.9 %) is
-# reported as rejected: the robust kernel has all but removed its weight.
-REJECT_WHITENED = 4.03
-RELINEARIZE_SKIP = 10  # GTSAM's default: relinearisation checks every 10 updates
+# -- reporting -----------------------------------------------------------------------------
 
 
 def _extra_states(values: gtsam.Values) -> dict[str, object]:
     """Estimated non-navigation states worth reporting (odometer scale-factor error)."""
-    from fgins.factors.odometer import scale_key
-
-    if values.exists(scale_key()):
-        return {"odometer_scale_error": float(values.atDouble(scale_key()))}
+    if values.exists(odometer_model.scale_key()):
+        return {"odometer_scale_error": float(values.atDouble(odometer_model.scale_key()))}
     return {}
 
 
 def _gnss_report(problem: Problem, values: gtsam.Values) -> dict[str, object]:
     times, norms = problem.gnss_whitened_residuals(values)
-    rejected = times[norms > REJECT_WHITENED]
+    large = times[norms > LARGE_RESIDUAL_WHITENED]
+    gnss = problem.config.gnss
+    kernel = "Cauchy" if gnss.cauchy_k is not None else "Huber" if gnss.huber_k else None
+    listed = (
+        ": t - t0 = "
+        + ", ".join(f"{t - problem.dataset.t0:.1f}" for t in large[:20])
+        + (" ..." if len(large) > 20 else "")
+        if len(large)
+        else ""
+    )
+    if kernel == "Cauchy":
+        # A redescending kernel leaves such fixes almost no weight: they are rejected.
+        text = f"GNSS outliers: {len(large)} of {len(times)} fixes rejected by the Cauchy kernel"
+    elif kernel == "Huber":
+        text = (
+            f"GNSS large residuals: {len(large)} of {len(times)} fixes above "
+            f"{LARGE_RESIDUAL_WHITENED} sigma, down-weighted by the Huber kernel"
+        )
+    else:
+        text = (
+            f"GNSS large residuals: {len(large)} of {len(times)} fixes above "
+            f"{LARGE_RESIDUAL_WHITENED} sigma (no robust kernel: all kept at full weight)"
+        )
     return {
-        "gnss_rejected_times": [float(t) for t in rejected],
-        "gnss_rejected": f"GNSS outliers: {len(rejected)} of {len(times)} fixes rejected "
-        f"(whitened residual > {REJECT_WHITENED})"
-        + (
-            ": t - t0 = "
-            + ", ".join(f"{t - problem.dataset.t0:.1f}" for t in rejected[:20])
-            + (" ..." if len(rejected) > 20 else "")
-            if len(rejected)
-            else ""
-        ),
+        "gnss_rejected_times": [float(t) for t in large] if kernel == "Cauchy" else [],
+        "gnss_large_residual_times": [float(t) for t in large],
+        "gnss_rejected": text + listed,
     }
+
+
+def _vehicle_fit_report(problem: Problem, values: gtsam.Values) -> dict[str, object]:
+    """How well the land-vehicle constraints fit while moving: a wrong or missing IMU
+    mounting shows as vehicle-frame lateral/vertical velocities far beyond their sigmas."""
+    moving_k = problem.nhc_keyframes
+    if len(moving_k) == 0:
+        return {}
+    rotation = np.array([values.atPose3(X(int(k))).rotation().matrix() for k in moving_k])
+    velocity = np.array([values.atVector(V(int(k))) for k in moving_k])
+    moving = np.linalg.norm(velocity, axis=1) > 3.0
+    if moving.sum() < 10:
+        return {}
+    select = vehicle_model.nhc_rows(problem.imu_to_vehicle)
+    residual = vehicle_model.nhc_residuals(rotation[moving], velocity[moving], select)
+    normalised = residual / problem.nhc_sigma[moving_k[moving]]
+    rms = np.sqrt(np.mean(normalised**2, axis=0))
+    out: dict[str, object] = {"nhc_normalised_rms": [float(r) for r in rms]}
+    if np.max(rms) > NHC_FIT_WARN:
+        lateral, vertical = np.sqrt(np.mean(residual**2, axis=0))
+        out.setdefault("fit_warnings", []).append(
+            f"vehicle constraints fit poorly while moving: lateral/vertical velocity RMS "
+            f"{lateral:.2f}/{vertical:.2f} m/s against sigmas "
+            f"{problem.config.smoother.nhc_sigma_lateral_m_per_s:g}/"
+            f"{problem.config.smoother.nhc_sigma_vertical_m_per_s:g} m/s "
+            f"({rms[0]:.1f}/{rms[1]:.1f} sigma): the IMU mounting "
+            f"([smoother] imu_to_vehicle_rpy_deg = {list(problem.config.smoother.imu_to_vehicle_rpy_deg)})"
+            " is probably wrong or missing, or the vehicle is not a car"
+        )
+    return out
+
+
+NHC_FIT_WARN = 3.0
+
+
+def _solver_report(report: SolveReport) -> dict[str, object]:
+    warnings = list(report.notes)
+    if report.chi2_per_dof > CHI2_WARN:
+        warnings.append(
+            f"{report.solver}: the fit is inconsistent with the noise model (chi2/dof "
+            f"{report.chi2_per_dof:.1f}; ~1 expected): the reported sigmas are too small for "
+            "this data; check the IMU preset (--imu-preset, --config) and the GNSS sigmas"
+        )
+    return {
+        "solver": report.line(),
+        "iterations": report.iterations,
+        "outer_rounds": report.rounds,
+        "repreintegrated_intervals": report.repreintegrated,
+        "initial_error": report.initial_error,
+        "final_error": report.final_error,
+        "chi2_per_dof": report.chi2_per_dof,
+        "dof": report.dof,
+        "fallback": report.fallback,
+        "fit_warnings": warnings,
+    }
+
+
+def _merge_info(trajectory: Trajectory, *parts: dict[str, object]) -> None:
+    for part in parts:
+        part = dict(part)
+        warnings = part.pop("fit_warnings", [])
+        trajectory.info.update(part)
+        if warnings:
+            trajectory.info["fit_warnings"] = [*trajectory.info.get("fit_warnings", []), *warnings]
+
+
+# -- states, covariances, output --------------------------------------------------------------
 
 
 def _states_from_values(
@@ -204,7 +387,9 @@ def _marginal_covariances(
     problem: Problem, marginal_pose, marginal_velocity, values: gtsam.Values, progress: bool
 ) -> dict[str, np.ndarray]:
     """ENU position/velocity/attitude covariances at every keyframe (NaN where a marginal
-    cannot be computed: the rest of the output is still valid)."""
+    cannot be computed: reported, the rest of the output is still valid)."""
+    from tqdm import tqdm
+
     n = problem.n_keyframes
     out = {name: np.full((n, 3, 3), np.nan) for name in ("position", "velocity", "attitude")}
     for k in tqdm(range(n), desc="covariances", unit="kf", disable=not progress, leave=False):
@@ -215,6 +400,21 @@ def _marginal_covariances(
         except RuntimeError:
             continue
     return out
+
+
+def _covariance_report(covariances: dict[str, np.ndarray]) -> dict[str, object]:
+    """Reported sigmas must be positive and finite; say where they are not."""
+    variances = np.diagonal(covariances["position"], axis1=1, axis2=2)
+    bad = ~np.all(np.isfinite(variances) & (variances > 0), axis=1)
+    if not bad.any():
+        return {}
+    return {
+        "covariance_unknown_keyframes": int(bad.sum()),
+        "fit_warnings": [
+            f"position uncertainty could not be computed at {int(bad.sum())} of {len(bad)} "
+            "keyframes (std_* is NaN there): the system is indeterminate there"
+        ],
+    }
 
 
 def _to_trajectory(
@@ -249,8 +449,11 @@ def _to_trajectory(
     )
 
 
-def _batch_graph(problem: Problem, speeds: np.ndarray | None) -> gtsam.NonlinearFactorGraph:
-    """All factors; ZUPTs only where ``speeds`` (a solution's, per keyframe) confirm a stop."""
+# -- batch ---------------------------------------------------------------------------------
+
+
+def _nonlinear_graph(problem: Problem, speeds: np.ndarray | None) -> gtsam.NonlinearFactorGraph:
+    """Every C++ nonlinear factor; ZUPTs only where ``speeds`` (a solution's) confirm a stop."""
     problem.zupt_keyframes.clear()
     graph = problem.prior_factors()
     for k in range(problem.n_keyframes):
@@ -258,24 +461,92 @@ def _batch_graph(problem: Problem, speeds: np.ndarray | None) -> gtsam.Nonlinear
     return graph
 
 
-def _optimize(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iterations: int):
+def _full_graph(
+    problem: Problem, nonlinear: gtsam.NonlinearFactorGraph, values: gtsam.Values
+) -> gtsam.NonlinearFactorGraph:
+    graph = gtsam.NonlinearFactorGraph()
+    graph.push_back(nonlinear)
+    graph.push_back(problem.linear_factors(values))
+    return graph
+
+
+def _lm(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, max_iterations: int):
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(max_iterations)
     params.setRelativeErrorTol(1e-6)
     params.setAbsoluteErrorTol(1e-6)
     optimizer = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
-    return optimizer.optimize(), optimizer.iterations()
+    result = optimizer.optimize()
+    return result, optimizer.iterations()
 
 
-def _suspect_solution(
-    graph: gtsam.NonlinearFactorGraph, result: gtsam.Values, iterations: int, max_iterations: int
-) -> bool:
-    """Did LM stall or end far from a consistent fit? A consistent solution has an error of
-    about half the number of measurement dimensions (chi-square / 2), i.e. ~1-2 per factor."""
-    return iterations >= max_iterations or graph.error(result) > 25.0 * graph.size()
+def _linearisation_moved(problem: Problem, before: gtsam.Values, after: gtsam.Values) -> bool:
+    """Did any keyframe carrying a linearised factor move beyond the relinearisation limits?"""
+    for k in problem.nhc_keyframes if problem.config.smoother.nhc else []:
+        a, b = before.atPose3(X(int(k))), after.atPose3(X(int(k)))
+        if np.max(np.abs(a.rotation().localCoordinates(b.rotation()))) > RELINEARIZE_ATTITUDE_RAD:
+            return True
+        if np.max(np.abs(before.atVector(V(int(k))) - after.atVector(V(int(k))))) > (
+            RELINEARIZE_VELOCITY_M_S
+        ):
+            return True
+    return False
 
 
-def smooth_batch(problem: Problem, progress: bool = True) -> Trajectory:
+def _solve(
+    problem: Problem, values: gtsam.Values, speeds: np.ndarray | None, report: SolveReport
+) -> tuple[gtsam.Values, gtsam.NonlinearFactorGraph]:
+    """Levenberg-Marquardt alternating with re-preintegration and relinearisation of the
+    vehicle constraints until neither changes anything. Returns (solution, the exact graph
+    at it)."""
+    max_iterations = problem.config.smoother.batch_max_iterations
+    has_linear = problem.config.smoother.nhc or problem.has_odometer
+    nonlinear = _nonlinear_graph(problem, speeds)
+    settled = False
+    for _ in range(MAX_OUTER_ROUNDS):
+        graph = _full_graph(problem, nonlinear, values)
+        start_error = graph.error(values)
+        _check_finite(start_error, "at the initial guess", report.solver)
+        if math.isnan(report.initial_error):
+            report.initial_error = start_error
+        budget = max_iterations if settled else ROUND_ITERATIONS
+        result, iterations = _lm(graph, values, budget)
+        report.iterations += iterations
+        report.rounds += 1
+        end_error = graph.error(result)
+        _check_finite(end_error, "after Levenberg-Marquardt", report.solver)
+        converged = iterations < budget
+        redone = problem.repreintegrate(
+            result, REPREINTEGRATE_GYRO_RAD_S, REPREINTEGRATE_ACCEL_M_S2
+        )
+        report.repreintegrated += redone
+        moved = has_linear and _linearisation_moved(problem, values, result)
+        values = result
+        if redone:
+            nonlinear = _nonlinear_graph(problem, speeds)
+        if not redone and not moved:
+            if converged:
+                break
+            settled = True  # only iterations are missing: give LM its full budget
+    else:
+        report.converged = False
+    graph = _full_graph(problem, nonlinear, values)
+    return values, graph
+
+
+def _finish(report: SolveReport, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
+    report.final_error = graph.error(values)
+    _check_finite(report.final_error, "at the solution", report.solver)
+    report.dof = _dof(graph, values)
+
+
+def _suspect(report: SolveReport) -> bool:
+    return not report.converged or report.chi2_per_dof > CHI2_SUSPECT
+
+
+def smooth_batch(
+    problem: Problem, progress: bool = True, initial_guess: InitialGuess | None = None
+) -> Trajectory:
     """Levenberg-Marquardt over the whole drive, covariances from the marginals.
 
     With ZUPT on, two passes: the first solves without zero-velocity factors; stops are then
@@ -284,37 +555,50 @@ def smooth_batch(problem: Problem, progress: bool = True) -> Trajectory:
     wrong in an outage plant a false stop, which no optimiser recovers from.
     """
     started = time.perf_counter()
-    max_iterations = problem.config.smoother.batch_max_iterations
-    initial = initial_values(problem)
-    graph = _batch_graph(problem, None)
-    result, iterations = _optimize(graph, initial, max_iterations)
-    fallback = False
-    if _suspect_solution(graph, result, iterations, max_iterations):
-        # The filter's guess led Levenberg-Marquardt astray (e.g. the EKF diverged in an
-        # outage): restart from iSAM2, whose incremental relinearisation is far more robust.
-        # Relinearise at every update here: the start is known to be poor.
-        isam, _, _ = _run_isam2(problem, progress, online_covariance=False, relinearize_skip=1)
-        graph = _batch_graph(problem, None)
-        retry, more = _optimize(graph, isam.calculateEstimate(), max_iterations)
-        iterations += more
-        if graph.error(retry) < graph.error(result):
-            result, fallback = retry, True
-    # Re-linearise the preintegration where the bias estimate moved far from zero.
-    for _ in range(3):
-        if not problem.repreintegrate(result, gyro_threshold=0.02, accel_threshold=0.3):
-            break
-        graph = _batch_graph(problem, None)
-        result, more = _optimize(graph, result, max_iterations)
-        iterations += more
+    initial, source = initial_values(problem, initial_guess, progress)
+    report = SolveReport(solver="batch LM")
+    result, graph = _solve(problem, initial, None, report)
+    _finish(report, graph, result)
+    if _suspect(report):
+        # The guess led Levenberg-Marquardt astray (e.g. the filter diverged in an outage):
+        # restart from iSAM2, whose incremental relinearisation is far more robust.
+        isam_values = _run_isam2(problem, False, online_covariance=False, relinearize_skip=1)[1]
+        retry_report = SolveReport(solver="batch LM")
+        retry, retry_graph = _solve(problem, isam_values, None, retry_report)
+        _finish(retry_report, retry_graph, retry)
+        if retry_report.final_error < report.final_error:
+            retry_report.initial_error = report.initial_error
+            retry_report.iterations += report.iterations
+            retry_report.rounds += report.rounds
+            retry_report.fallback = (
+                f"the {source} initial guess gave an unconverged or inconsistent fit "
+                f"(chi2/dof {report.chi2_per_dof:.1f}); restarted from iSAM2"
+            )
+            report, result, graph = retry_report, retry, retry_graph
     if problem.config.smoother.zupt and problem.quiet.any():
         speeds = np.array(
             [np.linalg.norm(result.atVector(V(k))) for k in range(problem.n_keyframes)]
         )
-        with_stops = _batch_graph(problem, speeds)
-        if problem.zupt_keyframes:
-            graph = with_stops
-            result, more = _optimize(graph, result, max_iterations)
-            iterations += more
+        problem.zupt_keyframes.clear()
+        candidates = [
+            k for k in range(problem.n_keyframes)
+            if problem.quiet[k] and speeds[k] < problem.config.smoother.zupt_max_speed_m_per_s
+        ]  # fmt: skip
+        if candidates:
+            zupt_report = SolveReport(solver="batch LM", initial_error=report.initial_error)
+            result, graph = _solve(problem, result, speeds, zupt_report)
+            report.iterations += zupt_report.iterations
+            report.rounds += zupt_report.rounds
+            report.repreintegrated += zupt_report.repreintegrated
+            report.converged = zupt_report.converged
+            _finish(report, graph, result)
+    if not report.converged:
+        raise FginsError(
+            f"batch: Levenberg-Marquardt did not converge ({report.iterations} iterations in "
+            f"{report.rounds} rounds, error {report.initial_error:.4g} -> "
+            f"{report.final_error:.4g}); no output written. Try --method isam2, or check the "
+            "IMU noise settings"
+        )
     solved = time.perf_counter()
     marginal = _marginal_function(graph, result)
     covariances = _marginal_covariances(problem, marginal, marginal, result, progress)
@@ -323,18 +607,35 @@ def smooth_batch(problem: Problem, progress: bool = True) -> Trajectory:
     trajectory.timings.update(
         {"optimize": solved - started, "covariance": time.perf_counter() - solved}
     )
-    trajectory.info.update(_gnss_report(problem, result))
-    trajectory.info.update(_extra_states(result))
-    trajectory.info.update(
+    _merge_info(
+        trajectory,
+        _gnss_report(problem, result),
+        _extra_states(result),
+        _solver_report(report),
+        _vehicle_fit_report(problem, result),
+        _covariance_report(covariances),
         {
-            "iterations": iterations,
+            "initial_guess": source,
             "zupt_keyframes": len(problem.zupt_keyframes),
-            "restarted_from_isam2": fallback,
-            "initial_error": graph.error(initial),
-            "final_error": graph.error(result),
-        }
+            "restarted_from_isam2": report.fallback is not None,
+            "python_callback_factors": _callback_factors(graph),
+        },
     )
     return trajectory
+
+
+def _callback_factors(graph: gtsam.NonlinearFactorGraph) -> int:
+    """Factors whose evaluation calls back into Python (must stay 0: see module docs)."""
+    return sum(
+        isinstance(graph.at(i), gtsam.CustomFactor) for i in range(graph.size()) if graph.exists(i)
+    )
+
+
+# -- iSAM2 ---------------------------------------------------------------------------------
+
+
+class _IndeterminateUpdate(Exception):
+    pass
 
 
 def _run_isam2(
@@ -345,10 +646,11 @@ def _run_isam2(
 ):
     """Incremental iSAM2, one update per keyframe.
 
-    Returns (isam, online values, online covariances): each keyframe's state and covariance
-    right after its own update. Cholesky first (fast); if it calls an update indeterminate
-    (tight bias random walks against loose bias priors: the conditioning, not the problem,
-    is at fault) the run restarts with QR.
+    Returns (isam, final values, online values, online covariances, report, update times):
+    the online states and covariances are each keyframe's right after its own update.
+    Cholesky first (fast); if it calls an update indeterminate (tight bias random walks
+    against loose bias priors: the conditioning, not the problem, is at fault) the run
+    restarts with QR. Anything else that fails is a clear error.
     """
     try:
         return _run_isam2_with(problem, progress, online_covariance, "CHOLESKY", relinearize_skip)
@@ -356,8 +658,13 @@ def _run_isam2(
         return _run_isam2_with(problem, progress, online_covariance, "QR", relinearize_skip)
 
 
-class _IndeterminateUpdate(Exception):
-    pass
+def _isam2_step(isam: gtsam.ISAM2, factorization: str, what: str, *args, **kwargs):
+    try:
+        return isam.update(*args, **kwargs)
+    except RuntimeError as exc:
+        if factorization == "CHOLESKY":
+            raise _IndeterminateUpdate from None
+        raise FginsError(f"iSAM2: {what} failed even with QR factorization: {exc}") from None
 
 
 def _run_isam2_with(
@@ -367,6 +674,8 @@ def _run_isam2_with(
     factorization: str,
     relinearize_skip: int,
 ):
+    from tqdm import tqdm
+
     problem.zupt_keyframes.clear()
     params = gtsam.ISAM2Params()
     params.setRelinearizeThreshold(problem.config.smoother.isam2_relinearize_threshold)
@@ -379,25 +688,48 @@ def _run_isam2_with(
     align = problem.alignment
     state = gtsam.NavState(gtsam.Rot3(align.rotation), align.position, align.velocity)
     bias = gtsam.imuBias.ConstantBias()
+    scale_error = 0.0
+    nonlinear = gtsam.NonlinearFactorGraph()  # every C++ factor added, for the final pass
+    imu_index: dict[int, int] = {}  # interval -> index of its IMU factor in ``nonlinear``
+    linear_point = gtsam.Values()  # where the linearised factors were made
+    update_s = np.zeros(n)
+    report = SolveReport(solver="iSAM2")
     for k in tqdm(range(n), desc="iSAM2", unit="kf", disable=not progress, leave=False):
+        step_started = time.perf_counter()
         graph = problem.prior_factors() if k == 0 else gtsam.NonlinearFactorGraph()
         new_values = gtsam.Values()
         if k > 0:
+            # Preintegrate about the newest bias estimate: what a real-time system would do.
+            problem.preintegrate(k - 1, bias)
             state = problem.predict(k - 1, state, bias)
-        graph.push_back(problem.keyframe_factors(k, float(np.linalg.norm(state.velocity()))))
+        keyframe = problem.keyframe_factors(k, float(np.linalg.norm(state.velocity())))
+        if k > 0:
+            imu_index[k - 1] = nonlinear.size() + graph.size()  # the IMU factor comes first
+        graph.push_back(keyframe)
+        nonlinear.push_back(graph)
+        point = gtsam.Values()
+        point.insert(X(k), state.pose())
+        point.insert(V(k), state.velocity())
+        if problem.has_odometer:
+            point.insert(odometer_model.scale_key(), scale_error)
+        graph.push_back(problem.linear_factors(point, np.array([k])))
+        linear_point.insert(X(k), state.pose())
+        linear_point.insert(V(k), state.velocity())
         new_values.insert(X(k), state.pose())
         new_values.insert(V(k), state.velocity())
         new_values.insert(B(k), bias)
         problem.insert_extra_values(k, new_values, online_values)
+        _isam2_step(isam, factorization, f"update at keyframe {k}", graph, new_values)
         try:
-            isam.update(graph, new_values)
+            pose = isam.calculateEstimatePose3(X(k))
+            velocity = isam.calculateEstimateVector(V(k))
+            bias = isam.calculateEstimateConstantBias(B(k))
+            if problem.has_odometer:
+                scale_error = isam.calculateEstimateDouble(odometer_model.scale_key())
         except RuntimeError as exc:
             if factorization == "CHOLESKY":
                 raise _IndeterminateUpdate from None
-            raise FginsError(f"iSAM2 update at keyframe {k} failed: {exc}") from None
-        pose = isam.calculateEstimatePose3(X(k))
-        velocity = isam.calculateEstimateVector(V(k))
-        bias = isam.calculateEstimateConstantBias(B(k))
+            raise FginsError(f"iSAM2: estimate at keyframe {k} failed: {exc}") from None
         state = gtsam.NavState(pose, velocity)
         online_values.insert(X(k), pose)
         online_values.insert(V(k), velocity)
@@ -412,40 +744,105 @@ def _run_isam2_with(
             except RuntimeError:
                 if factorization == "CHOLESKY":
                     raise _IndeterminateUpdate from None
-                # QR could not resolve this marginal either: leave it NaN (reported as unknown).
-    # A few extra relinearisation passes let the final estimate settle like the batch one.
-    for _ in range(3):
-        try:
-            isam.update()
-        except RuntimeError:
-            if factorization == "CHOLESKY":
-                raise _IndeterminateUpdate from None
+                # QR could not resolve this marginal either: left NaN (reported as unknown).
+        update_s[k] = time.perf_counter() - step_started
+    # Final smoothing: the linearised vehicle factors (made at each keyframe's prediction)
+    # and the preintegration (about the online bias) are redone at the smoothed estimate.
+    # Removing hundreds of factors from a running iSAM2 costs O(K^2) in GTSAM, so the
+    # refreshed graph goes into a new iSAM2 started at the old one's estimate.
+    for _ in range(2):
+        estimate = _estimate(isam, factorization)
+        redone = [
+            i for i in range(n - 1)
+            if _bias_moved(problem.pims[i].biasHat(), estimate.atConstantBias(B(i)))
+        ]  # fmt: skip
+        for i in redone:
+            problem.preintegrate(i, estimate.atConstantBias(B(i)))
+            nonlinear.replace(imu_index[i], problem.imu_factor(i))
+        report.repreintegrated += len(redone)
+        has_linear = problem.config.smoother.nhc or problem.has_odometer
+        if not redone and not (has_linear and _linearisation_moved(problem, linear_point, estimate)):
             break
-    return isam, online_values, online
+        graph = gtsam.NonlinearFactorGraph()
+        graph.push_back(nonlinear)
+        graph.push_back(problem.linear_factors(estimate))
+        linear_point = estimate
+        isam = gtsam.ISAM2(params)
+        _isam2_step(isam, factorization, "final relinearisation", graph, estimate)
+        report.rounds += 1
+    for _ in range(2):
+        _isam2_step(isam, factorization, "final update")
+    final = _estimate(isam, factorization)
+    factors = _compact(isam.getFactorsUnsafe())
+    report.initial_error = float("nan")
+    report.final_error = factors.error(final)
+    _check_finite(report.final_error, "at the final estimate", "iSAM2")
+    report.dof = _dof(factors, final)
+    report.iterations = n
+    return isam, final, online_values, online, report, update_s
+
+
+def _bias_moved(used: gtsam.imuBias.ConstantBias, estimate: gtsam.imuBias.ConstantBias) -> bool:
+    return bool(
+        np.max(np.abs(estimate.gyroscope() - used.gyroscope())) > REPREINTEGRATE_GYRO_RAD_S
+        or np.max(np.abs(estimate.accelerometer() - used.accelerometer()))
+        > REPREINTEGRATE_ACCEL_M_S2
+    )
+
+
+def _estimate(isam: gtsam.ISAM2, factorization: str) -> gtsam.Values:
+    try:
+        return isam.calculateEstimate()
+    except RuntimeError as exc:
+        if factorization == "CHOLESKY":
+            raise _IndeterminateUpdate from None
+        raise FginsError(f"iSAM2: the estimate could not be computed: {exc}") from None
 
 
 def smooth_isam2(problem: Problem, progress: bool = True) -> tuple[Trajectory, Trajectory]:
     """One iSAM2 update per keyframe. Returns (final smoothed, online filtered) trajectories."""
     started = time.perf_counter()
-    isam, online_values, online = _run_isam2(problem, progress)
+    isam, result, online_values, online, report, update_s = _run_isam2(problem, progress)
     incremental = time.perf_counter()
-    result = isam.calculateEstimate()
-    covariances = _marginal_covariances(
-        problem, isam.marginalCovariance, isam.marginalCovariance, result, progress
-    )
+    report.notes = []
+    # Final marginals through one batch factorisation of the final graph: iSAM2's own
+    # per-key marginals after the final relinearisation can walk far up the tree (O(K) each).
+    factors = _compact(isam.getFactorsUnsafe())
+    marginal = _marginal_function(factors, result)
+    covariances = _marginal_covariances(problem, marginal, marginal, result, progress)
     final = _to_trajectory(
         problem, _states_from_values(problem, result, covariances), "isam2", smoothed=True
     )
     filtered = _to_trajectory(
         problem, _states_from_values(problem, online_values, online), "isam2-online", smoothed=False
     )
-    final.info.update(_gnss_report(problem, result))
-    final.info.update(_extra_states(result))
-    final.timings.update(
-        {"incremental": incremental - started, "final": time.perf_counter() - incremental}
+    _merge_info(
+        final,
+        _gnss_report(problem, result),
+        _extra_states(result),
+        _solver_report(report),
+        _vehicle_fit_report(problem, result),
+        _covariance_report(covariances),
+        {"python_callback_factors": _callback_factors(factors)},
     )
-    filtered.timings.update({"incremental": incremental - started})
+    _merge_info(filtered, _covariance_report(online), {"solver": "iSAM2 online (filtered)"})
+    timings = {
+        "incremental": incremental - started,
+        "final": time.perf_counter() - incremental,
+        "isam2_update_s": update_s.tolist(),
+    }
+    final.timings.update(timings)
+    filtered.timings.update(timings)
     return final, filtered
+
+
+def _compact(graph: gtsam.NonlinearFactorGraph) -> gtsam.NonlinearFactorGraph:
+    """The graph without the empty slots that removed factors leave in iSAM2's."""
+    out = gtsam.NonlinearFactorGraph()
+    for i in range(graph.size()):
+        if graph.exists(i):
+            out.add(graph.at(i))
+    return out
 
 
 def smooth(
@@ -455,13 +852,18 @@ def smooth(
     *,
     gnss_mask: np.ndarray | None = None,
     progress: bool = True,
+    initial_guess: InitialGuess | None = None,
 ) -> Trajectory:
-    """Smooth ``dataset`` with ``method`` ('batch', 'isam2' or 'isam2-online')."""
+    """Smooth ``dataset`` with ``method`` ('batch', 'isam2' or 'isam2-online').
+
+    ``initial_guess`` (batch): keyframe times -> states there, e.g. a Kalman filter's; the
+    pipeline chooses the filter that matches the input.
+    """
     started = time.perf_counter()
     problem = build_problem(dataset, config, gnss_mask, progress=progress)
     built = time.perf_counter()
     if method == "batch":
-        trajectory = smooth_batch(problem, progress)
+        trajectory = smooth_batch(problem, progress, initial_guess)
     elif method in ("isam2", "isam2-online"):
         final, filtered = smooth_isam2(problem, progress)
         trajectory = final if method == "isam2" else filtered

@@ -32,7 +32,7 @@ from fgins.io.accel_array_csv import (
     read_accel_array_csv,
 )
 from fgins.io.atomic import atomic_path
-from fgins.io.imu_checks import clean_imu
+from fgins.io.imu_checks import imu_from_samples
 
 IMU_COLUMNS = ["time", "gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z"]
 GNSS_REQUIRED = ["time", "lat", "lon", "alt"]
@@ -41,6 +41,8 @@ GNSS_OPTIONAL = [
     "hdop", "vdop", "pdop", "fix_quality", "num_sats", "speed", "course",
 ]  # fmt: skip
 BARO_COLUMNS = ["time", "pressure_pa"]
+# The files a `fgins sim` folder holds that are inputs (config.toml is read separately).
+SIM_FOLDER_FILES = ("imu.csv", "accel_array.csv", "gnss.csv", "baro.csv", "wheel.csv")
 
 
 def read_header(path: Path) -> list[str]:
@@ -232,7 +234,7 @@ def read_imu_csv(path: str | Path, warnings: list[str] | None = None) -> ImuData
     columns = _read_required(path, warnings, "IMU", IMU_COLUMNS)
     gyro = np.column_stack([columns[f"gyro_{a}"] for a in "xyz"])
     accel = np.column_stack([columns[f"accel_{a}"] for a in "xyz"])
-    return clean_imu(columns["time"], gyro, accel, source=path.name, warnings=warnings)
+    return imu_from_samples(columns["time"], gyro, accel, source=path.name, warnings=warnings)
 
 
 def read_gnss_csv(path: str | Path, warnings: list[str] | None = None) -> GnssData:
@@ -253,8 +255,6 @@ def read_gnss_csv(path: str | Path, warnings: list[str] | None = None) -> GnssDa
     if duplicate.any():
         warnings.append(f"{path.name}: dropped {int(duplicate.sum())} fix(es) with repeated time")
         index = index[~duplicate]
-
-    _report_time_jumps(t[index], path.name, warnings)
 
     def column(name: str) -> np.ndarray | None:
         return columns[name][index] if name in columns else None
@@ -279,21 +279,6 @@ def read_gnss_csv(path: str | Path, warnings: list[str] | None = None) -> GnssDa
         speed=column("speed"),
         course=column("course"),
     )
-
-
-def _report_time_jumps(t: np.ndarray, source: str, warnings: list[str]) -> None:
-    """GNSS gaps far beyond the fix interval: outages, or a clock that jumped."""
-    if len(t) < 3:
-        return
-    dt = np.diff(t)
-    nominal = float(np.median(dt))
-    jumps = np.flatnonzero(dt > max(10.0 * nominal, 5.0))
-    if jumps.size:
-        largest = float(dt[jumps].max())
-        warnings.append(
-            f"{source}: {jumps.size} gap(s) in the fixes longer than {max(10 * nominal, 5.0):.0f} s "
-            f"(largest {largest:.1f} s at t={t[jumps[int(np.argmax(dt[jumps]))]]:.1f}): outages or a time jump"
-        )
 
 
 def read_odometer_csv(path: str | Path, warnings: list[str] | None = None) -> OdometerData:
@@ -394,7 +379,14 @@ def read_csv_dataset(paths: list[Path]) -> Dataset:
         if path.is_dir():
             config = _read_sim_config(path)
             name = path.name
-            files.extend(p for p in sorted(path.glob("*.csv")) if p.name != "truth.csv")
+            # A sim folder's own file names only: an output written into it later (out.csv,
+            # a second GNSS export) must not make it unreadable; truth.csv is never an input.
+            files.extend(path / f for f in SIM_FOLDER_FILES if (path / f).is_file())
+            if not files:
+                raise InputError(
+                    f"{path}: not a folder written by fgins sim (none of "
+                    f"{', '.join(SIM_FOLDER_FILES)} in it); give the CSV files themselves"
+                )
         else:
             files.append(path)
     by_kind: dict[str, Path] = {}

@@ -1,6 +1,12 @@
-"""Checks on raw IMU streams: NaN rows, duplicate or backwards timestamps, gaps, filled stretches.
+"""Checks on raw IMU streams: NaN rows, repeated or backwards timestamps, gaps, filled stretches.
 
-Readers call :func:`clean_imu` so every format reports the same findings the same way.
+Two halves, one policy for every format:
+
+* :func:`imu_from_samples` turns a reader's arrays into :class:`ImuData` (the data model cannot
+  hold NaN rows or non-increasing times, so these row repairs happen while the samples are put
+  into it; every reader calls this one function, with the same rules and messages).
+* :func:`flag_suspect` finds gaps and linearly interpolated stretches in an :class:`ImuData`.
+  It is called by the input-validation layer (:mod:`fgins.io.validate`) for every source.
 """
 
 from __future__ import annotations
@@ -11,6 +17,9 @@ from fgins.datatypes import ImuData, InputError
 
 GAP_FACTOR = 3.0  # a gap is a sample interval longer than this many nominal periods
 MIN_FILL_DURATION_S = 0.3  # shorter straight-line runs happen naturally at rest
+# A backward step of at most this many nominal periods is a reordering (a logger that wrote
+# two messages out of order): the samples are sorted. A larger one means two clocks or files.
+MAX_REORDER_PERIODS = 5.0
 
 
 def find_gaps(t: np.ndarray, factor: float = GAP_FACTOR) -> list[tuple[float, float]]:
@@ -46,50 +55,76 @@ def find_linear_fills(
     return fills
 
 
-def clean_imu(
+def imu_from_samples(
     t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, *, source: str, warnings: list[str]
 ) -> ImuData:
-    """Drop NaN rows and exact duplicate timestamps (counted), reject backwards time, flag
-    gaps and linearly filled stretches as suspect intervals (reported)."""
+    """:class:`ImuData` from a reader's arrays, with the row repairs the data model needs.
+
+    NaN/inf rows are dropped (counted); samples a few periods out of order are sorted (counted);
+    exact repeated timestamps are dropped (counted); time that goes back further (two clocks or
+    files in one log) is an :class:`InputError`.
+    """
     t = np.asarray(t, dtype=float)
-    gyro = np.asarray(gyro, dtype=float)
-    accel = np.asarray(accel, dtype=float)
+    gyro = np.asarray(gyro, dtype=float).reshape(-1, 3)
+    accel = np.asarray(accel, dtype=float).reshape(-1, 3)
     finite = np.isfinite(t) & np.all(np.isfinite(gyro), axis=1) & np.all(np.isfinite(accel), axis=1)
     if not finite.all():
         warnings.append(f"{source}: dropped {int((~finite).sum())} IMU row(s) with NaN/inf values")
         t, gyro, accel = t[finite], gyro[finite], accel[finite]
     if len(t) < 2:
-        raise InputError(f"{source}: fewer than 2 valid IMU samples")
+        raise InputError(f"{source}: fewer than 2 valid IMU samples; check the recording")
     dt = np.diff(t)
-    if np.any(dt < 0):
-        row = int(np.argmax(dt < 0)) + 1
-        raise InputError(
-            f"{source}: IMU time goes backwards at sample {row} ({t[row - 1]:.6f} -> {t[row]:.6f});"
-            " the log mixes clocks or files — sort or split it"
+    backwards = np.flatnonzero(dt < 0)
+    if backwards.size:
+        positive = dt[dt > 0]
+        nominal = float(np.median(positive)) if positive.size else 0.0
+        worst = int(backwards[np.argmin(dt[backwards])])
+        if -dt[worst] > MAX_REORDER_PERIODS * nominal:
+            row = worst + 1
+            raise InputError(
+                f"{source}: IMU time goes backwards at sample {row} "
+                f"({t[row - 1]:.6f} -> {t[row]:.6f}); the log mixes clocks or files — sort or "
+                "split it"
+            )
+        order = np.argsort(t, kind="stable")
+        t, gyro, accel = t[order], gyro[order], accel[order]
+        warnings.append(
+            f"{source}: {backwards.size} IMU time step(s) backwards by at most "
+            f"{-dt[worst] * 1e3:.1f} ms; samples sorted by time"
         )
-    duplicate = np.concatenate([[False], dt == 0])
+    duplicate = np.concatenate([[False], np.diff(t) == 0])
     if duplicate.any():
         warnings.append(
             f"{source}: dropped {int(duplicate.sum())} IMU sample(s) with repeated time"
         )
         t, gyro, accel = t[~duplicate], gyro[~duplicate], accel[~duplicate]
-    suspect: list[tuple[float, float]] = []
+    if len(t) < 2:
+        raise InputError(f"{source}: fewer than 2 valid IMU samples; check the recording")
+    return ImuData(t=t, gyro=gyro, accel=accel)
+
+
+def flag_suspect(imu: ImuData, warnings: list[str], *, label: str = "imu") -> ImuData:
+    """``imu`` with gaps and linearly filled stretches added to ``suspect`` (one line each)."""
+    t = imu.t
+    suspect: list[tuple[float, float]] = list(imu.suspect)
     gaps = find_gaps(t)
     if gaps:
         total = sum(b - a for a, b in gaps)
         warnings.append(
-            f"{source}: {len(gaps)} IMU gap(s) longer than {GAP_FACTOR:g} sample periods "
+            f"{label}: {len(gaps)} IMU gap(s) longer than {GAP_FACTOR:g} sample periods "
             f"({total:.2f} s in all); bridged with inflated noise"
         )
         suspect.extend(gaps)
-    fills = find_linear_fills(t, np.column_stack([gyro, accel]))
+    fills = find_linear_fills(t, np.column_stack([imu.gyro, imu.accel]))
     if fills:
         total = sum(b - a for a, b in fills)
         warnings.append(
-            f"{source}: {len(fills)} stretch(es) of linearly interpolated IMU samples "
+            f"{label}: {len(fills)} stretch(es) of linearly interpolated IMU samples "
             f"({total:.1f} s in all, at t-t_imu0 = "
             + ", ".join(f"{a - t[0]:.0f}" for a, _ in fills)
             + " s); treated as gaps with inflated noise"
         )
         suspect.extend(fills)
-    return ImuData(t=t, gyro=gyro, accel=accel, suspect=sorted(suspect))
+    return ImuData(
+        t=imu.t, gyro=imu.gyro, accel=imu.accel, suspect=sorted(set(suspect)), frame=imu.frame
+    )

@@ -1,7 +1,9 @@
-"""Open whatever the user gave as INPUT... and return one :class:`Dataset`.
+"""Open whatever the user gave as INPUT... and return one checked :class:`Dataset`.
 
-``demo:kitti``; an MCAP file; an NMEA file plus an IMU CSV; the CSV pair ``imu.csv gnss.csv``
-(any order, recognised by header); or a folder written by ``fgins sim``.
+``demo:kitti``; an MCAP file; a u-blox UBX log (alone, or with an imu.csv / MCAP IMU); an NMEA
+file plus an IMU CSV; the CSV pair ``imu.csv gnss.csv`` (any order, recognised by header); or
+a folder written by ``fgins sim``. Readers only parse; every dataset then passes through the
+one input-validation layer (:func:`fgins.io.validate.validate_dataset`), here and nowhere else.
 """
 
 from __future__ import annotations
@@ -14,12 +16,23 @@ NMEA_SUFFIXES = {".nmea", ".log", ".txt", ".gps", ".ubx_nmea"}
 
 
 def _looks_like_nmea(path: Path) -> bool:
+    from fgins.io.ubx import looks_like_ubx
+
+    if looks_like_ubx(path):  # UBX logs often carry NMEA sentences too: never read as NMEA
+        return False
     try:
         with path.open("rb") as handle:
             head = handle.read(4096)
     except OSError:
         return False
     return b"$GP" in head or b"$GN" in head or b"$GL" in head or b"$GB" in head or b"$BD" in head
+
+
+def validated(dataset: Dataset) -> Dataset:
+    """The one call of the input-validation layer (checks, repairs, counted warnings)."""
+    from fgins.io.validate import validate_dataset
+
+    return validate_dataset(dataset)
 
 
 def load_dataset(
@@ -30,12 +43,32 @@ def load_dataset(
     gnss_topic: str | None = None,
     progress: bool = True,
 ) -> Dataset:
+    """Read ``inputs`` with the reader for their format and check the result (see module)."""
+    return validated(
+        _parse(
+            inputs,
+            time_offset_s=time_offset_s,
+            imu_topic=imu_topic,
+            gnss_topic=gnss_topic,
+            progress=progress,
+        )
+    )
+
+
+def _parse(
+    inputs: list[str],
+    *,
+    time_offset_s: float,
+    imu_topic: str | None,
+    gnss_topic: str | None,
+    progress: bool,
+) -> Dataset:
     if not inputs:
         raise InputError("no input given")
     if inputs == ["demo:kitti"]:
-        from fgins.io.kitti import read_kitti
+        from fgins.io.kitti import parse_kitti
 
-        return read_kitti()
+        return parse_kitti()
     if any(item.startswith("demo:") for item in inputs):
         raise InputError(f"unknown built-in input among {inputs}; the demo input is demo:kitti")
     paths = [Path(item) for item in inputs]
@@ -48,6 +81,14 @@ def load_dataset(
         result = read_mcap(paths[0], imu_topic=imu_topic, gnss_topic=gnss_topic, progress=progress)
         result.dataset.metadata["mcap_report"] = result.report
         return result.dataset
+    from fgins.io.ubx import looks_like_ubx
+
+    ubx = [p for p in paths if p.is_file() and looks_like_ubx(p)]
+    if ubx:
+        from fgins.io.ubx import load_ubx_dataset
+
+        others = [p for p in paths if p not in ubx]
+        return load_ubx_dataset(ubx, others, imu_topic=imu_topic, progress=progress)
     nmea = [p for p in paths if p.is_file() and _looks_like_nmea(p)]
     if nmea:
         return _nmea_with_imu(nmea, [p for p in paths if p not in nmea], time_offset_s)

@@ -16,7 +16,7 @@ import numpy as np
 
 from fgins.datatypes import Dataset, GnssData, InputError, Origin
 from fgins.geodesy import enu_to_lla
-from fgins.io.imu_checks import clean_imu
+from fgins.io.imu_checks import imu_from_samples
 
 # Karlsruhe, near the KITTI raw-data drives (the converted file carries no geodetic origin).
 KITTI_ORIGIN = Origin(lat=49.011212804408, lon=8.4228850417969, alt=112.83492279053)
@@ -53,6 +53,18 @@ KITTI_GNSS_CONFIG: dict[str, object] = {"sigma_m": [0.3, 0.3, 0.5], "pdop_max": 
 
 
 def read_kitti(folder: Path | None = None) -> Dataset:
+    """The KITTI drive as every input is given to a run: parsed, then checked by the
+    input-validation layer (its gaps and eight interpolated stretches flagged suspect).
+
+    Same as ``load_dataset(["demo:kitti"])`` for the built-in files.
+    """
+    from fgins.io.inputs import validated
+
+    return validated(parse_kitti(folder))
+
+
+def parse_kitti(folder: Path | None = None) -> Dataset:
+    """Parse the KITTI files into a :class:`Dataset` (no checks: see :func:`read_kitti`)."""
     folder = folder or gtsam_data_dir()
     warnings: list[str] = []
     imu_raw = np.loadtxt(folder / "KittiEquivBiasedImu.txt", skiprows=1)
@@ -60,7 +72,7 @@ def read_kitti(folder: Path | None = None) -> Dataset:
     metadata = read_kitti_metadata(folder / "KittiEquivBiasedImu_metadata.txt")
     # Columns: Time dt accelX accelY accelZ omegaX omegaY omegaZ. The first row's dt is the
     # absolute time (no predecessor); the row itself is a valid sample.
-    imu = clean_imu(
+    imu = imu_from_samples(
         imu_raw[:, 0], imu_raw[:, 5:8], imu_raw[:, 2:5], source="KittiEquivBiasedImu.txt",
         warnings=warnings,
     )  # fmt: skip

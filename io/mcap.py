@@ -29,10 +29,11 @@ from typing import Any
 import numpy as np
 from mcap.exceptions import InvalidMagic
 from mcap.reader import make_reader
-from mcap.records import Channel, Footer, Message, Schema
-from mcap.stream_reader import StreamReader
+from mcap.records import Channel, Chunk, Footer, Message, Schema
+from mcap.stream_reader import StreamReader, breakup_chunk
 
 from fgins.datatypes import BaroData, Dataset, GnssData, ImuData, InputError, Origin
+from fgins.io.imu_checks import imu_from_samples
 
 IMU_SCHEMAS = frozenset({"sensor_msgs/msg/Imu"})
 NAVSATFIX = "sensor_msgs/msg/NavSatFix"
@@ -116,18 +117,94 @@ class _StreamOutcome:
     error: str = ""
     has_footer: bool = False
     has_summary: bool = False
+    cut_at: int = 0  # file size of a truncated file (the byte it was cut at)
+    torn_chunk: str = ""  # how much of the chunk the cut went through could be read
+    messages: int = 0
+    last_log_time_ns: int | None = None
+
+
+_CHUNK_OPCODE = 0x06
+_MESSAGE_OPCODE = 0x05
+_SCHEMA_OPCODE = 0x03
+_CHANNEL_OPCODE = 0x04
+
+
+def _decompress_prefix(compression: str, data: bytes) -> tuple[bytes, str]:
+    """As much of a torn chunk's records as its compressed prefix gives, and the bound.
+
+    Uncompressed chunks give every byte before the cut. zstd and lz4 frames decode block by
+    block, so a streaming decompressor returns everything up to the last complete compressed
+    block: at most one block (zstd <= 128 KiB, lz4 64 KiB to 4 MiB by the frame's block size)
+    of messages before the cut is lost.
+    """
+    if compression == "":
+        return data, "uncompressed: every message before the cut"
+    try:
+        if compression == "zstd":
+            import zstandard
+
+            out = zstandard.ZstdDecompressor().decompressobj().decompress(data)
+            return out, "zstd: up to the last complete compressed block (<= 128 KiB)"
+        if compression == "lz4":
+            import lz4.frame
+
+            decompressor = lz4.frame.LZ4FrameDecompressor()
+            return decompressor.decompress(data), "lz4: up to the last complete lz4 block"
+    except Exception as exc:
+        return b"", f"{compression}: nothing decodable ({type(exc).__name__})"
+    return b"", f"compression {compression!r} not supported for a torn chunk"
+
+
+def _records_in_torn_chunk(body: bytes, outcome: _StreamOutcome) -> Iterator[Any]:
+    """The complete Schema/Channel/Message records inside a chunk cut off by the file's end."""
+    from io import BytesIO
+
+    from mcap.data_stream import ReadDataStream
+
+    head = 8 + 8 + 8 + 4
+    if len(body) < head + 4:
+        outcome.torn_chunk = "cut inside the chunk header: no message of that chunk"
+        return
+    (name_len,) = struct.unpack_from("<I", body, head)
+    start = head + 4 + name_len + 8
+    if len(body) < start:
+        outcome.torn_chunk = "cut inside the chunk header: no message of that chunk"
+        return
+    compression = body[head + 4 : head + 4 + name_len].decode("utf-8", "replace")
+    data, bound = _decompress_prefix(compression, body[start:])
+    outcome.torn_chunk = bound
+    offset = 0
+    while offset + 9 <= len(data):
+        opcode = data[offset]
+        (length,) = struct.unpack_from("<Q", data, offset + 1)
+        end = offset + 9 + length
+        if end > len(data):
+            break  # the record the cut went through
+        stream = ReadDataStream(BytesIO(data[offset + 9 : end]))
+        if opcode == _MESSAGE_OPCODE:
+            yield Message.read(stream, length)
+        elif opcode == _SCHEMA_OPCODE:
+            yield Schema.read(stream)
+        elif opcode == _CHANNEL_OPCODE:
+            yield Channel.read(stream)
+        offset = end
 
 
 def _stream_records(
     path: Path, outcome: _StreamOutcome, progress: bool, label: str
 ) -> Iterator[Any]:
-    """Yield every record of the data section (chunks opened); stop cleanly at a torn record."""
+    """Yield every record of the data section (chunks opened); at a torn end, every complete
+    message before the cut, inside a torn chunk too (see :func:`_decompress_prefix`)."""
+    size = path.stat().st_size
     with open(path, "rb") as file:
-        bar = _ByteProgress(file, path.stat().st_size, progress, label)
+        bar = _ByteProgress(file, size, progress, label)
         try:
-            reader = StreamReader(file, record_size_limit=1 << 31)
+            # emit_chunks: the chunks are opened here, so the byte offset after each complete
+            # top-level record is known and a torn one can be read record by record.
+            reader = StreamReader(file, emit_chunks=True, record_size_limit=1 << 31)
             records = reader.records
             count = 0
+            next_record_at = 8  # after the magic
             while True:
                 try:
                     record = next(records)
@@ -142,19 +219,45 @@ def _stream_records(
                     break
                 except Exception as exc:
                     # mcap raises on the torn last record of a recording that was cut off
-                    # (EndOfFile, struct/zstd errors, ...): everything before it is intact.
+                    # (EndOfFile, struct errors, ...): everything before it is intact.
                     outcome.truncated = True
                     outcome.error = f"{type(exc).__name__}: {exc}"
+                    yield from _count(_torn_tail(file, next_record_at, size, outcome), outcome)
                     break
+                next_record_at = file.tell()
                 count += 1
                 if isinstance(record, Footer):
                     outcome.has_footer = True
                     outcome.has_summary = record.summary_start != 0
                 if count % _PROGRESS_EVERY_RECORDS == 0:
                     bar.update()
-                yield record
+                if isinstance(record, Chunk):
+                    yield from _count(breakup_chunk(record), outcome)
+                else:
+                    yield from _count((record,), outcome)
         finally:
             bar.close()
+    if outcome.truncated:
+        outcome.cut_at = size
+
+
+def _count(records: Any, outcome: _StreamOutcome) -> Iterator[Any]:
+    for record in records:
+        if isinstance(record, Message):
+            outcome.messages += 1
+            outcome.last_log_time_ns = record.log_time
+        yield record
+
+
+def _torn_tail(file: Any, offset: int, size: int, outcome: _StreamOutcome) -> Iterator[Any]:
+    """Records of the top-level record the cut went through (a chunk: its complete messages)."""
+    file.seek(offset)
+    head = file.read(9)
+    if len(head) < 9:
+        return
+    opcode = head[0]
+    if opcode == _CHUNK_OPCODE:
+        yield from _records_in_torn_chunk(file.read(size - offset - 9), outcome)
 
 
 def _read_summary(path: Path) -> Any:
@@ -222,6 +325,19 @@ def _imu_cdr_reader(data: bytes) -> tuple[int, tuple[float, ...]]:
     return sec * 1_000_000_000 + nanosec, gyro + accel
 
 
+def _imu_cdr_covariance_diagonals(data: bytes) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """Diagonals of angular_velocity_covariance and linear_acceleration_covariance (CDR)."""
+    little = data[1] == 1
+    prefix = "<" if little else ">"
+    _sec, _nanosec, frame_len = struct.unpack_from(prefix + "iII", data, 4)
+    body = (12 + frame_len + 7) & ~7
+    gyro_cov_at = 4 + body + 13 * 8 + 3 * 8
+    accel_cov_at = gyro_cov_at + 9 * 8 + 3 * 8
+    gyro_cov = struct.unpack_from(prefix + "9d", data, gyro_cov_at)
+    accel_cov = struct.unpack_from(prefix + "9d", data, accel_cov_at)
+    return gyro_cov[0::4], accel_cov[0::4]
+
+
 def _get(msg: Any, name: str, default: Any = None) -> Any:
     """Field access for decoded objects (ROS 2, protobuf) and JSON dicts alike."""
     if isinstance(msg, dict):
@@ -278,14 +394,46 @@ class _Accumulator:
 
 
 class _ImuAccumulator(_Accumulator):
+    # Covariances are read from the first messages only: a driver fills them with constants.
+    COVARIANCE_SAMPLES = 64
+
     def __init__(self, topic: str, schema_name: str) -> None:
         super().__init__(topic, schema_name)
         self.values = array("d")  # gx gy gz ax ay az per sample
+        self.gyro_var: list[float] = []  # mean diagonal variance per sampled message
+        self.accel_var: list[float] = []
 
     def add_raw(self, data: bytes, log_time: int, use_header_stamp: bool) -> None:
         stamp, values = _imu_cdr_reader(data)
         self.t.append(self.time(stamp, log_time, use_header_stamp))
         self.values.extend(values)
+        if len(self.t) <= self.COVARIANCE_SAMPLES:
+            gyro_diag, accel_diag = _imu_cdr_covariance_diagonals(data)
+            self.gyro_var.append(_known_variance(gyro_diag))
+            self.accel_var.append(_known_variance(accel_diag))
+
+    def noise_config(self, rate_hz: float) -> dict[str, float]:
+        """White-noise densities from the messages' covariances ({} when they carry none).
+
+        sensor_msgs/Imu covariances are per-sample variances: sigma = sqrt(variance), and a
+        density of sigma / sqrt(rate) gives that sigma at the sample rate.
+        """
+        config: dict[str, float] = {}
+        for key, variances in (
+            ("gyro_noise_rad_per_s_per_sqrt_hz", self.gyro_var),
+            ("accel_noise_m_per_s2_per_sqrt_hz", self.accel_var),
+        ):
+            known = [v for v in variances if math.isfinite(v)]
+            if known and rate_hz > 0:
+                config[key] = math.sqrt(float(np.median(known))) / math.sqrt(rate_hz)
+        return config
+
+
+def _known_variance(diagonal: tuple[float, ...]) -> float:
+    """Mean of a covariance diagonal, NaN when unknown (all zero, or -1: "no such data")."""
+    if diagonal[0] == -1.0 or not all(math.isfinite(v) and v > 0 for v in diagonal):
+        return math.nan
+    return sum(diagonal) / 3.0
 
 
 class _FixAccumulator(_Accumulator):
@@ -431,14 +579,12 @@ def _sorted_unique(t: np.ndarray, label: str, warnings: list[str]) -> np.ndarray
 def _build_imu(acc: _ImuAccumulator, warnings: list[str]) -> ImuData:
     t = np.frombuffer(acc.t, dtype=float)
     values = np.frombuffer(acc.values, dtype=float).reshape(-1, 6)
-    good = np.all(np.isfinite(values), axis=1)
-    if not np.all(good):
-        warnings.append(f"imu {acc.topic}: {int(np.sum(~good))} samples with NaN values dropped")
-        t, values = t[good], values[good]
-    idx = _sorted_unique(t, f"imu {acc.topic}", warnings)
-    if t[idx].size < 2:
+    if t.size < 2:
         raise InputError(f"imu topic {acc.topic}: fewer than 2 usable samples; check the recording")
-    return ImuData(t=t[idx], gyro=values[idx, :3], accel=values[idx, 3:])
+    # the one row policy of every reader (NaN rows, reordering, repeated stamps)
+    return imu_from_samples(
+        t, values[:, :3], values[:, 3:], source=f"imu {acc.topic}", warnings=warnings
+    )
 
 
 def _build_fixes(acc: _FixAccumulator, warnings: list[str]) -> GnssData:
@@ -698,8 +844,16 @@ def _accumulator_for(scan: _McapScan, role: str) -> _Accumulator | None:
 def _assemble(scan: _McapScan) -> McapResult:
     path, report, warnings = scan.path, scan.report, scan.warnings
     if scan.outcome.truncated:
+        outcome = scan.outcome
+        last = (
+            f"last complete message at t={outcome.last_log_time_ns / 1e9:.3f} s (log time)"
+            if outcome.last_log_time_ns is not None
+            else "no complete message"
+        )
         warnings.append(
-            f"{path}: recording is truncated ({scan.outcome.error}); read up to the cut"
+            f"{path}: file truncated at byte {outcome.cut_at}: {outcome.messages} messages read, "
+            f"{last}"
+            + (f"; torn chunk {outcome.torn_chunk}" if outcome.torn_chunk else "")
         )
     for cid, why in sorted(scan.skipped.items()):
         topic = scan.channels[cid].topic
@@ -725,6 +879,14 @@ def _assemble(scan: _McapScan) -> McapResult:
                 "their log time was used"
             )
     imu = _build_imu(imu_acc, warnings)  # type: ignore[arg-type]
+    imu_config = imu_acc.noise_config(imu.rate_hz)  # type: ignore[attr-defined]
+    if imu_config:
+        report.append(
+            f"imu noise from the sensor_msgs/Imu covariances of {imu_acc.topic}: "
+            + ", ".join(f"{k} = {v:.3g}" for k, v in imu_config.items())
+            + " (at "
+            + f"{imu.rate_hz:.1f} Hz); other [imu] terms from the preset"
+        )
     if isinstance(gnss_acc, _NmeaAccumulator):
         gnss = _build_nmea(gnss_acc, path, warnings)
     else:
@@ -759,6 +921,7 @@ def _assemble(scan: _McapScan) -> McapResult:
         origin=origin,
         baro=baro,
         name=path.stem,
+        imu_config=imu_config,
         warnings=list(warnings),
         metadata={
             "source": str(path),

@@ -34,6 +34,13 @@ def trajectory_table(trajectory: Trajectory) -> np.ndarray:
     )  # fmt: skip
 
 
+def trajectory_columns(trajectory: Trajectory) -> tuple[list[str], np.ndarray]:
+    """The CSV's header and its values before formatting: (:data:`COLUMNS` +
+    :data:`EXTRA_COLUMNS`, (N, 22) float array). One place for the column computation, shared
+    by the CSV writer and ``Trajectory.to_dataframe()``."""
+    return COLUMNS + EXTRA_COLUMNS, trajectory_table(trajectory)
+
+
 def write_trajectory_csv(trajectory: Trajectory, path: str | Path) -> None:
     """Write the DESIGN.md trajectory CSV (plus bias columns); NaN where unknown."""
     table = trajectory_table(trajectory)

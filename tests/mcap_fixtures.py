@@ -132,8 +132,12 @@ def write_ros2_bag(
     with_unknown: bool = True,
     nmea_sentences: list[tuple[int, str]] | None = None,
     gpsfix: bool = False,
+    imu_variances: tuple[float, float] | None = None,
 ) -> Path:
     """Write a rosbag2 in mcap storage; returns the .mcap file inside the bag folder.
+
+    ``imu_variances`` (gyro (rad/s)^2, accel (m/s^2)^2) fills the diagonals of the Imu
+    messages' angular_velocity / linear_acceleration covariances (zeros, "unknown", otherwise).
 
     ``second_imu_every`` > 0 adds ``/imu/raw`` carrying every n-th IMU sample (a second,
     sparser IMU candidate).
@@ -150,6 +154,10 @@ def write_ros2_bag(
         def add(topic: str, msgtype: str):
             return writer.add_connection(topic, msgtype, typestore=store)
 
+        gyro_cov, accel_cov = np.zeros(9), np.zeros(9)
+        if imu_variances is not None:
+            gyro_cov = np.diag(np.full(3, imu_variances[0])).ravel()
+            accel_cov = np.diag(np.full(3, imu_variances[1])).ravel()
         if with_imu:
             imu_conn = add(imu_topic, "sensor_msgs/msg/Imu")
             imu_conns = [(imu_conn, 1)]
@@ -163,9 +171,9 @@ def write_ros2_bag(
                         orientation=quat(x=0.0, y=0.0, z=0.0, w=1.0),
                         orientation_covariance=np.full(9, -1.0),
                         angular_velocity=vec3(*map(float, drive.gyro[i])),
-                        angular_velocity_covariance=np.zeros(9),
+                        angular_velocity_covariance=gyro_cov,
                         linear_acceleration=vec3(*map(float, drive.accel[i])),
-                        linear_acceleration_covariance=np.zeros(9),
+                        linear_acceleration_covariance=accel_cov,
                     )
                     records.append((ns, conn, msg, "sensor_msgs/msg/Imu"))
         if gpsfix:

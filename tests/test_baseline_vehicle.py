@@ -20,7 +20,6 @@ from fgins.baseline.ukf import run_ukf
 from fgins.baseline.vehicle_updates import (
     BARO_BIAS,
     QUIET_WINDOW_S,
-    imu_to_vehicle_rotation,
 )
 from fgins.config import RunConfig, config_for_dataset, imu_noise_from_config
 from fgins.datatypes import BaroData
@@ -64,14 +63,6 @@ def loop():
 
 
 # --- models against independent references ---------------------------------------------------
-
-
-@pytest.mark.parametrize("rpy", [(0.0, 0.0, 0.0), (2.0, -3.0, 90.0), (-10.0, 5.0, -170.0)])
-def test_mounting_rotation_is_gtsams_ypr(rpy):
-    roll, pitch, yaw = np.radians(rpy)
-    np.testing.assert_allclose(
-        imu_to_vehicle_rotation(rpy), gtsam.Rot3.Ypr(yaw, pitch, roll).matrix(), atol=1e-12
-    )
 
 
 def test_barometric_height_is_gtsams():

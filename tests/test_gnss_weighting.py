@@ -42,6 +42,128 @@ def test_pdop_and_quality_gates_count_what_they_reject():
     assert (gate.rejected_pdop, gate.rejected_quality) == (1, 2)
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_gate_counts_add_up_and_an_outage_comes_first(seed):
+    """Every epoch is counted once, in the documented order (outage, no position, outside the
+    IMU span, fix quality, PDOP), checked epoch by epoch against a scalar reading of that
+    rule; the printed counts add up to the number of epochs."""
+    import re
+
+    rng = np.random.default_rng(seed)
+    n = 200
+    lla = rng.normal(size=(n, 3))
+    lla[rng.random(n) < 0.05] = np.nan
+    gnss = GnssData(
+        t=np.arange(n, dtype=float),
+        lla=lla,
+        pdop=np.where(rng.random(n) < 0.1, np.nan, rng.uniform(0.8, 9.0, n)),
+        fix_quality=rng.choice([0, 1, 2, 4, 5, 6], n),
+    )
+    withheld = rng.random(n) < 0.3
+    span = (20.0, 180.0)
+    config = GnssConfig(pdop_max=float(rng.choice([3.0, 5.0])), min_fix_quality=1)
+    gate = gate_epochs(gnss, config, withheld=withheld, imu_span=span)
+    expected = {"used": 0, "withheld": 0, "position": 0, "span": 0, "quality": 0, "pdop": 0}
+    for i in range(n):
+        q, p = gnss.fix_quality[i], gnss.pdop[i]
+        gated = None  # the first gate the epoch fails, ignoring the outage
+        if not np.all(np.isfinite(lla[i])):
+            gated = "position"
+        elif not span[0] <= gnss.t[i] <= span[1]:
+            gated = "span"
+        elif q < 1 or q == 6:
+            gated = "quality"
+        elif np.isfinite(p) and p > config.pdop_max:
+            gated = "pdop"
+        reason = "withheld" if withheld[i] else (gated or "used")
+        expected[reason] += 1
+        assert gate.used[i] == (reason == "used")
+        assert gate.usable[i] == (gated is None)
+    got = {
+        "used": gate.n_used, "withheld": gate.withheld, "position": gate.rejected_position,
+        "span": gate.outside_span, "quality": gate.rejected_quality, "pdop": gate.rejected_pdop,
+    }  # fmt: skip
+    assert got == expected
+    assert sum(got.values()) == n == gate.total
+    # usable ignores the outage: without the mask the same epochs pass the gates.
+    assert np.array_equal(gate.usable, gate_epochs(gnss, config, imu_span=span).usable)
+    line = gate.summary()
+    total, *counts = (
+        int(x)
+        for x in re.findall(
+            r"(\d+) (?:epochs|used|withheld|without|"
+            r"outside|gated|by fix)",
+            line,
+        )
+    )
+    assert total == n and sum(counts) == n, line
+    assert f"gated by PDOP > {config.pdop_max:g}" in line
+
+
+def test_gate_without_outage_counts_as_before():
+    """No mask: the counts of the old two gates (quality first, then PDOP) are unchanged."""
+    gnss = _gnss(pdop=np.array([1.0, 6.0, 6.0, 2.0]), fix_quality=np.array([1, 1, 0, 1]))
+    gate = gate_epochs(gnss, GnssConfig(pdop_max=5.0))
+    assert (gate.n_used, gate.withheld, gate.rejected_pdop, gate.rejected_quality) == (2, 0, 1, 1)
+    assert gate.summary() == (
+        "GNSS: 4 epochs: 2 pass the gates (outages not counted here), 1 gated by PDOP > 5, "
+        "1 by fix quality"
+    )
+    # The same epochs with the PDOP-5+ one inside an outage: withheld, not gated by PDOP.
+    gate = gate_epochs(gnss, GnssConfig(pdop_max=5.0), withheld=np.array([0, 1, 0, 0], bool))
+    assert (gate.n_used, gate.withheld, gate.rejected_pdop, gate.rejected_quality) == (2, 1, 0, 1)
+    assert gate.summary() == (
+        "GNSS: 4 epochs: 2 used, 1 withheld by outage, 0 gated by PDOP > 5, 1 by fix quality"
+    )
+
+
+def test_residual_summary_says_rejected_only_with_a_kernel():
+    """Gaussian 3-D whitened residuals (chi, 3 dof) plus gross outliers: the counts follow
+    from the draw; without a kernel nothing is called down-weighted; GTSAM's own Cauchy and
+    Huber weights agree with kernel_weights."""
+    import gtsam
+
+    from fgins.factors.gnss import LARGE_RESIDUAL_SIGMA, kernel_weights, residual_summary
+
+    rng = np.random.default_rng(4)
+    norms = np.linalg.norm(rng.standard_normal((2000, 3)), axis=1)
+    norms[:40] = rng.uniform(20, 60, 40)  # 2 % gross outliers
+    large = int((norms > LARGE_RESIDUAL_SIGMA).sum())
+    plain = residual_summary(norms, GnssConfig())
+    assert plain.startswith(f"GNSS residuals: {large} of 2000 fixes above 4.03 sigma (no robust")
+    assert "down-weighted" not in plain.split("(")[0] and "rejected" not in plain
+    assert "too small" in plain  # 2 % against 0.1 % expected
+    config = GnssConfig(cauchy_k=3.0)
+    weights = kernel_weights(norms, config)
+    cauchy = gtsam.noiseModel.mEstimator.Cauchy.Create(3.0)
+    huber = gtsam.noiseModel.mEstimator.Huber.Create(2.0)
+    for r, w in zip(norms[:50:7], weights[:50:7], strict=True):
+        assert w == pytest.approx(cauchy.weight(r))
+        assert kernel_weights(np.array([r]), GnssConfig(huber_k=2.0))[0] == pytest.approx(
+            huber.weight(r)
+        )
+    line = residual_summary(norms, config)
+    assert f"down-weighted {int((weights < 0.5).sum())} of them below 50 % weight" in line
+    clean = residual_summary(np.linalg.norm(rng.standard_normal((2000, 3)), axis=1), config)
+    assert "too small" not in clean
+
+
+def test_corrupt_dops_and_sigmas_are_missing_not_precise():
+    """A DOP or data sigma <= 0 (or inf) must not be floored to min_sigma_m (the most trusted
+    fix): it counts as missing, so the default sigma applies."""
+    gnss = _gnss(
+        hdop=np.array([-1.0, 0.0, np.inf]),
+        std=np.array([[0.0, 0.0, 0.0], [-0.5, -0.5, -0.5], [np.nan] * 3]),
+        velocity=np.ones((3, 3)),
+        velocity_std=np.array([[0.0, 0.0, 0.0], [np.nan] * 3, [-1.0] * 3]),
+    )
+    config = GnssConfig()
+    np.testing.assert_allclose(
+        position_sigmas(gnss, config), np.tile(config.default_sigma_m, (3, 1))
+    )
+    np.testing.assert_allclose(velocity_sigmas(gnss, config), np.tile([0.1, 0.1, 0.2], (3, 1)))
+
+
 def test_course_velocity_is_skipped_at_walking_speed():
     gnss = _gnss(velocity=np.array([[0.3, 0.4, np.nan], [6.0, 8.0, np.nan], [0.3, 0.4, 0.0]]))
     sigma = velocity_sigmas(gnss, GnssConfig())
@@ -97,7 +219,7 @@ def test_pdop_gate_lets_the_imu_bridge_biased_fixes(mems_pdop):
         inside = (trajectory.t >= stretch_t.min()) & (trajectory.t <= stretch_t.max())
         results[label] = _horizontal_rms(trajectory, truth, inside)
         if pdop_max is not None:
-            assert f"{int(high.sum())} rejected for PDOP" in trajectory.info["gnss_gating"]
+            assert f"{int(high.sum())} gated by PDOP > 5" in trajectory.info["gnss_gating"]
     assert results["gated"] < 1.0
     assert results["not gated"] > 3.0 * results["gated"]
 

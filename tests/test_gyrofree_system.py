@@ -271,7 +271,7 @@ def test_ekf18_nhc_jacobian_matches_finite_differences() -> None:
     mounting = rotation_from_rpy(0.0, 0.03, -0.02)
     nav = NominalState(rotation, velocity, np.zeros(3), np.zeros(3), np.zeros(3))
     h, residual, variance = nhc_measurement(nav, mounting, SmootherConfig())
-    select = mounting.T[1:3]
+    select = mounting[1:3]  # R_vi rows: vehicle y, z in IMU axes
 
     def lateral_vertical(phi: np.ndarray, dv: np.ndarray) -> np.ndarray:
         return select @ (so3_exp(phi) @ rotation).T @ (velocity + dv)

@@ -208,7 +208,7 @@ def test_repeated_and_backward_stamps_are_sorted_and_counted(tmp_path: Path) -> 
     imu = result.dataset.imu
     assert len(imu) == drive.imu_ns.size - 1
     assert np.all(np.diff(imu.t) > 0)
-    assert any("1 samples with a repeated timestamp dropped" in w for w in result.warnings)
+    assert any("dropped 1 IMU sample(s) with repeated time" in w for w in result.warnings)
     # the swapped pair is put back in time order with its own values
     k = int(np.searchsorted(imu.t, drive.imu_ns[21] / 1e9))
     np.testing.assert_array_equal(imu.gyro[k], drive.gyro[21])

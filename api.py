@@ -1,0 +1,721 @@
+"""The public Python API of fgins: load a drive, smooth it, write or tabulate the result.
+
+Everything the ``fgins`` command does goes through these functions (the CLI only parses
+arguments and prints), so a program gets exactly the CLI's results and its one-line errors:
+
+>>> import fgins
+>>> dataset = fgins.load("demo:kitti")                         # doctest: +SKIP
+>>> track = fgins.smooth(dataset, "batch", gnss_outage=[(60, 90)])  # doctest: +SKIP
+>>> track.write("track.csv"); track.to_dataframe().head()      # doctest: +SKIP
+
+Errors are :class:`fgins.FginsError` subclasses (:class:`~fgins.InputError`,
+:class:`~fgins.ConfigError`, :class:`~fgins.OutputError`) whose message is the line the CLI
+prints after ``fgins: error:``. Findings of the readers (gaps, filled stretches, corrupt
+lines) arrive as :class:`FginsWarning` through Python's :mod:`warnings` and stay listed in
+``Dataset.warnings``.
+
+This module imports only the data model at import time; GTSAM, matplotlib and pandas are
+imported by the functions that need them.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+import warnings
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from fgins.datatypes import (
+    ConfigError,
+    Dataset,
+    FginsError,
+    InputError,
+    OutputError,
+    Trajectory,
+)
+
+if TYPE_CHECKING:
+    import pandas as pd
+    from matplotlib.figure import Figure
+
+    from fgins.config import RunConfig
+
+__all__ = [
+    "DEFAULT_BENCH_METHODS",
+    "INPUT_FOLDER_FILES",
+    "OUTPUT_SUFFIXES",
+    "ConfigError",
+    "FginsError",
+    "FginsWarning",
+    "InputError",
+    "OutputError",
+    "bench",
+    "check_methods",
+    "check_output",
+    "configure",
+    "load",
+    "plot",
+    "simulate",
+    "smooth",
+    "summary",
+    "to_dataframe",
+    "write",
+]
+
+#: Trajectory output formats, chosen by the file extension.
+OUTPUT_SUFFIXES = (".csv", ".geojson", ".kml", ".mcap", ".tum")
+#: File names a folder input (``fgins sim`` output) is read from: an output never takes one of
+#: these names inside an input folder (it would become an input of the next run).
+INPUT_FOLDER_FILES = (
+    "imu.csv", "gnss.csv", "baro.csv", "wheel.csv", "accel_array.csv", "config.toml", "truth.csv",
+)  # fmt: skip
+DEFAULT_BENCH_METHODS = ("batch", "isam2", "ekf", "ekf-rts")
+ROBUST_KERNELS = ("huber", "cauchy")
+
+
+class FginsWarning(UserWarning):
+    """A counted, non-fatal finding about the input (gap, filled stretch, corrupt lines...)."""
+
+
+Window = tuple[float, float]
+
+
+# ---------------------------------------------------------------------------------------------
+# Configuration and input
+
+
+def configure(
+    dataset: Dataset,
+    config: str | os.PathLike[str] | RunConfig | None = None,
+    *,
+    imu_preset: str | None = None,
+    vehicle: str | None = None,
+    robust: str | None = None,
+) -> RunConfig:
+    """The run configuration of ``dataset``: its own sensor settings, then a TOML file, then
+    the explicit choices (the CLI's ``--config``, ``--imu-preset``, ``--vehicle``, ``--robust``).
+
+    Parameters
+    ----------
+    dataset : Dataset
+        What the configuration is for (its ``imu_config``/``gnss_config``/``vehicle`` are the
+        lowest layer).
+    config : path or RunConfig, optional
+        A TOML file with ``[imu]``, ``[gnss]``, ``[smoother]`` tables (datasheet units in the
+        key names, see the README), or a ready :class:`fgins.config.RunConfig` (used as is).
+    imu_preset : str, optional
+        ``consumer-mems``, ``industrial-mems``, ``tactical`` or ``navigation``: replaces the
+        dataset's own IMU numbers.
+    vehicle : str, optional
+        ``car`` (turns on the land-vehicle constraints), ``aircraft``, ``uav``, ``pedestrian``,
+        ``other``.
+    robust : {"huber", "cauchy"}, optional
+        Robust GNSS kernel: Huber with k = 2 sigma or Cauchy with k = 3 sigma.
+
+    Returns
+    -------
+    RunConfig
+
+    Raises
+    ------
+    ConfigError
+        Unknown key, unreadable file, unknown preset or kernel (the message names it).
+    """
+    from fgins.config import IMU_PRESETS, RunConfig, config_for_dataset
+
+    if isinstance(config, RunConfig):
+        return config
+    if imu_preset is not None and imu_preset not in IMU_PRESETS:
+        raise ConfigError(
+            f"imu preset {imu_preset!r} unknown; choose one of {', '.join(sorted(IMU_PRESETS))}"
+        )
+    if robust is not None and robust not in ROBUST_KERNELS:
+        raise ConfigError(
+            f"robust kernel {robust!r} unknown; choose one of {', '.join(ROBUST_KERNELS)}"
+        )
+    try:
+        run_config = config_for_dataset(dataset, config, imu_preset=imu_preset, vehicle=vehicle)
+    except FginsError as exc:
+        if type(exc) is FginsError:  # config.py raises the base class; say what it is about
+            raise ConfigError(str(exc)) from None
+        raise
+    if robust == "huber":
+        run_config.gnss.huber_k, run_config.gnss.cauchy_k = 2.0, None
+    elif robust == "cauchy":
+        run_config.gnss.cauchy_k = 3.0
+    return run_config
+
+
+def load(
+    *inputs: str | os.PathLike[str],
+    config: str | os.PathLike[str] | RunConfig | None = None,
+    imu_preset: str | None = None,
+    vehicle: str | None = None,
+    robust: str | None = None,
+    time_offset: float = 0.0,
+    imu_topic: str | None = None,
+    gnss_topic: str | None = None,
+    progress: bool = False,
+) -> Dataset:
+    """Read a drive or flight into a :class:`~fgins.datatypes.Dataset`, checked and configured.
+
+    Parameters
+    ----------
+    *inputs : str or path
+        What ``fgins smooth`` accepts: ``"demo:kitti"`` (the KITTI drive in the gtsam wheel);
+        an MCAP file (ROS 2 or Foxglove); an NMEA file plus an IMU CSV; ``imu.csv`` and
+        ``gnss.csv`` (plus ``baro.csv``/``wheel.csv``, any order, recognised by header); or a
+        folder written by ``fgins sim``.
+    config, imu_preset, vehicle, robust
+        The run configuration, see :func:`configure`. It is resolved and validated here (one
+        clear error before any work) and kept in ``dataset.metadata["run_config"]``, which
+        :func:`smooth` uses unless given another.
+    time_offset : float, default 0.0
+        Seconds added to NMEA times (to put receiver UTC on the IMU's clock).
+    imu_topic, gnss_topic : str, optional
+        MCAP topics to use instead of the ones chosen by message schema.
+    progress : bool, default False
+        Progress bar while reading large MCAP files (on stderr).
+
+    Returns
+    -------
+    Dataset
+        SI units, GNSS positions geodetic (deg, deg, ellipsoidal m), ENU origin set.
+
+    Raises
+    ------
+    InputError
+        Missing file, unrecognised input, unusable data (the message says what and where).
+    ConfigError
+        Invalid configuration.
+
+    Warns
+    -----
+    FginsWarning
+        One per reader finding (also in ``dataset.warnings``).
+
+    Example
+    -------
+    >>> import fgins
+    >>> kitti = fgins.load("demo:kitti")
+    >>> len(kitti.imu), len(kitti.gnss)
+    (46968, 470)
+    """
+    from fgins.io.inputs import load_dataset
+
+    if len(inputs) == 1 and isinstance(inputs[0], (list, tuple)):
+        inputs = tuple(inputs[0])  # load(["imu.csv", "gnss.csv"]) as well
+    items = [os.fspath(item) for item in inputs]
+    dataset = load_dataset(
+        items, time_offset_s=time_offset, imu_topic=imu_topic, gnss_topic=gnss_topic,
+        progress=progress,
+    )  # fmt: skip
+    dataset.metadata["inputs"] = items
+    dataset.metadata["run_config"] = configure(
+        dataset, config, imu_preset=imu_preset, vehicle=vehicle, robust=robust
+    )
+    for message in dataset.warnings:
+        warnings.warn(message, FginsWarning, stacklevel=2)
+    return dataset
+
+
+def _simulate(
+    scenario: str,
+    output_dir: str | os.PathLike[str],
+    seed: int = 0,
+    duration: float | None = None,
+    options: dict[str, Any] | None = None,
+) -> tuple[Path, Any]:
+    """Simulate and write; (folder, the scenario run with its dataset and truth)."""
+    try:
+        from fgins.sim.scenarios import SCENARIOS
+        from fgins.sim.writer import write_sim_dir
+    except ImportError:
+        raise FginsError("the simulator is not available in this build") from None
+    if scenario not in SCENARIOS:
+        raise ConfigError(f"unknown scenario {scenario!r}; choose one of {', '.join(SCENARIOS)}")
+    options = dict(options or {})
+    if duration is not None:
+        options["duration_s"] = duration
+    try:
+        run = SCENARIOS[scenario](seed=seed, **options)
+    except TypeError as exc:
+        raise ConfigError(f"scenario {scenario}: {exc}") from None
+    folder = Path(output_dir)
+    if folder.exists() and not folder.is_dir():
+        raise OutputError(f"{folder}: exists and is not a folder")
+    write_sim_dir(run, folder)
+    return folder, run
+
+
+def simulate(
+    scenario: str,
+    output_dir: str | os.PathLike[str],
+    *,
+    seed: int = 0,
+    duration: float | None = None,
+    **options: Any,
+) -> Path:
+    """Simulate a drive or flight with exact truth and write it as a folder :func:`load` reads.
+
+    Parameters
+    ----------
+    scenario : str
+        ``car-urban``, ``highway``, ``mems-car-pdop``, ``uav-loop-baro``, ``aircraft-ekf``,
+        ``gyrofree-cube`` (``fgins sim list`` describes them).
+    output_dir : path
+        Folder for ``imu.csv``, ``gnss.csv`` (and other sensors' CSVs), ``config.toml`` and
+        ``truth.csv`` (the trajectory CSV layout).
+    seed : int, default 0
+        Random seed of the sensor errors.
+    duration : float, optional
+        Shorten the scenario to this many seconds.
+    **options
+        Scenario options, as ``fgins sim --set KEY=VALUE`` (e.g. ``grade="tactical"``).
+
+    Returns
+    -------
+    pathlib.Path
+        ``output_dir``.
+
+    Example
+    -------
+    >>> drive = fgins.simulate("car-urban", tmp_path / "drive", duration=60)  # doctest: +SKIP
+    """
+    return _simulate(scenario, output_dir, seed, duration, options)[0]
+
+
+# ---------------------------------------------------------------------------------------------
+# Smoothing
+
+
+def _windows(gnss_outage: str | Iterable[Sequence[float]] | None) -> list[Window]:
+    """Outage windows as checked (start, end) seconds after t0."""
+    from fgins.outages import parse_windows
+
+    if gnss_outage is None:
+        return []
+    if isinstance(gnss_outage, str):
+        return parse_windows(gnss_outage)
+    windows = []
+    for item in gnss_outage:
+        try:
+            start, end = (float(v) for v in item)
+        except (TypeError, ValueError):
+            raise ConfigError(
+                f"gnss_outage: {item!r} is not a (start, end) pair of seconds, e.g. (60, 90)"
+            ) from None
+        if not (math.isfinite(start) and math.isfinite(end)) or end <= start:
+            raise ConfigError(f"gnss_outage: window {item!r} must have finite start < end")
+        windows.append((start, end))
+    return windows
+
+
+def smooth(
+    dataset: Dataset,
+    method: str = "batch",
+    *,
+    config: str | os.PathLike[str] | RunConfig | None = None,
+    gnss_outage: str | Iterable[Sequence[float]] | None = None,
+    online: bool = False,
+    progress: bool = False,
+) -> Trajectory:
+    """Estimate the trajectory of ``dataset`` with the factor graph or a Kalman baseline.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        From :func:`load` (or any reader / the simulator).
+    method : str, default "batch"
+        ``batch`` (Levenberg-Marquardt over the whole drive), ``isam2`` (incremental, final
+        estimate), or a baseline: ``ekf``, ``ekf-rts``, ``ukf``, ``planar-kf``, ``ekf18``.
+    config : path or RunConfig, optional
+        Overrides the configuration chosen by :func:`load` (see :func:`configure`).
+    gnss_outage : list of (start, end), optional
+        Seconds after t0, the first GNSS epoch of the input. GNSS epochs with
+        ``start <= t - t0 < end`` are withheld (the IMU is untouched). A string
+        ``"60:90,150:180"`` is accepted too.
+    online : bool, default False
+        With ``method="isam2"``: return the online (filtered) estimate, what a real-time
+        system would have had at each instant.
+    progress : bool, default False
+        Progress bars on stderr.
+
+    Returns
+    -------
+    Trajectory
+        One state per IMU sample: time (s), ENU position (m) at ``dataset.origin``, ENU
+        velocity (m/s), body-to-ENU rotation, IMU biases (rad/s, m/s^2), covariances (SI).
+        ``summary()`` gives the run summary, ``write(path)`` and ``to_dataframe()`` the outputs.
+
+    Raises
+    ------
+    FginsError
+        Unknown method, bad window, unusable data, a solve that did not converge.
+
+    Example
+    -------
+    >>> import fgins
+    >>> kitti = fgins.load("demo:kitti")
+    >>> track = fgins.smooth(kitti, "ekf", gnss_outage=[(60, 90)])
+    >>> track.summary()["gnss_withheld"]
+    30
+    >>> track.to_dataframe()[["east", "north", "up"]].shape
+    (46968, 3)
+    """
+    from fgins.outages import outage_mask
+    from fgins.pipeline import METHODS, run_method
+
+    if method not in METHODS:
+        raise ConfigError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+    if online and method != "isam2":
+        raise ConfigError(f"online=True (--online) needs method isam2, not {method!r}")
+    windows = _windows(gnss_outage)
+    if config is None:
+        run_config = dataset.metadata.get("run_config") or configure(dataset)
+    else:
+        run_config = configure(dataset, config)
+    run_method_name = "isam2-online" if online else method
+    mask = outage_mask(dataset, windows)
+    started = time.perf_counter()
+    trajectory = run_method(dataset, run_config, run_method_name, gnss_mask=mask, progress=progress)
+    elapsed = time.perf_counter() - started
+    trajectory.info["run"] = {
+        "dataset": dataset.name,
+        "inputs": list(dataset.metadata.get("inputs", [])),
+        "method": run_method_name,
+        "gnss_outage": windows,
+        "imu_samples": len(dataset.imu),
+        "gnss_epochs": len(dataset.gnss),
+        "gnss_withheld": int((~mask).sum()),
+        "wall_s": elapsed,
+        "warnings": list(dataset.warnings),
+    }
+    # The raw fixes, for outputs that carry them beside the trajectory (MCAP).
+    trajectory.info["source_gnss"] = dataset.gnss
+    # What the solver found doubtful (an inconsistent fit, a mounting the vehicle constraints
+    # contradict, unknown covariances) is said, never only stored.
+    for message in trajectory.info.get("fit_warnings", []):
+        warnings.warn(message, FginsWarning, stacklevel=2)
+    return trajectory
+
+
+# ---------------------------------------------------------------------------------------------
+# Outputs
+
+
+def _resolved(path: str | os.PathLike[str]) -> Path:
+    return Path(path).expanduser().resolve()
+
+
+def _input_paths(inputs: Iterable[str | os.PathLike[str]]) -> list[Path]:
+    paths = []
+    for item in inputs:
+        text = os.fspath(item)
+        if text.startswith("demo:"):
+            continue
+        paths.append(_resolved(text))
+    return paths
+
+
+def check_output(
+    path: str | os.PathLike[str],
+    inputs: Iterable[str | os.PathLike[str]] = (),
+    *,
+    suffixes: Sequence[str] = OUTPUT_SUFFIXES,
+    what: str = "output",
+) -> Path:
+    """Check that ``path`` can be written, before any work is done.
+
+    The format must be known (from the extension); the nearest existing ancestor must be a
+    writable folder (missing folders are created on writing), not a file; ``path`` must not be
+    a folder, nor any of ``inputs`` (symlinks and hard links resolved), nor one of the file
+    names of an input folder (:data:`INPUT_FOLDER_FILES`), which would turn it into input.
+
+    Returns the path as given. Raises :class:`OutputError` with a one-line message.
+    """
+    target = Path(path).expanduser()
+    suffix = target.suffix.lower()
+    if suffix not in suffixes:
+        raise OutputError(
+            f"{path}: {what} format must be one of {', '.join(suffixes)} (from the extension)"
+        )
+    if target.is_dir():
+        raise OutputError(f"{path}: is a folder; give a file name ending in {suffix}")
+    ancestor = target.parent if str(target.parent) else Path(".")
+    while not ancestor.exists() and ancestor != ancestor.parent:
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise OutputError(f"{path}: cannot write under {ancestor}: it is a file, not a folder")
+    if not os.access(ancestor, os.W_OK | os.X_OK):
+        raise OutputError(f"{path}: folder {ancestor} is not writable")
+    resolved = _resolved(target)
+    for source in _input_paths(inputs):
+        same = resolved == source or (
+            target.exists() and source.exists() and os.path.samefile(target, source)
+        )
+        if same:
+            raise OutputError(f"{path}: is an input of this run; refusing to overwrite it")
+        if (
+            source.is_dir()
+            and resolved.parent == source
+            and target.name.lower() in INPUT_FOLDER_FILES
+        ):
+            raise OutputError(
+                f"{path}: {target.name} is a file name the input folder {source} is read from; "
+                "write the output elsewhere or under another name"
+            )
+    return Path(path)
+
+
+def write(
+    trajectory: Trajectory,
+    path: str | os.PathLike[str],
+    *,
+    with_input: bool = False,
+) -> Path:
+    """Write ``trajectory`` to ``path``; the format follows the extension.
+
+    ``.csv``: the trajectory CSV (``time,lat,lon,alt,east,north,up,vel_east,vel_north,vel_up,
+    roll_deg,pitch_deg,heading_deg,std_east,std_north,std_up`` then the biases), one row per
+    state. ``.geojson`` / ``.kml``: the track for map viewers. ``.mcap``: Foxglove
+    LocationFix / PoseInFrame / FrameTransform (plus the raw fixes; ``with_input=True`` copies
+    the input MCAP's channels in). ``.tum``: ``timestamp tx ty tz qx qy qz qw`` in ENU at the
+    same origin, body-to-ENU quaternion, for evo.
+
+    The file is written to a temporary name and moved into place only when complete; the
+    path is checked first (:func:`check_output`), also against the run's inputs.
+
+    Example
+    -------
+    >>> track.write(tmp_path / "track.tum")  # doctest: +SKIP
+    """
+    run = trajectory.info.get("run", {})
+    inputs = run.get("inputs", []) if isinstance(run, dict) else []
+    check_output(path, inputs)
+    suffix = Path(path).suffix.lower()
+    if suffix == ".csv":
+        from fgins.io.trajectory_csv import write_trajectory_csv
+
+        write_trajectory_csv(trajectory, path)
+    elif suffix in (".geojson", ".kml"):
+        from fgins.io.trajectory_geo import write_trajectory_geo
+
+        write_trajectory_geo(trajectory, path)
+    elif suffix == ".tum":
+        from fgins.io.trajectory_tum import write_trajectory_tum
+
+        write_trajectory_tum(trajectory, path)
+    else:  # .mcap (check_output allowed nothing else)
+        from fgins.io.mcap_writer import write_mcap
+
+        if with_input and not inputs:
+            raise OutputError(f"{path}: with_input needs a trajectory from fgins.smooth")
+        write_mcap(
+            trajectory, path, gnss=trajectory.info.get("source_gnss"),
+            input_path=str(inputs[0]) if with_input else None,
+        )  # fmt: skip
+    return Path(path)
+
+
+def to_dataframe(trajectory: Trajectory) -> pd.DataFrame:
+    """The trajectory as a :class:`pandas.DataFrame` with the trajectory CSV's columns.
+
+    Columns, in order: ``time`` (s), ``lat``, ``lon`` (deg), ``alt`` (ellipsoidal m),
+    ``east``, ``north``, ``up`` (m), ``vel_east``, ``vel_north``, ``vel_up`` (m/s),
+    ``roll_deg``, ``pitch_deg``, ``heading_deg`` (deg, heading from north clockwise),
+    ``std_east``, ``std_north``, ``std_up`` (1-sigma m), then ``gyro_bias_x..z`` (rad/s) and
+    ``accel_bias_x..z`` (m/s^2). Full float64 values (the CSV rounds them when printing).
+    """
+    import pandas as pd
+
+    from fgins.io.trajectory_csv import trajectory_columns
+
+    header, table = trajectory_columns(trajectory)
+    return pd.DataFrame(table, columns=header)
+
+
+def _plain(value: Any) -> bool:
+    """True for values a JSON summary can hold."""
+    if isinstance(value, (str, int, float, bool)) or value is None:
+        return True
+    if isinstance(value, (list, tuple)):
+        return all(_plain(v) for v in value)
+    if isinstance(value, dict):
+        return all(isinstance(k, str) and _plain(v) for k, v in value.items())
+    return False
+
+
+def summary(trajectory: Trajectory) -> dict[str, Any]:
+    """The run summary of a trajectory as a plain (JSON-serialisable) dict.
+
+    Keys: ``method``, ``states``, ``t_start``, ``t_end``, ``duration_s``, ``timings`` (wall
+    seconds per stage) and, for a trajectory from :func:`smooth`, ``dataset``, ``inputs``,
+    ``gnss_outage``, ``imu_samples``, ``gnss_epochs``, ``gnss_withheld``, ``wall_s``,
+    ``warnings``; then what the method reported: ``gnss_gating`` (text),
+    ``gnss_epochs_used``, ``gnss_rejected`` (text) and ``gnss_rejected_times`` (s),
+    ``iterations``, ``initial_error``/``final_error``, ``keyframes``,
+    ``odometer_scale_error``... (only those the method has).
+    """
+    import numpy as np
+
+    out: dict[str, Any] = {
+        "method": trajectory.method,
+        "states": len(trajectory),
+        "t_start": float(trajectory.t[0]) if len(trajectory) else float("nan"),
+        "t_end": float(trajectory.t[-1]) if len(trajectory) else float("nan"),
+    }
+    out["duration_s"] = out["t_end"] - out["t_start"]
+    run = trajectory.info.get("run")
+    if isinstance(run, dict):
+        out.update(run)
+    for key, value in trajectory.info.items():
+        if key in ("run", "source_gnss", "online"):
+            continue
+        if isinstance(value, np.generic):
+            value = value.item()
+        if _plain(value):
+            out[key] = value
+    out["timings"] = {k: float(v) for k, v in trajectory.timings.items()}
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# Benchmark and plots
+
+
+def _truth_for(dataset: Dataset, truth: Any) -> Trajectory | None:
+    from fgins.io.trajectory_csv import read_trajectory_csv
+
+    if truth is None or isinstance(truth, Trajectory):
+        return truth
+    if isinstance(truth, str) and truth == "auto":
+        # A simulator folder holds its exact truth beside the sensor files.
+        inputs = dataset.metadata.get("inputs", [])
+        if len(inputs) == 1 and (Path(inputs[0]) / "truth.csv").is_file():
+            return read_trajectory_csv(Path(inputs[0]) / "truth.csv", dataset.origin)
+        return None
+    return read_trajectory_csv(truth, dataset.origin)
+
+
+def check_methods(methods: Iterable[str]) -> list[str]:
+    """``methods`` as a list, or a :class:`ConfigError` naming the unknown ones."""
+    from fgins.pipeline import METHODS
+
+    methods = list(methods)
+    unknown = sorted(set(methods) - set(METHODS))
+    if unknown:
+        raise ConfigError(
+            f"--methods: unknown {', '.join(unknown)}; choose from {', '.join(METHODS)}"
+        )
+    return methods
+
+
+def bench(
+    dataset: Dataset,
+    methods: Sequence[str] = DEFAULT_BENCH_METHODS,
+    outages: str | Iterable[Sequence[float]] | None = None,
+    *,
+    config: str | os.PathLike[str] | RunConfig | None = None,
+    truth: Trajectory | str | os.PathLike[str] | None = "auto",
+    baseline: str = "ekf",
+    outage_duration: float = 30.0,
+    outage_period: float = 90.0,
+    outage_start: float = 60.0,
+    output_dir: str | os.PathLike[str] | None = None,
+    progress: bool = False,
+) -> pd.DataFrame:
+    """Outage benchmark: every method on the same data and the same GNSS outages.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        From :func:`load`.
+    methods : sequence of str, default ("batch", "isam2", "ekf", "ekf-rts")
+        Methods to run; ``isam2`` also contributes its online estimate (``isam2-online``).
+    outages : list of (start, end), optional
+        Outage windows in seconds after t0. Default: ``outage_duration`` s every
+        ``outage_period`` s from ``outage_start`` s while they fit in the GNSS span.
+    config : path or RunConfig, optional
+        Overrides the configuration chosen by :func:`load`.
+    truth : Trajectory, path, "auto" or None, default "auto"
+        Reference. ``"auto"``: a simulator folder's ``truth.csv`` when the dataset was loaded
+        from one; otherwise (and with None) the withheld GNSS fixes themselves.
+    baseline : str, default "ekf"
+        Method the ``rms_ratio`` column is taken against (measured in the same run).
+    output_dir : path, optional
+        Also write ``outages.json``, ``outages.md`` and one plot per case there.
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per method: ``case``, ``method``, ``h_rms_outage_m``, ``h_max_outage_m``,
+        ``h_end_outage_m`` (mean error at the end of the windows), ``h_rms_aided_m``,
+        ``rpe_100m_m`` (RMS relative position error over 100 m of reference path, see
+        :func:`fgins.bench.metrics.relative_position_error`), ``within_3sigma_outage``
+        (fraction), ``wall_s``, ``imu_samples_per_s``, ``rms_ratio``. ``attrs`` holds
+        ``reference``, ``outages`` and ``baseline``.
+
+    Example
+    -------
+    >>> table = fgins.bench(fgins.load("demo:kitti"), methods=["ekf", "ekf-rts"])  # doctest: +SKIP
+    """
+    from fgins.bench.outages import BenchCase, results_frame, run_case, write_results
+    from fgins.outages import periodic_windows
+
+    methods = check_methods(methods)
+    if output_dir is not None and Path(output_dir).exists() and not Path(output_dir).is_dir():
+        raise OutputError(f"{output_dir}: exists and is not a folder")
+    run_config = (
+        configure(dataset, config)
+        if config is not None
+        else dataset.metadata.get("run_config") or configure(dataset)
+    )
+    windows = _windows(outages)
+    if not windows:
+        span = float(dataset.gnss.t[-1] - dataset.t0)
+        windows = periodic_windows(outage_duration, outage_period, outage_start, span)
+    reference = _truth_for(dataset, truth)
+    name = dataset.name.replace(":", "-") or "input"
+    case = BenchCase(name, dataset, run_config, windows, truth=reference)
+    run_case(case, methods, progress=progress)
+    frame = results_frame([case], baseline=baseline)
+    frame.attrs.update(
+        {
+            "reference": "truth" if reference is not None else "withheld GNSS",
+            "outages": windows,
+            "baseline": baseline,
+        }
+    )
+    if output_dir is not None:
+        write_results([case], Path(output_dir), baseline=baseline)
+    return frame
+
+
+def plot(
+    trajectories: Trajectory | Sequence[Trajectory],
+    dataset: Dataset,
+    *,
+    gnss_outage: str | Iterable[Sequence[float]] | None = None,
+    path: str | os.PathLike[str] | None = None,
+    title: str = "",
+) -> Figure:
+    """Track and horizontal error against the GNSS fixes, as a matplotlib Figure.
+
+    One or several trajectories of the same ``dataset``; ``gnss_outage`` shades the windows
+    and marks the withheld fixes (default: the windows of the first trajectory's run).
+    ``path`` also writes the figure (PNG, PDF or SVG by extension). In a notebook the
+    returned Figure displays itself.
+    """
+    from fgins.bench.plots import plot_track_and_errors
+
+    items = [trajectories] if isinstance(trajectories, Trajectory) else list(trajectories)
+    if gnss_outage is None:
+        run = items[0].info.get("run", {}) if items else {}
+        windows = list(run.get("gnss_outage", [])) if isinstance(run, dict) else []
+    else:
+        windows = _windows(gnss_outage)
+    return plot_track_and_errors(items, dataset, windows, path=path, title=title)

@@ -1,0 +1,409 @@
+"""The input-validation layer: every reader's :class:`Dataset` passes through here, once.
+
+Readers parse; this module checks, whatever the source (CSV pair, sim folder, NMEA + IMU CSV,
+MCAP, KITTI, UBX), so the same drive read from different formats gets the same findings:
+
+* IMU gaps and linearly interpolated stretches -> ``ImuData.suspect`` (bridged with inflated
+  noise), see :mod:`fgins.io.imu_checks`;
+* units: a gyro in deg/s (its integrated rotation over GNSS turns is ~57x the turn the fixes
+  show, or its rates are routinely above any vehicle's), an accelerometer in g (median
+  specific-force norm ~1 instead of ~9.8) -> :class:`InputError`;
+* geodetic ranges: |lat| > 90, |lon| > 180, altitude outside [-1000, 1e5] m -> fix dropped
+  and counted (an error when no fix is left);
+* GNSS sigmas and DOPs that are not positive finite numbers -> ignored, counted;
+* GNSS jumps no vehicle can make (> 1000 m/s between fixes beyond their own sigmas) -> fix
+  dropped and counted; a jump that persists (two sources in one log) -> :class:`InputError`;
+* GNSS time gaps (outages or a clock jump) -> reported;
+* time bases: IMU and GNSS spans that do not overlap -> :class:`InputError` naming both spans
+  and ``--time-offset``; GNSS epochs outside the IMU span -> counted.
+
+Each finding is one line, appended to ``dataset.warnings`` and to
+``dataset.metadata["input_checks"]``; unusable input raises :class:`InputError`. GTSAM-free.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from fgins.datatypes import Dataset, GnssData, InputError, Origin
+from fgins.io.imu_checks import flag_suspect
+
+# Geodetic ranges for the supported vehicles (cars, UAVs, aircraft): below the Dead Sea shore
+# (-430 m) and deep mines with margin; above any aircraft (1e5 m is the Karman line).
+ALT_MIN_M, ALT_MAX_M = -1000.0, 1.0e5
+# No supported vehicle moves faster (airliners ~250 m/s, fast jets ~700 m/s).
+MAX_SPEED_M_PER_S = 1000.0
+JUMP_SIGMA_FACTOR = 5.0  # tolerance in the fixes' own sigmas on top of the speed bound
+DEFAULT_FIX_SIGMA_M = 10.0  # a fix without any sigma or DOP: a consumer receiver's error
+UERE_FOR_DOP_M = 5.0
+JUMP_NEIGHBOURS = 3  # a fix is judged against this many fixes on each side
+# Units. In rad/s no vehicle's rate is routinely (10 % of the time) above 10 rad/s; integrated
+# over a turn the GNSS track shows, a rad/s gyro gives ~1x the turn, a deg/s one 57x.
+GYRO_ROUTINE_MAX_RAD_PER_S = 10.0
+GYRO_TURN_RATIO_MAX = 8.0
+TURN_WINDOW_S = 10.0
+TURN_MIN_RAD = 0.5  # a turn far above the course noise of the window's end points
+TURN_MIN_SPEED_M_PER_S = 3.0
+TURN_MIN_WINDOWS = 1  # ratio > 8 needs > 4 rad of gyro rotation in one window: not noise
+# Without turns: the gyro integrated over a window of straight driving stays below this
+# (biases of 1 deg/s and body oscillations give ~0.2 rad in 10 s; deg/s values give rad-sized).
+STRAIGHT_MAX_ROTATION_RAD = 1.5
+STRAIGHT_MIN_WINDOWS = 10
+G = 9.80665
+ACCEL_G_RANGE = (0.5, 2.0)  # a median specific-force norm here is g, not m/s^2
+ACCEL_PLAUSIBLE_RANGE = (5.0, 20.0)  # m/s^2: gravity plus any vehicle's mean acceleration
+GNSS_GAP_MIN_S = 5.0
+GNSS_GAP_PERIODS = 10.0
+
+
+def validate_dataset(dataset: Dataset) -> Dataset:
+    """Check and repair ``dataset`` (see the module docstring); returns the checked dataset.
+
+    Idempotent: a dataset already checked is returned unchanged.
+    """
+    if dataset.metadata.get("input_checks") is not None:
+        return dataset
+    checks: list[str] = []
+    imu = flag_suspect(dataset.imu, checks)
+    gnss, origin = _check_gnss(dataset.gnss, dataset.origin, checks)
+    _check_time_bases(imu.t, gnss.t, checks)
+    _check_units(imu, gnss, origin, has_accel_array=dataset.accel_array is not None)
+    _report_gnss_time_gaps(gnss.t, checks)
+    metadata = {**dataset.metadata, "input_checks": list(checks)}
+    return replace(
+        dataset,
+        imu=imu,
+        gnss=gnss,
+        origin=origin,
+        warnings=[*dataset.warnings, *checks],
+        metadata=metadata,
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# GNSS
+# --------------------------------------------------------------------------------------------
+
+
+def _geodetic_ok(lla: np.ndarray) -> np.ndarray:
+    lat, lon, alt = lla[:, 0], lla[:, 1], lla[:, 2]
+    finite = np.all(np.isfinite(lla), axis=1)
+    with np.errstate(invalid="ignore"):
+        return (
+            finite
+            & (np.abs(lat) <= 90.0)
+            & (np.abs(lon) <= 180.0)
+            & (alt >= ALT_MIN_M)
+            & (alt <= ALT_MAX_M)
+        )
+
+
+def _describe_bad_lla(lla: np.ndarray) -> str:
+    parts = []
+    lat, lon, alt = lla[:, 0], lla[:, 1], lla[:, 2]
+    with np.errstate(invalid="ignore"):
+        if np.any(~np.all(np.isfinite(lla), axis=1)):
+            parts.append(f"{int(np.sum(~np.all(np.isfinite(lla), axis=1)))} not finite")
+        if np.any(np.abs(lat) > 90):
+            parts.append(
+                f"{int(np.sum(np.abs(lat) > 90))} with |lat| > 90 (e.g. {lat[np.abs(lat) > 90][0]:g})"
+            )
+        if np.any(np.abs(lon) > 180):
+            parts.append(
+                f"{int(np.sum(np.abs(lon) > 180))} with |lon| > 180 (e.g. {lon[np.abs(lon) > 180][0]:g})"
+            )
+        out = (alt < ALT_MIN_M) | (alt > ALT_MAX_M)
+        if np.any(out):
+            parts.append(
+                f"{int(np.sum(out))} with altitude outside [{ALT_MIN_M:g}, {ALT_MAX_M:g}] m "
+                f"(e.g. {alt[out][0]:g})"
+            )
+    return ", ".join(parts)
+
+
+def _fix_sigma(gnss: GnssData) -> np.ndarray:
+    """A 3D 1-sigma per fix (m): the fix's own std, else from HDOP, else a consumer default."""
+    sigma = np.linalg.norm(np.nan_to_num(gnss.std, nan=0.0), axis=1)
+    from_dop = UERE_FOR_DOP_M * np.where(np.isfinite(gnss.pdop), gnss.pdop, gnss.hdop)
+    sigma = np.where(np.all(np.isfinite(gnss.std), axis=1), sigma, np.nan)
+    sigma = np.where(np.isfinite(sigma), sigma, from_dop)
+    return np.where(np.isfinite(sigma) & (sigma > 0), sigma, DEFAULT_FIX_SIGMA_M)
+
+
+def _ecef(lla: np.ndarray) -> np.ndarray:
+    """WGS-84 ECEF (m), vectorised (distances between fixes anywhere on Earth)."""
+    a, f = 6378137.0, 1 / 298.257223563
+    e2 = f * (2 - f)
+    lat, lon, alt = np.radians(lla[:, 0]), np.radians(lla[:, 1]), lla[:, 2]
+    n = a / np.sqrt(1 - e2 * np.sin(lat) ** 2)
+    return np.column_stack(
+        [
+            (n + alt) * np.cos(lat) * np.cos(lon),
+            (n + alt) * np.cos(lat) * np.sin(lon),
+            (n * (1 - e2) + alt) * np.sin(lat),
+        ]
+    )
+
+
+def _implausible_jumps(t: np.ndarray, xyz: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """Mask of fixes that disagree with most of their neighbours by more than any vehicle moves.
+
+    Fix i and j agree when |x_i - x_j| <= v_max |t_i - t_j| + k (sigma_i + sigma_j). A fix is
+    implausible when it disagrees with more than half of the (up to 2 x JUMP_NEIGHBOURS)
+    fixes around it: a lone spike disagrees with all of them, its neighbours with one or two.
+    Repeated on the remaining fixes until nothing changes (a run of bad fixes). O(N).
+    """
+    bad = np.zeros(t.size, dtype=bool)
+    for _ in range(5):
+        idx = np.flatnonzero(~bad)
+        n = idx.size
+        if n < 3:
+            break
+        disagree = np.zeros(n)
+        compared = np.zeros(n)
+        for k in range(1, min(JUMP_NEIGHBOURS, n - 1) + 1):
+            a, b = idx[:-k], idx[k:]
+            distance = np.linalg.norm(xyz[b] - xyz[a], axis=1)
+            allowed = MAX_SPEED_M_PER_S * (t[b] - t[a]) + JUMP_SIGMA_FACTOR * (sigma[a] + sigma[b])
+            off = (distance > allowed).astype(float)
+            disagree[:-k] += off
+            disagree[k:] += off
+            compared[:-k] += 1
+            compared[k:] += 1
+        new = disagree > 0.5 * compared
+        if not new.any():
+            break
+        bad[idx[new]] = True
+    return bad
+
+
+def _check_gnss(gnss: GnssData, origin: Origin, checks: list[str]) -> tuple[GnssData, Origin]:
+    n = len(gnss)
+    if n == 0:
+        raise InputError("gnss: no fix at all; nothing to anchor the trajectory")
+    origin_is_first_fix = bool(
+        np.allclose([origin.lat, origin.lon, origin.alt], gnss.lla[0], rtol=0, atol=1e-12)
+    )
+    keep = _geodetic_ok(gnss.lla)
+    if not keep.any():
+        raise InputError(
+            f"gnss: none of the {n} fixes has a possible position ({_describe_bad_lla(gnss.lla)}); "
+            "check the columns (lat, lon in degrees, ellipsoidal altitude in m)"
+        )
+    if not keep.all():
+        checks.append(
+            f"gnss: dropped {int((~keep).sum())} of {n} fix(es) outside the geodetic ranges "
+            f"({_describe_bad_lla(gnss.lla[~keep])}) as implausible"
+        )
+        gnss = gnss.subset(keep)
+    gnss = _clean_sigmas(gnss, checks)
+    bad = _implausible_jumps(gnss.t, _ecef(gnss.lla), _fix_sigma(gnss))
+    if bad.all() or (~bad).sum() < 1:
+        raise InputError("gnss: no two fixes agree with each other; the positions are not usable")
+    if bad.any():
+        times = ", ".join(f"{v - gnss.t[0]:.1f}" for v in gnss.t[bad][:5])
+        more = " ..." if bad.sum() > 5 else ""
+        checks.append(
+            f"gnss: dropped {int(bad.sum())} fix(es) that jump further than "
+            f"{MAX_SPEED_M_PER_S:g} m/s from their neighbours (beyond {JUMP_SIGMA_FACTOR:g} "
+            f"sigma) as implausible, at t - t_gnss0 = {times}{more} s"
+        )
+        gnss = gnss.subset(~bad)
+    _reject_persistent_jumps(gnss)
+    if not _geodetic_ok(np.array([[origin.lat, origin.lon, origin.alt]]))[0]:
+        if not origin_is_first_fix:
+            raise InputError(
+                f"origin ({origin.lat:g}, {origin.lon:g}, {origin.alt:g} m) is outside the "
+                "geodetic ranges; fix the [origin] table of config.toml"
+            )
+    if origin_is_first_fix and not np.allclose(
+        [origin.lat, origin.lon, origin.alt], gnss.lla[0], rtol=0, atol=1e-12
+    ):
+        origin = Origin(*(float(v) for v in gnss.lla[0]))
+        checks.append(
+            "gnss: the first fix was implausible; the local frame's origin is the first fix kept "
+            f"({origin.lat:.7f}, {origin.lon:.7f}, {origin.alt:.2f} m)"
+        )
+    return gnss, origin
+
+
+def _clean_sigmas(gnss: GnssData, checks: list[str]) -> GnssData:
+    """Sigmas and DOPs must be positive and finite where given; others are ignored (counted)."""
+    std = gnss.std
+    given = ~np.isnan(std)
+    bad_std = given & ~(np.isfinite(std) & (std > 0))
+    replaced = {}
+    if bad_std.any():
+        std = np.where(bad_std, np.nan, std)
+        replaced["std"] = std
+        checks.append(
+            f"gnss: {int(bad_std.any(axis=1).sum())} fix(es) with a zero, negative or infinite "
+            "sigma; those sigmas ignored (DOP or the [gnss] config used instead)"
+        )
+    bad_dops = 0
+    for name in ("hdop", "vdop", "pdop"):
+        value = getattr(gnss, name)
+        bad = ~np.isnan(value) & ~(np.isfinite(value) & (value > 0))
+        if bad.any():
+            bad_dops += int(bad.sum())
+            replaced[name] = np.where(bad, np.nan, value)
+    if bad_dops:
+        checks.append(f"gnss: {bad_dops} zero, negative or infinite DOP value(s) ignored")
+    return replace(gnss, **replaced) if replaced else gnss
+
+
+def _reject_persistent_jumps(gnss: GnssData) -> None:
+    """After spikes are gone, a jump between consecutive fixes means two sources in one log."""
+    if len(gnss) < 2:
+        return
+    xyz = _ecef(gnss.lla)
+    sigma = _fix_sigma(gnss)
+    distance = np.linalg.norm(np.diff(xyz, axis=0), axis=1)
+    dt = np.diff(gnss.t)
+    allowed = MAX_SPEED_M_PER_S * dt + JUMP_SIGMA_FACTOR * (sigma[1:] + sigma[:-1])
+    off = np.flatnonzero(distance > allowed)
+    if off.size:
+        i = int(off[0])
+        raise InputError(
+            f"gnss: the position jumps {distance[i] / 1e3:.1f} km in {dt[i]:.1f} s at "
+            f"t={gnss.t[i + 1]:.3f} ({distance[i] / max(dt[i], 1e-9):.0f} m/s, faster than any "
+            f"vehicle) and stays there ({off.size} such jump(s)); the log mixes two receivers or "
+            "datums: split it"
+        )
+
+
+def _report_gnss_time_gaps(t: np.ndarray, checks: list[str]) -> None:
+    """GNSS gaps far beyond the fix interval: outages, or a clock that jumped."""
+    if len(t) < 3:
+        return
+    dt = np.diff(t)
+    nominal = float(np.median(dt))
+    limit = max(GNSS_GAP_PERIODS * nominal, GNSS_GAP_MIN_S)
+    jumps = np.flatnonzero(dt > limit)
+    if jumps.size:
+        largest = int(jumps[int(np.argmax(dt[jumps]))])
+        checks.append(
+            f"gnss: {jumps.size} gap(s) in the fixes longer than {limit:.0f} s (largest "
+            f"{dt[largest]:.1f} s at t={t[largest]:.1f}): outages or a time jump"
+        )
+
+
+# --------------------------------------------------------------------------------------------
+# Time bases
+# --------------------------------------------------------------------------------------------
+
+
+def _check_time_bases(t_imu: np.ndarray, t_gnss: np.ndarray, checks: list[str]) -> None:
+    a, b = float(t_imu[0]), float(t_imu[-1])
+    c, d = float(t_gnss[0]), float(t_gnss[-1])
+    inside = (t_gnss >= a) & (t_gnss <= b)
+    if not inside.any():
+        raise InputError(
+            f"the IMU ({a:.3f} .. {b:.3f} s) and the GNSS ({c:.3f} .. {d:.3f} s) time spans do "
+            f"not overlap (offset ~{c - a:+.3f} s): the files use different time bases; give "
+            "--time-offset SECONDS (added to the GNSS times) or convert one clock"
+        )
+    outside = int((~inside).sum())
+    if outside:
+        checks.append(
+            f"time: {outside} of {t_gnss.size} GNSS epoch(s) lie outside the IMU time span "
+            f"({a:.3f} .. {b:.3f} s; GNSS {c:.3f} .. {d:.3f} s) and cannot be used"
+        )
+
+
+# --------------------------------------------------------------------------------------------
+# Units
+# --------------------------------------------------------------------------------------------
+
+
+def _check_units(imu, gnss: GnssData, origin: Origin, *, has_accel_array: bool) -> None:
+    accel_norm = np.linalg.norm(imu.accel, axis=1)
+    median_accel = float(np.median(accel_norm))
+    if ACCEL_G_RANGE[0] <= median_accel <= ACCEL_G_RANGE[1]:
+        raise InputError(
+            f"imu: the accelerometer is in g, not m/s^2: its median specific-force norm is "
+            f"{median_accel:.3f} (gravity alone gives 9.81 m/s^2, i.e. 1 g); multiply accel_x, "
+            f"accel_y, accel_z by {G} before giving them to fgins"
+        )
+    if not ACCEL_PLAUSIBLE_RANGE[0] <= median_accel <= ACCEL_PLAUSIBLE_RANGE[1]:
+        raise InputError(
+            f"imu: the accelerometer's median specific-force norm is {median_accel:.4g}, not "
+            f"the ~9.8 m/s^2 of gravity: a wrong unit or scale factor; give accel_x..z in m/s^2"
+        )
+    if has_accel_array:
+        # Rates derived from an accelerometer array carry a large, ramping bias by nature;
+        # their unit follows from the accelerometers', checked above.
+        return
+    gyro_norm = np.linalg.norm(imu.gyro, axis=1)
+    routine = float(np.percentile(gyro_norm, 90))
+    if routine > GYRO_ROUTINE_MAX_RAD_PER_S:
+        raise InputError(
+            f"imu: the gyro looks like deg/s, not rad/s: 10 % of its rates exceed {routine:.1f} "
+            f"(no vehicle turns at {routine:.0f} rad/s routinely); multiply gyro_x, gyro_y, "
+            f"gyro_z by pi/180 = {math.pi / 180:.6f}"
+        )
+    ratio, turns = _gyro_turn_ratio(imu, gnss, origin)
+    if turns >= TURN_MIN_WINDOWS and ratio > GYRO_TURN_RATIO_MAX:
+        raise InputError(
+            f"imu: the gyro looks like deg/s, not rad/s: over {turns} {TURN_WINDOW_S:g}-s windows "
+            f"of the GNSS track it integrates to {ratio:.1f} times the turn the fixes show "
+            f"(57.3 for deg/s, ~1 for rad/s); multiply gyro_x, gyro_y, gyro_z by "
+            f"pi/180 = {math.pi / 180:.6f}"
+        )
+
+
+def _gyro_turn_ratio(imu, gnss: GnssData, origin: Origin) -> tuple[float, int]:
+    """Median of |integrated gyro| / |GNSS course change| over windows with a clear turn.
+
+    The course at a time comes from positions TURN_WINDOW_S/2 apart (a few metres of noise are
+    small against the tens of metres travelled); a window spans TURN_WINDOW_S seconds between
+    two such courses. Only windows whose end points lie among dense fixes (no outage) count.
+    """
+    from fgins.geodesy import lla_to_enu
+
+    t = gnss.t
+    half = TURN_WINDOW_S / 2
+    lo, hi = max(t[0], imu.t[0]) + half, min(t[-1], imu.t[-1]) - half
+    if t.size < 4 or hi - lo < TURN_WINDOW_S:
+        return math.nan, 0
+    step = TURN_WINDOW_S / 4
+    grid = np.arange(lo, hi, step)
+    enu = lla_to_enu(gnss.lla, origin)
+    a, b = grid - half / 2, grid + half / 2
+    east = np.interp(b, t, enu[:, 0]) - np.interp(a, t, enu[:, 0])
+    north = np.interp(b, t, enu[:, 1]) - np.interp(a, t, enu[:, 1])
+    # largest fix interval around each course's baseline: an outage makes the course a guess
+    idx_a = np.clip(np.searchsorted(t, a), 1, t.size - 1)
+    idx_b = np.clip(np.searchsorted(t, b), 1, t.size - 1)
+    local_gap = np.maximum(t[idx_a] - t[idx_a - 1], t[idx_b] - t[idx_b - 1])
+    good = (np.hypot(east, north) / half > TURN_MIN_SPEED_M_PER_S) & (local_gap <= half / 2)
+    course = np.unwrap(np.arctan2(east, north))
+    dt = np.diff(imu.t)
+    cumulative = np.vstack(
+        [np.zeros(3), np.cumsum(0.5 * (imu.gyro[1:] + imu.gyro[:-1]) * dt[:, None], axis=0)]
+    )
+    span = 4  # grid steps per window
+    i0, i1 = np.arange(grid.size - span), np.arange(span, grid.size)
+    turn = np.abs(course[i1] - course[i0])
+    rotation = np.column_stack(
+        [
+            np.interp(grid[i1], imu.t, cumulative[:, k])
+            - np.interp(grid[i0], imu.t, cumulative[:, k])
+            for k in range(3)
+        ]
+    )
+    moving = good[i0] & good[i1]
+    rotated = np.linalg.norm(rotation, axis=1)
+    use = moving & (turn > TURN_MIN_RAD)
+    if use.any():
+        return float(np.median(rotated[use] / turn[use])), int(use.sum())
+    # No clear turn (a motorway): driving straight, the gyro must not say it rotated far.
+    if moving.sum() >= STRAIGHT_MIN_WINDOWS:
+        median_rotation = float(np.median(rotated[moving]))
+        median_turn = float(np.median(turn[moving]))
+        if median_rotation > STRAIGHT_MAX_ROTATION_RAD:
+            return median_rotation / max(median_turn, median_rotation / 1e3), int(moving.sum())
+    return math.nan, 0

@@ -1,0 +1,410 @@
+"""UBX reader on small logs built with pyubx2's message builder (see tests/ubx_fixtures.py).
+
+Known values go in through an independent writer; the tests check what comes out: time bases
+(UTC fields, GPS week + leap seconds), message priorities, sigmas, fix-quality codes, NED/ECEF
+velocity, the ESF IMU (scaling, tag wrap-around, accel/gyro pairing, wheel speed), framing
+faults counted, NMEA and RTCM mixed in, detection by content, the CLI, and a fuzz test.
+"""
+
+from __future__ import annotations
+
+import calendar
+import math
+
+import numpy as np
+import pymap3d
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from pyrtcm.rtcmhelpers import calc_crc24q
+
+from fgins.datatypes import InputError
+from fgins.io.ubx import looks_like_ubx, read_ubx, require_fix, summarize_ubx
+from fgins.tests.ubx_fixtures import (
+    esf_meas,
+    esf_raw,
+    imu_raw_values,
+    nav_dop,
+    nav_hpposllh,
+    nav_pvt,
+    nav_sol,
+    nav_timegps,
+)
+
+T0 = calendar.timegm((2024, 5, 17, 10, 30, 0)) + 0.0
+LAT, LON, H = 48.1372123, 11.5755432, 520.123
+
+
+def _write(tmp_path, data: bytes, name: str = "log.ubx"):
+    path = tmp_path / name
+    path.write_bytes(data)
+    return path
+
+
+def _nmea(body: str) -> bytes:
+    checksum = 0
+    for char in body:
+        checksum ^= ord(char)
+    return f"${body}*{checksum:02X}\r\n".encode()
+
+
+def _gga(t: float, lat: float, lon: float, msl: float, sep: float = 47.0) -> bytes:
+    tm = __import__("time").gmtime(int(t))
+    hhmmss = f"{tm.tm_hour:02d}{tm.tm_min:02d}{tm.tm_sec:02d}.00"
+    lat_txt = f"{int(lat):02d}{(lat - int(lat)) * 60:010.7f}"
+    lon_txt = f"{int(lon):03d}{(lon - int(lon)) * 60:010.7f}"
+    return _nmea(f"GPGGA,{hhmmss},{lat_txt},N,{lon_txt},E,1,08,1.0,{msl:.3f},M,{sep:.3f},M,,")
+
+
+def _rtcm_frame(payload: bytes) -> bytes:
+    body = b"\xd3" + bytes([(len(payload) >> 8) & 0x03, len(payload) & 0xFF]) + payload
+    return body + calc_crc24q(body).to_bytes(3, "big")
+
+
+def _pvt_log(n: int = 5, **kwargs) -> bytes:
+    return b"".join(nav_pvt(T0 + k, LAT, LON, H + k, (1.0, 2.0, 0.5), **kwargs) for k in range(n))
+
+
+# -- GNSS ---------------------------------------------------------------------------------------
+
+
+def test_nav_pvt_time_position_sigmas_velocity(tmp_path):
+    data = b"".join(
+        nav_pvt(T0 + 0.2 * k, LAT + 1e-6 * k, LON, H, (1.5, -2.25, 0.75), h_acc_m=1.234,
+                v_acc_m=2.5, s_acc_m_s=0.321, num_sv=17, pdop=1.87)
+        + nav_dop(T0 + 0.2 * k, 0.93, 1.41, 1.87)
+        for k in range(4)
+    )  # fmt: skip
+    gnss = require_fix(read_ubx(_write(tmp_path, data)))
+    np.testing.assert_allclose(gnss.t, T0 + 0.2 * np.arange(4), atol=1e-6)
+    np.testing.assert_allclose(gnss.lla[:, 0], LAT + 1e-6 * np.arange(4), atol=1e-9)
+    np.testing.assert_allclose(gnss.lla[:, 2], H, atol=1e-3)
+    np.testing.assert_allclose(gnss.velocity, [[1.5, -2.25, 0.75]] * 4, atol=1e-9)
+    np.testing.assert_allclose(gnss.std, [[1.234, 1.234, 2.5]] * 4)
+    np.testing.assert_allclose(gnss.velocity_std, 0.321)
+    np.testing.assert_allclose(gnss.hdop, 0.93)
+    np.testing.assert_allclose(gnss.vdop, 1.41)
+    np.testing.assert_allclose(gnss.pdop, 1.87)
+    assert list(gnss.num_sats) == [17] * 4 and list(gnss.fix_quality) == [1] * 4
+    np.testing.assert_allclose(gnss.speed, math.hypot(1.5, 2.25), atol=1e-3)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "quality"),
+    [
+        ({}, 1),
+        ({"diff_soln": 1}, 2),
+        ({"carr_soln": 1, "diff_soln": 1}, 5),
+        ({"carr_soln": 2, "diff_soln": 1}, 4),
+        ({"fix_type": 1}, 6),
+        ({"fix_type": 4}, 1),
+        ({"fix_type": 2}, 1),
+        ({"fix_ok": 0}, 0),
+        ({"fix_type": 5}, 1),
+    ],
+)
+def test_fix_quality_codes(tmp_path, kwargs, quality):
+    gnss = read_ubx(_write(tmp_path, _pvt_log(3, **kwargs))).gnss
+    assert list(gnss.fix_quality) == [quality] * 3
+    if kwargs.get("fix_type") == 2:  # a 2-D fix held its height: never trusted vertically
+        assert np.all(gnss.std[:, 2] >= 100.0)
+
+
+def test_no_fix_epochs_and_invalid_only(tmp_path):
+    result = read_ubx(_write(tmp_path, _pvt_log(4, fix_type=0)))
+    assert result.gnss is None and result.epochs_without_fix == 4
+    with pytest.raises(InputError, match="no fix"):
+        require_fix(result)
+    result = read_ubx(_write(tmp_path, _pvt_log(4, fix_ok=0)))
+    with pytest.raises(InputError, match="no fix the receiver flags valid"):
+        require_fix(result)
+
+
+def test_hpposllh_preferred(tmp_path):
+    lat_hp, lon_hp, h_hp = 48.137212345, 11.575543219, 520.1237
+    data = b"".join(
+        nav_pvt(T0 + k, lat_hp, lon_hp, h_hp, h_acc_m=0.5, v_acc_m=0.9)
+        + nav_hpposllh(T0 + k, lat_hp, lon_hp, h_hp, 0.0143, 0.0212)
+        for k in range(3)
+    )
+    gnss = read_ubx(_write(tmp_path, data)).gnss
+    np.testing.assert_allclose(gnss.lla[:, 0], lat_hp, atol=1e-11)
+    np.testing.assert_allclose(gnss.lla[:, 1], lon_hp, atol=1e-11)
+    np.testing.assert_allclose(gnss.lla[:, 2], h_hp, atol=1e-6)
+    np.testing.assert_allclose(gnss.std, [[0.0143, 0.0143, 0.0212]] * 3, atol=1e-9)
+
+
+@pytest.mark.parametrize("leap", [14, 18])
+def test_nav_sol_gps_week_and_leap_seconds(tmp_path, leap):
+    ecef = pymap3d.geodetic2ecef(LAT, LON, H)
+    vel_enu = np.array([3.0, -1.0, 0.2])
+    vel_ecef = pymap3d.enu2uvw(*vel_enu, LAT, LON)
+    data = b"".join(
+        nav_sol(T0 + k, ecef, vel_ecef, leap=leap, p_acc_m=2.5, s_acc_m_s=0.4)
+        + nav_timegps(T0 + k, leap=leap) for k in range(3)
+    )  # fmt: skip
+    gnss = read_ubx(_write(tmp_path, data)).gnss
+    np.testing.assert_allclose(gnss.t, T0 + np.arange(3), atol=1e-6)
+    np.testing.assert_allclose(gnss.lla[:, 0], LAT, atol=2e-9)  # 1 cm ECEF quantisation
+    np.testing.assert_allclose(gnss.lla[:, 2], H, atol=0.01)
+    np.testing.assert_allclose(gnss.velocity, [vel_enu] * 3, atol=0.01)
+    np.testing.assert_allclose(gnss.std, 2.5)
+    np.testing.assert_allclose(gnss.velocity_std, 0.4)
+
+
+def test_leap_seconds_from_table_when_the_log_has_none(tmp_path):
+    ecef = pymap3d.geodetic2ecef(LAT, LON, H)
+    data = b"".join(nav_sol(T0 + k, ecef) + nav_timegps(T0 + k, leap_valid=0) for k in range(2))
+    result = read_ubx(_write(tmp_path, data))
+    np.testing.assert_allclose(result.gnss.t, T0 + np.arange(2), atol=1e-6)  # 18 s in 2024
+    assert any("leap-second table" in w for w in result.warnings)
+
+
+def test_pvt_without_valid_date_uses_gps_week(tmp_path):
+    data = b"".join(
+        nav_pvt(T0 + k, LAT, LON, H, valid_date=0) + nav_timegps(T0 + k) for k in range(3)
+    )
+    gnss = read_ubx(_write(tmp_path, data)).gnss
+    np.testing.assert_allclose(gnss.t, T0 + np.arange(3), atol=1e-6)
+    result = read_ubx(_write(tmp_path, _pvt_log(3, valid_date=0)))  # nothing else: no time
+    assert result.gnss is None and result.epochs_without_time == 3
+
+
+# -- IMU ----------------------------------------------------------------------------------------
+
+
+def _imu_log(tags, gyro, accel, fixes_every: int = 10, t_first_fix: float = T0) -> bytes:
+    out = bytearray()
+    for k, tag in enumerate(tags):
+        out += esf_raw([(tag, imu_raw_values(gyro[k], accel[k]))])
+        if k % fixes_every == 0:
+            out += nav_pvt(t_first_fix + 0.01 * k, LAT, LON, H)
+    return bytes(out)
+
+
+def test_esf_raw_scaling_wrap_and_time_mapping(tmp_path):
+    rng = np.random.default_rng(4)
+    n = 3000  # 30 s at 100 Hz, crossing the 24-bit wrap
+    tags = ((1 << 24) - 1000 * 256 + 256 * np.arange(n)) % (1 << 24)
+    gyro = rng.normal(0, 0.5, (n, 3))
+    accel = rng.normal(0, 3.0, (n, 3)) + np.array([0, 0, 9.81])
+    result = read_ubx(_write(tmp_path, _imu_log(tags, gyro, accel)))
+    imu = result.imu
+    assert len(imu) == n and result.imu_source == "ESF-RAW"
+    np.testing.assert_allclose(np.diff(imu.t), 0.01, atol=5e-7)  # float at 1.7e9 s
+    # The sample sent just before each fix is that fix's epoch: mapped exactly.
+    np.testing.assert_allclose(imu.t[0], T0, atol=1e-6)
+    (mapping,) = result.time_maps
+    assert mapping.fitted and mapping.spread_s < 1e-6
+    np.testing.assert_allclose(imu.gyro, gyro, atol=np.radians(2.0**-13) + 1e-12)
+    np.testing.assert_allclose(imu.accel, accel, atol=2.0**-11 + 1e-12)
+
+
+def test_esf_raw_incomplete_tag_dropped(tmp_path):
+    tags = 256 * np.arange(50)
+    data = bytearray(_imu_log(tags, np.zeros((50, 3)), np.tile([0, 0, 9.8], (50, 1))))
+    data += esf_raw([(256 * 50, {14: 1, 13: 2})])  # gyro x/y only
+    result = read_ubx(_write(tmp_path, bytes(data)))
+    assert len(result.imu) == 50
+    assert any("1 time tag(s) with only part of the six IMU axes" in w for w in result.warnings)
+
+
+def test_esf_raw_with_separate_accel_and_gyro_tags_is_paired(tmp_path):
+    n = 200
+    out = bytearray()
+    for k in range(n):
+        tag = 10_000 + 256 * k
+        out += esf_raw([(tag, {16: k, 17: 0, 18: 10_045}), (tag + 64, {14: -k, 13: 0, 5: 3})])
+        if k % 20 == 0:
+            out += nav_pvt(T0 + 0.01 * k, LAT, LON, H)
+    result = read_ubx(_write(tmp_path, bytes(out)))
+    assert len(result.imu) == n  # one sample per accel/gyro pair, none invented
+    np.testing.assert_array_equal(result.imu_tags, 10_000 + 256 * np.arange(n) + 32)
+    np.testing.assert_allclose(result.imu_raw_accel[:, 0], np.arange(n) * 2.0**-10)
+    np.testing.assert_allclose(result.imu_raw_gyro_deg_s[:, 0], -np.arange(n) * 2.0**-12)
+    assert any("paired by nearest time tag" in w for w in result.warnings)
+
+
+def test_esf_meas_pairing_and_wheel_speed(tmp_path):
+    out = bytearray()
+    n = 40
+    for k in range(n):
+        tag = 5_000_000 + 100 * k
+        out += esf_meas(tag, {16: 10 + k, 17: -20, 18: 10045})
+        if k != 7:  # one gyro message lost: its accel partner must not be paired or invented
+            out += esf_meas(tag - 5, {14: 4 * k, 13: -8, 5: 16, 12: 2500})
+        out += esf_meas(tag + 1, {11: 12_345})  # speed 12.345 m/s
+        if k % 10 == 0:
+            out += nav_pvt(T0 + 0.1 * k, LAT, LON, H)
+    result = read_ubx(_write(tmp_path, bytes(out)))
+    assert result.imu_source == "ESF-MEAS" and len(result.imu) == n - 1
+    assert 7 not in {(int(t) - 5_000_000 + 3) // 100 for t in result.imu_tags}
+    np.testing.assert_array_equal(result.imu_tags % 100, 97)  # mean of the two tags (floor)
+    np.testing.assert_allclose(result.imu_raw_accel[:, 2], 10045 * 2.0**-10)
+    k = (result.imu_tags - 4_999_997) // 100
+    np.testing.assert_allclose(result.imu_raw_gyro_deg_s[:, 0], 4 * k * 2.0**-12)
+    np.testing.assert_allclose(result.imu_temp, 25.0)
+    assert any("1 time tag(s) with only part" in w for w in result.warnings)  # accel 7
+    np.testing.assert_allclose(result.odometer.speed, 12.345)
+    assert len(result.odometer.t) == n
+    # ESF-MEAS time tags are ms: 10 Hz, mapped onto the fixes' time.
+    assert result.imu.rate_hz == pytest.approx(10.0, rel=1e-6)
+
+
+# -- framing, mixed streams, detection ------------------------------------------------------------
+
+
+def test_corrupt_and_cut_frames_counted_never_fatal(tmp_path):
+    frames = [nav_pvt(T0 + k, LAT, LON, H) for k in range(6)]
+    bad = bytearray(frames[2])
+    bad[-1] ^= 0xFF  # flipped checksum byte
+    cut = frames[4][:40]  # a frame cut mid-stream, followed by a good one
+    data = b"".join([frames[0], frames[1], bytes(bad), frames[3], cut, frames[5], frames[0][:30]])
+    result = read_ubx(_write(tmp_path, data))
+    np.testing.assert_allclose(result.gnss.t, T0 + np.array([0, 1, 3, 5]), atol=1e-6)
+    assert result.corrupt_frames + result.cut_frames >= 3
+    assert result.cut_frames >= 1  # the one at the very end
+    assert any("bad checksum" in w for w in result.warnings)
+
+
+def test_nmea_and_rtcm_mixed_in_comment_header(tmp_path):
+    header = b"# Name: test log\n# a comment line with $GPGGA inside\n"
+    rtcm = _rtcm_frame(bytes(range(20)))
+    stream = bytearray(header)
+    for k in range(4):
+        stream += nav_pvt(T0 + k, LAT, LON, H)
+        stream += _gga(T0 + k, LAT, LON, 400.0)  # same instant: the UBX epoch wins
+        stream += rtcm
+    stream += _gga(T0 + 10, LAT + 1e-4, LON, 400.0, 47.0)  # only in NMEA: added
+    path = _write(tmp_path, bytes(stream), "drive.bin")
+    assert looks_like_ubx(path)
+    result = read_ubx(path)
+    assert result.counts["RTCM3"] == 4 and result.rtcm_frames == 4
+    assert result.counts["NMEA-GGA"] == 5
+    assert result.nmea_fixes_added == 1 and result.noise_bytes == 0
+    np.testing.assert_allclose(result.gnss.t, T0 + np.array([0, 1, 2, 3, 10]), atol=1e-6)
+    np.testing.assert_allclose(result.gnss.lla[:4, 2], H, atol=1e-3)
+    np.testing.assert_allclose(result.gnss.lla[4], [LAT + 1e-4, LON, 447.0], atol=1e-6)
+
+
+def test_detection_by_content(tmp_path):
+    from fgins.io.inputs import _looks_like_nmea
+
+    nmea_only = _write(tmp_path, b"".join(_gga(T0 + k, LAT, LON, 400.0) for k in range(3)), "a.ubx")
+    assert not looks_like_ubx(nmea_only) and _looks_like_nmea(nmea_only)
+    mixed = _write(tmp_path, _gga(T0, LAT, LON, 400.0) + _pvt_log(2), "b.nmea")
+    assert looks_like_ubx(mixed) and not _looks_like_nmea(mixed)
+    junk = bytearray(_pvt_log(1))
+    junk[-2] ^= 1
+    assert not looks_like_ubx(_write(tmp_path, bytes(junk), "c.ubx"))
+
+
+# -- inputs and CLI ----------------------------------------------------------------------------
+
+
+def _drive_log(n: int = 1000) -> bytes:
+    rng = np.random.default_rng(1)
+    gyro = rng.normal(0, 1e-3, (n, 3))
+    accel = rng.normal(0, 0.01, (n, 3)) + np.array([0, 0, 9.81])
+    return _imu_log(256 * np.arange(n) + 1000, gyro, accel, fixes_every=100)
+
+
+def test_load_dataset_own_imu_or_csv_beside(tmp_path):
+    from fgins.io.csv_pair import write_imu_csv
+    from fgins.io.inputs import load_dataset
+
+    path = _write(tmp_path, _drive_log(), "drive.log")
+    dataset = load_dataset([str(path)], progress=False)
+    assert dataset.metadata["imu_source"] == "ESF-RAW" and len(dataset.imu) == 1000
+    assert len(dataset.gnss) == 10
+    other = dataset.imu
+    other.accel = other.accel * 0 + [0, 0, 9.8]
+    write_imu_csv(other, tmp_path / "imu.csv")
+    again = load_dataset([str(tmp_path / "imu.csv"), str(path)], progress=False)
+    assert again.metadata["imu_source"].endswith("imu.csv")
+    np.testing.assert_allclose(again.imu.accel[:, 2], 9.8)
+
+
+def test_cli_convert_and_inspect(tmp_path, capsys):
+    from fgins.cli import main
+    from fgins.io.csv_pair import read_gnss_csv, read_imu_csv
+
+    path = _write(tmp_path, _drive_log(), "drive.ubx")
+    assert main(["convert", str(path), "-o", str(tmp_path / "fixes.csv")]) == 0
+    fixes = read_gnss_csv(tmp_path / "fixes.csv")
+    np.testing.assert_allclose(fixes.t, T0 + np.arange(10), atol=1e-6)
+    np.testing.assert_allclose(fixes.std[:, 0], 1.5)
+    assert main(["convert", str(path), "-o", str(tmp_path / "fixes.geojson")]) == 0
+    assert main(["convert", str(path), "--imu", "-o", str(tmp_path / "imu.csv")]) == 0
+    imu = read_imu_csv(tmp_path / "imu.csv")
+    assert len(imu) == 1000 and abs(imu.t[0] - T0) < 1e-5
+    assert main(["convert", str(path), "--imu", "-o", str(tmp_path / "imu.kml")]) == 2
+    capsys.readouterr()
+    assert main(["inspect", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "ESF-RAW 1000" in out and "NAV-PVT 10" in out and "rate 100.0 Hz" in out
+
+
+# -- fuzz --------------------------------------------------------------------------------------
+
+_BASE = _pvt_log(3) + _gga(T0 + 5, LAT, LON, 400.0) + esf_meas(1000, {16: 1, 17: 2, 18: 3})
+
+
+def _read_or_no_data(tmp_path, data: bytes) -> None:
+    path = tmp_path / "fuzz.ubx"
+    path.write_bytes(data)
+    try:
+        result = read_ubx(path)
+        summarize_ubx(path)
+    except InputError:
+        return
+    assert result.corrupt_frames >= 0
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.binary(max_size=600))
+def test_fuzz_random_bytes(tmp_path, data):
+    _read_or_no_data(tmp_path, data)
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    flips=st.lists(st.tuples(st.integers(0, len(_BASE) - 1), st.integers(1, 255)), max_size=6),
+    cut=st.integers(0, len(_BASE)),
+    insert_at=st.integers(0, len(_BASE)),
+    insert=st.sampled_from([b"", b"$GPGGA,12", _gga(T0, LAT, LON, 1.0), b"\xb5\x62\x01\x07\xff",
+                            b"\xd3\x00\x05abc", "é$GP\u00ff".encode()]),
+)  # fmt: skip
+def test_fuzz_mutated_log(tmp_path, flips, cut, insert_at, insert):
+    data = bytearray(_BASE)
+    for index, mask in flips:
+        data[index] ^= mask
+    data = data[:insert_at] + insert + data[insert_at:]
+    _read_or_no_data(tmp_path, bytes(data[: cut + len(insert)]))
+
+
+def test_mcap_imu_beside_a_ubx_log(tmp_path):
+    """A UBX log with no IMU of its own plus an MCAP (rosbags-written) IMU on the same clock."""
+    from fgins.io.inputs import load_dataset
+    from fgins.tests.mcap_fixtures import T0_NS, make_drive, write_ros2_bag
+
+    drive = make_drive(duration_s=6.0)
+    bag = write_ros2_bag(tmp_path / "bag", drive)
+    t0 = T0_NS / 1e9
+    log = _write(tmp_path, b"".join(nav_pvt(t0 + k, LAT, LON, H) for k in range(6)), "gnss.ubx")
+    with pytest.raises(InputError, match="no IMU in"):
+        load_dataset([str(log)], progress=False)
+    dataset = load_dataset([str(log), str(bag)], progress=False)
+    assert dataset.metadata["imu_source"].endswith("(MCAP)")
+    np.testing.assert_allclose(dataset.imu.t, drive.imu_ns / 1e9, atol=1e-6)
+    np.testing.assert_allclose(dataset.imu.gyro, drive.gyro, atol=1e-12)
+    np.testing.assert_allclose(dataset.gnss.t, t0 + np.arange(6), atol=1e-6)
+
+
+def test_sensor_clock_restart_is_refused_not_interleaved(tmp_path):
+    tags = np.concatenate([256 * np.arange(500) + 5_000_000, 256 * np.arange(500) + 100])
+    n = len(tags)
+    data = _imu_log(tags, np.zeros((n, 3)), np.tile([0.0, 0.0, 9.8], (n, 1)), fixes_every=100)
+    result = read_ubx(_write(tmp_path, data))
+    assert result.imu is None and len(result.gnss) == 10
+    assert any("jump back" in w for w in result.warnings)

@@ -1,0 +1,516 @@
+"""The input-validation layer (io/validate.py): regression tests named after issue 12's findings.
+
+Every dataset, whatever its reader, passes through ``load_dataset`` -> ``validate_dataset``.
+Inputs are simulator drives (known truth) written as CSV, NMEA (GGA lines with their own
+checksums) and ROS 2 bags (rosbags writer); corruptions are made by hand, checks are against
+the simulator's values and the independent writers' files.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fgins.cli import main
+from fgins.config import config_for_dataset
+from fgins.datatypes import InputError
+from fgins.io.csv_pair import write_gnss_csv, write_imu_csv
+from fgins.io.inputs import load_dataset
+from fgins.sim.scenarios import SCENARIOS
+from fgins.sim.writer import write_sim_dir
+
+sys.path.insert(0, str(Path(__file__).parent))
+from mcap_fixtures import (
+    T0_NS,
+    drive_from_dataset,
+    write_foxglove_json,
+    write_foxglove_protobuf,
+    write_ros2_bag,
+)
+
+
+def _run(name: str, seed: int, duration: float):
+    return SCENARIOS[name](seed=seed, duration_s=duration)
+
+
+@pytest.fixture(scope="module")
+def urban():
+    return _run("car-urban", 1, 90)
+
+
+def _pair(folder: Path, dataset) -> list[str]:
+    folder.mkdir(parents=True, exist_ok=True)
+    write_imu_csv(dataset.imu, folder / "imu.csv")
+    write_gnss_csv(dataset.gnss, folder / "gnss.csv")
+    return [str(folder / "imu.csv"), str(folder / "gnss.csv")]
+
+
+def _with_lla(dataset, index: int, lat=None, alt=None):
+    from dataclasses import replace
+
+    lla = dataset.gnss.lla.copy()
+    if lat is not None:
+        lla[index, 0] = lat
+    if alt is not None:
+        lla[index, 2] = alt
+    return replace(dataset, gnss=replace(dataset.gnss, lla=lla))
+
+
+def _with_imu(dataset, gyro_scale=1.0, accel_scale=1.0):
+    from dataclasses import replace
+
+    imu = replace(dataset.imu, gyro=dataset.imu.gyro * gyro_scale)
+    imu = replace(imu, accel=imu.accel * accel_scale)
+    return replace(dataset, imu=imu)
+
+
+# --- geodetic ranges --------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("index", [0, 37])
+def test_latitude_91_in_one_fix_is_dropped_and_counted(tmp_path, urban, index):
+    data = _with_lla(urban.dataset, index, lat=91.0)
+    checked = load_dataset(_pair(tmp_path, data))
+    assert len(checked.gnss) == len(data.gnss) - 1
+    assert not np.any(np.abs(checked.gnss.lla[:, 0]) > 90)
+    line = next(w for w in checked.warnings if "geodetic ranges" in w)
+    assert "1 of" in line and "|lat| > 90" in line
+    # the origin is a real fix, never the dropped one
+    assert abs(checked.origin.lat - urban.dataset.gnss.lla[1 if index == 0 else 0, 0]) < 1e-6
+
+
+def test_altitude_1e7_in_the_first_fix_does_not_become_the_origin(tmp_path, urban):
+    data = _with_lla(urban.dataset, 0, alt=1e7)
+    checked = load_dataset(_pair(tmp_path, data))
+    assert len(checked.gnss) == len(data.gnss) - 1
+    assert checked.origin.alt == pytest.approx(data.gnss.lla[1, 2])
+    assert any("altitude outside" in w for w in checked.warnings)
+    assert any("origin is the first fix kept" in w for w in checked.warnings)
+
+
+def test_all_fixes_outside_the_geodetic_ranges_is_an_error(tmp_path, urban):
+    from dataclasses import replace
+
+    lla = urban.dataset.gnss.lla.copy()
+    lla[:, 0] += 100.0  # e.g. lat/lon columns in the wrong unit
+    data = replace(urban.dataset, gnss=replace(urban.dataset.gnss, lla=lla))
+    with pytest.raises(InputError, match=r"none of the .* fixes has a possible position"):
+        load_dataset(_pair(tmp_path, data))
+
+
+# --- GNSS jumps -------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(("index", "dlat"), [(0, 3.0), (20, 0.05), (55, -1.0)])
+def test_jump_no_vehicle_can_make_is_dropped_and_counted(tmp_path, urban, index, dlat):
+    lat = urban.dataset.gnss.lla[index, 0] + dlat  # 0.05 deg = 5.6 km in 1 s
+    data = _with_lla(urban.dataset, index, lat=lat)
+    checked = load_dataset(_pair(tmp_path, data))
+    assert len(checked.gnss) == len(data.gnss) - 1
+    assert data.gnss.t[index] not in set(checked.gnss.t)
+    line = next(w for w in checked.warnings if "jump further than" in w)
+    assert "dropped 1 fix" in line
+
+
+def test_real_fixes_are_never_dropped_as_jumps(tmp_path):
+    for name, seed in (("car-urban", 3), ("aircraft-ekf", 0), ("highway", 2)):
+        run = _run(name, seed, 120)
+        checked = load_dataset(_pair(tmp_path / name, run.dataset))
+        assert len(checked.gnss) == len(run.dataset.gnss), name
+        assert checked.metadata["input_checks"] == [], name
+
+
+def test_persistent_jump_is_an_error(tmp_path, urban):
+    from dataclasses import replace
+
+    lla = urban.dataset.gnss.lla.copy()
+    lla[40:, 0] += 0.5  # a second receiver 55 km away from fix 40 on
+    data = replace(urban.dataset, gnss=replace(urban.dataset.gnss, lla=lla))
+    with pytest.raises(InputError, match="stays there"):
+        load_dataset(_pair(tmp_path, data))
+
+
+# --- units ------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(("name", "seed"), [("car-urban", 0), ("highway", 1), ("aircraft-ekf", 2)])
+def test_gyro_in_deg_per_s_is_an_error(tmp_path, name, seed):
+    run = _run(name, seed, 150)
+    assert load_dataset(_pair(tmp_path / "rad", run.dataset)).imu is not None  # rad/s passes
+    data = _with_imu(run.dataset, gyro_scale=180 / math.pi)
+    with pytest.raises(InputError, match=r"gyro looks like deg/s.*pi/180"):
+        load_dataset(_pair(tmp_path / "deg", data))
+
+
+@pytest.mark.parametrize(("name", "seed"), [("car-urban", 0), ("uav-loop-baro", 1)])
+def test_accel_in_g_is_an_error(tmp_path, name, seed):
+    run = _run(name, seed, 60)
+    data = _with_imu(run.dataset, accel_scale=1 / 9.80665)
+    with pytest.raises(InputError, match=r"accelerometer is in g.*median specific-force norm"):
+        load_dataset(_pair(tmp_path, data))
+
+
+def test_gyro_free_derived_rates_are_not_taken_for_deg_per_s(tmp_path):
+    folder = tmp_path / "cube"
+    write_sim_dir(_run("gyrofree-cube", 0, 120), folder)
+    checked = load_dataset([str(folder)])
+    assert checked.accel_array is not None and len(checked.imu) > 0
+
+
+# --- time bases -------------------------------------------------------------------------------
+
+
+def test_imu_and_gnss_time_bases_apart_is_an_error(tmp_path, urban):
+    from dataclasses import replace
+
+    gnss = replace(urban.dataset.gnss, t=urban.dataset.gnss.t + 1.7e9)  # POSIX vs IMU clock
+    data = replace(urban.dataset, gnss=gnss)
+    with pytest.raises(InputError, match=r"time spans do not overlap.*--time-offset") as info:
+        load_dataset(_pair(tmp_path, data))
+    assert f"{urban.dataset.imu.t[0]:.3f}" in str(info.value)
+    assert f"{gnss.t[0]:.3f}" in str(info.value)
+
+
+def test_gnss_epochs_outside_the_imu_span_are_counted(tmp_path, urban):
+    from dataclasses import replace
+
+    gnss = replace(urban.dataset.gnss, t=urban.dataset.gnss.t + 30.0)
+    checked = load_dataset(_pair(tmp_path, replace(urban.dataset, gnss=gnss)))
+    expected = int(np.sum(gnss.t > urban.dataset.imu.t[-1]))
+    assert expected > 0
+    assert any(
+        f"{expected} of {len(gnss)} GNSS epoch(s) lie outside" in w for w in checked.warnings
+    )
+
+
+# --- corrupt NMEA end to end ------------------------------------------------------------------
+
+
+def _checksum(body: str) -> str:
+    value = 0
+    for char in body:
+        value ^= ord(char)
+    return f"{value:02X}"
+
+
+def _gga(t: float, lat: float, lon: float, alt: float, sep: float = 47.0) -> str:
+    hh, rest = divmod(t % 86400, 3600)
+    mm, ss = divmod(rest, 60)
+    body = (
+        f"GPGGA,{int(hh):02d}{int(mm):02d}{ss:05.2f},{int(lat):02d}{(lat % 1) * 60:010.7f},N,"
+        f"{int(lon):03d}{(lon % 1) * 60:010.7f},E,1,09,0.9,{alt - sep:.3f},M,{sep:.1f},M,,"
+    )
+    return f"${body}*{_checksum(body)}"
+
+
+def _digest(paths: list[Path]) -> list[str]:
+    return [hashlib.sha256(p.read_bytes()).hexdigest() for p in paths]
+
+
+def test_corrupt_nmea_in_smooth_is_caught_by_the_validation_layer(tmp_path, urban, capsys):
+    """Corrupt fixes with valid checksums: 1e7 m altitude in the first fix (the origin: the
+    EKF ended in LinAlgError before), a 3 deg latitude flip, a flipped hour digit."""
+    gnss = urban.dataset.gnss
+    lines = []
+    for k, (t, (lat, lon, alt)) in enumerate(zip(gnss.t, gnss.lla, strict=True)):
+        if k == 0:
+            alt = 1e7
+        if k == 30:
+            lat += 3.0
+        lines.append(_gga(t + (36000.0 if k == 60 else 0.0), lat, lon, alt))
+    nmea = tmp_path / "log.nmea"
+    nmea.write_text("\r\n".join(lines) + "\r\n")
+    write_imu_csv(urban.dataset.imu, tmp_path / "imu.csv")
+    inputs = [nmea, tmp_path / "imu.csv"]
+    before = _digest(inputs)
+    out = tmp_path / "out.csv"
+    rc = main(["smooth", str(nmea), str(tmp_path / "imu.csv"), "--method", "ekf", "-o", str(out)])
+    err = capsys.readouterr().err
+    assert rc == 0, err
+    assert "Traceback" not in err and "internal error" not in err
+    assert "1 of" in err and "altitude outside" in err
+    assert "jump further than" in err and "lie outside the IMU time span" in err
+    table = np.loadtxt(out, delimiter=",", skiprows=1)
+    assert np.all(np.isfinite(table[:, :16]))
+    assert np.all(np.abs(table[:, 3] - gnss.lla[:, 2].mean()) < 100)  # altitude near the drive
+    assert _digest(inputs) == before
+
+
+def test_nmea_with_no_possible_fix_is_one_line_error_and_no_output(tmp_path, urban, capsys):
+    gnss = urban.dataset.gnss
+    lines = [_gga(t, lat, lon, 2e6) for t, (lat, lon, _) in zip(gnss.t, gnss.lla, strict=True)]
+    nmea = tmp_path / "log.nmea"
+    nmea.write_text("\r\n".join(lines) + "\r\n")
+    write_imu_csv(urban.dataset.imu, tmp_path / "imu.csv")
+    before = _digest([nmea, tmp_path / "imu.csv"])
+    out = tmp_path / "out.csv"
+    rc = main(["smooth", str(nmea), str(tmp_path / "imu.csv"), "-o", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2
+    assert len(err) == 1 and err[0].startswith("fgins: error: gnss: none of the")
+    assert not out.exists()
+    assert _digest([nmea, tmp_path / "imu.csv"]) == before
+
+
+# --- the same dataset through CSV and a ROS 2 bag ----------------------------------------------
+
+
+def _damaged(dataset):
+    """An IMU gap, a linearly interpolated stretch, and a GNSS spike: what checks must find."""
+    from dataclasses import replace
+
+    imu = dataset.imu
+    t, gyro, accel = imu.t.copy(), imu.gyro.copy(), imu.accel.copy()
+    fill = slice(2000, 2100)  # 1 s of samples replaced by a straight line
+    for arr in (gyro, accel):
+        a, b = arr[fill.start - 1], arr[fill.stop]
+        w = ((t[fill] - t[fill.start - 1]) / (t[fill.stop] - t[fill.start - 1]))[:, None]
+        arr[fill] = a + w * (b - a)
+    keep = np.ones(t.size, dtype=bool)
+    keep[4000:4050] = False  # a 0.5 s gap
+    imu = replace(imu, t=t[keep], gyro=gyro[keep], accel=accel[keep])
+    lla = dataset.gnss.lla.copy()
+    lla[25, 0] += 0.2
+    return replace(dataset, imu=imu, gnss=replace(dataset.gnss, lla=lla))
+
+
+def test_csv_and_ros2_mcap_of_the_same_drive_get_identical_checks(tmp_path, urban):
+    data = _damaged(urban.dataset)
+    from_csv = load_dataset(_pair(tmp_path / "csv", data))
+    start = float(data.imu.t[0])
+    bag = write_ros2_bag(
+        tmp_path / "bag", drive_from_dataset(data, start), with_baro=False, with_velocity=False
+    )
+    from_mcap = load_dataset([str(bag)], progress=False)
+    checks = from_csv.metadata["input_checks"]
+    assert len(checks) == 3  # the gap, the fill, the spike
+    assert from_mcap.metadata["input_checks"] == checks
+    offset = T0_NS / 1e9 - start
+    np.testing.assert_allclose(
+        np.array(from_mcap.imu.suspect) - offset, np.array(from_csv.imu.suspect), atol=1e-6
+    )
+    assert len(from_mcap.gnss) == len(from_csv.gnss) == len(data.gnss) - 1
+
+
+# --- sim folders read only their own files ----------------------------------------------------
+
+
+def test_output_written_into_a_sim_folder_does_not_make_it_unreadable(tmp_path, urban):
+    folder = tmp_path / "drive"
+    write_sim_dir(urban, folder)
+    write_gnss_csv(urban.dataset.gnss, folder / "out.csv")  # a "second gnss file"
+    (folder / "notes.csv").write_text("whatever,else\n1,2\n")
+    checked = load_dataset([str(folder)])
+    np.testing.assert_allclose(checked.gnss.lla, urban.dataset.gnss.lla)
+
+
+# --- IMU noise: the default preset is said, the source's covariances are used -----------------
+
+
+def test_default_preset_is_named_in_one_warning_line(tmp_path, urban):
+    dataset = load_dataset(_pair(tmp_path, urban.dataset))
+    config_for_dataset(dataset)
+    config_for_dataset(dataset)  # asked twice (bench, fleet): still one line
+    lines = [w for w in dataset.warnings if "say nothing about the IMU's noise" in w]
+    assert len(lines) == 1
+    assert "consumer-mems" in lines[0] and "--imu-preset" in lines[0] and "--config" in lines[0]
+    again = load_dataset(_pair(tmp_path, urban.dataset))
+    config_for_dataset(again, imu_preset="tactical")
+    assert not any("say nothing" in w for w in again.warnings)
+    sim_folder = load_dataset([str(_sim_folder(tmp_path, urban))])  # its config.toml has [imu]
+    config_for_dataset(sim_folder)
+    assert not any("say nothing" in w for w in sim_folder.warnings)
+
+
+def _sim_folder(tmp_path: Path, run) -> Path:
+    folder = tmp_path / "simfolder"
+    write_sim_dir(run, folder)
+    return folder
+
+
+@pytest.mark.parametrize(("gyro_sigma", "accel_sigma"), [(2e-3, 0.02), (5e-4, 0.1)])
+def test_imu_covariances_of_a_ros2_bag_become_the_noise(tmp_path, urban, gyro_sigma, accel_sigma):
+    data = urban.dataset
+    start = float(data.imu.t[0])
+    bag = write_ros2_bag(
+        tmp_path / "bag",
+        drive_from_dataset(data, start),
+        with_baro=False,
+        imu_variances=(gyro_sigma**2, accel_sigma**2),
+    )
+    dataset = load_dataset([str(bag)], progress=False)
+    rate = 1.0 / np.median(np.diff(data.imu.t))
+    assert dataset.imu_config["gyro_noise_rad_per_s_per_sqrt_hz"] == pytest.approx(
+        gyro_sigma / math.sqrt(rate)
+    )
+    assert dataset.imu_config["accel_noise_m_per_s2_per_sqrt_hz"] == pytest.approx(
+        accel_sigma / math.sqrt(rate)
+    )
+    assert any("sensor_msgs/Imu covariances" in line for line in dataset.metadata["mcap_report"])
+    config = config_for_dataset(dataset)
+    assert config.imu_noise().gyro_noise == pytest.approx(gyro_sigma / math.sqrt(rate))
+    assert not any("say nothing" in w for w in dataset.warnings)
+
+
+# --- MCAP truncation: message level, not chunk level -------------------------------------------
+
+
+def _messages_before(path: Path, cut: int, topic: str) -> tuple[int, int]:
+    """(messages of ``topic`` in chunks wholly before byte ``cut``, messages whose record ends
+    before ``cut`` -- the latter exact for uncompressed chunks only), from the file's own
+    ChunkIndex / MessageIndex records read by mcap's reader, not fgins's."""
+    from mcap.reader import make_reader
+    from mcap.records import Chunk, MessageIndex
+    from mcap.stream_reader import StreamReader
+
+    with open(path, "rb") as handle:
+        summary = make_reader(handle).get_summary()
+    channel = next(c.id for c in summary.channels.values() if c.topic == topic)
+    chunks = sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
+    raw = path.read_bytes()
+    whole = contained = 0
+    k = -1
+    with open(path, "rb") as handle:
+        for record in StreamReader(handle, emit_chunks=True).records:
+            if isinstance(record, Chunk):
+                k += 1
+            if not (isinstance(record, MessageIndex) and record.channel_id == channel):
+                continue
+            chunk = chunks[k]
+            if chunk.chunk_start_offset + chunk.chunk_length <= cut:
+                whole += len(record.records)
+            if chunk.compression != "":
+                continue
+            data_start = chunk.chunk_start_offset + 1 + 8 + 8 + 8 + 8 + 4 + 4 + 8
+            for _, offset in record.records:
+                at = data_start + offset
+                length = int.from_bytes(raw[at + 1 : at + 9], "little")
+                contained += at + 9 + length <= cut
+    return whole, contained
+
+
+def test_truncated_ros2_bag_reads_every_complete_message(tmp_path, urban):
+    from fgins.io.mcap import read_mcap
+
+    start = float(urban.dataset.imu.t[0])
+    bag = write_ros2_bag(
+        tmp_path / "bag", drive_from_dataset(urban.dataset, start), with_baro=False
+    )
+    full = read_mcap(bag, progress=False).dataset
+    raw = bag.read_bytes()
+    counts = []
+    for fraction in (0.3, 0.6, 0.9):
+        cut = int(fraction * len(raw))
+        path = tmp_path / f"cut{fraction}.mcap"
+        path.write_bytes(raw[:cut])
+        result = read_mcap(path, progress=False)
+        n = len(result.dataset.imu)
+        whole, contained = _messages_before(bag, cut, "/imu/data")
+        assert n == contained and n >= whole
+        np.testing.assert_array_equal(result.dataset.imu.t, full.imu.t[:n])
+        line = next(w for w in result.warnings if "file truncated at byte" in w)
+        assert f"byte {cut}:" in line and "last complete message at t=" in line
+        counts.append(n)
+    assert 0 < counts[0] < counts[1] < counts[2] < len(full.imu)
+
+
+@pytest.mark.parametrize("writer", ["foxglove-sdk", "mcap-json"])
+def test_truncated_zstd_recording_reads_up_to_the_last_complete_block(tmp_path, writer):
+    from fgins.io.mcap import read_mcap
+
+    run = _run("car-urban", 4, 60)
+    drive = drive_from_dataset(run.dataset, float(run.dataset.imu.t[0]))
+    path = tmp_path / "full.mcap"
+    if writer == "foxglove-sdk":
+        write_foxglove_protobuf(path, drive)
+    else:
+        write_foxglove_json(path, drive)
+    full = read_mcap(path, progress=False).dataset
+    raw = path.read_bytes()
+    counts = []
+    for fraction in (0.3, 0.6, 0.9):
+        cut = int(fraction * len(raw))
+        cut_path = tmp_path / f"cut{fraction}.mcap"
+        cut_path.write_bytes(raw[:cut])
+        result = read_mcap(cut_path, progress=False)
+        n = len(result.dataset.imu)
+        np.testing.assert_array_equal(result.dataset.imu.gyro, full.imu.gyro[:n])
+        assert any("file truncated at byte" in w for w in result.warnings)
+        # every message of the complete chunks, plus the torn chunk's complete zstd blocks
+        # (a cut inside a chunk's last block loses that block: <= 128 KiB of messages)
+        whole, _ = _messages_before(path, cut, "/imu")
+        assert n >= whole
+        counts.append(n)
+    assert 0 < counts[0] < counts[1] <= counts[2] <= len(full.imu)
+
+
+# --- the KITTI drive as a ROS 2 bag (slow: full factor-graph solves) ---------------------------
+
+
+def _kitti_bag(tmp_path: Path) -> Path:
+    from fgins.io.kitti import parse_kitti
+
+    kitti = parse_kitti()
+    start = float(kitti.imu.t[0])
+    drive = drive_from_dataset(kitti, start)
+    drive.std = np.full((len(kitti.gnss), 3), 0.1)  # NavSatFix covariance: 0.1 m sigma
+    drive.status = np.zeros(len(kitti.gnss), dtype=int)
+    return write_ros2_bag(
+        tmp_path / "kitti", drive, with_baro=False, with_velocity=False, with_unknown=False
+    )
+
+
+def _horizontal_rms_at_gnss(out: Path, dataset, mask=None) -> float:
+    table = np.genfromtxt(out, delimiter=",", names=True)
+    enu = dataset.gnss_enu()
+    t = dataset.gnss.t if mask is None else dataset.gnss.t[mask]
+    enu = enu if mask is None else enu[mask]
+    east = np.interp(t, table["time"], table["east"])
+    north = np.interp(t, table["time"], table["north"])
+    return float(np.sqrt(np.mean((east - enu[:, 0]) ** 2 + (north - enu[:, 1]) ** 2)))
+
+
+@pytest.mark.slow
+def test_kitti_as_a_ros2_bag_fits_all_gnss_with_the_default_preset_warning(tmp_path, capsys):
+    bag = _kitti_bag(tmp_path)
+    out = tmp_path / "kitti.csv"
+    assert main(["smooth", str(bag), "--vehicle", "car", "--method", "batch", "-o", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "say nothing about the IMU's noise" in err and "consumer-mems" in err
+    assert "8 stretch(es) of linearly interpolated IMU samples" in err
+    dataset = load_dataset([str(bag)], progress=False)
+    rms = _horizontal_rms_at_gnss(out, dataset)
+    print(f"KITTI bag, all GNSS: horizontal RMS {rms:.3f} m")
+    assert rms <= 0.3
+
+
+@pytest.mark.slow
+def test_kitti_as_a_ros2_bag_bridges_35s_outages(tmp_path, capsys):
+    bag = _kitti_bag(tmp_path)
+    out = tmp_path / "kitti_out.csv"
+    starts = (40, 120, 200, 280, 360)  # spread over the drive, not chosen windows
+    windows = ",".join(f"{a}:{a + 35}" for a in starts)
+    args = ["smooth", str(bag), "--vehicle", "car", "--gnss-outage", windows, "-o", str(out)]
+    assert main(args) == 0
+    dataset = load_dataset([str(bag)], progress=False)
+    rel = dataset.gnss.t - dataset.t0
+    per_window = [
+        _horizontal_rms_at_gnss(out, dataset, (rel >= a) & (rel < a + 35)) for a in starts
+    ]
+    inside = np.zeros(rel.size, dtype=bool)
+    for a in starts:
+        inside |= (rel >= a) & (rel < a + 35)
+    overall = _horizontal_rms_at_gnss(out, dataset, inside)
+    print(
+        f"KITTI bag, 35 s outages: horizontal RMS {overall:.2f} m over all, per window "
+        + ", ".join(f"{v:.2f}" for v in per_window)
+        + " m"
+    )
+    # the window at 280 s is hard for every configuration (demo:kitti with its tuned noise:
+    # 8.6 m there, issue 12 item 7); the acceptance bound is on the outage epochs together
+    assert overall <= 4.4
