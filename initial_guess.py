@@ -3,7 +3,9 @@
 The pipeline chooses and hands over the guess (DESIGN.md: "the pipeline, not graph/, chooses
 and hands over an initial guess"); this module is the GTSAM-free contract between the Kalman
 baselines that compute it (:func:`fgins.baseline.ekf.ekf_states_at`,
-:func:`fgins.baseline.ekf18.ekf18_states_at`) and the graph that consumes it.
+:func:`fgins.baseline.ekf18.ekf18_states_at`, chosen per input by
+:func:`fgins.baseline.guess.filter_guess`) and the graph that consumes it. It imports
+neither side.
 
 Why keyframe states only: the smoother needs one state per keyframe (one per GNSS epoch and
 outage fill time), not the filter's IMU-rate output with a 15x15 covariance per sample, which
@@ -17,7 +19,6 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from fgins.config import RunConfig
-from fgins.datatypes import Dataset
 
 
 @dataclass(frozen=True)
@@ -54,29 +55,3 @@ def guess_config(config: RunConfig) -> RunConfig:
     graph.smoother.initial_values has always used: huber_k = 2, no Cauchy kernel.)
     """
     return replace(config, gnss=replace(config.gnss, huber_k=2.0, cauchy_k=None))
-
-
-def filter_guess(
-    dataset: Dataset,
-    config: RunConfig,
-    times: np.ndarray,
-    *,
-    gnss_mask: np.ndarray | None = None,
-    array_filter: bool = False,
-) -> KeyframeGuess:
-    """The forward filter's states at ``times`` with the guess configuration
-    (:func:`guess_config`). Raises what the filter raises (FginsError / InputError).
-
-    The 15-state EKF on ``dataset.imu`` by default: the same numbers at the keyframes as the
-    guess graph.smoother.initial_values has made from ``run_ekf``'s IMU-rate output (for a
-    gyro-free dataset that is the front end's integrated rate). ``array_filter`` uses the
-    18-state gyro-free EKF on the raw array readings instead when the dataset has them.
-    """
-    config = guess_config(config)
-    if array_filter and dataset.accel_array is not None:
-        from fgins.baseline.ekf18 import ekf18_states_at
-
-        return ekf18_states_at(dataset, config, times, gnss_mask=gnss_mask)
-    from fgins.baseline.ekf import ekf_states_at
-
-    return ekf_states_at(dataset, config, times, gnss_mask=gnss_mask)

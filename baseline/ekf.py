@@ -399,6 +399,47 @@ class SampledNodes:
     counts: dict[str, int] = field(default_factory=dict)
 
 
+class IntervalSums:
+    """Running cumulative sums of per-IMU-sample values, kept only at chosen sample indices.
+
+    ``np.vstack([0, np.cumsum(values, axis=0)])[index]`` for ``index`` (M,) without the
+    per-sample array: the values arrive block by block in sample order, and each block is
+    accumulated starting from the running total (the same sequential additions as one
+    cumsum over all samples, so the same bits).
+    """
+
+    def __init__(self, index: np.ndarray, width: int) -> None:
+        self.index = np.asarray(index, dtype=np.int64)
+        self.order = np.argsort(self.index, kind="stable")
+        self.sorted = self.index[self.order]
+        self.total = np.zeros(width)
+        self.at = np.zeros((len(self.index), width))
+        self.next = 0  # samples consumed so far
+
+    def add(self, values: np.ndarray) -> None:
+        """The values (n, width) of the next n samples."""
+        n = len(values)
+        if n == 0:
+            return
+        cumulative = np.cumsum(np.vstack([self.total[None, :], values]), axis=0)
+        lo, hi = np.searchsorted(self.sorted, [self.next, self.next + n], side="right")
+        # cumulative[j] is the sum of the first self.next + j samples.
+        picked = self.order[lo:hi]
+        self.at[picked] = cumulative[self.index[picked] - self.next]
+        self.total = cumulative[-1]
+        self.next += n
+
+
+def interval_bounds(sample_t: np.ndarray, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Sample ranges [lo, hi) of the keyframe intervals [t_k, t_k+1) (the last to the end),
+    at least one sample each: the ranges the biases of the initial guess are averaged over."""
+    n = len(sample_t)
+    lo = np.searchsorted(sample_t, times)
+    hi = np.append(lo[1:], n)
+    hi = np.maximum(hi, lo + 1)
+    return np.clip(lo, 0, n - 1), np.clip(hi, 1, n)
+
+
 class NodeSampler(FilterRecorder):
     """A recorder that keeps the nominal states at chosen nodes only.
 
@@ -407,10 +448,19 @@ class NodeSampler(FilterRecorder):
     transitions, no prior/posterior lists. Memory is O(len(nodes)), not O(IMU samples).
     """
 
-    def __init__(self, setup: FilterSetup, imu_t: np.ndarray, gyro: np.ndarray, nodes) -> None:
+    def __init__(
+        self,
+        setup: FilterSetup,
+        imu_t: np.ndarray,
+        gyro: np.ndarray,
+        nodes,
+        bias_sums: tuple[np.ndarray, IntervalSums] | None = None,
+    ) -> None:
         self.setup = setup
         self._imu_t = imu_t
         self._gyro = gyro
+        # (node of every IMU sample, sums at the interval bounds) for interval-mean biases.
+        self.bias_sums = bias_sums
         self.nodes = np.unique(np.asarray(nodes, dtype=np.int64))
         m = len(self.nodes)
         self.rotation = np.empty((m, 3, 3))
@@ -424,7 +474,19 @@ class NodeSampler(FilterRecorder):
     ) -> tuple[NominalState, np.ndarray]:
         return self.update(k, state, cov, gnss_update)
 
+    def _add_biases(self, first: int, stop: int, nodes: NominalState) -> None:
+        """The biases of the IMU samples whose output node is in [first, stop)."""
+        if self.bias_sums is None:
+            return
+        sample_node, sums = self.bias_sums
+        a, b = np.searchsorted(sample_node, [first, stop])
+        local = sample_node[a:b] - first
+        sums.add(
+            np.nan_to_num(np.hstack([nodes.accel_bias[local], nodes.gyro_bias[local]]))
+        )
+
     def store_nodes(self, span: slice, nodes: NominalState) -> None:
+        self._add_biases(span.start, span.stop, nodes)
         lo, hi = np.searchsorted(self.nodes, [span.start, span.stop])
         if hi == lo:
             return
@@ -443,6 +505,11 @@ class NodeSampler(FilterRecorder):
 
     def finish(self, state: NominalState, rejected_times: list[float]) -> SampledNodes:  # type: ignore[override]
         last = len(self.setup.segments.start)  # the final node: the last a-posteriori state
+        final = NominalState(
+            state.rotation[None], state.velocity[None], state.position[None],
+            np.atleast_2d(state.accel_bias), np.atleast_2d(state.gyro_bias),
+        )  # fmt: skip
+        self._add_biases(last, last + 1, final)
         if len(self.nodes) and self.nodes[-1] == last:
             self.rotation[-1], self.velocity[-1], self.position[-1] = (
                 state.rotation,
@@ -847,22 +914,28 @@ def ekf_states_at(
     gnss_mask: np.ndarray | None = None,
     progress: bool = False,
     options: EkfOptions | None = None,
+    biases: str = "interval",
 ) -> KeyframeGuess:
     """The forward EKF of :func:`run_ekf`, reported only at ``times`` (the keyframes).
 
-    The numbers are exactly those the factor graph has always taken from ``run_ekf``'s
-    IMU-rate output: position and velocity linearly interpolated (np.interp) between the
-    filter's states at the IMU samples around each time, attitude and biases those of the
-    first sample at or after it. Only the states at those samples are kept: no IMU-rate
-    output, no covariance per sample or per block, so memory grows with the number of
-    keyframes (plus the filter's per-block working set), not with the IMU samples. Pass the
-    guess configuration (:func:`fgins.initial_guess.guess_config`) for the graph's guess.
+    The numbers are exactly those the pipeline takes from ``run_ekf``'s IMU-rate output
+    (``fgins.pipeline.sample_states``): position and velocity linearly interpolated
+    (np.interp) between the filter's states at the IMU samples around each time, attitude
+    that of the first sample at or after it, and the biases averaged over the samples of
+    each keyframe interval [t_k, t_k+1) (``biases="interval"``; ``"nearest"``: the first
+    sample's, as graph.smoother did before). Only the states at those samples and running
+    bias sums are kept: no IMU-rate output, no covariance per sample or per block, so memory
+    grows with the number of keyframes (plus the filter's per-block working set and an index
+    per sample), not with the IMU samples. Pass the guess configuration
+    (:func:`fgins.initial_guess.guess_config`) for the graph's guess.
 
     Raises InputError as :func:`run_ekf` does (no usable GNSS, bad mask or options).
     """
     times = np.asarray(times, dtype=float)
     if times.ndim != 1 or len(times) == 0 or not np.all(np.isfinite(times)):
         raise InputError("ekf_states_at: times must be a non-empty 1-D array of finite seconds")
+    if biases not in ("interval", "nearest"):
+        raise InputError(f"ekf_states_at: biases must be 'interval' or 'nearest', got {biases!r}")
     options = options or EkfOptions()
     imu_t = dataset.imu.t
     setup = prepare_filter(dataset, config, gnss_mask, options.max_block_s)
@@ -870,20 +943,33 @@ def ekf_states_at(
     # The output state at an IMU sample is the node at its time (as in filtered_output).
     node_t = setup.segments.nodes
     rows = np.clip(np.searchsorted(node_t, imu_t[samples]), 0, len(node_t) - 1)
+    bias_sums = None
+    if biases == "interval":
+        lo, hi = interval_bounds(imu_t, times)
+        sample_node = np.clip(np.searchsorted(node_t, imu_t), 0, len(node_t) - 1)
+        bias_sums = (sample_node, IntervalSums(np.concatenate([lo, hi]), 6))
     del node_t
-    sampler = NodeSampler(setup, imu_t, dataset.imu.gyro, rows)
+    sampler = NodeSampler(setup, imu_t, dataset.imu.gyro, rows, bias_sums)
     nodes: SampledNodes = _ekf_forward(setup, sampler, config, options, progress)
     at = np.searchsorted(nodes.nodes, rows)  # each sample's row among the kept nodes
     xp = imu_t[samples]
     position = np.column_stack([np.interp(times, xp, nodes.position[at, i]) for i in range(3)])
     velocity = np.column_stack([np.interp(times, xp, nodes.velocity[at, i]) for i in range(3)])
     pick = at[nearest]
+    if bias_sums is None:
+        accel_bias = np.nan_to_num(nodes.accel_bias[pick])
+        gyro_bias = np.nan_to_num(nodes.gyro_bias[pick])
+    else:
+        sums = bias_sums[1].at
+        k = len(times)
+        mean = (sums[k:] - sums[:k]) / (hi - lo)[:, None]
+        accel_bias, gyro_bias = mean[:, :3], mean[:, 3:]
     return KeyframeGuess(
         t=times,
         rotation=nodes.rotation[pick],
         position=position,
         velocity=velocity,
-        accel_bias=np.nan_to_num(nodes.accel_bias[pick]),
-        gyro_bias=np.nan_to_num(nodes.gyro_bias[pick]),
+        accel_bias=accel_bias,
+        gyro_bias=gyro_bias,
         method="ekf",
     )

@@ -41,6 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgins.alignment import initial_alignment
+from fgins.baseline.ekf import IntervalSums
 from fgins.baseline.measurements import linearize_gnss, select_gnss
 from fgins.baseline.mechanization import (
     NavFrame,
@@ -259,7 +260,16 @@ class _NodeStore:
     """Where the forward pass puts its nominal states: every node (the IMU-rate output) or,
     with ``keep``, only those node indices (the keyframe guess; O(len(keep)) memory)."""
 
-    def __init__(self, n_nodes: int, n_boundaries: int, keep: np.ndarray | None) -> None:
+    def __init__(
+        self,
+        n_nodes: int,
+        n_boundaries: int,
+        keep: np.ndarray | None,
+        rate_error: tuple[np.ndarray, np.ndarray, IntervalSums] | None = None,
+    ) -> None:
+        # (node of every sample, front-end rate per sample, sums at the interval bounds):
+        # the interval means of the front end's rate error, accumulated block by block.
+        self.rate_error = rate_error
         self.keep = None if keep is None else np.unique(np.asarray(keep, dtype=np.int64))
         m = n_nodes if self.keep is None else len(self.keep)
         self.n_nodes = n_nodes
@@ -271,8 +281,16 @@ class _NodeStore:
         self.cov_prior = np.empty(shape)
         self.cov_post = np.empty(shape)
 
+    def _add_rate_error(self, first: int, stop: int, rates: np.ndarray) -> None:
+        if self.rate_error is None:
+            return
+        sample_node, front_end, sums = self.rate_error
+        a, b = np.searchsorted(sample_node, [first, stop])
+        sums.add(np.nan_to_num(front_end[a:b] - rates[sample_node[a:b] - first]))
+
     def block(self, span: slice, nominal, rates: np.ndarray) -> None:
         """The nodes of a block (all but its end node)."""
+        self._add_rate_error(span.start, span.stop, rates)
         if self.keep is None:
             rows, local = slice(span.start, span.stop), slice(0, -1)
         else:
@@ -285,6 +303,7 @@ class _NodeStore:
         self.rate[rows] = rates[local]
 
     def final(self, nav: NominalState, rate: np.ndarray) -> None:
+        self._add_rate_error(self.n_nodes - 1, self.n_nodes, np.atleast_2d(rate))
         if self.keep is None or (len(self.keep) and self.keep[-1] == self.n_nodes - 1):
             self.rotation[-1], self.velocity[-1], self.position[-1] = (
                 nav.rotation,
@@ -379,9 +398,12 @@ def _ekf18_pass(
     progress: bool,
     max_block_s: float,
     keep_samples: Callable[[np.ndarray, np.ndarray], np.ndarray] | None,
+    rate_error_at: np.ndarray | None = None,
 ) -> _Pass:
     """The forward pass of :func:`run_ekf18`. ``keep_samples(node_t, array_t)``, when given,
-    names the node indices to keep (else every node and the boundary covariances)."""
+    names the node indices to keep (else every node and the boundary covariances);
+    ``rate_error_at`` (sample indices) asks for cumulative sums of the front end's rate
+    error (front-end gyro minus filter rate) there."""
     data = dataset.accel_array
     if data is None:
         raise InputError(
@@ -406,7 +428,11 @@ def _ekf18_pass(
     node_readings = _interpolate_readings(data, node_t)
 
     keep = None if keep_samples is None else keep_samples(node_t, data.t)
-    store = _NodeStore(len(node_t), len(times), keep)
+    rate_error = None
+    if rate_error_at is not None:
+        sample_node = np.clip(np.searchsorted(node_t, data.t), 0, len(node_t) - 1)
+        rate_error = (sample_node, dataset.imu.gyro, IntervalSums(rate_error_at, 3))
+    store = _NodeStore(len(node_t), len(times), keep, rate_error)
 
     # Nominal state: navigation + rate + six biases.
     nav = NominalState(
@@ -518,6 +544,7 @@ def ekf18_states_at(
     gnss_mask: np.ndarray | None = None,
     progress: bool = False,
     max_block_s: float = 1.0,
+    biases: str = "interval",
 ) -> KeyframeGuess:
     """The 18-state gyro-free EKF of :func:`run_ekf18`, reported only at ``times``.
 
@@ -525,11 +552,16 @@ def ekf18_states_at(
     (np.interp) between the filter's states at the array samples around each time, attitude
     and rate at the first sample at or after it; only those samples' states are kept (no
     output per sample, no covariance per block). ``gyro_bias`` is the front end's rate error
-    there (front-end rate minus the filter's, as ``run_ekf18`` reports it; zeros when the
-    front end's samples are not the array's); ``accel_bias`` is zero (this filter estimates
-    the six sensors' biases, not a three-axis one).
+    (front-end rate minus the filter's, as ``run_ekf18`` reports it; zeros when the front
+    end's samples are not the array's), averaged over each keyframe interval like
+    ``fgins.pipeline.sample_states`` (``biases="interval"``; the front end's rate error is
+    noisy sample to sample) or at the first sample (``"nearest"``); ``accel_bias`` is zero
+    (this filter estimates the six sensors' biases, not a three-axis one).
     """
-    from fgins.baseline.ekf import _guess_samples
+    from fgins.baseline.ekf import _guess_samples, interval_bounds
+
+    if biases not in ("interval", "nearest"):
+        raise InputError(f"ekf18_states_at: biases must be 'interval' or 'nearest', got {biases!r}")
 
     times = np.asarray(times, dtype=float)
     if times.ndim != 1 or len(times) == 0 or not np.all(np.isfinite(times)):
@@ -542,7 +574,13 @@ def ekf18_states_at(
         picked.update(samples=samples, nearest=nearest, rows=rows)
         return rows
 
-    result = _ekf18_pass(dataset, config, gnss_mask, progress, max_block_s, keep)
+    data = dataset.accel_array
+    same_samples = data is not None and len(dataset.imu) == len(data)
+    interval = biases == "interval" and same_samples
+    if interval:
+        lo, hi = interval_bounds(data.t, times)
+    bounds = np.concatenate([lo, hi]) if interval else None
+    result = _ekf18_pass(dataset, config, gnss_mask, progress, max_block_s, keep, bounds)
     store, data = result.store, result.data
     samples, nearest, rows = picked["samples"], picked["nearest"], picked["rows"]
     at = np.searchsorted(store.keep, rows)
@@ -550,7 +588,12 @@ def ekf18_states_at(
     position = np.column_stack([np.interp(times, xp, store.position[at, i]) for i in range(3)])
     velocity = np.column_stack([np.interp(times, xp, store.velocity[at, i]) for i in range(3)])
     pick = at[nearest]
-    if len(dataset.imu) == len(data):
+    if interval:
+        assert store.rate_error is not None
+        sums = store.rate_error[2].at
+        k = len(times)
+        gyro_bias = (sums[k:] - sums[:k]) / (hi - lo)[:, None]
+    elif same_samples:
         gyro_bias = dataset.imu.gyro[samples[nearest]] - store.rate[pick]
     else:
         gyro_bias = np.zeros((len(times), 3))

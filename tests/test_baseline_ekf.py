@@ -391,42 +391,53 @@ def _keyframe_like_times(dataset, rng) -> np.ndarray:
 @pytest.mark.parametrize("outage", [False, True])
 def test_keyframe_states_equal_the_ekf_output_at_those_times(car_urban, outage):
     from fgins.baseline.ekf import ekf_states_at
-    from fgins.initial_guess import filter_guess, guess_config
+    from fgins.baseline.guess import filter_guess
+    from fgins.initial_guess import guess_config
+    from fgins.pipeline import sample_states
 
     run, config = car_urban
     config = guess_config(replace(config, smoother=replace(config.smoother, vehicle="car")))
     mask = outage_mask(run.dataset, [(40.0, 70.0)]) if outage else None
     times = _keyframe_like_times(run.dataset, np.random.default_rng(int(outage)))
     dense = run_ekf(run.dataset, config, gnss_mask=mask, progress=False)
-    guess = ekf_states_at(run.dataset, config, times, gnss_mask=mask)
-    expected = _guess_from_dense(dense, times)
-    for name, value in expected.items():
+    # Biases at the first sample (graph.smoother's old guess) ...
+    guess = ekf_states_at(run.dataset, config, times, gnss_mask=mask, biases="nearest")
+    for name, value in _guess_from_dense(dense, times).items():
         np.testing.assert_array_equal(getattr(guess, name), value, err_msg=name)
     assert guess.finite and len(guess) == len(times)
+    # ... and averaged over the keyframe intervals (the pipeline's sample_states): same bits.
+    guess = ekf_states_at(run.dataset, config, times, gnss_mask=mask)
+    expected = sample_states(dense, times)
+    for name in ("rotation", "position", "velocity", "accel_bias", "gyro_bias"):
+        np.testing.assert_array_equal(getattr(guess, name), getattr(expected, name), err_msg=name)
     # The pipeline's entry point applies the guess configuration itself (idempotent here).
     again = filter_guess(run.dataset, config, times, gnss_mask=mask)
-    np.testing.assert_array_equal(again.position, guess.position)
+    np.testing.assert_array_equal(again.gyro_bias, guess.gyro_bias)
 
 
 def test_gyrofree_keyframe_states_equal_the_ekf18_output():
     from fgins.baseline.ekf18 import ekf18_states_at, run_ekf18
+    from fgins.baseline.guess import filter_guess
+    from fgins.initial_guess import guess_config
+    from fgins.pipeline import sample_states
 
     run = SCENARIOS["gyrofree-cube"](seed=2, duration_s=60)
     config = _config(run)
     times = _keyframe_like_times(run.dataset, np.random.default_rng(5))
     dense = run_ekf18(run.dataset, config, progress=False)
-    guess = ekf18_states_at(run.dataset, config, times)
-    expected = _guess_from_dense(dense, times)
-    for name, value in expected.items():
+    guess = ekf18_states_at(run.dataset, config, times, biases="nearest")
+    for name, value in _guess_from_dense(dense, times).items():
         np.testing.assert_array_equal(getattr(guess, name), value, err_msg=name)
     assert guess.method == "ekf18"
-    # The pipeline's entry point with the array filter: the same pass, guess configuration.
-    from fgins.initial_guess import filter_guess, guess_config
-
-    chosen = filter_guess(run.dataset, config, times, array_filter=True)
+    guess = ekf18_states_at(run.dataset, config, times)
+    expected = sample_states(dense, times)
+    for name in ("rotation", "position", "velocity", "accel_bias", "gyro_bias"):
+        np.testing.assert_array_equal(getattr(guess, name), getattr(expected, name), err_msg=name)
+    # The pipeline's choice for an accelerometer array: the 18-state filter.
+    chosen = filter_guess(run.dataset, config, times)
     direct = ekf18_states_at(run.dataset, guess_config(config), times)
     assert chosen.method == "ekf18"
-    np.testing.assert_array_equal(chosen.position, direct.position)
+    np.testing.assert_array_equal(chosen.gyro_bias, direct.gyro_bias)
 
 
 def test_keyframe_states_memory_does_not_grow_per_imu_sample():
