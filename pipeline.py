@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import importlib
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -72,16 +72,16 @@ def filter_initial_guess(
     with Huber-weighted GNSS updates, sampled at the keyframe times.
 
     Huber-weighted updates bound what a gross outlier can do to the guess; a hard innovation
-    gate would be worse: once it rejects a few fixes the filter can lock out.
+    gate would be worse: once it rejects a few fixes the filter can lock out
+    (:func:`fgins.initial_guess.guess_config`).
     """
-    guess_config = replace(config, gnss=replace(config.gnss, huber_k=2.0, cauchy_k=None))
-    name = "ekf18" if dataset.accel_array is not None else "ekf"
 
     def guess(times: np.ndarray) -> KeyframeStates:
-        module_name, function_name = BASELINE_METHODS[name].split(":")
-        function = getattr(importlib.import_module(module_name), function_name)
-        filtered = function(dataset, guess_config, gnss_mask=gnss_mask, progress=False)
-        return sample_states(filtered, times)
+        # The filter reports its states at the keyframes only (same numbers as
+        # sample_states of its IMU-rate output, without that output: issue 9).
+        from fgins.baseline.guess import filter_guess
+
+        return filter_guess(dataset, config, times, gnss_mask=gnss_mask)  # type: ignore[return-value]
 
     return guess
 

@@ -36,7 +36,6 @@ from dataclasses import dataclass, field
 from typing import Any, Self
 
 import numpy as np
-from tqdm import tqdm
 
 from fgins.alignment import initial_alignment
 from fgins.baseline.measurements import (
@@ -70,6 +69,7 @@ from fgins.baseline.vehicle_updates import VehicleAiding, vehicle_aiding
 from fgins.config import ImuNoise, RunConfig
 from fgins.datatypes import Dataset, FginsError, InputError, Trajectory
 from fgins.geodesy import so3_exp
+from fgins.initial_guess import KeyframeGuess
 
 # 1-sigma of an initial heading the configuration supplies (``smoother.initial_heading_deg``):
 # fgins.alignment's own value for a configured heading when it starts moving. Its at-rest
@@ -264,6 +264,15 @@ def prepare_filter(
     )
 
 
+def _progress(blocks: range, desc: str, progress: bool):
+    """A tqdm bar over the blocks when asked for; tqdm is imported only then (import time)."""
+    if not progress:
+        return blocks
+    from tqdm import tqdm
+
+    return tqdm(blocks, desc=desc, unit="block", leave=False)
+
+
 GnssUpdate = Callable[[int, NominalState, np.ndarray, np.ndarray], tuple[NominalState, np.ndarray]]
 
 
@@ -294,6 +303,15 @@ class FilterRecorder:
     ) -> tuple[NominalState, np.ndarray]:
         self.prior.append(state.copy())
         self.cov_prior[k] = cov
+        state, cov = self.update(k, state, cov, gnss_update)
+        self.posterior.append(state.copy())
+        self.cov_posterior[k] = cov
+        return state, cov
+
+    def update(
+        self, k: int, state: NominalState, cov: np.ndarray, gnss_update: GnssUpdate
+    ) -> tuple[NominalState, np.ndarray]:
+        """The measurement updates at boundary ``k``: GNSS, then the vehicle pseudo-ones."""
         g = int(self.setup.gnss_at[k])
         if g >= 0:
             t = self.setup.times[k]
@@ -301,10 +319,7 @@ class FilterRecorder:
                 int(np.searchsorted(self._imu_t, t, side="right")) - 1, len(self._imu_t) - 1
             )
             state, cov = gnss_update(g, state, cov, self._gyro[sample])
-        state, cov = self.setup.aiding.update(k, state, cov)
-        self.posterior.append(state.copy())
-        self.cov_posterior[k] = cov
-        return state, cov
+        return self.setup.aiding.update(k, state, cov)
 
     def store_nodes(self, span: slice, nodes: NominalState) -> None:
         """Nominal states at the nodes of a block (all but its end node)."""
@@ -320,12 +335,28 @@ class FilterRecorder:
     ) -> tuple[np.ndarray, np.ndarray]:
         """Phi and Q of block ``b`` about the propagation ``central`` (augmented states
         included); Phi is recorded for the RTS smoother."""
+        phi, q = self._block_noise(b, span, central)
+        self.transition[b] = phi
+        return phi, q
+
+    def _block_noise(
+        self, b: int, span: slice, central: BlockNominal
+    ) -> tuple[np.ndarray, np.ndarray]:
         setup = self.setup
         dt = setup.segments.dt[span]
         phi, q = block_transition(central, dt, setup.frame, setup.noise, setup.white_scale[span])
-        phi, q = setup.block_process_noise(b, phi, q)
-        self.transition[b] = phi
-        return phi, q
+        return setup.block_process_noise(b, phi, q)
+
+    def _counts(self) -> dict[str, int]:
+        setup = self.setup
+        return {
+            **setup.counts,
+            **setup.aiding.counts,
+            "blocks": len(setup.times) - 1,
+            "gnss_epochs_used": len(setup.epochs.t),
+            "gnss_epochs_outside_imu_span": setup.epochs.outside_imu_span,
+            "augmented_states": setup.aiding.n_extra,
+        }
 
     def finish(self, state: NominalState, rejected_times: list[float]) -> FilterRun:
         # The final node is the last boundary's a-posteriori state.
@@ -336,14 +367,7 @@ class FilterRecorder:
         )
         self.accel_bias[-1], self.gyro_bias[-1] = state.accel_bias, state.gyro_bias
         setup = self.setup
-        counts = {
-            **setup.counts,
-            **setup.aiding.counts,
-            "blocks": len(setup.times) - 1,
-            "gnss_epochs_used": len(setup.epochs.t),
-            "gnss_epochs_outside_imu_span": setup.epochs.outside_imu_span,
-            "augmented_states": setup.aiding.n_extra,
-        }
+        counts = self._counts()
         return FilterRun(
             segments=setup.segments,
             rotation=self.rotation,
@@ -359,6 +383,148 @@ class FilterRecorder:
             counts=counts,
             rejected_times=list(rejected_times),
             zupt_times=list(setup.aiding.zupt_times),
+        )
+
+
+@dataclass
+class SampledNodes:
+    """Nominal states at chosen nodes of a forward pass (see :class:`NodeSampler`)."""
+
+    nodes: np.ndarray  # (M,) node indices, sorted, unique
+    rotation: np.ndarray  # (M, 3, 3)
+    velocity: np.ndarray  # (M, 3)
+    position: np.ndarray
+    accel_bias: np.ndarray
+    gyro_bias: np.ndarray
+    counts: dict[str, int] = field(default_factory=dict)
+
+
+class IntervalSums:
+    """Running cumulative sums of per-IMU-sample values, kept only at chosen sample indices.
+
+    ``np.vstack([0, np.cumsum(values, axis=0)])[index]`` for ``index`` (M,) without the
+    per-sample array: the values arrive block by block in sample order, and each block is
+    accumulated starting from the running total (the same sequential additions as one
+    cumsum over all samples, so the same bits).
+    """
+
+    def __init__(self, index: np.ndarray, width: int) -> None:
+        self.index = np.asarray(index, dtype=np.int64)
+        self.order = np.argsort(self.index, kind="stable")
+        self.sorted = self.index[self.order]
+        self.total = np.zeros(width)
+        self.at = np.zeros((len(self.index), width))
+        self.next = 0  # samples consumed so far
+
+    def add(self, values: np.ndarray) -> None:
+        """The values (n, width) of the next n samples."""
+        n = len(values)
+        if n == 0:
+            return
+        cumulative = np.cumsum(np.vstack([self.total[None, :], values]), axis=0)
+        lo, hi = np.searchsorted(self.sorted, [self.next, self.next + n], side="right")
+        # cumulative[j] is the sum of the first self.next + j samples.
+        picked = self.order[lo:hi]
+        self.at[picked] = cumulative[self.index[picked] - self.next]
+        self.total = cumulative[-1]
+        self.next += n
+
+
+def interval_bounds(sample_t: np.ndarray, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Sample ranges [lo, hi) of the keyframe intervals [t_k, t_k+1) (the last to the end),
+    at least one sample each: the ranges the biases of the initial guess are averaged over."""
+    n = len(sample_t)
+    lo = np.searchsorted(sample_t, times)
+    hi = np.append(lo[1:], n)
+    hi = np.maximum(hi, lo + 1)
+    return np.clip(lo, 0, n - 1), np.clip(hi, 1, n)
+
+
+class NodeSampler(FilterRecorder):
+    """A recorder that keeps the nominal states at chosen nodes only.
+
+    Same updates and propagation as :class:`FilterRecorder` (so the same numbers at those
+    nodes), but nothing per node or per boundary besides them: no covariances, no
+    transitions, no prior/posterior lists. Memory is O(len(nodes)), not O(IMU samples).
+    """
+
+    def __init__(
+        self,
+        setup: FilterSetup,
+        imu_t: np.ndarray,
+        gyro: np.ndarray,
+        nodes,
+        bias_sums: tuple[np.ndarray, IntervalSums] | None = None,
+    ) -> None:
+        self.setup = setup
+        self._imu_t = imu_t
+        self._gyro = gyro
+        # (node of every IMU sample, sums at the interval bounds) for interval-mean biases.
+        self.bias_sums = bias_sums
+        self.nodes = np.unique(np.asarray(nodes, dtype=np.int64))
+        m = len(self.nodes)
+        self.rotation = np.empty((m, 3, 3))
+        self.velocity = np.empty((m, 3))
+        self.position = np.empty((m, 3))
+        self.accel_bias = np.empty((m, 3))
+        self.gyro_bias = np.empty((m, 3))
+
+    def boundary(
+        self, k: int, state: NominalState, cov: np.ndarray, gnss_update: GnssUpdate
+    ) -> tuple[NominalState, np.ndarray]:
+        return self.update(k, state, cov, gnss_update)
+
+    def _add_biases(self, first: int, stop: int, nodes: NominalState) -> None:
+        """The biases of the IMU samples whose output node is in [first, stop)."""
+        if self.bias_sums is None:
+            return
+        sample_node, sums = self.bias_sums
+        a, b = np.searchsorted(sample_node, [first, stop])
+        local = sample_node[a:b] - first
+        sums.add(
+            np.nan_to_num(np.hstack([nodes.accel_bias[local], nodes.gyro_bias[local]]))
+        )
+
+    def store_nodes(self, span: slice, nodes: NominalState) -> None:
+        self._add_biases(span.start, span.stop, nodes)
+        lo, hi = np.searchsorted(self.nodes, [span.start, span.stop])
+        if hi == lo:
+            return
+        rows = slice(int(lo), int(hi))
+        local = self.nodes[rows] - span.start  # positions among the block's nodes
+        self.rotation[rows] = nodes.rotation[local]
+        self.velocity[rows] = nodes.velocity[local]
+        self.position[rows] = nodes.position[local]
+        self.accel_bias[rows] = nodes.accel_bias[local]
+        self.gyro_bias[rows] = nodes.gyro_bias[local]
+
+    def block_noise(
+        self, b: int, span: slice, central: BlockNominal
+    ) -> tuple[np.ndarray, np.ndarray]:
+        return self._block_noise(b, span, central)
+
+    def finish(self, state: NominalState, rejected_times: list[float]) -> SampledNodes:  # type: ignore[override]
+        last = len(self.setup.segments.start)  # the final node: the last a-posteriori state
+        final = NominalState(
+            state.rotation[None], state.velocity[None], state.position[None],
+            np.atleast_2d(state.accel_bias), np.atleast_2d(state.gyro_bias),
+        )  # fmt: skip
+        self._add_biases(last, last + 1, final)
+        if len(self.nodes) and self.nodes[-1] == last:
+            self.rotation[-1], self.velocity[-1], self.position[-1] = (
+                state.rotation,
+                state.velocity,
+                state.position,
+            )
+            self.accel_bias[-1], self.gyro_bias[-1] = state.accel_bias, state.gyro_bias
+        return SampledNodes(
+            nodes=self.nodes,
+            rotation=self.rotation,
+            velocity=self.velocity,
+            position=self.position,
+            accel_bias=self.accel_bias,
+            gyro_bias=self.gyro_bias,
+            counts=self._counts(),
         )
 
 
@@ -453,7 +619,7 @@ def forward_pass(
     setup = recorder.setup
     state, cov = recorder.boundary(0, setup.state, setup.cov, update)
     n_blocks = len(setup.times) - 1
-    for b in tqdm(range(n_blocks), desc=desc, unit="block", disable=not progress, leave=False):
+    for b in _progress(range(n_blocks), desc, progress):
         end, cov = predict(b, setup.segments.block(b), state, cov)
         state, cov = recorder.boundary(b + 1, end, 0.5 * (cov + cov.T), update)
     return recorder.finish(state, update.rejected_times)
@@ -469,6 +635,17 @@ def run_filter(
     """The forward EKF pass over the whole IMU span."""
     setup = prepare_filter(dataset, config, gnss_mask, options.max_block_s)
     recorder = FilterRecorder(setup, dataset.imu.t, dataset.imu.gyro)
+    return _ekf_forward(setup, recorder, config, options, progress), setup.epochs
+
+
+def _ekf_forward(
+    setup: FilterSetup,
+    recorder: FilterRecorder,
+    config: RunConfig,
+    options: EkfOptions,
+    progress: bool,
+) -> Any:
+    """The EKF's forward loop with any recorder (its ``finish`` makes the result)."""
     update = _Updater.for_setup(setup, config, options.innovation_gate_probability)
 
     def predict(
@@ -490,7 +667,7 @@ def run_filter(
         phi, q = recorder.block_noise(b, span, nominal)
         return nominal.end(state), phi @ cov @ phi.T + q
 
-    return forward_pass(recorder, update, predict, "EKF", progress), setup.epochs
+    return forward_pass(recorder, update, predict, "EKF", progress)
 
 
 def _node_rows(segments: Segments, imu_t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -509,15 +686,50 @@ def _interpolate(start: np.ndarray, end: np.ndarray, block: np.ndarray, share: n
     return (1.0 - s) * start[block] + s * end[block + 1]
 
 
+# The output's covariance blocks: position, velocity, attitude (N, 3, 3) each.
+NavCovariance = tuple[np.ndarray, np.ndarray, np.ndarray]
+NAV_BLOCKS = (POS, VEL, ATT)
+
+
+def _interpolate_nav(
+    start: np.ndarray,
+    end: np.ndarray,
+    block: np.ndarray,
+    share: np.ndarray,
+    last: np.ndarray,
+    last_value: np.ndarray,
+) -> NavCovariance:
+    """:func:`_interpolate` of the three 3x3 navigation blocks of per-boundary covariances
+    (K, n, n), rows ``last`` set to ``last_value`` (n, n).
+
+    Elementwise the same arithmetic as interpolating the full n x n matrices and slicing
+    afterwards (so the same bits), but 27 instead of n^2 (225+) numbers per IMU sample and
+    temporaries of one 3x3 block at a time: the full (N, 15, 15) interpolation was most of
+    the 5.7 KB per IMU sample that the EKF used to need.
+    """
+    out = []
+    for rows in NAV_BLOCKS:
+        cov = _interpolate(
+            np.ascontiguousarray(start[:, rows, rows]),
+            np.ascontiguousarray(end[:, rows, rows]),
+            block,
+            share,
+        )
+        cov[last] = last_value[rows, rows]
+        out.append(cov)
+    return out[0], out[1], out[2]
+
+
 def make_trajectory(
     dataset: Dataset,
     method: str,
     states: NominalState,
-    cov: np.ndarray,
+    cov: NavCovariance,
     info: dict[str, object],
 ) -> Trajectory:
-    """The output :class:`Trajectory` of a Kalman baseline: states and the navigation blocks
-    of the error covariance (N, n, n) at every IMU sample."""
+    """The output :class:`Trajectory` of a Kalman baseline: states and the position,
+    velocity and attitude blocks of the error covariance (N, 3, 3 each) at every IMU sample."""
+    position_cov, velocity_cov, attitude_cov = cov
     return Trajectory(
         t=dataset.imu.t,
         position=states.position,
@@ -527,9 +739,9 @@ def make_trajectory(
         method=method,
         gyro_bias=states.gyro_bias,
         accel_bias=states.accel_bias,
-        position_cov=cov[:, POS, POS],
-        velocity_cov=cov[:, VEL, VEL],
-        attitude_cov=cov[:, ATT, ATT],
+        position_cov=position_cov,
+        velocity_cov=velocity_cov,
+        attitude_cov=attitude_cov,
         info=info,
     )
 
@@ -544,7 +756,7 @@ def trajectory_info(run: FilterRun, epochs: GnssEpochs) -> dict[str, object]:
     }
 
 
-def filtered_output(dataset: Dataset, run: FilterRun) -> tuple[NominalState, np.ndarray]:
+def filtered_output(dataset: Dataset, run: FilterRun) -> tuple[NominalState, NavCovariance]:
     """Forward-filter states at every IMU sample (a-posteriori at update epochs)."""
     rows, block, share = _node_rows(run.segments, dataset.imu.t)
     states = NominalState(
@@ -554,9 +766,11 @@ def filtered_output(dataset: Dataset, run: FilterRun) -> tuple[NominalState, np.
         accel_bias=run.accel_bias[rows],
         gyro_bias=run.gyro_bias[rows],
     )
-    cov = _interpolate(run.cov_posterior, run.cov_prior, block, share)
     # The last sample sits on the last boundary: a-posteriori, not a-priori.
-    cov[dataset.imu.t >= run.segments.times[-1]] = run.cov_posterior[-1]
+    last = dataset.imu.t >= run.segments.times[-1]
+    cov = _interpolate_nav(
+        run.cov_posterior, run.cov_prior, block, share, last, run.cov_posterior[-1]
+    )
     return states, cov
 
 
@@ -586,7 +800,7 @@ def rts_smooth(run: FilterRun) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return from_posterior, from_prior, cov_smoothed
 
 
-def smoothed_output(dataset: Dataset, run: FilterRun) -> tuple[NominalState, np.ndarray]:
+def smoothed_output(dataset: Dataset, run: FilterRun) -> tuple[NominalState, NavCovariance]:
     """RTS states at every IMU sample: forward nominal plus interpolated smoothed corrections."""
     from_posterior, from_prior, cov_smoothed = rts_smooth(run)
     rows, block, share = _node_rows(run.segments, dataset.imu.t)
@@ -602,8 +816,10 @@ def smoothed_output(dataset: Dataset, run: FilterRun) -> tuple[NominalState, np.
     )
     share_cov = share.copy()
     share_cov[last] = 1.0
-    cov = _interpolate(
-        cov_smoothed, cov_smoothed, np.minimum(block, len(cov_smoothed) - 2), share_cov
+    block_cov = np.minimum(block, len(cov_smoothed) - 2)
+    # Rows ``last`` already interpolate to the last smoothed covariance (share 1): no override.
+    cov = _interpolate_nav(
+        cov_smoothed, cov_smoothed, block_cov, share_cov, np.zeros(len(share), bool), cov_smoothed[-1]
     )
     states = NominalState(
         rotation=so3_exp(correction[:, ATT]) @ forward.rotation,
@@ -675,4 +891,85 @@ def run_ekf_rts(
         "ekf-rts",
         lambda: run_filter(dataset, config, gnss_mask, options or EkfOptions(), progress),
         smooth=True,
+    )
+
+
+def _guess_samples(imu_t: np.ndarray, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The IMU samples an IMU-rate guess at ``times`` reads: both samples around each time
+    (np.interp's bracket), the first sample at or after it (the attitude and biases) and the
+    two ends (np.interp's clamping). Returns the sorted unique samples and, per time, the
+    index of its at-or-after sample among them."""
+    last = len(imu_t) - 1
+    before = np.clip(np.searchsorted(imu_t, times, side="right") - 1, 0, last)
+    after = np.clip(np.searchsorted(imu_t, times), 0, last)
+    samples = np.unique(np.concatenate([[0, last], before, np.minimum(before + 1, last), after]))
+    return samples, np.searchsorted(samples, after)
+
+
+def ekf_states_at(
+    dataset: Dataset,
+    config: RunConfig,
+    times: np.ndarray,
+    *,
+    gnss_mask: np.ndarray | None = None,
+    progress: bool = False,
+    options: EkfOptions | None = None,
+    biases: str = "interval",
+) -> KeyframeGuess:
+    """The forward EKF of :func:`run_ekf`, reported only at ``times`` (the keyframes).
+
+    The numbers are exactly those the pipeline takes from ``run_ekf``'s IMU-rate output
+    (``fgins.pipeline.sample_states``): position and velocity linearly interpolated
+    (np.interp) between the filter's states at the IMU samples around each time, attitude
+    that of the first sample at or after it, and the biases averaged over the samples of
+    each keyframe interval [t_k, t_k+1) (``biases="interval"``; ``"nearest"``: the first
+    sample's, as graph.smoother did before). Only the states at those samples and running
+    bias sums are kept: no IMU-rate output, no covariance per sample or per block, so memory
+    grows with the number of keyframes (plus the filter's per-block working set and an index
+    per sample), not with the IMU samples. Pass the guess configuration
+    (:func:`fgins.initial_guess.guess_config`) for the graph's guess.
+
+    Raises InputError as :func:`run_ekf` does (no usable GNSS, bad mask or options).
+    """
+    times = np.asarray(times, dtype=float)
+    if times.ndim != 1 or len(times) == 0 or not np.all(np.isfinite(times)):
+        raise InputError("ekf_states_at: times must be a non-empty 1-D array of finite seconds")
+    if biases not in ("interval", "nearest"):
+        raise InputError(f"ekf_states_at: biases must be 'interval' or 'nearest', got {biases!r}")
+    options = options or EkfOptions()
+    imu_t = dataset.imu.t
+    setup = prepare_filter(dataset, config, gnss_mask, options.max_block_s)
+    samples, nearest = _guess_samples(imu_t, times)
+    # The output state at an IMU sample is the node at its time (as in filtered_output).
+    node_t = setup.segments.nodes
+    rows = np.clip(np.searchsorted(node_t, imu_t[samples]), 0, len(node_t) - 1)
+    bias_sums = None
+    if biases == "interval":
+        lo, hi = interval_bounds(imu_t, times)
+        sample_node = np.clip(np.searchsorted(node_t, imu_t), 0, len(node_t) - 1)
+        bias_sums = (sample_node, IntervalSums(np.concatenate([lo, hi]), 6))
+    del node_t
+    sampler = NodeSampler(setup, imu_t, dataset.imu.gyro, rows, bias_sums)
+    nodes: SampledNodes = _ekf_forward(setup, sampler, config, options, progress)
+    at = np.searchsorted(nodes.nodes, rows)  # each sample's row among the kept nodes
+    xp = imu_t[samples]
+    position = np.column_stack([np.interp(times, xp, nodes.position[at, i]) for i in range(3)])
+    velocity = np.column_stack([np.interp(times, xp, nodes.velocity[at, i]) for i in range(3)])
+    pick = at[nearest]
+    if bias_sums is None:
+        accel_bias = np.nan_to_num(nodes.accel_bias[pick])
+        gyro_bias = np.nan_to_num(nodes.gyro_bias[pick])
+    else:
+        sums = bias_sums[1].at
+        k = len(times)
+        mean = (sums[k:] - sums[:k]) / (hi - lo)[:, None]
+        accel_bias, gyro_bias = mean[:, :3], mean[:, 3:]
+    return KeyframeGuess(
+        t=times,
+        rotation=nodes.rotation[pick],
+        position=position,
+        velocity=velocity,
+        accel_bias=accel_bias,
+        gyro_bias=gyro_bias,
+        method="ekf",
     )

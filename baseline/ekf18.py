@@ -35,11 +35,13 @@ biases; 1 Hz GNSS positions alone observe it too weakly and the filter lost the 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
 
 import numpy as np
-from tqdm import tqdm
 
 from fgins.alignment import initial_alignment
+from fgins.baseline.ekf import IntervalSums
 from fgins.baseline.measurements import linearize_gnss, select_gnss
 from fgins.baseline.mechanization import (
     NavFrame,
@@ -53,6 +55,7 @@ from fgins.baseline.mechanization import (
 from fgins.config import RunConfig, SmootherConfig
 from fgins.datatypes import AccelArrayData, Dataset, InputError, Trajectory
 from fgins.factors.accel_array import AccelArray, rate_monomials
+from fgins.initial_guess import KeyframeGuess
 from fgins.mounting import mounting_rotation
 
 STATE_DIM = 18
@@ -253,6 +256,68 @@ def nhc_measurement(
     return h, residual, variance
 
 
+class _NodeStore:
+    """Where the forward pass puts its nominal states: every node (the IMU-rate output) or,
+    with ``keep``, only those node indices (the keyframe guess; O(len(keep)) memory)."""
+
+    def __init__(
+        self,
+        n_nodes: int,
+        n_boundaries: int,
+        keep: np.ndarray | None,
+        rate_error: tuple[np.ndarray, np.ndarray, IntervalSums] | None = None,
+    ) -> None:
+        # (node of every sample, front-end rate per sample, sums at the interval bounds):
+        # the interval means of the front end's rate error, accumulated block by block.
+        self.rate_error = rate_error
+        self.keep = None if keep is None else np.unique(np.asarray(keep, dtype=np.int64))
+        m = n_nodes if self.keep is None else len(self.keep)
+        self.n_nodes = n_nodes
+        self.rotation = np.empty((m, 3, 3))
+        self.velocity = np.empty((m, 3))
+        self.position = np.empty((m, 3))
+        self.rate = np.empty((m, 3))
+        shape = (n_boundaries if self.keep is None else 0, STATE_DIM, STATE_DIM)
+        self.cov_prior = np.empty(shape)
+        self.cov_post = np.empty(shape)
+
+    def _add_rate_error(self, first: int, stop: int, rates: np.ndarray) -> None:
+        if self.rate_error is None:
+            return
+        sample_node, front_end, sums = self.rate_error
+        a, b = np.searchsorted(sample_node, [first, stop])
+        sums.add(np.nan_to_num(front_end[a:b] - rates[sample_node[a:b] - first]))
+
+    def block(self, span: slice, nominal, rates: np.ndarray) -> None:
+        """The nodes of a block (all but its end node)."""
+        self._add_rate_error(span.start, span.stop, rates)
+        if self.keep is None:
+            rows, local = slice(span.start, span.stop), slice(0, -1)
+        else:
+            lo, hi = np.searchsorted(self.keep, [span.start, span.stop])
+            rows = slice(int(lo), int(hi))
+            local = self.keep[rows] - span.start
+        self.rotation[rows] = nominal.rotation[local]
+        self.velocity[rows] = nominal.velocity[local]
+        self.position[rows] = nominal.position[local]
+        self.rate[rows] = rates[local]
+
+    def final(self, nav: NominalState, rate: np.ndarray) -> None:
+        self._add_rate_error(self.n_nodes - 1, self.n_nodes, np.atleast_2d(rate))
+        if self.keep is None or (len(self.keep) and self.keep[-1] == self.n_nodes - 1):
+            self.rotation[-1], self.velocity[-1], self.position[-1] = (
+                nav.rotation,
+                nav.velocity,
+                nav.position,
+            )
+            self.rate[-1] = rate
+
+    def covariance(self, k: int, prior: np.ndarray, posterior: np.ndarray) -> None:
+        if self.keep is None:
+            self.cov_prior[k] = prior
+            self.cov_post[k] = posterior
+
+
 def run_ekf18(
     dataset: Dataset,
     config: RunConfig,
@@ -267,6 +332,78 @@ def run_ekf18(
     output) is used only for the initial alignment. ``info`` holds the update counts and the
     final accelerometer bias estimates (``accel_array_bias``, m/s^2).
     """
+    started = time.perf_counter()
+    pass_ = _ekf18_pass(dataset, config, gnss_mask, progress, max_block_s, None)
+    data, store, times, counts, node_t = pass_.data, pass_.store, pass_.times, pass_.counts, pass_.node_t
+    epochs, bias = pass_.epochs, pass_.bias
+    n_nodes = len(node_t)
+    rotation, velocity, position, rate_out = store.rotation, store.velocity, store.position, store.rate
+    cov_prior, cov_post = store.cov_prior, store.cov_post
+    n_blocks = len(times) - 1
+
+    # Output at the array samples: the node at each sample time; covariances interpolated
+    # between a block's a-posteriori start and a-priori end.
+    rows = np.clip(np.searchsorted(node_t, data.t), 0, n_nodes - 1)
+    block = np.clip(np.searchsorted(times, data.t, side="right") - 1, 0, len(times) - 2)
+    share = np.clip((data.t - times[block]) / (times[block + 1] - times[block]), 0.0, 1.0)
+    s = share[:, None, None]
+    last = data.t >= times[-1]
+    nav_cov = []
+    for rows_cov in (POS, VEL, ATT):  # only the 3x3 blocks the output keeps (same bits)
+        start = np.ascontiguousarray(cov_post[:, rows_cov, rows_cov])
+        end = np.ascontiguousarray(cov_prior[:, rows_cov, rows_cov])
+        out_cov = (1.0 - s) * start[block] + s * end[block + 1]
+        out_cov[last] = cov_post[-1][rows_cov, rows_cov]
+        nav_cov.append(out_cov)
+    counts["blocks"] = n_blocks
+    trajectory = Trajectory(
+        t=data.t,
+        position=position[rows],
+        velocity=velocity[rows],
+        rotation=rotation[rows],
+        origin=dataset.origin,
+        method="ekf18",
+        # The rate error of the front end, as a gyro "bias": front-end rate minus filter rate.
+        gyro_bias=(dataset.imu.gyro - rate_out[rows]) if len(dataset.imu) == len(data) else None,
+        position_cov=nav_cov[0],
+        velocity_cov=nav_cov[1],
+        attitude_cov=nav_cov[2],
+        info={
+            "gnss_gating": epochs.gating_summary,
+            **counts,
+            "gnss_epochs_used": len(epochs.t),
+            "accel_array_bias": bias.tolist(),
+            "angular_rate": rate_out[rows],
+        },
+    )
+    trajectory.timings["total"] = time.perf_counter() - started
+    return trajectory
+
+
+@dataclass
+class _Pass:
+    data: AccelArrayData
+    store: _NodeStore
+    times: np.ndarray
+    node_t: np.ndarray
+    counts: dict[str, int]
+    epochs: object
+    bias: np.ndarray
+
+
+def _ekf18_pass(
+    dataset: Dataset,
+    config: RunConfig,
+    gnss_mask: np.ndarray | None,
+    progress: bool,
+    max_block_s: float,
+    keep_samples: Callable[[np.ndarray, np.ndarray], np.ndarray] | None,
+    rate_error_at: np.ndarray | None = None,
+) -> _Pass:
+    """The forward pass of :func:`run_ekf18`. ``keep_samples(node_t, array_t)``, when given,
+    names the node indices to keep (else every node and the boundary covariances);
+    ``rate_error_at`` (sample indices) asks for cumulative sums of the front end's rate
+    error (front-end gyro minus filter rate) there."""
     data = dataset.accel_array
     if data is None:
         raise InputError(
@@ -275,7 +412,6 @@ def run_ekf18(
         )
     if not max_block_s > 0:
         raise InputError(f"ekf18: max_block_s must be > 0, got {max_block_s}")
-    started = time.perf_counter()
     model = _ArrayModel(data)
     frame = NavFrame.at(dataset.origin)
     epochs = select_gnss(dataset, config, gnss_mask)
@@ -291,13 +427,12 @@ def run_ekf18(
     gnss_at[at[on_boundary]] = np.flatnonzero(on_boundary)
     node_readings = _interpolate_readings(data, node_t)
 
-    n_nodes = len(node_t)
-    rotation = np.empty((n_nodes, 3, 3))
-    velocity = np.empty((n_nodes, 3))
-    position = np.empty((n_nodes, 3))
-    rate_out = np.empty((n_nodes, 3))
-    cov_prior = np.empty((len(times), STATE_DIM, STATE_DIM))
-    cov_post = np.empty_like(cov_prior)
+    keep = None if keep_samples is None else keep_samples(node_t, data.t)
+    rate_error = None
+    if rate_error_at is not None:
+        sample_node = np.clip(np.searchsorted(node_t, data.t), 0, len(node_t) - 1)
+        rate_error = (sample_node, dataset.imu.gyro, IntervalSums(rate_error_at, 3))
+    store = _NodeStore(len(node_t), len(times), keep, rate_error)
 
     # Nominal state: navigation + rate + six biases.
     nav = NominalState(
@@ -362,15 +497,20 @@ def run_ekf18(
             counts["nhc_updates"] += 1
 
     def boundary(k: int) -> None:
-        cov_prior[k] = cov
+        prior = cov
         if gnss_at[k] >= 0:
             gnss_update(k)
         vehicle_updates(k)
-        cov_post[k] = cov
+        store.covariance(k, prior, cov)
 
     boundary(0)
     n_blocks = len(times) - 1
-    for b in tqdm(range(n_blocks), desc="EKF18", unit="block", disable=not progress, leave=False):
+    blocks: Iterable[int] = range(n_blocks)
+    if progress:  # tqdm only when a bar is shown (import time)
+        from tqdm import tqdm
+
+        blocks = tqdm(blocks, desc="EKF18", unit="block", leave=False)
+    for b in blocks:
         span = segments.block(b)
         nodes = slice(span.start, span.stop + 1)
         dt = segments.dt[span]
@@ -382,11 +522,7 @@ def run_ekf18(
         held = data.readings[segments.sample[span]] - bias
         force = model.specific_force(held, mean_rate)
         nominal = propagate_nominal(nav, mean_rate, force, dt, frame)
-        rows = slice(span.start, span.stop)
-        rotation[rows] = nominal.rotation[:-1]
-        velocity[rows] = nominal.velocity[:-1]
-        position[rows] = nominal.position[:-1]
-        rate_out[rows] = rates[:-1]
+        store.block(span, nominal, rates)
         phi, q = _segment_transitions(
             model, nominal.rotation[:-1], nominal.specific_force_nav, mean_rate, dt, frame
         )
@@ -396,37 +532,77 @@ def run_ekf18(
         nav = nominal.end(nav)
         rate = rates[-1]
         boundary(b + 1)
-    rotation[-1], velocity[-1], position[-1] = nav.rotation, nav.velocity, nav.position
-    rate_out[-1] = rate
+    store.final(nav, rate)
+    return _Pass(data, store, times, node_t, counts, epochs, bias)
 
-    # Output at the array samples: the node at each sample time; covariances interpolated
-    # between a block's a-posteriori start and a-priori end.
-    rows = np.clip(np.searchsorted(node_t, data.t), 0, n_nodes - 1)
-    block = np.clip(np.searchsorted(times, data.t, side="right") - 1, 0, len(times) - 2)
-    share = np.clip((data.t - times[block]) / (times[block + 1] - times[block]), 0.0, 1.0)
-    s = share[:, None, None]
-    out_cov = (1.0 - s) * cov_post[block] + s * cov_prior[block + 1]
-    out_cov[data.t >= times[-1]] = cov_post[-1]
-    counts["blocks"] = n_blocks
-    trajectory = Trajectory(
-        t=data.t,
-        position=position[rows],
-        velocity=velocity[rows],
-        rotation=rotation[rows],
-        origin=dataset.origin,
+
+def ekf18_states_at(
+    dataset: Dataset,
+    config: RunConfig,
+    times: np.ndarray,
+    *,
+    gnss_mask: np.ndarray | None = None,
+    progress: bool = False,
+    max_block_s: float = 1.0,
+    biases: str = "interval",
+) -> KeyframeGuess:
+    """The 18-state gyro-free EKF of :func:`run_ekf18`, reported only at ``times``.
+
+    Built like :func:`fgins.baseline.ekf.ekf_states_at`: position and velocity interpolated
+    (np.interp) between the filter's states at the array samples around each time, attitude
+    and rate at the first sample at or after it; only those samples' states are kept (no
+    output per sample, no covariance per block). ``gyro_bias`` is the front end's rate error
+    (front-end rate minus the filter's, as ``run_ekf18`` reports it; zeros when the front
+    end's samples are not the array's), averaged over each keyframe interval like
+    ``fgins.pipeline.sample_states`` (``biases="interval"``; the front end's rate error is
+    noisy sample to sample) or at the first sample (``"nearest"``); ``accel_bias`` is zero
+    (this filter estimates the six sensors' biases, not a three-axis one).
+    """
+    from fgins.baseline.ekf import _guess_samples, interval_bounds
+
+    if biases not in ("interval", "nearest"):
+        raise InputError(f"ekf18_states_at: biases must be 'interval' or 'nearest', got {biases!r}")
+
+    times = np.asarray(times, dtype=float)
+    if times.ndim != 1 or len(times) == 0 or not np.all(np.isfinite(times)):
+        raise InputError("ekf18_states_at: times must be a non-empty 1-D array of finite seconds")
+    picked: dict[str, np.ndarray] = {}
+
+    def keep(node_t: np.ndarray, array_t: np.ndarray) -> np.ndarray:
+        samples, nearest = _guess_samples(array_t, times)
+        rows = np.clip(np.searchsorted(node_t, array_t[samples]), 0, len(node_t) - 1)
+        picked.update(samples=samples, nearest=nearest, rows=rows)
+        return rows
+
+    data = dataset.accel_array
+    same_samples = data is not None and len(dataset.imu) == len(data)
+    interval = biases == "interval" and same_samples
+    if interval:
+        lo, hi = interval_bounds(data.t, times)
+    bounds = np.concatenate([lo, hi]) if interval else None
+    result = _ekf18_pass(dataset, config, gnss_mask, progress, max_block_s, keep, bounds)
+    store, data = result.store, result.data
+    samples, nearest, rows = picked["samples"], picked["nearest"], picked["rows"]
+    at = np.searchsorted(store.keep, rows)
+    xp = data.t[samples]
+    position = np.column_stack([np.interp(times, xp, store.position[at, i]) for i in range(3)])
+    velocity = np.column_stack([np.interp(times, xp, store.velocity[at, i]) for i in range(3)])
+    pick = at[nearest]
+    if interval:
+        assert store.rate_error is not None
+        sums = store.rate_error[2].at
+        k = len(times)
+        gyro_bias = (sums[k:] - sums[:k]) / (hi - lo)[:, None]
+    elif same_samples:
+        gyro_bias = dataset.imu.gyro[samples[nearest]] - store.rate[pick]
+    else:
+        gyro_bias = np.zeros((len(times), 3))
+    return KeyframeGuess(
+        t=times,
+        rotation=store.rotation[pick],
+        position=position,
+        velocity=velocity,
+        accel_bias=np.zeros((len(times), 3)),
+        gyro_bias=np.nan_to_num(gyro_bias),
         method="ekf18",
-        # The rate error of the front end, as a gyro "bias": front-end rate minus filter rate.
-        gyro_bias=(dataset.imu.gyro - rate_out[rows]) if len(dataset.imu) == len(data) else None,
-        position_cov=out_cov[:, POS, POS],
-        velocity_cov=out_cov[:, VEL, VEL],
-        attitude_cov=out_cov[:, ATT, ATT],
-        info={
-            "gnss_gating": epochs.gating_summary,
-            **counts,
-            "gnss_epochs_used": len(epochs.t),
-            "accel_array_bias": bias.tolist(),
-            "angular_rate": rate_out[rows],
-        },
     )
-    trajectory.timings["total"] = time.perf_counter() - started
-    return trajectory

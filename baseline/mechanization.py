@@ -214,6 +214,19 @@ class BlockNominal:
         )
 
 
+def cross_const(w: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``np.cross(w, v)`` of a constant 3-vector ``w`` and vectors ``v`` (..., 3): the same
+    products and differences (so the same bits), without np.cross's axis handling, which
+    was a fifth of the EKF's time per block."""
+    out = np.empty(np.broadcast_shapes(np.shape(w), np.shape(v)))
+    w0, w1, w2 = w[..., 0], w[..., 1], w[..., 2]
+    v0, v1, v2 = v[..., 0], v[..., 1], v[..., 2]
+    out[..., 0] = w1 * v2 - w2 * v1
+    out[..., 1] = w2 * v0 - w0 * v2
+    out[..., 2] = w0 * v1 - w1 * v0
+    return out
+
+
 def propagate_nominal(
     state: NominalState, gyro: np.ndarray, accel: np.ndarray, dt: np.ndarray, frame: NavFrame
 ) -> BlockNominal:
@@ -230,11 +243,11 @@ def propagate_nominal(
     v0 = state.velocity[..., None, :]
     velocity_guess = np.broadcast_to(v0, a_free.shape)
     for _ in range(3):  # fixed point on the (tiny) Coriolis term, see module docstring
-        accel_nav = a_free - 2.0 * np.cross(w_ie, velocity_guess)
+        accel_nav = a_free - 2.0 * cross_const(w_ie, velocity_guess)
         dv = accel_nav * dt[:, None]
         velocity = np.concatenate([v0, v0 + np.cumsum(dv, axis=-2)], axis=-2)
         velocity_guess = velocity[..., :-1, :]
-    accel_nav = a_free - 2.0 * np.cross(w_ie, velocity_guess)
+    accel_nav = a_free - 2.0 * cross_const(w_ie, velocity_guess)
     dp = velocity_guess * dt[:, None] + 0.5 * accel_nav * dt[:, None] ** 2
     p0 = state.position[..., None, :]
     position = np.concatenate([p0, p0 + np.cumsum(dp, axis=-2)], axis=-2)

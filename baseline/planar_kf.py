@@ -43,10 +43,10 @@ not reported: NaN).
 from __future__ import annotations
 
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
-from tqdm import tqdm
 
 from fgins.alignment import initial_alignment
 from fgins.baseline.measurements import GnssEpochs, select_gnss
@@ -334,9 +334,11 @@ def run_planar_kf(
 
     state, cov = at_boundary(0, state, cov)
     n_blocks = len(times) - 1
-    blocks = tqdm(
-        range(n_blocks), desc="planar KF", unit="block", disable=not progress, leave=False
-    )
+    blocks: Iterable[int] = range(n_blocks)
+    if progress:  # tqdm only when a bar is shown (import time)
+        from tqdm import tqdm
+
+        blocks = tqdm(blocks, desc="planar KF", unit="block", leave=False)
     for b in blocks:
         span = segments.block(b)
         dt = segments.dt[span]

@@ -12,7 +12,6 @@ import os
 import shutil
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 import fgins
@@ -165,22 +164,26 @@ def test_failed_write_leaves_no_file(tmp_path, drive, monkeypatch):
     import fgins.io.trajectory_csv as trajectory_csv
     import fgins.io.trajectory_tum as trajectory_tum
 
-    original = np.savetxt  # both writers call numpy's savetxt: patch and restore it
 
     def half_then_fail(path, rows, *args, **kwargs):
         Path(path).write_text("time,lat\n1,2\n")  # something is on disk when it fails
         raise OSError(28, "No space left on device")
 
-    for module, name in ((trajectory_csv, "track.csv"), (trajectory_tum, "track.tum")):
-        monkeypatch.setattr(module.np, "savetxt", half_then_fail)
+    # (the trajectory CSV is written by its own vectorised writer, write_table, not savetxt)
+    for module, attr, name in (
+        (trajectory_csv, "write_table", "track.csv"),
+        (trajectory_tum.np, "savetxt", "track.tum"),
+    ):
+        saved = getattr(module, attr)
+        monkeypatch.setattr(module, attr, half_then_fail)
         with pytest.raises(OSError, match="No space"):
             track.write(tmp_path / name)
-        monkeypatch.setattr(module.np, "savetxt", original)
+        monkeypatch.setattr(module, attr, saved)
         assert sorted(p.name for p in tmp_path.iterdir()) == []
     # An existing output is kept intact by a failed rewrite.
     track.write(tmp_path / "track.csv")
     good = (tmp_path / "track.csv").read_bytes()
-    monkeypatch.setattr(trajectory_csv.np, "savetxt", half_then_fail)
+    monkeypatch.setattr(trajectory_csv, "write_table", half_then_fail)
     with pytest.raises(OSError):
         track.write(tmp_path / "track.csv")
     assert (tmp_path / "track.csv").read_bytes() == good
