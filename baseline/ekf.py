@@ -178,7 +178,7 @@ class FilterSetup:
     frame: NavFrame
     segments: Segments
     gnss_at: np.ndarray  # (K,) GNSS epoch at each boundary, -1 where none
-    white_scale: np.ndarray  # (segments,) white-noise inflation on suspect IMU stretches
+    white_scale: np.ndarray  # (segments, 2) accel, gyro white-noise inflation (suspect IMU)
     aiding: VehicleAiding
     state: NominalState
     cov: np.ndarray
@@ -216,10 +216,14 @@ def prepare_filter(
         raise FginsError("Kalman filter: a GNSS epoch fell between block boundaries (internal)")
     gnss_at = np.full(len(times), -1)
     gnss_at[boundary] = np.arange(len(epochs.t))
-    white_scale = np.ones(len(segments.dt))
+    # Suspect stretches: the graph's inflation (ImuNoise.suspect), per sensor, as a scale.
+    white_scale = np.ones((len(segments.dt), 2))
     for a, b in imu.suspect:
         inside = (segments.start >= a) & (segments.start < b)
-        white_scale[inside] = config.smoother.suspect_noise_factor
+        inflated = noise.suspect(config.smoother.suspect_noise_factor, b - a)
+        white_scale[inside] = [
+            inflated.accel_noise / noise.accel_noise, inflated.gyro_noise / noise.gyro_noise
+        ]
     aiding = vehicle_aiding(dataset, config, times, noise, frame.earth_rate)
     extra, extra_variance = aiding.initial_extra(float(align.position[2]))
     rotation = np.asarray(align.rotation, dtype=float)

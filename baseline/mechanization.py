@@ -285,8 +285,10 @@ def sample_process_noise(noise: ImuNoise, dt: np.ndarray, white_scale: np.ndarra
     integration uncertainty of the graph) is kept for parity.
     """
     n = len(dt)
-    qa = (noise.accel_noise * white_scale) ** 2 * dt
-    qg = (noise.gyro_noise * white_scale) ** 2 * dt
+    # white_scale: (n,) one inflation for both sensors, or (n, 2) accel and gyro apart.
+    scale = np.asarray(white_scale, dtype=float).reshape(n, -1)
+    qa = (noise.accel_noise * scale[:, 0]) ** 2 * dt
+    qg = (noise.gyro_noise * scale[:, -1]) ** 2 * dt
     q = np.zeros((n, STATE_DIM, STATE_DIM))
     eye = np.eye(3)
     q[:, POS, POS] = (0.25 * qa * dt**2 + noise.integration_sigma**2 * dt)[:, None, None] * eye
