@@ -133,14 +133,17 @@ def initial_covariance(
     noise: ImuNoise,
     extra_variance: np.ndarray | None = None,
 ) -> np.ndarray:
-    """P0 from the alignment sigmas (attitude sigmas about the body axes, as the graph's
-    Pose3 prior), the turn-on bias priors and the priors of any augmented states."""
+    """P0 from the alignment sigmas (tilt about east and north, heading about up: the
+    navigation frame, whatever the IMU's axes; the graph's Pose3 prior is the same
+    covariance seen from the body), the turn-on bias priors and the priors of any
+    augmented states."""
     extra = np.zeros(0) if extra_variance is None else np.asarray(extra_variance, dtype=float)
     dim = STATE_DIM + len(extra)
     p0 = np.zeros((dim, dim))
     p0[POS, POS] = np.eye(3) * position_sigma**2
     p0[VEL, VEL] = np.eye(3) * velocity_sigma**2
-    p0[ATT, ATT] = rotation @ np.diag(np.asarray(attitude_sigma) ** 2) @ rotation.T
+    del rotation  # the error state's attitude is in the navigation frame already
+    p0[ATT, ATT] = np.diag(np.asarray(attitude_sigma) ** 2)
     p0[ACC_BIAS, ACC_BIAS] = np.eye(3) * noise.accel_bias_prior**2
     p0[GYRO_BIAS, GYRO_BIAS] = np.eye(3) * noise.gyro_bias_prior**2
     p0[STATE_DIM:, STATE_DIM:] = np.diag(extra)
@@ -150,7 +153,7 @@ def initial_covariance(
 def configured_heading_sigma(
     attitude_sigma: np.ndarray, initial_heading_deg: float | None
 ) -> np.ndarray:
-    """Alignment sigmas (roll, pitch, yaw about the body axes) with the yaw sigma of a heading
+    """Alignment sigmas (tilt about east, north; heading about up) with the heading sigma of a heading
     that the configuration gives, rather than one guessed from the first motion.
 
     Why it matters: a linearised filter is only as good as its prior is honest. With 15 deg of

@@ -449,7 +449,7 @@ def _ekf18_pass(
     cov[POS, POS] = np.eye(3) * align.position_sigma**2
     cov[VEL, VEL] = np.eye(3) * align.velocity_sigma**2
     att_sigma = np.asarray(align.attitude_sigma_rad)
-    cov[ATT, ATT] = nav.rotation @ np.diag(att_sigma**2) @ nav.rotation.T
+    cov[ATT, ATT] = np.diag(att_sigma**2)  # tilt about east, north; heading about up
     cov[RATE, RATE] = np.eye(3) * INITIAL_RATE_SIGMA**2
     cov[BIAS, BIAS] = np.eye(data.n_sensors) * max(bias_sigma, 1e-9) ** 2
     counts = {"gnss_updates": 0, "velocity_updates": 0, "nhc_updates": 0, "zupt_updates": 0}

@@ -65,8 +65,16 @@ class Problem:
         align = self.alignment
         graph = gtsam.NonlinearFactorGraph()
         pose = gtsam.Pose3(gtsam.Rot3(align.rotation), align.position)
-        pose_sigma = np.concatenate([align.attitude_sigma_rad, [align.position_sigma] * 3])
-        graph.add(gtsam.PriorFactorPose3(X(0), pose, gtsam.noiseModel.Diagonal.Sigmas(pose_sigma)))
+        # The alignment's sigmas are tilt about east and north and heading about up: a
+        # navigation-frame covariance, seen from the body (Pose3's tangent) as R^T S R. Taken
+        # as body-axis sigmas, an FRD or turned IMU would get its heading doubt on a tilt.
+        rotation = np.asarray(align.rotation, dtype=float)
+        covariance = np.zeros((6, 6))
+        covariance[:3, :3] = rotation.T @ np.diag(align.attitude_sigma_rad**2) @ rotation
+        covariance[3:, 3:] = np.eye(3) * align.position_sigma**2
+        graph.add(
+            gtsam.PriorFactorPose3(X(0), pose, gtsam.noiseModel.Gaussian.Covariance(covariance))
+        )
         graph.add(
             gtsam.PriorFactorVector(
                 V(0), align.velocity, gtsam.noiseModel.Isotropic.Sigma(3, align.velocity_sigma)
