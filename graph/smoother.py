@@ -580,6 +580,72 @@ def _suspect(report: SolveReport) -> bool:
     return not report.converged or report.chi2_per_dof > CHI2_SUSPECT
 
 
+def _solve_from(
+    problem: Problem, initial: gtsam.Values
+) -> tuple[SolveReport, gtsam.Values, gtsam.NonlinearFactorGraph]:
+    report = SolveReport(solver="batch LM")
+    result, graph = _solve(problem, initial, None, report)
+    _finish(report, graph, result)
+    return report, result, graph
+
+
+def _fall_back(
+    problem: Problem,
+    source: str,
+    report: SolveReport,
+    result: gtsam.Values,
+    graph: gtsam.NonlinearFactorGraph,
+) -> tuple[SolveReport, gtsam.Values, gtsam.NonlinearFactorGraph]:
+    """The first start led LM to an unconverged or inconsistent fit (e.g. the filter
+    diverged in an outage, or with sparse GNSS): try GNSS-reset dead reckoning, then iSAM2
+    (whose incremental relinearisation follows a poor start far better), and keep the first
+    consistent fit, else the one with the least error. Says which it took."""
+    first = report
+
+    def dead_reckoning() -> gtsam.Values:
+        zeros = np.zeros((problem.n_keyframes, 3))
+        problem.preintegrate_all(zeros, zeros, False)
+        return _dead_reckoning_guess(problem)
+
+    def isam2() -> gtsam.Values:
+        return _run_isam2(problem, False, online_covariance=False, relinearize_skip=1)[1]
+
+    best = (report, result, graph, source)
+    for name, start in (("dead reckoning", dead_reckoning), ("iSAM2", isam2)):
+        if name == source:
+            continue
+        try:
+            candidate = (*_solve_from(problem, start()), name)
+        except FginsError:
+            continue  # this start cannot even be computed: try the next
+        if candidate[0].final_error < best[0].final_error:
+            best = candidate
+        if not _suspect(candidate[0]):
+            break
+    report, result, graph, taken = best
+    # The preintegration must be the one about the kept solution's biases.
+    problem.preintegrate_all(*_biases(problem, result), False)
+    if taken != source:
+        report.initial_error = first.initial_error
+        report.iterations += first.iterations
+        report.rounds += first.rounds
+        report.fallback = (
+            f"the {source} initial guess gave an unconverged or inconsistent fit "
+            f"(chi2/dof {first.chi2_per_dof:.1f}); restarted from {taken}"
+        )
+        graph = _full_graph(problem, _nonlinear_graph(problem, None), result)
+        _finish(report, graph, result)
+    return report, result, graph
+
+
+def _biases(problem: Problem, values: gtsam.Values) -> tuple[np.ndarray, np.ndarray]:
+    bias = [values.atConstantBias(B(k)) for k in range(problem.n_keyframes)]
+    return (
+        np.array([b.accelerometer() for b in bias]),
+        np.array([b.gyroscope() for b in bias]),
+    )
+
+
 def smooth_batch(
     problem: Problem, progress: bool = True, initial_guess: InitialGuess | None = None
 ) -> Trajectory:
@@ -592,25 +658,9 @@ def smooth_batch(
     """
     started = time.perf_counter()
     initial, source = initial_values(problem, initial_guess, progress)
-    report = SolveReport(solver="batch LM")
-    result, graph = _solve(problem, initial, None, report)
-    _finish(report, graph, result)
+    report, result, graph = _solve_from(problem, initial)
     if _suspect(report):
-        # The guess led Levenberg-Marquardt astray (e.g. the filter diverged in an outage):
-        # restart from iSAM2, whose incremental relinearisation is far more robust.
-        isam_values = _run_isam2(problem, False, online_covariance=False, relinearize_skip=1)[1]
-        retry_report = SolveReport(solver="batch LM")
-        retry, retry_graph = _solve(problem, isam_values, None, retry_report)
-        _finish(retry_report, retry_graph, retry)
-        if retry_report.final_error < report.final_error:
-            retry_report.initial_error = report.initial_error
-            retry_report.iterations += report.iterations
-            retry_report.rounds += report.rounds
-            retry_report.fallback = (
-                f"the {source} initial guess gave an unconverged or inconsistent fit "
-                f"(chi2/dof {report.chi2_per_dof:.1f}); restarted from iSAM2"
-            )
-            report, result, graph = retry_report, retry, retry_graph
+        report, result, graph = _fall_back(problem, source, report, result, graph)
     if problem.config.smoother.zupt and problem.quiet.any():
         speeds = np.array(
             [np.linalg.norm(result.atVector(V(k))) for k in range(problem.n_keyframes)]
@@ -701,7 +751,9 @@ def _isam2_step(isam: gtsam.ISAM2, factorization: str, what: str, *args, **kwarg
     except RuntimeError as exc:
         if factorization == "CHOLESKY":
             raise _IndeterminateUpdate from None
-        raise FginsError(f"iSAM2: {what} failed even with QR factorization: {exc}") from None
+        raise FginsError(
+            f"iSAM2: {what} failed even with QR factorization: {_first_line(exc)}"
+        ) from None
 
 
 def _run_isam2_with(
@@ -772,7 +824,7 @@ def _run_isam2_with(
         except RuntimeError as exc:
             if factorization == "CHOLESKY":
                 raise _IndeterminateUpdate from None
-            raise FginsError(f"iSAM2: estimate at keyframe {k} failed: {exc}") from None
+            raise FginsError(f"iSAM2: estimate at keyframe {k} failed: {_first_line(exc)}") from None
         state = gtsam.NavState(pose, velocity)
         online_states["rotation"][k] = pose.rotation().matrix()
         online_states["position"][k] = pose.translation()
@@ -833,6 +885,12 @@ def _run_isam2_with(
     return isam, final, online_keyframes, online, report, update_s
 
 
+def _first_line(exc: Exception) -> str:
+    """GTSAM's messages run over many lines; the CLI promises one."""
+    lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
+    return " ".join(lines[:2]) if lines else type(exc).__name__
+
+
 def _bias_moved(used: gtsam.imuBias.ConstantBias, estimate: gtsam.imuBias.ConstantBias) -> bool:
     return bool(
         np.max(np.abs(estimate.gyroscope() - used.gyroscope())) > REPREINTEGRATE_GYRO_RAD_S
@@ -847,7 +905,9 @@ def _estimate(isam: gtsam.ISAM2, factorization: str) -> gtsam.Values:
     except RuntimeError as exc:
         if factorization == "CHOLESKY":
             raise _IndeterminateUpdate from None
-        raise FginsError(f"iSAM2: the estimate could not be computed: {exc}") from None
+        raise FginsError(
+            f"iSAM2: the estimate could not be computed: {_first_line(exc)}"
+        ) from None
 
 
 def smooth_isam2(problem: Problem, progress: bool = True) -> tuple[Trajectory, Trajectory]:
