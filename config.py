@@ -463,9 +463,9 @@ class SmootherConfig:
     use_nhc: bool | None = None  # None: on for cars
     use_zupt: bool | None = None  # None: on for cars
     # Side slip and mounting error are correlated over seconds (KITTI: autocorrelation 0.35
-    # at 1 s, 0.2 at 3 s), so constraints 1 s apart do not average them down: 0.3 m/s, not
+    # at 1 s, 0.2 at 3 s), so constraints 1 s apart do not average them down: 0.2 m/s, not
     # the ~0.1 m/s a single sample shows.
-    nhc_sigma_lateral_m_per_s: float = 0.3
+    nhc_sigma_lateral_m_per_s: float = 0.2
     nhc_sigma_vertical_m_per_s: float = 0.2
     imu_to_vehicle_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
     zupt_sigma_m_per_s: float = 0.02

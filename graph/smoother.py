@@ -65,7 +65,7 @@ RELINEARIZE_VELOCITY_M_S = 0.05
 # While the linearisation still moves, every LM iteration is followed by a rebuild of the
 # linearised factors (vectorised, O(K)): the iterations then follow the exact Jacobians, as
 # with a nonlinear factor, and converge as fast. Once nothing moves LM gets its full budget.
-MAX_OUTER_ROUNDS = 60
+MAX_OUTER_ROUNDS = 40
 ROUND_ITERATIONS = 1
 # chi-square / dof of a fit whose noise model describes the data is ~1; far above, the
 # solution is suspect (batch restarts from iSAM2) and reported as inconsistent.
@@ -527,13 +527,17 @@ def _solve(
     settled = False
     previous_error = math.inf
     damping = 1e-5  # carried across rounds: LM's trust region survives the rebuilds
+    steady_rounds = 0
     for _ in range(MAX_OUTER_ROUNDS):
         graph = _full_graph(problem, nonlinear, values)
         start_error = graph.error(values)
         _check_finite(start_error, "at the initial guess", report.solver)
         if math.isnan(report.initial_error):
             report.initial_error = start_error
-        budget = max_iterations if (settled or not has_linear) else ROUND_ITERATIONS
+        # One iteration per rebuild while the linearisation moves; a slow, poorly observable
+        # problem (a gyro-free IMU) that keeps moving gets longer rounds as they go on.
+        escalated = ROUND_ITERATIONS * (1 + report.rounds // 10) ** 2
+        budget = max_iterations if (settled or not has_linear) else escalated
         result, iterations, damping = _lm(graph, values, budget, damping)
         report.iterations += iterations
         report.rounds += 1
@@ -549,8 +553,11 @@ def _solve(
         if redone:
             nonlinear = _nonlinear_graph(problem, speeds)
         steady = abs(previous_error - end_error) <= SETTLED_RELATIVE_ERROR * end_error
+        steady_rounds = steady_rounds + 1 if steady else 0
         previous_error = end_error
-        if converged and (steady or (not redone and not moved)):
+        # Done when LM converged on a linearisation that no longer moves, or when rebuilds
+        # stopped changing the error at all (twice in a row).
+        if (converged and (steady or (not redone and not moved))) or steady_rounds >= 2:
             break
         if not redone and not moved:
             settled = True  # only iterations are missing: give LM its full budget
