@@ -511,6 +511,7 @@ def test_kitti_as_a_ros2_bag_bridges_35s_outages(tmp_path, capsys):
         + ", ".join(f"{v:.2f}" for v in per_window)
         + " m"
     )
-    # the window at 280 s is hard for every configuration (demo:kitti with its tuned noise:
-    # 8.6 m there, issue 12 item 7); the acceptance bound is on the outage epochs together
+    # Every window within the acceptance bound (the one at 280 s took 5.9 m before the filled
+    # IMU stretches in its turns got the noise of the motion they hide: issue 12 item 7).
     assert overall <= 4.4
+    assert max(per_window) <= 4.4, per_window
