@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import importlib
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 
 from fgins.config import RunConfig
 from fgins.datatypes import Dataset, FginsError, Trajectory
+from fgins.initial_guess import KeyframeGuess
 
 GRAPH_METHODS = ("batch", "isam2", "isam2-online")
 # Kalman baselines: method name -> "module:function" taking (dataset, config, gnss_mask=...,
@@ -53,20 +53,9 @@ def run_method(
     raise FginsError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
 
 
-@dataclass
-class KeyframeStates:
-    """Navigation states and IMU biases at given times (K rows): a filter's initial guess."""
-
-    rotation: np.ndarray  # (K, 3, 3) body -> ENU
-    position: np.ndarray  # (K, 3)
-    velocity: np.ndarray  # (K, 3)
-    accel_bias: np.ndarray  # (K, 3)
-    gyro_bias: np.ndarray  # (K, 3)
-
-
 def filter_initial_guess(
     dataset: Dataset, config: RunConfig, gnss_mask: np.ndarray | None
-) -> Callable[[np.ndarray], KeyframeStates]:
+) -> Callable[[np.ndarray], KeyframeGuess]:
     """The initial guess the factor graph starts from: the Kalman filter that matches the
     input (the 18-state gyro-free EKF for an accelerometer array, else the 15-state EKF),
     with Huber-weighted GNSS updates, sampled at the keyframe times.
@@ -76,40 +65,11 @@ def filter_initial_guess(
     (:func:`fgins.initial_guess.guess_config`).
     """
 
-    def guess(times: np.ndarray) -> KeyframeStates:
-        # The filter reports its states at the keyframes only (same numbers as
-        # sample_states of its IMU-rate output, without that output: issue 9).
+    def guess(times: np.ndarray) -> KeyframeGuess:
+        # The filter reports its states at the keyframes only (the same numbers as sampling
+        # its IMU-rate output there, without making that output: issue 9).
         from fgins.baseline.guess import filter_guess
 
-        return filter_guess(dataset, config, times, gnss_mask=gnss_mask)  # type: ignore[return-value]
+        return filter_guess(dataset, config, times, gnss_mask=gnss_mask)
 
     return guess
-
-
-def sample_states(trajectory: Trajectory, times: np.ndarray) -> KeyframeStates:
-    """A trajectory's states at ``times``: position and velocity interpolated, attitude at
-    the nearest sample, biases averaged over each keyframe interval [t_k, t_k+1) (a gyro-free
-    front end's rate error is noisy sample to sample; its mean is what preintegration needs)."""
-    t = trajectory.t
-    nearest = np.clip(np.searchsorted(t, times), 0, len(t) - 1)
-    position = np.column_stack([np.interp(times, t, trajectory.position[:, i]) for i in range(3)])
-    velocity = np.column_stack([np.interp(times, t, trajectory.velocity[:, i]) for i in range(3)])
-
-    def interval_mean(values: np.ndarray | None) -> np.ndarray:
-        if values is None:
-            return np.zeros((len(times), 3))
-        values = np.nan_to_num(np.asarray(values, dtype=float))
-        cumulative = np.vstack([np.zeros((1, 3)), np.cumsum(values, axis=0)])
-        lo = np.searchsorted(t, times)
-        hi = np.append(lo[1:], len(t))
-        hi = np.maximum(hi, lo + 1)
-        lo, hi = np.clip(lo, 0, len(t) - 1), np.clip(hi, 1, len(t))
-        return (cumulative[hi] - cumulative[lo]) / (hi - lo)[:, None]
-
-    return KeyframeStates(
-        rotation=trajectory.rotation[nearest],
-        position=position,
-        velocity=velocity,
-        accel_bias=interval_mean(trajectory.accel_bias),
-        gyro_bias=interval_mean(trajectory.gyro_bias),
-    )

@@ -926,7 +926,7 @@ def ekf_states_at(
     """The forward EKF of :func:`run_ekf`, reported only at ``times`` (the keyframes).
 
     The numbers are exactly those the pipeline takes from ``run_ekf``'s IMU-rate output
-    (``fgins.pipeline.sample_states``): position and velocity linearly interpolated
+    (as sampling the filter's IMU-rate output would): position and velocity linearly interpolated
     (np.interp) between the filter's states at the IMU samples around each time, attitude
     that of the first sample at or after it, and the biases averaged over the samples of
     each keyframe interval [t_k, t_k+1) (``biases="interval"``; ``"nearest"``: the first

@@ -554,7 +554,7 @@ def ekf18_states_at(
     output per sample, no covariance per block). ``gyro_bias`` is the front end's rate error
     (front-end rate minus the filter's, as ``run_ekf18`` reports it; zeros when the front
     end's samples are not the array's), averaged over each keyframe interval like
-    ``fgins.pipeline.sample_states`` (``biases="interval"``; the front end's rate error is
+    sampling the filter's IMU-rate output (``biases="interval"``; the front end's rate error is
     noisy sample to sample) or at the first sample (``"nearest"``); ``accel_bias`` is zero
     (this filter estimates the six sensors' biases, not a three-axis one).
     """

@@ -27,7 +27,7 @@ def filter_guess(
     it: the 18-state gyro-free EKF on the raw array readings for an accelerometer-array
     dataset (``array_filter=False``: the 15-state EKF on the front end's output instead),
     else the 15-state EKF; the same numbers as sampling their IMU-rate output with
-    ``fgins.pipeline.sample_states`` (``biases="interval"``: biases averaged over each
+    sampling the filter's IMU-rate output (``biases="interval"``: biases averaged over each
     keyframe interval; ``"nearest"``: the first sample's, graph.smoother's older guess).
     """
     config = guess_config(config)

@@ -8,6 +8,7 @@ covariances (3-sigma coverage, NEES over a Monte-Carlo).
 from __future__ import annotations
 
 from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -393,7 +394,6 @@ def test_keyframe_states_equal_the_ekf_output_at_those_times(car_urban, outage):
     from fgins.baseline.ekf import ekf_states_at
     from fgins.baseline.guess import filter_guess
     from fgins.initial_guess import guess_config
-    from fgins.pipeline import sample_states
 
     run, config = car_urban
     config = guess_config(replace(config, smoother=replace(config.smoother, vehicle="car")))
@@ -405,7 +405,7 @@ def test_keyframe_states_equal_the_ekf_output_at_those_times(car_urban, outage):
     for name, value in _guess_from_dense(dense, times).items():
         np.testing.assert_array_equal(getattr(guess, name), value, err_msg=name)
     assert guess.finite and len(guess) == len(times)
-    # ... and averaged over the keyframe intervals (the pipeline's sample_states): same bits.
+    # ... and averaged over the keyframe intervals (sample_states below): same bits.
     guess = ekf_states_at(run.dataset, config, times, gnss_mask=mask)
     expected = sample_states(dense, times)
     for name in ("rotation", "position", "velocity", "accel_bias", "gyro_bias"):
@@ -419,7 +419,6 @@ def test_gyrofree_keyframe_states_equal_the_ekf18_output():
     from fgins.baseline.ekf18 import ekf18_states_at, run_ekf18
     from fgins.baseline.guess import filter_guess
     from fgins.initial_guess import guess_config
-    from fgins.pipeline import sample_states
 
     run = SCENARIOS["gyrofree-cube"](seed=2, duration_s=60)
     config = _config(run)
@@ -476,3 +475,32 @@ def test_keyframe_states_reject_bad_times(car_urban):
         ekf_states_at(run.dataset, config, np.array([]))
     with pytest.raises(InputError, match="times"):
         ekf_states_at(run.dataset, config, np.array([np.nan]))
+
+
+def sample_states(trajectory, times: np.ndarray):
+    """A trajectory's states at ``times``: position and velocity interpolated, attitude at
+    the nearest sample, biases averaged over each keyframe interval [t_k, t_k+1) (a gyro-free
+    front end's rate error is noisy sample to sample; its mean is what preintegration needs)."""
+    t = trajectory.t
+    nearest = np.clip(np.searchsorted(t, times), 0, len(t) - 1)
+    position = np.column_stack([np.interp(times, t, trajectory.position[:, i]) for i in range(3)])
+    velocity = np.column_stack([np.interp(times, t, trajectory.velocity[:, i]) for i in range(3)])
+
+    def interval_mean(values: np.ndarray | None) -> np.ndarray:
+        if values is None:
+            return np.zeros((len(times), 3))
+        values = np.nan_to_num(np.asarray(values, dtype=float))
+        cumulative = np.vstack([np.zeros((1, 3)), np.cumsum(values, axis=0)])
+        lo = np.searchsorted(t, times)
+        hi = np.append(lo[1:], len(t))
+        hi = np.maximum(hi, lo + 1)
+        lo, hi = np.clip(lo, 0, len(t) - 1), np.clip(hi, 1, len(t))
+        return (cumulative[hi] - cumulative[lo]) / (hi - lo)[:, None]
+
+    return SimpleNamespace(
+        rotation=trajectory.rotation[nearest],
+        position=position,
+        velocity=velocity,
+        accel_bias=interval_mean(trajectory.accel_bias),
+        gyro_bias=interval_mean(trajectory.gyro_bias),
+    )
