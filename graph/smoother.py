@@ -917,8 +917,11 @@ def _estimate(isam: gtsam.ISAM2, factorization: str) -> gtsam.Values:
         ) from None
 
 
-def smooth_isam2(problem: Problem, progress: bool = True) -> tuple[Trajectory, Trajectory]:
-    """One iSAM2 update per keyframe. Returns (final smoothed, online filtered) trajectories."""
+def smooth_isam2(
+    problem: Problem, progress: bool = True, *, online_first: bool = False
+) -> tuple[Trajectory, DeferredTrajectory]:
+    """One iSAM2 update per keyframe. Returns (final smoothed, online filtered) trajectories,
+    the second made on first use (``online_first``: the other way round)."""
     started = time.perf_counter()
     isam, result, online_states, online, report, update_s = _run_isam2(problem, progress)
     if _suspect(report):
@@ -933,32 +936,64 @@ def smooth_isam2(problem: Problem, progress: bool = True) -> tuple[Trajectory, T
     # Final marginals through one batch factorisation of the final graph: iSAM2's own
     # per-key marginals after the final relinearisation can walk far up the tree (O(K) each).
     factors = _compact(isam.getFactorsUnsafe())
-    marginal = _marginal_function(factors, result)
-    covariances = _marginal_covariances(problem, marginal, marginal, result, progress)
-    final = _to_trajectory(
-        problem, _states_from_values(problem, result, covariances), "isam2", smoothed=True
-    )
-    filtered = _to_trajectory(
-        problem, online_states, "isam2-online", smoothed=False
-    )
-    _merge_info(
-        final,
-        _gnss_report(problem, result),
-        _extra_states(result),
-        _solver_report(report),
-        _vehicle_fit_report(problem, result),
-        _covariance_report(covariances),
-        {"python_callback_factors": _callback_factors(factors)},
-    )
-    _merge_info(filtered, _covariance_report(online), {"solver": "iSAM2 online (filtered)"})
-    timings = {
-        "incremental": incremental - started,
-        "final": time.perf_counter() - incremental,
-        "isam2_update_s": update_s.tolist(),
-    }
-    final.timings.update(timings)
-    filtered.timings.update(timings)
-    return final, filtered
+    timings = {"incremental": incremental - started, "isam2_update_s": update_s.tolist()}
+
+    def make_final() -> Trajectory:
+        marginal = _marginal_function(factors, result)
+        covariances = _marginal_covariances(problem, marginal, marginal, result, progress)
+        final = _to_trajectory(
+            problem, _states_from_values(problem, result, covariances), "isam2", smoothed=True
+        )
+        _merge_info(
+            final,
+            _gnss_report(problem, result),
+            _extra_states(result),
+            _solver_report(report),
+            _vehicle_fit_report(problem, result),
+            _covariance_report(covariances),
+            {"python_callback_factors": _callback_factors(factors)},
+        )
+        final.timings.update({**timings, "final": time.perf_counter() - incremental})
+        return final
+
+    def make_online() -> Trajectory:
+        filtered = _to_trajectory(problem, online_states, "isam2-online", smoothed=False)
+        _merge_info(
+            filtered,
+            _covariance_report(online),
+            {"solver": "iSAM2 online (filtered)", "fallback": report.fallback},
+        )
+        filtered.timings.update(timings)
+        return filtered
+
+    if online_first:
+        return make_online(), DeferredTrajectory(make_final)
+    return make_final(), DeferredTrajectory(make_online)
+
+
+class DeferredTrajectory:
+    """A trajectory made on first use: the other estimate of an iSAM2 run (online beside the
+    final one, or the reverse). Each is a full IMU-rate trajectory (~0.4 KB per IMU sample),
+    so a run makes only the one asked for until the other is used. Attribute access
+    forwards to the trajectory."""
+
+    def __init__(self, build: Callable[[], Trajectory]) -> None:
+        self._build: Callable[[], Trajectory] | None = build
+        self._value: Trajectory | None = None
+
+    def get(self) -> Trajectory:
+        if self._value is None:
+            assert self._build is not None
+            self._value, self._build = self._build(), None
+        return self._value
+
+    def __getattr__(self, name: str):
+        if name.startswith("_"):
+            raise AttributeError(name)
+        return getattr(self.get(), name)
+
+    def __len__(self) -> int:
+        return len(self.get())
 
 
 def _compact(graph: gtsam.NonlinearFactorGraph) -> gtsam.NonlinearFactorGraph:
@@ -990,9 +1025,10 @@ def smooth(
     if method == "batch":
         trajectory = smooth_batch(problem, progress, initial_guess)
     elif method in ("isam2", "isam2-online"):
-        final, filtered = smooth_isam2(problem, progress)
-        trajectory = final if method == "isam2" else filtered
-        trajectory.info["online"] = filtered if method == "isam2" else final
+        trajectory, other = smooth_isam2(
+            problem, progress, online_first=method == "isam2-online"
+        )
+        trajectory.info["online"] = other
     else:
         raise FginsError(f"unknown factor-graph method {method!r}")
     trajectory.timings["build"] = built - started
