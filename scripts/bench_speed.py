@@ -46,7 +46,7 @@ LIMITS = {
     "batch": "the forward-EKF initial guess (per-block numpy work, ~45 % of batch CPU on KITTI), "
     "Python per-keyframe loops (preintegration, factor building, covariances), then LM",
     "isam2": "per-update elimination of the affected cliques (p99 grows with relinearisation "
-    "sweeps), the Python per-keyframe loop, the EKF guess",
+    "sweeps), the Python per-keyframe loop (iSAM2 needs no initial guess)",
     "ekf": "Python loop over ~1 s blocks: per-block Phi/Q tree reduction (15x15 batched "
     "matmuls), GNSS/NHC updates; then the dense IMU-rate output (~0.8 KB per sample)",
     "gtsam-ref": "GTSAM C++ preintegration fed one sample per Python call, one LM solve",
