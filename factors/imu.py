@@ -37,7 +37,7 @@ def preintegration_params(
 # start). A constant bias is modelled by a floor on the walk tied to the run: over the whole
 # run the bias may move by at most this fraction of its turn-on sigma, i.e. it is constant to
 # the estimator while every factor stays well-conditioned.
-CONSTANT_BIAS_DRIFT_FRACTION = 1e-4
+CONSTANT_BIAS_DRIFT_FRACTION = 1e-3
 
 
 def conditioned_noise(noise: ImuNoise, span_s: float) -> tuple[ImuNoise, list[str]]:
