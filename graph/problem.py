@@ -12,7 +12,6 @@ from functools import cached_property
 import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import B, V, X
-from tqdm import tqdm
 
 from fgins.alignment import Alignment, initial_alignment
 from fgins.config import ImuNoise, RunConfig
@@ -267,6 +266,8 @@ class Problem:
 
     def preintegrate_all(self, accel_bias: np.ndarray, gyro_bias: np.ndarray, progress: bool) -> None:
         """Every interval about the bias estimate at its first keyframe (K, 3) each."""
+        from tqdm import tqdm  # imported on use, not with the module (import time)
+
         for i in tqdm(
             range(self.n_keyframes - 1), desc="preintegrating", unit="kf",
             disable=not progress, leave=False,
