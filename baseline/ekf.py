@@ -62,6 +62,7 @@ from fgins.baseline.mechanization import (
     augment_transition,
     block_times,
     block_transition,
+    coarse_block_transition,
     propagate_nominal,
     segment_imu,
 )
@@ -89,6 +90,10 @@ class EkfOptions:
 
     max_block_s: float = 1.0
     innovation_gate_probability: float | None = None
+    # None: each block's Phi and Q composed over every IMU sample (exact); n: over at most n
+    # merged sub-steps (:func:`~fgins.baseline.mechanization.coarse_block_transition`), the
+    # initial guess's setting (a start for the smoother, not an output).
+    transition_steps: int | None = None
 
     def __post_init__(self) -> None:
         if not self.max_block_s > 0:
@@ -96,6 +101,8 @@ class EkfOptions:
         p = self.innovation_gate_probability
         if p is not None and not 0.5 < p < 1.0:
             raise InputError(f"EKF: innovation_gate_probability must be in (0.5, 1), got {p}")
+        if self.transition_steps is not None and self.transition_steps < 1:
+            raise InputError(f"EKF: transition_steps must be >= 1, got {self.transition_steps}")
 
 
 @dataclass
@@ -287,6 +294,9 @@ class FilterRecorder:
     """Runs the boundary updates (GNSS, then the vehicle/barometer pseudo-measurements) and
     records what the RTS smoother and the output need, for any forward filter."""
 
+    # Phi/Q of a block over every sample (None) or at most this many sub-steps (EkfOptions).
+    transition_steps: int | None = None
+
     def __init__(self, setup: FilterSetup, imu_t: np.ndarray, gyro: np.ndarray) -> None:
         self.setup = setup
         self._imu_t = imu_t
@@ -351,7 +361,15 @@ class FilterRecorder:
     ) -> tuple[np.ndarray, np.ndarray]:
         setup = self.setup
         dt = setup.segments.dt[span]
-        phi, q = block_transition(central, dt, setup.frame, setup.noise, setup.white_scale[span])
+        if self.transition_steps is None:
+            phi, q = block_transition(
+                central, dt, setup.frame, setup.noise, setup.white_scale[span]
+            )
+        else:
+            phi, q = coarse_block_transition(
+                central, dt, setup.frame, setup.noise, setup.white_scale[span],
+                self.transition_steps,
+            )  # fmt: skip
         return setup.block_process_noise(b, phi, q)
 
     def _counts(self) -> dict[str, int]:
@@ -957,6 +975,7 @@ def ekf_states_at(
         bias_sums = (sample_node, IntervalSums(np.concatenate([lo, hi]), 6))
     del node_t
     sampler = NodeSampler(setup, imu_t, dataset.imu.gyro, rows, bias_sums)
+    sampler.transition_steps = options.transition_steps
     nodes: SampledNodes = _ekf_forward(setup, sampler, config, options, progress)
     at = np.searchsorted(nodes.nodes, rows)  # each sample's row among the kept nodes
     xp = imu_t[samples]

@@ -13,6 +13,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
+from fgins.factors.values import put_double, put_pose, put_vector
 from fgins.factors.vehicle import _skew
 
 
@@ -38,11 +39,13 @@ def speed_factors(
     speed: np.ndarray,
     sigma: float,
     forward: np.ndarray,
+    point: gtsam.Values | None = None,
 ) -> list[gtsam.LinearContainerFactor]:
     """Odometer factors linearised at (poses, velocity, scale error), one per keyframe.
 
     ``forward``: the vehicle's x axis in IMU axes (row 0 of the mounting ``R_vi``).
-    Jacobians as in the NHC factor, times the scale, plus d/de = u_x.
+    Jacobians as in the NHC factor, times the scale, plus d/de = u_x. ``point``: Values
+    that already hold these states (as in :func:`fgins.factors.vehicle.nhc_factors`).
     """
     rotation = np.array([pose.rotation().matrix() for pose in poses]).reshape(-1, 3, 3)
     body_velocity = np.einsum("kji,kj->ki", rotation, velocity)
@@ -60,11 +63,13 @@ def speed_factors(
             scale_key(), np.array([[forward_speed[i]]]),
             np.array([-residual[i]]), noise,
         )  # fmt: skip
-        point = gtsam.Values()
-        point.insert_or_assign(int(pose_keys[i]), poses[i])
-        point.insert_or_assign(int(velocity_keys[i]), velocity[i])
-        point.insert_or_assign(scale_key(), scale_error)
-        out.append(gtsam.LinearContainerFactor(linear, point))
+        at = point
+        if at is None:
+            at = gtsam.Values()
+            put_pose(at, int(pose_keys[i]), poses[i])
+            put_vector(at, int(velocity_keys[i]), velocity[i])
+            put_double(at, scale_key(), scale_error)
+        out.append(gtsam.LinearContainerFactor(linear, at))
     return out
 
 

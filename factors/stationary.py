@@ -19,6 +19,44 @@ MIN_QUIET_SAMPLES = 5
 STEADY_T_LIMIT = 4.0  # two-sample t statistic above which a window's halves differ
 
 
+def _window_stats(
+    signal: np.ndarray, lo: np.ndarray, hi: np.ndarray, ddof: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and variance (K, 3) of ``signal`` (N, 3) over the sample windows ``[lo, hi)``
+    (overlapping allowed; NaN where a window has fewer than ddof + 1 samples).
+
+    Window sums by ``np.add.reduceat`` (each window summed on its own: no cumulative-sum
+    cancellation over a long drive), taken about each window's first sample so that the
+    variance E[x^2] - E[x]^2 is one of small numbers (a stop's scatter about its own level).
+    O(N + K), no Python loop per window.
+    """
+    n, width = signal.shape
+    if len(lo) == 0 or n == 0:
+        empty = np.full((len(lo), width), np.nan)
+        return empty, empty
+    lo = np.minimum(lo, n)
+    hi = np.minimum(hi, n)
+    count = (hi - lo).astype(float)[:, None]
+    padded = np.vstack([signal, np.zeros((1, width))])
+    bounds = np.empty(2 * len(lo), dtype=np.int64)
+    bounds[0::2], bounds[1::2] = lo, hi
+    # reduceat sums [bounds[i], bounds[i+1]): the even slots are the windows.
+    sums = np.add.reduceat(padded, bounds, axis=0)[0::2]
+    sums_sq = np.add.reduceat(padded**2, bounds, axis=0)[0::2]
+    centre = padded[lo]
+    total = sums - count * centre  # sum(x - c)
+    total_sq = sums_sq - 2.0 * centre * sums + count * centre**2  # sum((x - c)^2)
+    empty = count[:, 0] <= 0
+    total[empty], total_sq[empty] = 0.0, 0.0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean_rel = total / count
+        var = np.maximum(total_sq - count * mean_rel**2, 0.0) / (count - ddof)
+    var[count[:, 0] - ddof <= 0] = np.nan
+    mean = mean_rel + centre
+    mean[empty] = np.nan
+    return mean, var
+
+
 def steady_imu(
     imu_t: np.ndarray,
     signals: list[np.ndarray],
@@ -31,24 +69,27 @@ def steady_imu(
     For every axis, the difference of the means of the window's two halves is compared with
     its standard error from the window's own sample scatter (a two-sample t statistic), so
     vibration at rest does not count as motion while a ramp of any size does: a smooth start
-    from rest has tiny scatter but is not a stop.
+    from rest has tiny scatter but is not a stop. Vectorised over the windows (in chunks of
+    bounded memory), no Python loop per window.
     """
     times = np.asarray(times, dtype=float)
     lo = np.searchsorted(imu_t, times - before_s)
     hi = np.searchsorted(imu_t, times + after_s)
     steady = np.ones(len(times), dtype=bool)
-    for k, (a, b) in enumerate(zip(lo, hi, strict=True)):
-        half = (b - a) // 2
-        if half < 2:
-            continue  # too short to judge; the quiet test already refuses such windows
+    if len(times) == 0 or len(imu_t) == 0:
+        return steady
+    half = (hi - lo) // 2
+    judged = half >= 2  # too short to judge: the quiet test already refuses such windows
+    trending = np.zeros(len(times), dtype=bool)
+    with np.errstate(invalid="ignore", divide="ignore"):
         for signal in signals:
-            first, second = signal[a : a + half], signal[b - half : b]
-            spread = np.sqrt((first.var(axis=0, ddof=1) + second.var(axis=0, ddof=1)) / half)
-            difference = np.abs(second.mean(axis=0) - first.mean(axis=0))
+            first_mean, first_var = _window_stats(signal, lo, lo + half, 1)
+            second_mean, second_var = _window_stats(signal, hi - half, hi, 1)
+            spread = np.sqrt((first_var + second_var) / half[:, None])
+            difference = np.abs(second_mean - first_mean)
             # Exactly constant signals (synthetic, noise-free data) have zero spread: steady.
-            if np.any(difference > STEADY_T_LIMIT * spread + 1e-12):
-                steady[k] = False
-                break
+            trending |= np.any(difference > STEADY_T_LIMIT * spread + 1e-12, axis=1)
+    steady[judged & trending] = False
     return steady
 
 
@@ -65,7 +106,7 @@ def quiet_imu(
 
     Thresholds sit well above the sensor's own white noise at its sample rate and below what
     a moving road vehicle's vibration gives; with ``require_steady`` the window must also
-    show no trend (:func:`steady_imu`).
+    show no trend (:func:`steady_imu`). Vectorised over the windows (bounded-memory chunks).
     """
     rate = imu.rate_hz
     gyro_threshold = max(4.0 * noise.gyro_noise * np.sqrt(rate), 0.005)
@@ -74,15 +115,18 @@ def quiet_imu(
     times = np.asarray(times, dtype=float)
     lo = np.searchsorted(imu.t, times - before_s)
     hi = np.searchsorted(imu.t, times + after_s)
-    quiet = np.zeros(len(times), dtype=bool)
-    for k, (a, b) in enumerate(zip(lo, hi, strict=True)):
-        if b - a < MIN_QUIET_SAMPLES:
-            continue
-        gyro_std = imu.gyro[a:b].std(axis=0).max()
-        accel_std = imu.accel[a:b].std(axis=0).max()
+    if len(times) == 0 or len(imu.t) == 0:
+        return np.zeros(len(times), dtype=bool)
+    gyro_mean, gyro_var = _window_stats(imu.gyro, lo, hi, 0)
+    _, accel_var = _window_stats(imu.accel, lo, hi, 0)
+    with np.errstate(invalid="ignore"):
         # A steady turn is smooth too: the mean rate must be no more than a bias could give.
-        turning = np.linalg.norm(imu.gyro[a:b].mean(axis=0)) > turn_threshold
-        quiet[k] = gyro_std < gyro_threshold and accel_std < accel_threshold and not turning
+        quiet = (
+            (hi - lo >= MIN_QUIET_SAMPLES)
+            & (np.sqrt(gyro_var).max(axis=1) < gyro_threshold)
+            & (np.sqrt(accel_var).max(axis=1) < accel_threshold)
+            & ~(np.linalg.norm(gyro_mean, axis=1) > turn_threshold)
+        )
     if require_steady:
         quiet &= steady_imu(imu.t, [imu.accel, imu.gyro], times, before_s, after_s)
     return quiet

@@ -19,6 +19,8 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
+from fgins.factors.values import put_pose, put_vector
+
 
 def _skew(v: np.ndarray) -> np.ndarray:
     """Cross-product matrices of (K, 3) vectors: (K, 3, 3)."""
@@ -47,12 +49,15 @@ def nhc_factors(
     velocity: np.ndarray,
     select: np.ndarray,
     sigmas: np.ndarray,
+    point: gtsam.Values | None = None,
 ) -> list[gtsam.LinearContainerFactor]:
     """NHC factors linearised at (poses, velocity), one per keyframe given.
 
     Error ``S R^T v`` (S: :func:`nhc_rows`). With GTSAM's right perturbation R Exp(w),
     d(R^T v)/dw = [R^T v]x and d(R^T v)/dv = R^T; translation does not enter.
-    ``sigmas`` (K, 2): lateral and vertical, per keyframe.
+    ``sigmas`` (K, 2): lateral and vertical, per keyframe. ``point``: Values that already
+    hold (poses, velocity) under the keys (each factor copies only its own two keys from
+    it, in C++); without it a small Values is made per factor.
     """
     rotation = np.array([pose.rotation().matrix() for pose in poses]).reshape(-1, 3, 3)
     body_velocity = np.einsum("kji,kj->ki", rotation, velocity)
@@ -60,17 +65,23 @@ def nhc_factors(
     d_rotation = np.einsum("ij,kjl->kil", select, _skew(body_velocity))
     d_velocity = np.einsum("ij,klj->kil", select, rotation)  # S R^T
     out = []
-    zeros = np.zeros((2, 3))
+    d_pose = np.concatenate([d_rotation, np.zeros((len(poses), 2, 3))], axis=2)
+    noise_models: dict[tuple[float, float], gtsam.noiseModel.Diagonal] = {}
     for i in range(len(poses)):
+        sigma = (float(sigmas[i][0]), float(sigmas[i][1]))
+        noise = noise_models.get(sigma)
+        if noise is None:
+            noise = noise_models[sigma] = gtsam.noiseModel.Diagonal.Sigmas(np.array(sigma))
         linear = gtsam.JacobianFactor(
-            int(pose_keys[i]), np.hstack([d_rotation[i], zeros]),
-            int(velocity_keys[i]), d_velocity[i],
-            -residual[i], gtsam.noiseModel.Diagonal.Sigmas(sigmas[i]),
+            int(pose_keys[i]), d_pose[i], int(velocity_keys[i]), d_velocity[i],
+            -residual[i], noise,
         )  # fmt: skip
-        point = gtsam.Values()
-        point.insert_or_assign(int(pose_keys[i]), poses[i])
-        point.insert_or_assign(int(velocity_keys[i]), velocity[i])
-        out.append(gtsam.LinearContainerFactor(linear, point))
+        at = point
+        if at is None:
+            at = gtsam.Values()
+            put_pose(at, int(pose_keys[i]), poses[i])
+            put_vector(at, int(velocity_keys[i]), velocity[i])
+        out.append(gtsam.LinearContainerFactor(linear, at))
     return out
 
 

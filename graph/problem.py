@@ -22,6 +22,7 @@ from fgins.factors import imu as imu_model
 from fgins.factors import odometer as odometer_model
 from fgins.factors import stationary
 from fgins.factors import vehicle as vehicle_model
+from fgins.factors.values import put_double
 from fgins.geodesy import earth_rate_enu, normal_gravity
 from fgins.graph.keyframes import Segments, build_segments, keyframe_times
 from fgins.mounting import mounting_rotation
@@ -137,7 +138,7 @@ class Problem:
             velocity = np.array([values.atVector(V(int(k))) for k in nhc_k])
             for factor in vehicle_model.nhc_factors(
                 _keys(X, nhc_k), _keys(V, nhc_k), poses, velocity,
-                vehicle_model.nhc_rows(self.imu_to_vehicle), self.nhc_sigma[nhc_k],
+                vehicle_model.nhc_rows(self.imu_to_vehicle), self.nhc_sigma[nhc_k], values,
             ):  # fmt: skip
                 graph.add(factor)
         odo_k = all_k[np.isfinite(self.odometer_speed[all_k])] if self.has_odometer else all_k[:0]
@@ -147,7 +148,7 @@ class Problem:
             for factor in odometer_model.speed_factors(
                 _keys(X, odo_k), _keys(V, odo_k), poses, velocity,
                 values.atDouble(odometer_model.scale_key()), self.odometer_speed[odo_k],
-                self.config.smoother.odometer_sigma_m_per_s, self.imu_to_vehicle[0],
+                self.config.smoother.odometer_sigma_m_per_s, self.imu_to_vehicle[0], values,
             ):  # fmt: skip
                 graph.add(factor)
         return graph
@@ -238,14 +239,14 @@ class Problem:
         """Initial values of keyframe k's non-navigation states (barometer bias, odometer
         scale factor)."""
         if k == 0 and np.any(np.isfinite(self.odometer_speed)):
-            values.insert_or_assign(odometer_model.scale_key(), 0.0)
+            put_double(values, odometer_model.scale_key(), 0.0)
         if self.has_baro:
             key = baro_model.baro_key(k)
             previous = baro_model.baro_key(k - 1) if k > 0 else None
             if estimate is not None and previous is not None and estimate.exists(previous):
-                values.insert_or_assign(key, estimate.atDouble(previous))
+                put_double(values, key, estimate.atDouble(previous))
             else:
-                values.insert_or_assign(key, self.baro_bias0)
+                put_double(values, key, self.baro_bias0)
 
     def gnss_whitened_residuals(self, values: gtsam.Values) -> tuple[np.ndarray, np.ndarray]:
         """(times, |whitened residual|) of every GNSS position factor at an estimate."""

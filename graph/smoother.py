@@ -30,6 +30,7 @@ from fgins.config import RunConfig
 from fgins.datatypes import Dataset, FginsError, Trajectory
 from fgins.factors import odometer as odometer_model
 from fgins.factors import vehicle as vehicle_model
+from fgins.factors.values import put_bias, put_double, put_pose, put_vector
 from fgins.graph.output import KeyframeStates, densify
 from fgins.graph.problem import Problem, build_problem
 
@@ -131,9 +132,9 @@ def _dof(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> int:
 def _values_from_states(problem: Problem, guess: KeyframeGuess) -> gtsam.Values:
     values = gtsam.Values()
     for k in range(problem.n_keyframes):
-        values.insert_or_assign(X(k), gtsam.Pose3(gtsam.Rot3(guess.rotation[k]), guess.position[k]))
-        values.insert_or_assign(V(k), np.asarray(guess.velocity[k], dtype=float))
-        values.insert_or_assign(B(k), gtsam.imuBias.ConstantBias(guess.accel_bias[k], guess.gyro_bias[k]))
+        put_pose(values, X(k), gtsam.Pose3(gtsam.Rot3(guess.rotation[k]), guess.position[k]))
+        put_vector(values, V(k), guess.velocity[k])
+        put_bias(values, B(k), gtsam.imuBias.ConstantBias(guess.accel_bias[k], guess.gyro_bias[k]))
         problem.insert_extra_values(k, values)
     return values
 
@@ -190,9 +191,9 @@ def _dead_reckoning_guess(problem: Problem) -> gtsam.Values:
                 if np.all(np.isfinite(fd_velocity[g])):
                     velocity = fd_velocity[g]
                 state = gtsam.NavState(state.attitude(), problem.gnss_enu[g], velocity)
-        values.insert_or_assign(X(k), state.pose())
-        values.insert_or_assign(V(k), state.velocity())
-        values.insert_or_assign(B(k), bias)
+        put_pose(values, X(k), state.pose())
+        put_vector(values, V(k), state.velocity())
+        put_bias(values, B(k), bias)
         problem.insert_extra_values(k, values)
     return values
 
@@ -810,16 +811,17 @@ def _run_isam2_with(
         graph.push_back(keyframe)
         nonlinear.push_back(graph)
         point = gtsam.Values()
-        point.insert_or_assign(X(k), state.pose())
-        point.insert_or_assign(V(k), state.velocity())
+        pose, velocity = state.pose(), state.velocity()
+        put_pose(point, X(k), pose)
+        put_vector(point, V(k), velocity)
         if problem.has_odometer:
-            point.insert_or_assign(odometer_model.scale_key(), scale_error)
+            put_double(point, odometer_model.scale_key(), scale_error)
         graph.push_back(problem.linear_factors(point, np.array([k])))
-        linear_point.insert_or_assign(X(k), state.pose())
-        linear_point.insert_or_assign(V(k), state.velocity())
-        new_values.insert_or_assign(X(k), state.pose())
-        new_values.insert_or_assign(V(k), state.velocity())
-        new_values.insert_or_assign(B(k), bias)
+        put_pose(linear_point, X(k), pose)
+        put_vector(linear_point, V(k), velocity)
+        put_pose(new_values, X(k), pose)
+        put_vector(new_values, V(k), velocity)
+        put_bias(new_values, B(k), bias)
         problem.insert_extra_values(k, new_values)
         _isam2_step(isam, factorization, f"update at keyframe {k}", graph, new_values)
         try:
