@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Protocol
 
 import numpy as np
@@ -104,15 +105,48 @@ def skew(v: np.ndarray) -> np.ndarray:
 def so3_exp(phi: np.ndarray) -> np.ndarray:
     """Rodrigues' formula, vectorised over leading axes: (..., 3) -> (..., 3, 3)."""
     phi = np.asarray(phi, dtype=float)
-    angle = np.linalg.norm(phi, axis=-1)[..., None, None]
-    k = np.zeros((*phi.shape[:-1], 3, 3))
-    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -phi[..., 2], phi[..., 1], -phi[..., 0]
-    k[..., 1, 0], k[..., 2, 0], k[..., 2, 1] = phi[..., 2], -phi[..., 1], phi[..., 0]
+    if phi.shape == (3,):
+        return _so3_exp_one(phi)
+    squared = np.einsum("...i,...i->...", phi, phi)
+    angle = np.sqrt(squared)
     small = angle < 1e-8
     safe = np.where(small, 1.0, angle)
-    a = np.where(small, 1.0 - angle**2 / 6.0, np.sin(safe) / safe)
-    b = np.where(small, 0.5 - angle**2 / 24.0, (1.0 - np.cos(safe)) / safe**2)
-    return np.eye(3) + a * k + b * (k @ k)
+    a = np.where(small, 1.0 - squared / 6.0, np.sin(safe) / safe)
+    b = np.where(small, 0.5 - squared / 24.0, (1.0 - np.cos(safe)) / safe**2)
+    # I + a [phi]x + b [phi]x^2 with [phi]x^2 = phi phi^T - |phi|^2 I: elementwise, no
+    # batched 3x3 matmul (this runs for every IMU sample in the Kalman baselines).
+    ap = a[..., None] * phi
+    out = b[..., None, None] * (phi[..., :, None] * phi[..., None, :])
+    diagonal = 1.0 - b * squared
+    out[..., 0, 0] += diagonal
+    out[..., 1, 1] += diagonal
+    out[..., 2, 2] += diagonal
+    out[..., 0, 1] -= ap[..., 2]
+    out[..., 0, 2] += ap[..., 1]
+    out[..., 1, 2] -= ap[..., 0]
+    out[..., 1, 0] += ap[..., 2]
+    out[..., 2, 0] -= ap[..., 1]
+    out[..., 2, 1] += ap[..., 0]
+    return out
+
+
+def _so3_exp_one(phi: np.ndarray) -> np.ndarray:
+    """:func:`so3_exp` of one rotation vector, in Python floats (no array overhead)."""
+    x, y, z = float(phi[0]), float(phi[1]), float(phi[2])
+    squared = x * x + y * y + z * z
+    if squared < 1e-16:
+        a, b = 1.0 - squared / 6.0, 0.5 - squared / 24.0
+    else:
+        angle = math.sqrt(squared)
+        a, b = math.sin(angle) / angle, (1.0 - math.cos(angle)) / squared
+    d = 1.0 - b * squared
+    return np.array(
+        [
+            [d + b * x * x, b * x * y - a * z, b * x * z + a * y],
+            [b * y * x + a * z, d + b * y * y, b * y * z - a * x],
+            [b * z * x - a * y, b * z * y + a * x, d + b * z * z],
+        ]
+    )
 
 
 def so3_log(r: np.ndarray) -> np.ndarray:

@@ -506,9 +506,12 @@ class NodeSampler(FilterRecorder):
         sample_node, sums = self.bias_sums
         a, b = np.searchsorted(sample_node, [first, stop])
         local = sample_node[a:b] - first
-        sums.add(
-            np.nan_to_num(np.hstack([nodes.accel_bias[local], nodes.gyro_bias[local]]))
-        )
+        values = np.empty((len(local), 6))
+        values[:, :3] = nodes.accel_bias[local]
+        values[:, 3:] = nodes.gyro_bias[local]
+        if not np.isfinite(values).all():  # the same numbers as nan_to_num, at less cost
+            values = np.nan_to_num(values)
+        sums.add(values)
 
     def store_nodes(self, span: slice, nodes: NominalState) -> None:
         self._add_biases(span.start, span.stop, nodes)

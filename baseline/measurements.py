@@ -112,7 +112,11 @@ def linearize_gnss(
     n_velocity = 0
     use = np.isfinite(epochs.velocity_sigma[g]) & np.isfinite(epochs.velocity[g])
     if use[0] and use[1]:
-        arm_velocity = rotation @ np.cross(body_rate, lever_arm)
+        w, arm = body_rate, lever_arm  # w x l written out: np.cross's axis handling costs
+        arm_velocity = rotation @ np.array(  # more than the product (issue 9)
+            [w[1] * arm[2] - w[2] * arm[1], w[2] * arm[0] - w[0] * arm[2],
+             w[0] * arm[1] - w[1] * arm[0]]
+        )  # fmt: skip
         h = np.zeros((3, STATE_DIM))
         h[:, VEL] = np.eye(3)
         h[:, ATT] = -skew_batch(arm_velocity)

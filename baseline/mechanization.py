@@ -227,6 +227,29 @@ def cross_const(w: np.ndarray, v: np.ndarray) -> np.ndarray:
     return out
 
 
+_EARTH_TURNS: dict[bytes, np.ndarray] = {}
+_EARTH_TURNS_MAX = 64
+
+
+def _earth_turn(w_ie: np.ndarray, dt: np.ndarray) -> np.ndarray:
+    """The Earth's rotation (n+1, 3, 3) from a block's start to each of its nodes.
+
+    It depends on the block's sample intervals only, and a regular IMU gives the same few
+    patterns block after block: cached (the same numbers, computed once per pattern; issue 9).
+    Read-only: callers must not write into it.
+    """
+    key = w_ie.tobytes() + dt.tobytes()
+    turn = _EARTH_TURNS.get(key)
+    if turn is None:
+        elapsed = np.concatenate([[0.0], np.cumsum(dt)])
+        turn = so3_exp(-w_ie[None, :] * elapsed[:, None])
+        turn.flags.writeable = False
+        if len(_EARTH_TURNS) >= _EARTH_TURNS_MAX:
+            _EARTH_TURNS.pop(next(iter(_EARTH_TURNS)))
+        _EARTH_TURNS[key] = turn
+    return turn
+
+
 def propagate_nominal(
     state: NominalState, gyro: np.ndarray, accel: np.ndarray, dt: np.ndarray, frame: NavFrame
 ) -> BlockNominal:
@@ -235,8 +258,7 @@ def propagate_nominal(
     bg = state.gyro_bias[..., None, :]
     ba = state.accel_bias[..., None, :]
     steps = so3_exp((gyro - bg) * dt[:, None])  # (..., n, 3, 3)
-    elapsed = np.concatenate([[0.0], np.cumsum(dt)])
-    earth_turn = so3_exp(-w_ie[None, :] * elapsed[:, None])  # (n+1, 3, 3)
+    earth_turn = _earth_turn(w_ie, dt)  # (n+1, 3, 3)
     rotation = earth_turn @ state.rotation[..., None, :, :] @ prefix_products(steps)
     f_nav = np.einsum("...nij,...nj->...ni", rotation[..., :-1, :, :], accel - ba)
     a_free = f_nav + frame.gravity  # acceleration without the Coriolis term

@@ -85,6 +85,30 @@ def nhc_factors(
     return out
 
 
+def nhc_factor(
+    pose_key: int,
+    velocity_key: int,
+    rotation: np.ndarray,
+    velocity: np.ndarray,
+    select: np.ndarray,
+    sigmas: np.ndarray,
+    point: gtsam.Values,
+) -> gtsam.LinearContainerFactor:
+    """One keyframe's NHC factor, as :func:`nhc_factors` makes it (the same Jacobians), with
+    the few 3x3 operations of one keyframe instead of the batched ones: an iSAM2 update adds
+    one keyframe at a time, where the batched path's fixed cost dominated (issue 9).
+    ``point`` holds the pose and velocity under the keys."""
+    rotation_t = rotation.T
+    body_velocity = rotation_t @ velocity
+    d_pose = np.zeros((2, 6))
+    d_pose[:, :3] = select @ _skew(body_velocity)
+    linear = gtsam.JacobianFactor(
+        int(pose_key), d_pose, int(velocity_key), select @ rotation_t,
+        -(select @ body_velocity), gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, float)),
+    )  # fmt: skip
+    return gtsam.LinearContainerFactor(linear, point)
+
+
 def zero_velocity_factor(velocity_key: int, sigma: float) -> gtsam.PriorFactorVector:
     """The vehicle stands still: navigation-frame velocity is zero."""
     return gtsam.PriorFactorVector(

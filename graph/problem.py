@@ -112,6 +112,10 @@ class Problem:
         return imu_model.combined_imu_factor(i, i + 1, pim)
 
     @cached_property
+    def _nhc_rows(self) -> np.ndarray:
+        return vehicle_model.nhc_rows(self.imu_to_vehicle)
+
+    @cached_property
     def has_odometer(self) -> bool:
         return bool(np.any(np.isfinite(self.odometer_speed)))
 
@@ -133,7 +137,15 @@ class Problem:
         graph = gtsam.NonlinearFactorGraph()
         all_k = np.arange(self.n_keyframes) if keyframes is None else np.asarray(keyframes)
         nhc_k = all_k if self.config.smoother.nhc else all_k[:0]
-        if len(nhc_k):
+        if len(nhc_k) == 1:  # one keyframe (an iSAM2 update): no batching overhead
+            k = int(nhc_k[0])
+            graph.add(
+                vehicle_model.nhc_factor(
+                    X(k), V(k), values.atPose3(X(k)).rotation().matrix(), values.atVector(V(k)),
+                    self._nhc_rows, self.nhc_sigma[k], values,
+                )
+            )  # fmt: skip
+        elif len(nhc_k):
             poses = [values.atPose3(X(int(k))) for k in nhc_k]
             velocity = np.array([values.atVector(V(int(k))) for k in nhc_k])
             for factor in vehicle_model.nhc_factors(
