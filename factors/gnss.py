@@ -294,3 +294,55 @@ def velocity_factor(velocity_key: int, velocity_enu: np.ndarray, sigma: np.ndarr
     return gtsam.PriorFactorVector(
         velocity_key, np.asarray(velocity_enu, dtype=float), gtsam.noiseModel.Diagonal.Sigmas(sigma)
     )
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def antenna_velocity(
+    rotation: np.ndarray, velocity: np.ndarray, body_rate: np.ndarray, lever_arm: np.ndarray
+) -> np.ndarray:
+    """Navigation-frame velocity of an antenna ``lever_arm`` (body axes) away from the IMU:
+    ``v + R (w x l)``, with ``w`` the body angular rate (bias-corrected)."""
+    return np.asarray(velocity, float) + np.asarray(rotation, float) @ np.cross(body_rate, lever_arm)
+
+
+def antenna_velocity_factor(
+    pose_key: int,
+    velocity_key: int,
+    bias_key: int,
+    rotation: np.ndarray,
+    velocity: np.ndarray,
+    gyro: np.ndarray,
+    gyro_bias: np.ndarray,
+    lever_arm: np.ndarray,
+    measured: np.ndarray,
+    sigma: np.ndarray,
+    point,  # gtsam.Values holding the pose, velocity and bias under the keys
+):  # -> gtsam.LinearContainerFactor
+    """GNSS Doppler velocity of an antenna off the IMU, linearised at ``point``.
+
+    The antenna moves at ``v + R ((g - b_g) x l)``: in a turn or a roll a lever arm of a metre
+    adds tenths of a m/s, the size of a receiver's velocity sigma, which a plain prior on V
+    would book as IMU error. GTSAM has no such factor and a Python callback would see the
+    whole Values per evaluation (issue 9), so it is a ``JacobianFactor`` rebuilt at each new
+    estimate, like the NHC (exact at convergence). With GTSAM's right perturbations
+    R Exp(t) and b + db: d/dt = -R [c]x (c = w x l), d/dv = I, d/db_g = R [l]x.
+    """
+    import gtsam
+
+    rotation = np.asarray(rotation, dtype=float)
+    lever_arm = np.asarray(lever_arm, dtype=float)
+    rate = np.asarray(gyro, dtype=float) - np.asarray(gyro_bias, dtype=float)
+    offset = np.cross(rate, lever_arm)
+    residual = np.asarray(velocity, float) + rotation @ offset - np.asarray(measured, float)
+    d_pose = np.zeros((3, 6))
+    d_pose[:, :3] = -rotation @ _skew(offset)
+    d_bias = np.zeros((3, 6))  # ConstantBias tangent: accelerometer, then gyroscope
+    d_bias[:, 3:] = rotation @ _skew(lever_arm)
+    linear = gtsam.JacobianFactor(
+        int(pose_key), d_pose, int(velocity_key), np.eye(3), int(bias_key), d_bias,
+        -residual, gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigma, dtype=float)),
+    )  # fmt: skip
+    return gtsam.LinearContainerFactor(linear, point)

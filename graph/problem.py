@@ -43,6 +43,7 @@ class Problem:
     gnss_enu: np.ndarray  # usable epochs, ENU
     gnss_sigma: np.ndarray
     gnss_velocity: np.ndarray
+    gnss_gyro: np.ndarray  # (M, 3) the gyro sample held at each used GNSS epoch (lever arm)
     gnss_velocity_sigma: np.ndarray
     alignment: Alignment
     gravity: np.ndarray
@@ -120,6 +121,11 @@ class Problem:
         return bool(np.any(np.isfinite(self.odometer_speed)))
 
     @property
+    def has_linear_factors(self) -> bool:
+        """Does :meth:`linear_factors` make anything (then the solvers rebuild it)?"""
+        return self.config.smoother.nhc or self.has_odometer or self.has_antenna_velocity
+
+    @property
     def nhc_keyframes(self) -> np.ndarray:
         """Keyframes that carry a non-holonomic constraint."""
         if not self.config.smoother.nhc:
@@ -153,6 +159,20 @@ class Problem:
                 vehicle_model.nhc_rows(self.imu_to_vehicle), self.nhc_sigma[nhc_k], values,
             ):  # fmt: skip
                 graph.add(factor)
+        if self.has_antenna_velocity:
+            for k in all_k[self.gnss_at[all_k] >= 0]:
+                measured = self.gnss_velocity_at(int(k))
+                if measured is None:
+                    continue
+                key = int(k)
+                graph.add(
+                    gnss_model.antenna_velocity_factor(
+                        X(key), V(key), B(key), values.atPose3(X(key)).rotation().matrix(),
+                        values.atVector(V(key)), self.gnss_gyro[int(self.gnss_at[key])],
+                        values.atConstantBias(B(key)).gyroscope(), self._lever_arm,
+                        *measured, values,
+                    )
+                )  # fmt: skip
         odo_k = all_k[np.isfinite(self.odometer_speed[all_k])] if self.has_odometer else all_k[:0]
         if len(odo_k):
             poses = [values.atPose3(X(int(k))) for k in odo_k]
@@ -168,7 +188,8 @@ class Problem:
     def linear_factor_count(self, k: int) -> int:
         """How many factors :meth:`linear_factors` makes for keyframe k."""
         nhc = 1 if self.config.smoother.nhc else 0
-        return nhc + int(self.has_odometer and np.isfinite(self.odometer_speed[k]))
+        antenna = int(self.has_antenna_velocity and self.gnss_velocity_at(k) is not None)
+        return nhc + antenna + int(self.has_odometer and np.isfinite(self.odometer_speed[k]))
 
     def _add_gnss(self, graph: gtsam.NonlinearFactorGraph, k: int) -> None:
         g = int(self.gnss_at[k])
@@ -177,15 +198,45 @@ class Problem:
         graph.add(
             gnss_model.position_factor(X(k), self.gnss_enu[g], self.gnss_sigma[g], self.config.gnss)
         )
+        measured = self.gnss_velocity_at(k)
+        if measured is not None and not self.has_antenna_velocity:
+            graph.add(gnss_model.velocity_factor(V(k), *measured))
+
+    def gnss_velocity_at(self, k: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """(velocity, sigma) of keyframe k's GNSS velocity, or None where it has none."""
+        g = int(self.gnss_at[k])
+        if g < 0:
+            return None
         velocity = self.gnss_velocity[g].copy()
         sigma = self.gnss_velocity_sigma[g].copy()
         # The noise model leaves a velocity out (NaN sigma) where it is not trustworthy, e.g.
         # a course at walking speed.
         if not (self.config.gnss.use_velocity and np.all(np.isfinite(sigma[:2]))):
-            return
+            return None
         if not np.isfinite(velocity[2]) or not np.isfinite(sigma[2]):
             velocity[2], sigma[2] = 0.0, 1e3  # horizontal-only (speed + course): vertical free
-        graph.add(gnss_model.velocity_factor(V(k), velocity, sigma))
+        return velocity, sigma
+
+    @property
+    def has_antenna_velocity(self) -> bool:
+        """GNSS velocities are the antenna's, off the IMU by a lever arm: they go in as the
+        linearised :func:`fgins.factors.gnss.antenna_velocity_factor` (the lever-arm
+        velocity R (w x l) depends on the attitude and the gyro bias)."""
+        return self.config.gnss.use_velocity and bool(np.any(self._lever_arm != 0))
+
+    @property
+    def _lever_arm(self) -> np.ndarray:
+        return np.asarray(self.config.gnss.lever_arm_m, dtype=float)
+
+    @property
+    def antenna_velocity_keyframes(self) -> np.ndarray:
+        """Keyframes whose GNSS velocity is an :func:`antenna_velocity_factor`."""
+        if not self.has_antenna_velocity:
+            return np.zeros(0, dtype=int)
+        return np.array(
+            [k for k in np.flatnonzero(self.gnss_at >= 0) if self.gnss_velocity_at(k) is not None],
+            dtype=int,
+        )
 
     def _add_stop(
         self, graph: gtsam.NonlinearFactorGraph, k: int, predicted_speed: float | None
@@ -428,6 +479,7 @@ def build_problem(
         gnss_enu=enu,
         gnss_sigma=sigma,
         gnss_velocity=gnss.velocity,
+        gnss_gyro=imu.gyro[np.clip(np.searchsorted(imu.t, gnss.t, side="right") - 1, 0, len(imu) - 1)],
         gnss_velocity_sigma=velocity_sigma,
         alignment=alignment,
         gravity=np.array([0.0, 0.0, -normal_gravity(dataset.origin.lat, dataset.origin.alt)]),

@@ -506,7 +506,7 @@ def _lm(
 
 def _linearisation_moved(problem: Problem, before: gtsam.Values, after: gtsam.Values) -> bool:
     """Did any keyframe carrying a linearised factor move beyond the relinearisation limits?"""
-    for k in problem.nhc_keyframes if problem.config.smoother.nhc else []:
+    for k in np.union1d(problem.nhc_keyframes, problem.antenna_velocity_keyframes):
         a, b = before.atPose3(X(int(k))), after.atPose3(X(int(k)))
         if np.max(np.abs(a.rotation().localCoordinates(b.rotation()))) > RELINEARIZE_ATTITUDE_RAD:
             return True
@@ -524,7 +524,7 @@ def _solve(
     vehicle constraints until neither changes anything. Returns (solution, the exact graph
     at it)."""
     max_iterations = problem.config.smoother.batch_max_iterations
-    has_linear = problem.config.smoother.nhc or problem.has_odometer
+    has_linear = problem.has_linear_factors
     nonlinear = _nonlinear_graph(problem, speeds)
     settled = False
     previous_error = math.inf
@@ -834,6 +834,7 @@ def _run_isam2_with(
         pose, velocity = state.pose(), state.velocity()
         put_pose(point, X(k), pose)
         put_vector(point, V(k), velocity)
+        put_bias(point, B(k), bias)  # the antenna velocity's lever-arm term needs it
         if problem.has_odometer:
             put_double(point, odometer_model.scale_key(), scale_error)
         graph.push_back(problem.linear_factors(point, np.array([k])))
@@ -886,7 +887,7 @@ def _run_isam2_with(
             problem.preintegrate(i, estimate.atConstantBias(B(i)))
             nonlinear.replace(imu_index[i], problem.imu_factor(i))
         report.repreintegrated += len(redone)
-        has_linear = problem.config.smoother.nhc or problem.has_odometer
+        has_linear = problem.has_linear_factors
         if not redone and not (has_linear and _linearisation_moved(problem, linear_point, estimate)):
             break
         graph = gtsam.NonlinearFactorGraph()

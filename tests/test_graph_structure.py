@@ -57,15 +57,26 @@ def test_vehicle_factors_are_linearised_and_exact_at_their_point():
     """The NHC enters as linear (C++) factors whose error at their own linearisation point is
     the exact nonlinear NHC error: the batch error at convergence is the true one."""
     from fgins.factors import vehicle
+    from fgins.factors.gnss import antenna_velocity
 
     problem, values = _car_problem(40.0, wheel=False)
     linear = problem.linear_factors(values)
-    assert linear.size() == problem.n_keyframes
+    # car-urban's antenna sits off the IMU: its GNSS velocities are linearised factors too.
+    antenna_k = problem.antenna_velocity_keyframes
+    assert len(antenna_k) > 20
+    assert linear.size() == problem.n_keyframes + len(antenna_k)
     rotation = np.array([values.atPose3(gtsam.symbol("x", k)).rotation().matrix()
                          for k in range(problem.n_keyframes)])
     velocity = np.array([values.atVector(gtsam.symbol("v", k)) for k in range(problem.n_keyframes)])
     residual = vehicle.nhc_residuals(rotation, velocity, vehicle.nhc_rows(problem.imu_to_vehicle))
     exact = 0.5 * np.sum((residual / problem.nhc_sigma) ** 2)
+    lever = np.asarray(problem.config.gnss.lever_arm_m, dtype=float)
+    for k in antenna_k:
+        measured, sigma = problem.gnss_velocity_at(int(k))
+        gyro_bias = values.atConstantBias(gtsam.symbol("b", int(k))).gyroscope()
+        rate = problem.gnss_gyro[problem.gnss_at[k]] - gyro_bias
+        predicted = antenna_velocity(rotation[k], velocity[k], rate, lever)
+        exact += 0.5 * np.sum(((predicted - measured) / sigma) ** 2)
     assert np.isclose(linear.error(values), exact, rtol=1e-9)
 
 
