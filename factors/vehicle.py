@@ -40,6 +40,31 @@ def nhc_residuals(rotation: np.ndarray, velocity: np.ndarray, select: np.ndarray
     return body_velocity @ select.T
 
 
+def misalignment_key(k: int) -> int:
+    """Keyframe k's NHC misalignment state (2,): lateral and vertical velocity per unit of
+    forward speed (small angles, rad) that the vehicle really has at the IMU."""
+    return gtsam.symbol("n", int(k))
+
+
+def misalignment_prior(key: int, sigma_rad: float) -> gtsam.PriorFactorVector:
+    """The first keyframe's NHC misalignment: zero (the configured mounting) +- sigma."""
+    return gtsam.PriorFactorVector(
+        key, np.zeros(2), gtsam.noiseModel.Isotropic.Sigma(2, max(sigma_rad, 1e-9))
+    )
+
+
+def misalignment_walk_factor(
+    key_a: int, key_b: int, dt: float, walk_rad_per_sqrt_s: float | np.ndarray
+) -> gtsam.BetweenFactorVector:
+    """Random walk of the NHC misalignment between two keyframes ``dt`` apart (lateral,
+    vertical walks; a zero walk holds it constant, up to a 1e-7 rad floor)."""
+    walk = np.broadcast_to(np.asarray(walk_rad_per_sqrt_s, dtype=float), (2,))
+    sigma = np.maximum(walk * np.sqrt(max(dt, 1e-6)), 1e-7)
+    return gtsam.BetweenFactorVector(
+        key_a, key_b, np.zeros(2), gtsam.noiseModel.Diagonal.Sigmas(sigma)
+    )
+
+
 def nhc_factors(
     pose_keys: np.ndarray,
     velocity_keys: np.ndarray,
@@ -47,29 +72,65 @@ def nhc_factors(
     velocity: np.ndarray,
     select: np.ndarray,
     sigmas: np.ndarray,
+    misalignment_keys: np.ndarray | None = None,
+    misalignment: np.ndarray | None = None,
+    forward: np.ndarray | None = None,
+    offset: np.ndarray | None = None,
 ) -> list[gtsam.LinearContainerFactor]:
-    """NHC factors linearised at (poses, velocity), one per keyframe given.
+    """NHC factors linearised at (poses, velocity[, misalignment]), one per keyframe given.
 
     Error ``S R^T v`` (S: :func:`nhc_rows`). With GTSAM's right perturbation R Exp(w),
     d(R^T v)/dw = [R^T v]x and d(R^T v)/dv = R^T; translation does not enter.
     ``sigmas`` (K, 2): lateral and vertical, per keyframe.
+
+    With ``misalignment_keys`` (and their values ``misalignment`` (K, 2) and the vehicle's
+    forward axis in IMU axes ``forward``, row 0 of ``R_vi``), the error is
+    ``S R^T v - m u_f`` with ``u_f = f^T R^T v``: the lateral and vertical velocity a real
+    car has at the IMU in proportion to its speed (a residual mounting error, crab, slowly
+    varying slip), a random-walk state instead of white noise the constraint would average
+    down. ``offset`` (K, 2): the constraint point's velocity relative to the IMU (a lever
+    arm times the angular rate), added to the IMU's: the NHC holds at that point.
     """
     rotation = np.array([pose.rotation().matrix() for pose in poses]).reshape(-1, 3, 3)
     body_velocity = np.einsum("kji,kj->ki", rotation, velocity)
     residual = body_velocity @ select.T
-    d_rotation = np.einsum("ij,kjl->kil", select, _skew(body_velocity))
+    if offset is not None:
+        residual = residual + offset
+    skew = _skew(body_velocity)
+    d_rotation = np.einsum("ij,kjl->kil", select, skew)
     d_velocity = np.einsum("ij,klj->kil", select, rotation)  # S R^T
+    estimated = misalignment_keys is not None
+    if estimated:
+        if misalignment is None or forward is None:
+            raise ValueError("misalignment_keys need misalignment values and forward")
+        f = np.asarray(forward, dtype=float)
+        forward_speed = body_velocity @ f  # (K,)
+        m = np.asarray(misalignment, dtype=float).reshape(-1, 2)
+        residual = residual - m * forward_speed[:, None]
+        d_rotation = d_rotation - np.einsum("ki,j,kjl->kil", m, f, skew)
+        d_velocity = d_velocity - np.einsum("ki,j,klj->kil", m, f, rotation)
+        d_misalignment = -forward_speed[:, None, None] * np.eye(2)
     out = []
     zeros = np.zeros((2, 3))
     for i in range(len(poses)):
-        linear = gtsam.JacobianFactor(
-            int(pose_keys[i]), np.hstack([d_rotation[i], zeros]),
-            int(velocity_keys[i]), d_velocity[i],
-            -residual[i], gtsam.noiseModel.Diagonal.Sigmas(sigmas[i]),
-        )  # fmt: skip
+        noise = gtsam.noiseModel.Diagonal.Sigmas(sigmas[i])
         point = gtsam.Values()
         point.insert_or_assign(int(pose_keys[i]), poses[i])
         point.insert_or_assign(int(velocity_keys[i]), velocity[i])
+        if estimated:
+            linear = gtsam.JacobianFactor(
+                int(pose_keys[i]), np.hstack([d_rotation[i], zeros]),
+                int(velocity_keys[i]), d_velocity[i],
+                int(misalignment_keys[i]), d_misalignment[i],
+                -residual[i], noise,
+            )  # fmt: skip
+            point.insert_or_assign(int(misalignment_keys[i]), m[i])
+        else:
+            linear = gtsam.JacobianFactor(
+                int(pose_keys[i]), np.hstack([d_rotation[i], zeros]),
+                int(velocity_keys[i]), d_velocity[i],
+                -residual[i], noise,
+            )  # fmt: skip
         out.append(gtsam.LinearContainerFactor(linear, point))
     return out
 
