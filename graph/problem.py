@@ -22,7 +22,7 @@ from fgins.factors import imu as imu_model
 from fgins.factors import odometer as odometer_model
 from fgins.factors import stationary
 from fgins.factors import vehicle as vehicle_model
-from fgins.factors.values import put_double
+from fgins.factors.values import put_double, put_vector
 from fgins.geodesy import earth_rate_enu, normal_gravity
 from fgins.graph.keyframes import Segments, build_segments, keyframe_times
 from fgins.mounting import mounting_rotation
@@ -53,6 +53,9 @@ class Problem:
     odometer_speed: np.ndarray  # (K,) mean wheel speed (m/s) around keyframe k, NaN where none
     imu_to_vehicle: np.ndarray  # R_vi: IMU axes -> vehicle axes (fgins.mounting)
     nhc_sigma: np.ndarray  # (K, 2) lateral, vertical NHC sigma per keyframe
+    # (K, 2) lateral, vertical velocity of the non-holonomic point relative to the IMU
+    # (yaw/pitch rate times the configured lever arm), added to the IMU's in the NHC
+    nhc_offset: np.ndarray
     gnss_mask: np.ndarray | None = None  # the caller's withheld epochs (outages), True = keep
     info: dict[str, object] = field(default_factory=dict)
     zupt_keyframes: set[int] = field(default_factory=set)
@@ -101,6 +104,7 @@ class Problem:
             graph.add(self.imu_factor(k - 1))
         self._add_gnss(graph, k)
         self._add_stop(graph, k, predicted_speed)
+        self._add_misalignment(graph, k)
         if k == 0 and self.has_odometer:
             graph.add(odometer_model.scale_prior(self.config.smoother.odometer_scale_sigma))
         self._add_baro(graph, k)
@@ -126,6 +130,29 @@ class Problem:
         return self.config.smoother.nhc or self.has_odometer or self.has_antenna_velocity
 
     @property
+    def estimates_misalignment(self) -> bool:
+        """Does the NHC carry a misalignment state (:func:`vehicle_model.misalignment_key`)?"""
+        smoother = self.config.smoother
+        return smoother.nhc and smoother.nhc_misalignment_prior_deg > 0.0
+
+    def _add_misalignment(self, graph: gtsam.NonlinearFactorGraph, k: int) -> None:
+        """The NHC misalignment's prior (k = 0) or its random walk from k - 1."""
+        if not self.estimates_misalignment:
+            return
+        smoother = self.config.smoother
+        key = vehicle_model.misalignment_key
+        if k == 0:
+            sigma = np.radians(smoother.nhc_misalignment_prior_deg)
+            graph.add(vehicle_model.misalignment_prior(key(0), sigma))
+            return
+        walk = np.radians([
+            smoother.nhc_misalignment_walk_deg_per_sqrt_s,
+            smoother.nhc_misalignment_vertical_walk_deg_per_sqrt_s,
+        ])  # fmt: skip
+        dt = float(self.segments.times[k] - self.segments.times[k - 1])
+        graph.add(vehicle_model.misalignment_walk_factor(key(k - 1), key(k), dt, walk))
+
+    @property
     def nhc_keyframes(self) -> np.ndarray:
         """Keyframes that carry a non-holonomic constraint."""
         if not self.config.smoother.nhc:
@@ -145,18 +172,34 @@ class Problem:
         nhc_k = all_k if self.config.smoother.nhc else all_k[:0]
         if len(nhc_k) == 1:  # one keyframe (an iSAM2 update): no batching overhead
             k = int(nhc_k[0])
+            key = vehicle_model.misalignment_key(k) if self.estimates_misalignment else None
+            if key is not None and not values.exists(key):
+                put_vector(values, key, np.zeros(2))  # not estimated yet: its initial value
             graph.add(
                 vehicle_model.nhc_factor(
                     X(k), V(k), values.atPose3(X(k)).rotation().matrix(), values.atVector(V(k)),
-                    self._nhc_rows, self.nhc_sigma[k], values,
+                    self._nhc_rows, self.nhc_sigma[k], values, key, self.imu_to_vehicle[0],
+                    self.nhc_offset[k],
                 )
             )  # fmt: skip
         elif len(nhc_k):
             poses = [values.atPose3(X(int(k))) for k in nhc_k]
             velocity = np.array([values.atVector(V(int(k))) for k in nhc_k])
+            misalignment_keys = misalignment = None
+            if self.estimates_misalignment:
+                misalignment_keys = np.array(
+                    [vehicle_model.misalignment_key(int(k)) for k in nhc_k], dtype=np.int64
+                )
+                # Not yet in ``values`` (an iSAM2 prediction): its initial value, zero.
+                misalignment = np.array([
+                    values.atVector(int(key)) if values.exists(int(key)) else np.zeros(2)
+                    for key in misalignment_keys
+                ])  # fmt: skip
             for factor in vehicle_model.nhc_factors(
                 _keys(X, nhc_k), _keys(V, nhc_k), poses, velocity,
                 vehicle_model.nhc_rows(self.imu_to_vehicle), self.nhc_sigma[nhc_k], values,
+                misalignment_keys, misalignment, self.imu_to_vehicle[0],
+                offset=self.nhc_offset[nhc_k],
             ):  # fmt: skip
                 graph.add(factor)
         if self.has_antenna_velocity:
@@ -299,8 +342,10 @@ class Problem:
     def insert_extra_values(
         self, k: int, values: gtsam.Values, estimate: gtsam.Values | None = None
     ) -> None:
-        """Initial values of keyframe k's non-navigation states (barometer bias, odometer
-        scale factor)."""
+        """Initial values of keyframe k's non-navigation states (NHC misalignment, barometer
+        bias, odometer scale factor)."""
+        if self.estimates_misalignment:
+            put_vector(values, vehicle_model.misalignment_key(k), np.zeros(2))
         if k == 0 and np.any(np.isfinite(self.odometer_speed)):
             put_double(values, odometer_model.scale_key(), 0.0)
         if self.has_baro:
@@ -467,6 +512,9 @@ def build_problem(
         [smoother.nhc_sigma_lateral_m_per_s, smoother.nhc_sigma_vertical_m_per_s],
         (len(times), 1),
     )
+    nhc_offset = _nhc_lever_velocity(
+        imu, times, imu_to_vehicle, smoother.nhc_lever_arm_m
+    ) if smoother.nhc else np.zeros((len(times), 2))  # fmt: skip
     return Problem(
         dataset=dataset,
         config=config,
@@ -489,6 +537,7 @@ def build_problem(
         odometer_speed=odometer_speed,
         imu_to_vehicle=imu_to_vehicle,
         nhc_sigma=nhc_sigma,
+        nhc_offset=nhc_offset,
         gnss_mask=gnss_mask,
         info={
             "gnss_gating": _gating_summary(
@@ -531,6 +580,21 @@ def _suspect_params(
             )
             out.update({int(i): params for i in inside})
     return out
+
+
+def _nhc_lever_velocity(
+    imu, times: np.ndarray, imu_to_vehicle: np.ndarray, lever_vehicle_m
+) -> np.ndarray:
+    """Lateral and vertical velocity (K, 2), vehicle axes, of the non-holonomic point
+    relative to the IMU at each keyframe: ``S (w x r)`` with ``r`` the point's position from
+    the IMU (given in vehicle axes, here in IMU axes) and ``w`` the mean gyro over +-0.05 s
+    (its bias, ~1e-4 rad/s, is negligible against yaw rates times a lever)."""
+    lever = np.asarray(lever_vehicle_m, dtype=float)
+    if not np.any(lever):
+        return np.zeros((len(times), 2))
+    gyro, _ = stationary.mean_gyro(imu, times, before_s=0.05, after_s=0.05)
+    lever_imu = np.asarray(imu_to_vehicle, dtype=float).T @ lever
+    return np.cross(np.nan_to_num(gyro), lever_imu) @ vehicle_model.nhc_rows(imu_to_vehicle).T
 
 
 def _decimate(t: np.ndarray, min_interval: float) -> np.ndarray:

@@ -22,6 +22,14 @@ runs per variant; ``--quick`` (50 s every 20 s) is 8.
 change against the same no-car runs); ``--baseline FILE`` reuses the no-car results of an
 earlier JSON output with the same windows, so a model experiment costs only the car runs.
 
+Runs are sequential: a KITTI batch keeps about one core busy, and on a 2-core machine the
+full sweep takes ~5 min for both variants (~3 min with ``--baseline``).
+
+Full sweep, car / no-car ratio (issue 12 item 7): white-noise NHC median 0.52, mean 0.59, max
+2.02, 16 of 124 windows > 10 % worse; with the NHC misalignment state (the default since)
+median 0.48, mean 0.57, max 1.66, 10 worse (320-380, 430-460, 300-350, 330-380, 130-160 s
+worst). Not yet the acceptance line.
+
 Examples::
 
     python scripts/bench_car_constraints.py --quick --out out/carcon
