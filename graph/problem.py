@@ -135,6 +135,19 @@ class Problem:
         smoother = self.config.smoother
         return smoother.nhc and smoother.nhc_misalignment_prior_deg > 0.0
 
+    @property
+    def constant_misalignment(self) -> bool:
+        """Zero walks: one misalignment for the whole drive (a mounting error), one key."""
+        smoother = self.config.smoother
+        return (
+            smoother.nhc_misalignment_walk_deg_per_sqrt_s == 0.0
+            and smoother.nhc_misalignment_vertical_walk_deg_per_sqrt_s == 0.0
+        )
+
+    def misalignment_key(self, k: int) -> int:
+        """The misalignment state keyframe k's NHC uses."""
+        return vehicle_model.misalignment_key(0 if self.constant_misalignment else k)
+
     def _add_misalignment(self, graph: gtsam.NonlinearFactorGraph, k: int) -> None:
         """The NHC misalignment's prior (k = 0) or its random walk from k - 1."""
         if not self.estimates_misalignment:
@@ -144,6 +157,8 @@ class Problem:
         if k == 0:
             sigma = np.radians(smoother.nhc_misalignment_prior_deg)
             graph.add(vehicle_model.misalignment_prior(key(0), sigma))
+            return
+        if self.constant_misalignment:
             return
         walk = np.radians([
             smoother.nhc_misalignment_walk_deg_per_sqrt_s,
@@ -172,7 +187,7 @@ class Problem:
         nhc_k = all_k if self.config.smoother.nhc else all_k[:0]
         if len(nhc_k) == 1:  # one keyframe (an iSAM2 update): no batching overhead
             k = int(nhc_k[0])
-            key = vehicle_model.misalignment_key(k) if self.estimates_misalignment else None
+            key = self.misalignment_key(k) if self.estimates_misalignment else None
             if key is not None and not values.exists(key):
                 put_vector(values, key, np.zeros(2))  # not estimated yet: its initial value
             graph.add(
@@ -188,7 +203,7 @@ class Problem:
             misalignment_keys = misalignment = None
             if self.estimates_misalignment:
                 misalignment_keys = np.array(
-                    [vehicle_model.misalignment_key(int(k)) for k in nhc_k], dtype=np.int64
+                    [self.misalignment_key(int(k)) for k in nhc_k], dtype=np.int64
                 )
                 # Not yet in ``values`` (an iSAM2 prediction): its initial value, zero.
                 misalignment = np.array([
@@ -344,8 +359,8 @@ class Problem:
     ) -> None:
         """Initial values of keyframe k's non-navigation states (NHC misalignment, barometer
         bias, odometer scale factor)."""
-        if self.estimates_misalignment:
-            put_vector(values, vehicle_model.misalignment_key(k), np.zeros(2))
+        if self.estimates_misalignment and (k == 0 or not self.constant_misalignment):
+            put_vector(values, self.misalignment_key(k), np.zeros(2))
         if k == 0 and np.any(np.isfinite(self.odometer_speed)):
             put_double(values, odometer_model.scale_key(), 0.0)
         if self.has_baro:

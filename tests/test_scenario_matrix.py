@@ -192,10 +192,14 @@ def _nees(trajectory, truth) -> float:
 def run_cell(cell: Cell, work: Path, *, catch: bool = False) -> dict[str, Any]:
     """Simulate, read back and solve one cell; every method on the same outages.
 
-    The outage errors come from the cell's seed. The NEES is the mean over ``NEES_SEEDS``
-    seeds (the cell's and the following ones): a single run's NEES is time-correlated and
-    spreads from 0.2 to 2.5 for a consistent 110 s car run, so the band [0.5, 2] is a
-    property of the mean (as in tests/test_consistency.py), not of one draw.
+    The outage RMS and the NEES are pooled over ``nees_seeds`` seeds (the cell's and the
+    following ones), for every method. One draw decides neither: a single run's NEES is
+    time-correlated and spreads from 0.2 to 2.5 for a consistent 110 s car run, and the
+    EKF+RTS reference itself depends on how its start-up heading happens to linearise (on
+    hwy-frd-const-novel, seeds 0-7, it beats the batch by 16-48 % on three seeds and loses
+    by 14-136 % on two; given the true start heading its seed-0 RMS goes 0.365 -> 0.449 m
+    while the batch stays at 0.479 m). So "within 2 % of EKF+RTS" is a property of the
+    pooled RMS (sqrt of the mean squared per-seed RMS), as the NEES band is of the mean.
     ``catch`` (table mode): a method that raises is recorded as NaN with its error."""
     run, dataset, config_path, mask = _prepare(cell, cell.seed, work)
     windows = list(cell.windows)
@@ -227,12 +231,14 @@ def run_cell(cell: Cell, work: Path, *, catch: bool = False) -> dict[str, Any]:
             trajectory, truth.t[reference], truth.position[reference], dataset.t0, windows
         ).summary()
         entry = {"outage": summary["h_rms_outage"], "aided": summary["h_rms_aided"], "s": elapsed}
+        entry["outage_runs"] = [entry["outage"]]
         if method in ("batch", "isam2"):
             entry["nees_runs"] = [_nees(trajectory, truth)]
         result[method] = entry
     for seed in range(cell.seed + 1, cell.seed + cell.nees_seeds):
         run, dataset, config_path, mask = _prepare(cell, seed, work)
-        for method in ("batch", "isam2"):
+        reference = slice(None, None, max(1, round(0.1 / float(np.median(np.diff(run.truth.t))))))
+        for method in METHODS:
             if "error" in result[method]:
                 continue
             config = config_for_dataset(dataset, config_path)
@@ -243,9 +249,21 @@ def run_cell(cell: Cell, work: Path, *, catch: bool = False) -> dict[str, Any]:
                     raise
                 result[method]["error"] = f"seed {seed}: {type(exc).__name__}"
                 continue
-            result[method]["nees_runs"].append(_nees(trajectory, run.truth))
+            summary = errors_against(
+                trajectory, run.truth.t[reference], run.truth.position[reference],
+                dataset.t0, windows,
+            ).summary()  # fmt: skip
+            result[method]["outage_runs"].append(summary["h_rms_outage"])
+            if method in ("batch", "isam2"):
+                result[method]["nees_runs"].append(_nees(trajectory, run.truth))
+    for method in METHODS:
+        if "error" in result[method]:
+            continue
+        runs = np.asarray(result[method]["outage_runs"], dtype=float)
+        result[method]["outage_seed0"] = result[method]["outage"]
+        result[method]["outage"] = float(np.sqrt(np.mean(runs**2)))
     for method in ("batch", "isam2"):
-        runs = result[method]["nees_runs"]
+        runs = result[method].get("nees_runs", [])
         result[method]["nees"] = float(np.mean(runs)) if runs else nan
     return result
 
@@ -261,13 +279,13 @@ def failures(cell: Cell, result: dict[str, Any]) -> list[str]:
     for method in ("batch", "isam2"):
         value = result[method]["outage"]
         if not value <= 1.02 * rts:
-            out.append(f"{method} outage RMS {value:.3f} m > 1.02 x EKF+RTS {rts:.3f} m")
+            out.append(f"{method} pooled outage RMS {value:.3f} m > 1.02 x EKF+RTS {rts:.3f} m")
         nees = result[method]["nees"]
         if not 0.5 <= nees <= 2.0:
             out.append(f"{method} position NEES {nees:.2f} outside [0.5, 2]")
     batch = result["batch"]["outage"]
     if not batch <= 0.5 * ekf:
-        out.append(f"batch outage RMS {batch:.3f} m > 0.5 x forward EKF {ekf:.3f} m")
+        out.append(f"batch pooled outage RMS {batch:.3f} m > 0.5 x forward EKF {ekf:.3f} m")
     return out
 
 
@@ -355,7 +373,9 @@ def row(name: str, result: dict[str, Any]) -> str:
         f"| {name} | {r['batch']['outage']:.3f} | {r['isam2']['outage']:.3f} | "
         f"{r['ekf']['outage']:.3f} | {r['ekf-rts']['outage']:.3f} | {r['batch']['nees']:.2f} | "
         f"{r['isam2']['nees']:.2f} | {r['batch']['s']:.1f} / {r['isam2']['s']:.1f} | "
-        f"{' '.join(f'{v:.2f}' for v in r['batch'].get('nees_runs', []))} |"
+        f"{' '.join(f'{v:.2f}' for v in r['batch'].get('nees_runs', []))} | "
+        f"{' '.join(f'{v:.2f}' for v in r['batch'].get('outage_runs', []))} / "
+        f"{' '.join(f'{v:.2f}' for v in r['ekf-rts'].get('outage_runs', []))} |"
     )
 
 
@@ -365,9 +385,9 @@ if __name__ == "__main__":
     names = sys.argv[1:] or list(CELLS)
     print(
         "| cell | batch | isam2 | EKF | EKF+RTS | NEES batch | NEES isam2 | s batch/isam2 "
-        "| NEES batch per seed | pass |"
+        "| NEES batch per seed | outage RMS per seed batch / EKF+RTS | pass |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for cell_name in names:
         with tempfile.TemporaryDirectory() as tmp:
             try:
