@@ -187,6 +187,8 @@ def _report(dataset: Dataset, trajectory: Trajectory) -> None:
             f"odometer scale-factor error: {100 * summary['odometer_scale_error']:+.2f} %",
             file=sys.stderr,
         )
+    if "nhc_misalignment_deg" in summary:
+        print(f"NHC misalignment (deg): {summary['nhc_misalignment_deg']}", file=sys.stderr)
 
 
 def cmd_smooth(args: argparse.Namespace) -> int:

@@ -221,10 +221,16 @@ def _finite_difference_velocity(problem: Problem) -> np.ndarray:
 
 
 def _extra_states(values: gtsam.Values) -> dict[str, object]:
-    """Estimated non-navigation states worth reporting (odometer scale-factor error)."""
+    """Estimated non-navigation states worth reporting (odometer scale-factor error, the
+    NHC misalignment: the angle between the vehicle's x axis as configured and its
+    velocity, i.e. a mounting error, lateral (yaw) and vertical (pitch), degrees)."""
+    out: dict[str, object] = {}
     if values.exists(odometer_model.scale_key()):
-        return {"odometer_scale_error": float(values.atDouble(odometer_model.scale_key()))}
-    return {}
+        out["odometer_scale_error"] = float(values.atDouble(odometer_model.scale_key()))
+    if values.exists(vehicle_model.misalignment_key(0)):
+        lateral, vertical = np.degrees(values.atVector(vehicle_model.misalignment_key(0)))
+        out["nhc_misalignment_deg"] = f"lateral {lateral:+.2f}, vertical {vertical:+.2f}"
+    return out
 
 
 def _gnss_report(problem: Problem, values: gtsam.Values) -> dict[str, object]:

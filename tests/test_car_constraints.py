@@ -109,3 +109,19 @@ def test_misalignment_state_enters_the_nhc_exactly():
     turned.update(gtsam.symbol("x", 0), pose.retract(np.array([0.01, -0.02, 0.03, 0, 0, 0])))
     turned.update(gtsam.symbol("v", 0), velocity + np.array([0.1, -0.2, 0.05]))
     assert np.isclose(single.error(turned), factor.error(turned), rtol=1e-9)
+
+
+@pytest.mark.parametrize("rpy", [(0.0, 0.0, 3.0), (0.0, -1.5, -2.0)])
+def test_the_estimated_misalignment_is_the_unknown_mounting(drives, rpy):
+    """The constant misalignment state is the mounting error nobody gave: an IMU turned by
+    yaw psi (pitch theta) in the car sees the velocity at about -psi laterally (+theta
+    vertically), and the run summary says so."""
+    run = drives[0]
+    dataset, gnss = _misaligned(run, rpy)
+    config = load_config(dataset_imu=dataset.imu_config, dataset_gnss=gnss)
+    config.smoother.vehicle = "car"
+    trajectory = run_method(dataset, config, "batch", progress=False)
+    text = trajectory.summary()["nhc_misalignment_deg"]
+    lateral, vertical = (float(part.split()[1]) for part in text.split(","))
+    assert abs(lateral + rpy[2]) < 0.3, text
+    assert abs(vertical - rpy[1]) < 0.3, text
