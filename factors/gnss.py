@@ -330,19 +330,55 @@ def antenna_velocity_factor(
     estimate, like the NHC (exact at convergence). With GTSAM's right perturbations
     R Exp(t) and b + db: d/dt = -R [c]x (c = w x l), d/dv = I, d/db_g = R [l]x.
     """
+    (factor,) = antenna_velocity_factors(
+        np.array([pose_key]), np.array([velocity_key]), np.array([bias_key]),
+        np.asarray(rotation, dtype=float)[None], np.asarray(velocity, dtype=float)[None],
+        np.asarray(gyro, dtype=float)[None], np.asarray(gyro_bias, dtype=float)[None],
+        lever_arm, np.asarray(measured, dtype=float)[None], np.asarray(sigma, dtype=float)[None],
+        point,
+    )  # fmt: skip
+    return factor
+
+
+def antenna_velocity_factors(
+    pose_keys: np.ndarray,
+    velocity_keys: np.ndarray,
+    bias_keys: np.ndarray,
+    rotation: np.ndarray,
+    velocity: np.ndarray,
+    gyro: np.ndarray,
+    gyro_bias: np.ndarray,
+    lever_arm: np.ndarray,
+    measured: np.ndarray,
+    sigma: np.ndarray,
+    point,  # gtsam.Values holding every pose, velocity and bias under the keys
+) -> list:
+    """:func:`antenna_velocity_factor` for n epochs at once ((n, 3, 3) rotations, (n, 3)
+    the rest): the Jacobians in one vectorised pass, then one small C++ factor each."""
     import gtsam
 
-    rotation = np.asarray(rotation, dtype=float)
     lever_arm = np.asarray(lever_arm, dtype=float)
-    rate = np.asarray(gyro, dtype=float) - np.asarray(gyro_bias, dtype=float)
-    offset = np.cross(rate, lever_arm)
-    residual = np.asarray(velocity, float) + rotation @ offset - np.asarray(measured, float)
-    d_pose = np.zeros((3, 6))
-    d_pose[:, :3] = -rotation @ _skew(offset)
-    d_bias = np.zeros((3, 6))  # ConstantBias tangent: accelerometer, then gyroscope
-    d_bias[:, 3:] = rotation @ _skew(lever_arm)
-    linear = gtsam.JacobianFactor(
-        int(pose_key), d_pose, int(velocity_key), np.eye(3), int(bias_key), d_bias,
-        -residual, gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigma, dtype=float)),
-    )  # fmt: skip
-    return gtsam.LinearContainerFactor(linear, point)
+    offset = np.cross(np.asarray(gyro, float) - np.asarray(gyro_bias, float), lever_arm)
+    residual = velocity + np.einsum("nij,nj->ni", rotation, offset) - measured
+    n = len(residual)
+    d_pose = np.zeros((n, 3, 6))
+    d_pose[:, :, :3] = -np.einsum("nij,njk->nik", rotation, _skew_batch(offset))
+    d_bias = np.zeros((n, 3, 6))
+    d_bias[:, :, 3:] = rotation @ _skew(lever_arm)
+    eye = np.eye(3)
+    out = []
+    for i in range(n):
+        linear = gtsam.JacobianFactor(
+            int(pose_keys[i]), d_pose[i], int(velocity_keys[i]), eye, int(bias_keys[i]),
+            d_bias[i], -residual[i], gtsam.noiseModel.Diagonal.Sigmas(sigma[i]),
+        )  # fmt: skip
+        out.append(gtsam.LinearContainerFactor(linear, point))
+    return out
+
+
+def _skew_batch(v: np.ndarray) -> np.ndarray:
+    out = np.zeros((len(v), 3, 3))
+    out[:, 0, 1], out[:, 0, 2] = -v[:, 2], v[:, 1]
+    out[:, 1, 0], out[:, 1, 2] = v[:, 2], -v[:, 0]
+    out[:, 2, 0], out[:, 2, 1] = -v[:, 1], v[:, 0]
+    return out

@@ -217,20 +217,19 @@ class Problem:
                 offset=self.nhc_offset[nhc_k],
             ):  # fmt: skip
                 graph.add(factor)
-        if self.has_antenna_velocity:
-            for k in all_k[self.gnss_at[all_k] >= 0]:
-                measured = self.gnss_velocity_at(int(k))
-                if measured is None:
-                    continue
-                key = int(k)
-                graph.add(
-                    gnss_model.antenna_velocity_factor(
-                        X(key), V(key), B(key), values.atPose3(X(key)).rotation().matrix(),
-                        values.atVector(V(key)), self.gnss_gyro[int(self.gnss_at[key])],
-                        values.atConstantBias(B(key)).gyroscope(), self._lever_arm,
-                        *measured, values,
-                    )
-                )  # fmt: skip
+        antenna_k, measured, sigma, gyro = self._antenna_velocities
+        rows = self._antenna_row[all_k] if len(antenna_k) else all_k[:0]
+        chosen = rows[rows >= 0]  # O(len(all_k)): an iSAM2 update asks for one keyframe
+        if len(chosen):
+            ks = antenna_k[chosen]
+            rotation = np.array([values.atPose3(X(int(k))).rotation().matrix() for k in ks])
+            velocity = np.array([values.atVector(V(int(k))) for k in ks])
+            gyro_bias = np.array([values.atConstantBias(B(int(k))).gyroscope() for k in ks])
+            for factor in gnss_model.antenna_velocity_factors(
+                _keys(X, ks), _keys(V, ks), _keys(B, ks), rotation, velocity, gyro[chosen],
+                gyro_bias, self._lever_arm, measured[chosen], sigma[chosen], values,
+            ):  # fmt: skip
+                graph.add(factor)
         odo_k = all_k[np.isfinite(self.odometer_speed[all_k])] if self.has_odometer else all_k[:0]
         if len(odo_k):
             poses = [values.atPose3(X(int(k))) for k in odo_k]
@@ -246,7 +245,7 @@ class Problem:
     def linear_factor_count(self, k: int) -> int:
         """How many factors :meth:`linear_factors` makes for keyframe k."""
         nhc = 1 if self.config.smoother.nhc else 0
-        antenna = int(self.has_antenna_velocity and self.gnss_velocity_at(k) is not None)
+        antenna = int(self._antenna_row[k] >= 0)
         return nhc + antenna + int(self.has_odometer and np.isfinite(self.odometer_speed[k]))
 
     def _add_gnss(self, graph: gtsam.NonlinearFactorGraph, k: int) -> None:
@@ -289,11 +288,37 @@ class Problem:
     @property
     def antenna_velocity_keyframes(self) -> np.ndarray:
         """Keyframes whose GNSS velocity is an :func:`antenna_velocity_factor`."""
-        if not self.has_antenna_velocity:
-            return np.zeros(0, dtype=int)
-        return np.array(
-            [k for k in np.flatnonzero(self.gnss_at >= 0) if self.gnss_velocity_at(k) is not None],
-            dtype=int,
+        return self._antenna_velocities[0]
+
+    @cached_property
+    def _antenna_row(self) -> np.ndarray:
+        """(K,) row of each keyframe in :attr:`_antenna_velocities`, -1 where none."""
+        row = np.full(self.n_keyframes, -1)
+        keyframes = self._antenna_velocities[0]
+        row[keyframes] = np.arange(len(keyframes))
+        return row
+
+    @cached_property
+    def _antenna_velocities(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(keyframes, measured velocity, sigma, gyro sample) of the antenna velocities."""
+        keyframes: list[int] = []
+        measured: list[np.ndarray] = []
+        sigma: list[np.ndarray] = []
+        if self.has_antenna_velocity:
+            for k in np.flatnonzero(self.gnss_at >= 0):
+                found = self.gnss_velocity_at(int(k))
+                if found is not None:
+                    keyframes.append(int(k))
+                    measured.append(found[0])
+                    sigma.append(found[1])
+        k = np.array(keyframes, dtype=int)
+        shape = (len(k), 3)
+        gyro = self.gnss_gyro[self.gnss_at[k]] if len(k) else np.zeros(shape)
+        return (
+            k,
+            np.array(measured).reshape(shape),
+            np.array(sigma).reshape(shape),
+            np.asarray(gyro).reshape(shape),
         )
 
     def _add_stop(
