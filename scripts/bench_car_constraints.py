@@ -29,8 +29,9 @@ Full sweep, car / no-car ratio (issue 12 item 7): white-noise NHC median 0.52, m
 2.02, 16 of 124 windows > 10 % worse; with a drifting NHC misalignment state
 (``nhc_misalignment_walk_deg_per_sqrt_s = 0.1``) median 0.48, mean 0.57, max 1.66, 10 worse
 (320-380, 430-460, 300-350, 330-380, 130-160 s worst), but that walk costs 15-35 % on
-slip-free simulated cars, so the default is a constant angle (a mounting error): see the
-closing note of issue 12 for its numbers. Not yet the acceptance line.
+slip-free simulated cars; a constant angle is neutral here (16 worse, mean 0.60) and costs
+the simulated highway 22 %; so the state is off by default (``nhc_misalignment_prior_deg``).
+Not yet the acceptance line.
 
 Examples::
 
