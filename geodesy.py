@@ -102,6 +102,14 @@ def skew(v: np.ndarray) -> np.ndarray:
     return np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
 
 
+def skew_batch(v: np.ndarray) -> np.ndarray:
+    """Cross-product matrices of vectors (..., 3) -> (..., 3, 3)."""
+    out = np.zeros((*v.shape[:-1], 3, 3))
+    out[..., 0, 1], out[..., 0, 2], out[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    out[..., 1, 0], out[..., 2, 0], out[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
+    return out
+
+
 def so3_exp(phi: np.ndarray) -> np.ndarray:
     """Rodrigues' formula, vectorised over leading axes: (..., 3) -> (..., 3, 3)."""
     phi = np.asarray(phi, dtype=float)

@@ -31,7 +31,7 @@ import numpy as np
 
 from fgins.config import ImuNoise
 from fgins.datatypes import Origin
-from fgins.geodesy import earth_rate_enu, normal_gravity, so3_exp, so3_log
+from fgins.geodesy import earth_rate_enu, normal_gravity, skew_batch, so3_exp, so3_log
 
 STATE_DIM = 15
 POS = slice(0, 3)
@@ -169,14 +169,6 @@ def segment_imu(imu_t: np.ndarray, times: np.ndarray) -> Segments:
     bounds = np.searchsorted(seg_start, times, side="left")
     bounds[-1] = len(seg_start)
     return Segments(times=times, start=seg_start, dt=np.diff(starts), sample=sample, bounds=bounds)
-
-
-def skew_batch(v: np.ndarray) -> np.ndarray:
-    """Cross-product matrices of vectors (..., 3) -> (..., 3, 3)."""
-    out = np.zeros((*v.shape[:-1], 3, 3))
-    out[..., 0, 1], out[..., 0, 2], out[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
-    out[..., 1, 0], out[..., 2, 0], out[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
-    return out
 
 
 def prefix_products(steps: np.ndarray) -> np.ndarray:

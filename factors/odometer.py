@@ -14,7 +14,7 @@ import gtsam
 import numpy as np
 
 from fgins.factors.values import put_double, put_pose, put_vector
-from fgins.factors.vehicle import _skew
+from fgins.geodesy import skew_batch
 
 
 def scale_key() -> int:
@@ -52,7 +52,7 @@ def speed_factors(
     forward_speed = body_velocity @ forward
     scale = 1.0 + scale_error
     residual = scale * forward_speed - speed
-    d_rotation = scale * np.einsum("j,kjl->kl", forward, _skew(body_velocity))
+    d_rotation = scale * np.einsum("j,kjl->kl", forward, skew_batch(body_velocity))
     d_velocity = scale * np.einsum("j,klj->kl", forward, rotation)
     noise = gtsam.noiseModel.Isotropic.Sigma(1, sigma)
     out = []

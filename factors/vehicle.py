@@ -20,15 +20,7 @@ import gtsam
 import numpy as np
 
 from fgins.factors.values import put_pose, put_vector
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    """Cross-product matrices of (K, 3) vectors: (K, 3, 3)."""
-    out = np.zeros((*v.shape[:-1], 3, 3))
-    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
-    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
-    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
-    return out
+from fgins.geodesy import skew_batch
 
 
 def nhc_rows(imu_to_vehicle: np.ndarray) -> np.ndarray:
@@ -102,7 +94,7 @@ def nhc_factors(
     residual = body_velocity @ select.T
     if offset is not None:
         residual = residual + offset
-    skew = _skew(body_velocity)
+    skew = skew_batch(body_velocity)
     d_rotation = np.einsum("ij,kjl->kil", select, skew)
     d_velocity = np.einsum("ij,klj->kil", select, rotation)  # S R^T
     estimated = misalignment_keys is not None
@@ -159,7 +151,7 @@ def nhc_factor(
     ``point`` holds the pose and velocity (and the misalignment, if any) under the keys."""
     rotation_t = rotation.T
     body_velocity = rotation_t @ velocity
-    skew = _skew(body_velocity)
+    skew = skew_batch(body_velocity)
     d_rotation = select @ skew
     d_velocity = select @ rotation_t
     residual = select @ body_velocity
