@@ -13,6 +13,7 @@ import numpy as np
 
 from fgins.config import GnssConfig
 from fgins.datatypes import GnssData, InputError
+from fgins.geodesy import skew, skew_batch
 
 # NMEA GGA fix-quality codes -> UERE table key.
 QUALITY_UERE_KEY = {1: "autonomous", 2: "dgps", 9: "dgps", 4: "rtk_fixed", 5: "rtk_float"}
@@ -296,48 +297,12 @@ def velocity_factor(velocity_key: int, velocity_enu: np.ndarray, sigma: np.ndarr
     )
 
 
-def _skew(v: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-
-
 def antenna_velocity(
     rotation: np.ndarray, velocity: np.ndarray, body_rate: np.ndarray, lever_arm: np.ndarray
 ) -> np.ndarray:
     """Navigation-frame velocity of an antenna ``lever_arm`` (body axes) away from the IMU:
     ``v + R (w x l)``, with ``w`` the body angular rate (bias-corrected)."""
     return np.asarray(velocity, float) + np.asarray(rotation, float) @ np.cross(body_rate, lever_arm)
-
-
-def antenna_velocity_factor(
-    pose_key: int,
-    velocity_key: int,
-    bias_key: int,
-    rotation: np.ndarray,
-    velocity: np.ndarray,
-    gyro: np.ndarray,
-    gyro_bias: np.ndarray,
-    lever_arm: np.ndarray,
-    measured: np.ndarray,
-    sigma: np.ndarray,
-    point,  # gtsam.Values holding the pose, velocity and bias under the keys
-):  # -> gtsam.LinearContainerFactor
-    """GNSS Doppler velocity of an antenna off the IMU, linearised at ``point``.
-
-    The antenna moves at ``v + R ((g - b_g) x l)``: in a turn or a roll a lever arm of a metre
-    adds tenths of a m/s, the size of a receiver's velocity sigma, which a plain prior on V
-    would book as IMU error. GTSAM has no such factor and a Python callback would see the
-    whole Values per evaluation (issue 9), so it is a ``JacobianFactor`` rebuilt at each new
-    estimate, like the NHC (exact at convergence). With GTSAM's right perturbations
-    R Exp(t) and b + db: d/dt = -R [c]x (c = w x l), d/dv = I, d/db_g = R [l]x.
-    """
-    (factor,) = antenna_velocity_factors(
-        np.array([pose_key]), np.array([velocity_key]), np.array([bias_key]),
-        np.asarray(rotation, dtype=float)[None], np.asarray(velocity, dtype=float)[None],
-        np.asarray(gyro, dtype=float)[None], np.asarray(gyro_bias, dtype=float)[None],
-        lever_arm, np.asarray(measured, dtype=float)[None], np.asarray(sigma, dtype=float)[None],
-        point,
-    )  # fmt: skip
-    return factor
 
 
 def antenna_velocity_factors(
@@ -353,8 +318,17 @@ def antenna_velocity_factors(
     sigma: np.ndarray,
     point,  # gtsam.Values holding every pose, velocity and bias under the keys
 ) -> list:
-    """:func:`antenna_velocity_factor` for n epochs at once ((n, 3, 3) rotations, (n, 3)
-    the rest): the Jacobians in one vectorised pass, then one small C++ factor each."""
+    """GNSS Doppler velocities of an antenna off the IMU, linearised at ``point``, for n
+    epochs ((n, 3, 3) rotations, (n, 3) the rest; ``gyro`` the samples at the fixes).
+
+    The antenna moves at ``v + R ((g - b_g) x l)``: in a turn or a roll a lever arm of a metre
+    adds tenths of a m/s, the size of a receiver's velocity sigma, which a plain prior on V
+    would book as IMU error. GTSAM has no such factor and a Python callback would see the
+    whole Values per evaluation (issue 9), so each is a ``JacobianFactor`` rebuilt at each
+    new estimate, like the NHC (exact at convergence); the Jacobians come in one vectorised
+    pass. With GTSAM's right perturbations R Exp(t) and b + db: d/dt = -R [c]x
+    (c = w x l), d/dv = I, d/db_g = R [l]x.
+    """
     import gtsam
 
     lever_arm = np.asarray(lever_arm, dtype=float)
@@ -362,9 +336,9 @@ def antenna_velocity_factors(
     residual = velocity + np.einsum("nij,nj->ni", rotation, offset) - measured
     n = len(residual)
     d_pose = np.zeros((n, 3, 6))
-    d_pose[:, :, :3] = -np.einsum("nij,njk->nik", rotation, _skew_batch(offset))
+    d_pose[:, :, :3] = -np.einsum("nij,njk->nik", rotation, skew_batch(offset))
     d_bias = np.zeros((n, 3, 6))
-    d_bias[:, :, 3:] = rotation @ _skew(lever_arm)
+    d_bias[:, :, 3:] = rotation @ skew(lever_arm)
     eye = np.eye(3)
     out = []
     for i in range(n):
@@ -375,10 +349,3 @@ def antenna_velocity_factors(
         out.append(gtsam.LinearContainerFactor(linear, point))
     return out
 
-
-def _skew_batch(v: np.ndarray) -> np.ndarray:
-    out = np.zeros((len(v), 3, 3))
-    out[:, 0, 1], out[:, 0, 2] = -v[:, 2], v[:, 1]
-    out[:, 1, 0], out[:, 1, 2] = v[:, 2], -v[:, 0]
-    out[:, 2, 0], out[:, 2, 1] = -v[:, 1], v[:, 0]
-    return out

@@ -277,7 +277,7 @@ class Problem:
     @property
     def has_antenna_velocity(self) -> bool:
         """GNSS velocities are the antenna's, off the IMU by a lever arm: they go in as the
-        linearised :func:`fgins.factors.gnss.antenna_velocity_factor` (the lever-arm
+        linearised :func:`fgins.factors.gnss.antenna_velocity_factors` (the lever-arm
         velocity R (w x l) depends on the attitude and the gyro bias)."""
         return self.config.gnss.use_velocity and bool(np.any(self._lever_arm != 0))
 
@@ -287,7 +287,7 @@ class Problem:
 
     @property
     def antenna_velocity_keyframes(self) -> np.ndarray:
-        """Keyframes whose GNSS velocity is an :func:`antenna_velocity_factor`."""
+        """Keyframes whose GNSS velocity is an antenna velocity factor."""
         return self._antenna_velocities[0]
 
     @cached_property

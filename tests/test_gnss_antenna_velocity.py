@@ -13,7 +13,7 @@ from gtsam.symbol_shorthand import B, V, X
 
 import fgins.graph.problem as problem_module
 from fgins.config import load_config
-from fgins.factors.gnss import antenna_velocity, antenna_velocity_factor
+from fgins.factors.gnss import antenna_velocity, antenna_velocity_factors
 from fgins.geodesy import enu_to_lla
 from fgins.graph.smoother import smooth
 from fgins.sim.scenarios import SCENARIOS
@@ -39,9 +39,9 @@ def test_linearised_factor_matches_the_closed_form_to_second_order(seed):
     measured = rng.normal(scale=10.0, size=3)
     sigma = np.array([0.1, 0.2, 0.3])
     point = _values(rotation, velocity, bias)
-    factor = antenna_velocity_factor(
-        X(0), V(0), B(0), rotation.matrix(), velocity, gyro, bias[3:], lever, measured,
-        sigma, point,
+    (factor,) = antenna_velocity_factors(
+        np.array([X(0)]), np.array([V(0)]), np.array([B(0)]), rotation.matrix()[None],
+        velocity[None], gyro[None], bias[3:][None], lever, measured[None], sigma[None], point,
     )  # fmt: skip
     for scale in (1e-3, 1e-4):
         step = rng.normal(size=15) * scale
