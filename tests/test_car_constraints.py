@@ -9,17 +9,15 @@ carries a misalignment state for it (:func:`fgins.factors.vehicle.misalignment_k
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 import pytest
 
 from fgins.config import load_config
 from fgins.factors import vehicle
-from fgins.mounting import mounting_rotation
 from fgins.outages import in_windows, outage_mask
 from fgins.pipeline import run_method
 from fgins.sim.scenarios import SCENARIOS
+from fgins.tests.drive_fixtures import turned_imu
 
 WINDOWS = [(50.0, 85.0)]
 
@@ -30,16 +28,6 @@ SEEDS = (0, 1, 3)
 @pytest.fixture(scope="module")
 def drives():
     return [SCENARIOS["car-urban"](seed=seed, duration_s=140) for seed in SEEDS]
-
-
-def _misaligned(run, rpy):
-    """The drive with its IMU turned by ``rpy`` (deg) in the car, the mounting *not* given."""
-    r_vi = mounting_rotation(rpy)
-    dataset = run.dataset
-    imu = replace(dataset.imu, gyro=dataset.imu.gyro @ r_vi, accel=dataset.imu.accel @ r_vi)
-    gnss = dict(dataset.gnss_config)
-    gnss["lever_arm_m"] = list(r_vi.T @ np.asarray(gnss.get("lever_arm_m", [0, 0, 0]), float))
-    return replace(dataset, imu=imu, warnings=[]), gnss
 
 
 def _outage_rms(run, dataset, gnss, **smoother) -> float:
@@ -65,7 +53,7 @@ def test_nhc_does_not_hurt_with_a_small_unknown_mounting_error(drives, rpy):
     (ZUPT is left out here: it is not what is tested.)"""
     with_nhc, without = [], []
     for run in drives:
-        dataset, gnss = _misaligned(run, rpy)
+        dataset, gnss = turned_imu(run, rpy)
         with_nhc.append(
             _outage_rms(run, dataset, gnss, use_zupt=False, nhc_misalignment_prior_deg=3.0)
         )
@@ -120,7 +108,7 @@ def test_the_estimated_misalignment_is_the_unknown_mounting(drives, rpy):
     yaw psi (pitch theta) in the car sees the velocity at about -psi laterally (+theta
     vertically), and the run summary says so."""
     run = drives[0]
-    dataset, gnss = _misaligned(run, rpy)
+    dataset, gnss = turned_imu(run, rpy)
     config = load_config(dataset_imu=dataset.imu_config, dataset_gnss=gnss)
     config.smoother.vehicle = "car"
     config.smoother.nhc_misalignment_prior_deg = 3.0

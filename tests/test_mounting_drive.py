@@ -8,16 +8,14 @@ unrotated drive; with the mounting left out, the fit must say so.
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 import pytest
 
 from fgins.config import load_config
-from fgins.mounting import mounting_rotation
 from fgins.outages import in_windows, outage_mask
 from fgins.pipeline import run_method
 from fgins.sim.scenarios import SCENARIOS
+from fgins.tests.drive_fixtures import turned_imu
 
 WINDOWS = [(50.0, 85.0)]
 
@@ -25,16 +23,6 @@ WINDOWS = [(50.0, 85.0)]
 @pytest.fixture(scope="module")
 def drive():
     return SCENARIOS["car-urban"](seed=2, duration_s=140)
-
-
-def _turned(run, rpy):
-    """The drive with its IMU mounted at ``rpy`` (deg) in the car."""
-    r_vi = mounting_rotation(rpy)
-    dataset = run.dataset
-    imu = replace(dataset.imu, gyro=dataset.imu.gyro @ r_vi, accel=dataset.imu.accel @ r_vi)
-    gnss = dict(dataset.gnss_config)
-    gnss["lever_arm_m"] = list(r_vi.T @ np.asarray(gnss.get("lever_arm_m", [0, 0, 0]), float))
-    return replace(dataset, imu=imu, warnings=[]), gnss
 
 
 def _config(dataset, gnss, rpy):
@@ -53,12 +41,12 @@ def _rms(trajectory, run, dataset) -> float:
 @pytest.mark.parametrize("rpy", [(20.0, -10.0, 35.0), (180.0, 0.0, 0.0), (0.0, 0.0, -90.0)])
 @pytest.mark.parametrize("method", ["batch", "ekf-rts"])
 def test_a_turned_imu_with_its_mounting_reproduces_the_drive(drive, rpy, method):
-    reference_dataset, gnss = _turned(drive, (0.0, 0.0, 0.0))
+    reference_dataset, gnss = turned_imu(drive, (0.0, 0.0, 0.0))
     reference = run_method(
         reference_dataset, _config(reference_dataset, gnss, (0, 0, 0)), method,
         gnss_mask=outage_mask(reference_dataset, WINDOWS), progress=False,
     )  # fmt: skip
-    dataset, gnss = _turned(drive, rpy)
+    dataset, gnss = turned_imu(drive, rpy)
     turned = run_method(
         dataset, _config(dataset, gnss, rpy), method,
         gnss_mask=outage_mask(dataset, WINDOWS), progress=False,
@@ -69,7 +57,7 @@ def test_a_turned_imu_with_its_mounting_reproduces_the_drive(drive, rpy, method)
 
 
 def test_a_missing_mounting_is_flagged(drive):
-    dataset, gnss = _turned(drive, (20.0, -10.0, 35.0))
+    dataset, gnss = turned_imu(drive, (20.0, -10.0, 35.0))
     trajectory = run_method(
         dataset, _config(dataset, gnss, (0, 0, 0)), "batch",
         gnss_mask=outage_mask(dataset, WINDOWS), progress=False,
