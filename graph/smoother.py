@@ -229,7 +229,11 @@ def _extra_states(values: gtsam.Values) -> dict[str, object]:
         out["odometer_scale_error"] = float(values.atDouble(odometer_model.scale_key()))
     if values.exists(vehicle_model.misalignment_key(0)):
         lateral, vertical = np.degrees(values.atVector(vehicle_model.misalignment_key(0)))
-        out["nhc_misalignment_deg"] = f"lateral {lateral:+.2f}, vertical {vertical:+.2f}"
+        drifting = values.exists(vehicle_model.misalignment_key(1))  # one key per keyframe
+        out["nhc_misalignment_deg"] = (
+            f"lateral {lateral:+.2f}, vertical {vertical:+.2f}"
+            + (" (at the start; it drifts)" if drifting else "")
+        )
     return out
 
 
