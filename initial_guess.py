@@ -1,11 +1,12 @@
 """The initial guess a smoother starts from: filter states at its keyframe times (numpy only).
 
-The pipeline chooses and hands over the guess (DESIGN.md: "the pipeline, not graph/, chooses
-and hands over an initial guess"); this module is the GTSAM-free contract between the Kalman
-baselines that compute it (:func:`fgins.baseline.ekf.ekf_states_at`,
-:func:`fgins.baseline.ekf18.ekf18_states_at`, chosen per input by
-:func:`fgins.baseline.guess.filter_guess`) and the graph that consumes it. It imports
-neither side.
+The pipeline chooses the guess (DESIGN.md: "the pipeline, not graph/, chooses and hands over
+an initial guess"): for an IMU, the graph's own keyframe EKF (:mod:`fgins.graph.keyframe_filter`,
+which needs the graph's factors and so lives in graph/); for an accelerometer array, the
+18-state gyro-free EKF's states (:func:`fgins.baseline.ekf18.ekf18_states_at` through
+:func:`fgins.baseline.guess.filter_guess`), handed over through this GTSAM-free contract,
+which imports neither side. (:func:`fgins.baseline.ekf.ekf_states_at` gives the 15-state
+EKF's states the same way.)
 
 Why keyframe states only: the smoother needs one state per keyframe (one per GNSS epoch and
 outage fill time), not the filter's IMU-rate output with a 15x15 covariance per sample, which

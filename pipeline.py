@@ -55,15 +55,20 @@ def run_method(
 
 def filter_initial_guess(
     dataset: Dataset, config: RunConfig, gnss_mask: np.ndarray | None
-) -> Callable[[np.ndarray], KeyframeGuess]:
-    """The initial guess the factor graph starts from: the Kalman filter that matches the
-    input (the 18-state gyro-free EKF for an accelerometer array, else the 15-state EKF),
-    with Huber-weighted GNSS updates, sampled at the keyframe times.
+) -> Callable[[np.ndarray], KeyframeGuess] | None:
+    """The initial guess the factor graph starts from, from the filter that matches the
+    input: for an accelerometer array (gyro-free), the 18-state EKF on the raw readings,
+    Huber-weighted GNSS updates, sampled at the keyframe times; for an IMU, None: the graph
+    runs its own keyframe EKF over the very factors it optimises
+    (:mod:`fgins.graph.keyframe_filter`: the same measurement models, a fifth of the cost of
+    the IMU-rate 15-state EKF).
 
     Huber-weighted updates bound what a gross outlier can do to the guess; a hard innovation
     gate would be worse: once it rejects a few fixes the filter can lock out
     (:func:`fgins.initial_guess.guess_config`).
     """
+    if dataset.accel_array is None:
+        return None
 
     def guess(times: np.ndarray) -> KeyframeGuess:
         # The filter reports its states at the keyframes only (the same numbers as sampling

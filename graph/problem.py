@@ -14,7 +14,7 @@ import numpy as np
 from gtsam.symbol_shorthand import B, V, X
 
 from fgins.alignment import Alignment, initial_alignment
-from fgins.config import ImuNoise, RunConfig
+from fgins.config import GnssConfig, ImuNoise, RunConfig
 from fgins.datatypes import Dataset, InputError
 from fgins.factors import baro as baro_model
 from fgins.factors import gnss as gnss_model
@@ -94,15 +94,17 @@ class Problem:
         return graph
 
     def keyframe_factors(
-        self, k: int, predicted_speed: float | None = None
+        self, k: int, predicted_speed: float | None = None, gnss_config: GnssConfig | None = None
     ) -> gtsam.NonlinearFactorGraph:
         """Factors that arrive with keyframe k: the IMU factor from k-1, k's GNSS, land-vehicle
         constraints, odometer and barometer. ``predicted_speed`` (the current best guess of
-        the speed at k) must confirm a stop before a quiet IMU is taken as one."""
+        the speed at k) must confirm a stop before a quiet IMU is taken as one.
+        ``gnss_config``: the GNSS position kernel to use instead of the run's (the initial
+        guess's Huber weighting)."""
         graph = gtsam.NonlinearFactorGraph()
         if k > 0:
             graph.add(self.imu_factor(k - 1))
-        self._add_gnss(graph, k)
+        self._add_gnss(graph, k, gnss_config or self.config.gnss)
         self._add_stop(graph, k, predicted_speed)
         self._add_misalignment(graph, k)
         if k == 0 and self.has_odometer:
@@ -143,6 +145,15 @@ class Problem:
             smoother.nhc_misalignment_walk_deg_per_sqrt_s == 0.0
             and smoother.nhc_misalignment_vertical_walk_deg_per_sqrt_s == 0.0
         )
+
+    def constant_keys(self) -> set[int]:
+        """States that are one key for the whole drive (not one per keyframe)."""
+        keys = set()
+        if self.has_odometer:
+            keys.add(odometer_model.scale_key())
+        if self.estimates_misalignment and self.constant_misalignment:
+            keys.add(self.misalignment_key(0))
+        return keys
 
     def misalignment_key(self, k: int) -> int:
         """The misalignment state keyframe k's NHC uses."""
@@ -248,13 +259,11 @@ class Problem:
         antenna = int(self._antenna_row[k] >= 0)
         return nhc + antenna + int(self.has_odometer and np.isfinite(self.odometer_speed[k]))
 
-    def _add_gnss(self, graph: gtsam.NonlinearFactorGraph, k: int) -> None:
+    def _add_gnss(self, graph: gtsam.NonlinearFactorGraph, k: int, config: GnssConfig) -> None:
         g = int(self.gnss_at[k])
         if g < 0:
             return
-        graph.add(
-            gnss_model.position_factor(X(k), self.gnss_enu[g], self.gnss_sigma[g], self.config.gnss)
-        )
+        graph.add(gnss_model.position_factor(X(k), self.gnss_enu[g], self.gnss_sigma[g], config))
         measured = self.gnss_velocity_at(k)
         if measured is not None and not self.has_antenna_velocity:
             graph.add(gnss_model.velocity_factor(V(k), *measured))

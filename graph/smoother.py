@@ -31,6 +31,7 @@ from fgins.datatypes import Dataset, FginsError, Trajectory
 from fgins.factors import odometer as odometer_model
 from fgins.factors import vehicle as vehicle_model
 from fgins.factors.values import put_bias, put_double, put_pose, put_vector
+from fgins.graph.keyframe_filter import keyframe_filter
 from fgins.graph.output import KeyframeStates, densify
 from fgins.graph.problem import Problem, build_problem
 
@@ -152,25 +153,27 @@ def initial_values(
 ) -> tuple[gtsam.Values, str]:
     """Initial values for every keyframe and the preintegration about their biases.
 
-    A filter is the right initialiser for a batch smoother: it corrects attitude and biases
-    as it goes and bridges outages with its own dead reckoning; preintegrating about its
-    bias estimate keeps GTSAM's first-order bias correction small from the start. Without a
-    usable guess: GNSS-reset dead reckoning about zero bias.
+    Without ``initial_guess`` (an IMU): the keyframe EKF over the graph's own factors
+    (:mod:`fgins.graph.keyframe_filter`), which preintegrates every interval about its
+    filtered bias as it goes. With one (the pipeline's ekf18 for an accelerometer array):
+    its states, every interval preintegrated about their biases. If neither gives a usable
+    start: GNSS-reset dead reckoning about zero bias.
     """
-    guess = None
-    if initial_guess is not None:
-        try:
-            guess = initial_guess(problem.segments.times)
-        except FginsError as exc:
-            problem.info.setdefault("fit_warnings", []).append(
-                f"the initial-guess filter failed ({exc}); started from dead reckoning instead"
-            )
     n = problem.n_keyframes
+    try:
+        if initial_guess is None:
+            return keyframe_filter(problem, progress), "keyframe EKF"
+        guess = initial_guess(problem.segments.times)
+    except FginsError as exc:
+        problem.info.setdefault("fit_warnings", []).append(
+            f"the initial-guess filter failed ({exc}); started from dead reckoning instead"
+        )
+        guess = None
     if _usable_guess(guess, n):
         accel_bias = np.asarray(guess.accel_bias, dtype=float)
         gyro_bias = np.asarray(guess.gyro_bias, dtype=float)
         problem.preintegrate_all(accel_bias, gyro_bias, progress)
-        return _values_from_states(problem, guess), "filter"
+        return _values_from_states(problem, guess), getattr(guess, "method", "filter")
     zeros = np.zeros((n, 3))
     problem.preintegrate_all(zeros, zeros, progress)
     return _dead_reckoning_guess(problem), "dead reckoning"

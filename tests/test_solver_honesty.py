@@ -100,7 +100,7 @@ def test_gyrofree_default_scenario_keeps_attitude():
     ekf18 = run_method(dataset, config, "ekf", progress=False)  # ekf18 for an accel array
     assert ekf18.method == "ekf18"
     batch = run_method(dataset, config, "batch", progress=False)
-    assert batch.info["initial_guess"] == "filter"
+    assert batch.info["initial_guess"] == "ekf18"  # the filter that matches the input
     error = {
         name: float(np.sqrt(np.mean(np.linalg.norm(
             t.position[:, :2] - run.truth.at(t.t)[:, :2], axis=1) ** 2)))
