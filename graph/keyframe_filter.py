@@ -117,9 +117,11 @@ def _update(
     linear = factors.linearize(linearisation)
     columns = dropped + kept
     dims = _dims(linearisation, columns)
-    offsets = np.concatenate([[0], np.cumsum([dims[key] for key in columns])]).astype(int)
-    where = {key: (int(offsets[i]), int(offsets[i + 1])) for i, key in enumerate(columns)}
-    n = int(offsets[-1])
+    where: dict[int, tuple[int, int]] = {}
+    n = 0
+    for key in columns:  # each key's column span
+        where[key] = (n, n + dims[key])
+        n += dims[key]
     in_graph = set(linear.keyVector())
     present = [key for key in columns if key in in_graph]
     ordering = gtsam.Ordering()

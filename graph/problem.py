@@ -36,6 +36,7 @@ class Problem:
     segments: Segments
     # Interval i's preintegration (keyframes i -> i+1), made lazily about a bias estimate.
     pims: list[gtsam.PreintegratedCombinedMeasurements | None]
+    pim_bias: np.ndarray  # (K-1, 6) the bias (accelerometer, gyro) each was made about
     params: gtsam.PreintegrationCombinedParams
     # Interval -> the preintegration parameters of the suspect stretch it lies in.
     suspect_params: dict[int, gtsam.PreintegrationCombinedParams]
@@ -421,6 +422,7 @@ class Problem:
         """(Re)do interval i's preintegration about ``bias``."""
         params = self.suspect_params.get(i, self.params)
         self.pims[i] = _preintegrate(self.dataset.imu, self.segments, i, params, bias)
+        self.pim_bias[i] = bias.vector()
 
     def preintegrate_all(self, accel_bias: np.ndarray, gyro_bias: np.ndarray, progress: bool) -> None:
         """Every interval about the bias estimate at its first keyframe (K, 3) each."""
@@ -434,28 +436,40 @@ class Problem:
 
     def repreintegrate(
         self, values: gtsam.Values, gyro_threshold: float, accel_threshold: float
-    ) -> int:
+    ) -> np.ndarray:
         """Redo the preintegration of intervals whose estimated bias moved far from the one
         they were integrated about: GTSAM's first-order bias correction is only good for
-        small changes (a gyro-free IMU's rate error, a badly known turn-on bias). Returns how
-        many intervals were redone."""
-        redone = 0
-        for i, pim in enumerate(self.pims):
-            estimate = values.atConstantBias(B(i))
-            used = pim.biasHat()
-            if (
-                np.max(np.abs(estimate.gyroscope() - used.gyroscope())) > gyro_threshold
-                or np.max(np.abs(estimate.accelerometer() - used.accelerometer())) > accel_threshold
-            ):
-                self.preintegrate(i, estimate)
-                redone += 1
-        return redone
+        small changes (a gyro-free IMU's rate error, a badly known turn-on bias). Returns the
+        intervals redone."""
+        estimate = bias_estimates(values, self.n_keyframes)[:-1]
+        change = np.abs(estimate - self.pim_bias)  # NaN (never preintegrated): not redone
+        redo = np.flatnonzero(
+            (change[:, 3:].max(axis=1) > gyro_threshold)
+            | (change[:, :3].max(axis=1) > accel_threshold)
+        )
+        for i in redo:
+            self.preintegrate(int(i), gtsam.imuBias.ConstantBias(estimate[i, :3], estimate[i, 3:]))
+        return redo
 
     def predict(
         self, k: int, state: gtsam.NavState, bias: gtsam.imuBias.ConstantBias
     ) -> gtsam.NavState:
         """State at keyframe k+1 predicted from keyframe k."""
         return self.pims[k].predict(state, bias)
+
+
+def bias_estimates(values: gtsam.Values, n_keyframes: int) -> np.ndarray:
+    """(K, 6) every keyframe's bias in ``values``: accelerometer, gyro (ConstantBias order)."""
+    return np.array([values.atConstantBias(B(k)).vector() for k in range(n_keyframes)])
+
+
+def rotations_and_velocities(
+    values: gtsam.Values, keyframes: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(n, 3, 3) attitudes and (n, 3) velocities of ``keyframes`` in ``values``."""
+    rotation = np.array([values.atPose3(X(int(k))).rotation().matrix() for k in keyframes])
+    velocity = np.array([values.atVector(V(int(k))) for k in keyframes])
+    return rotation.reshape(-1, 3, 3), velocity.reshape(-1, 3)
 
 
 def _keys(symbol, keyframes: np.ndarray) -> np.ndarray:
@@ -570,6 +584,7 @@ def build_problem(
         noise=noise,
         segments=segments,
         pims=[None] * (len(times) - 1),
+        pim_bias=np.full((len(times) - 1, 6), np.nan),
         params=params,
         suspect_params=suspect_params,
         gnss_at=gnss_at,

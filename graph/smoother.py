@@ -33,7 +33,7 @@ from fgins.factors import vehicle as vehicle_model
 from fgins.factors.values import put_bias, put_double, put_pose, put_vector
 from fgins.graph.keyframe_filter import keyframe_filter
 from fgins.graph.output import KeyframeStates, densify
-from fgins.graph.problem import Problem, build_problem
+from fgins.graph.problem import Problem, build_problem, rotations_and_velocities
 
 
 class KeyframeGuess(Protocol):
@@ -482,11 +482,16 @@ def _to_trajectory(
 # -- batch ---------------------------------------------------------------------------------
 
 
-def _nonlinear_graph(problem: Problem, speeds: np.ndarray | None) -> gtsam.NonlinearFactorGraph:
-    """Every C++ nonlinear factor; ZUPTs only where ``speeds`` (a solution's) confirm a stop."""
+def _nonlinear_graph(
+    problem: Problem, speeds: np.ndarray | None, imu_index: list[int] | None = None
+) -> gtsam.NonlinearFactorGraph:
+    """Every C++ nonlinear factor; ZUPTs only where ``speeds`` (a solution's) confirm a stop.
+    ``imu_index`` (if given) receives the graph index of each interval's IMU factor."""
     problem.zupt_keyframes.clear()
     graph = problem.prior_factors()
     for k in range(problem.n_keyframes):
+        if k > 0 and imu_index is not None:
+            imu_index.append(graph.size())  # keyframe_factors puts the IMU factor first
         graph.push_back(problem.keyframe_factors(k, None if speeds is None else float(speeds[k])))
     return graph
 
@@ -519,15 +524,26 @@ def _lm(
 
 def _linearisation_moved(problem: Problem, before: gtsam.Values, after: gtsam.Values) -> bool:
     """Did any keyframe carrying a linearised factor move beyond the relinearisation limits?"""
-    for k in np.union1d(problem.nhc_keyframes, problem.antenna_velocity_keyframes):
-        a, b = before.atPose3(X(int(k))), after.atPose3(X(int(k)))
-        if np.max(np.abs(a.rotation().localCoordinates(b.rotation()))) > RELINEARIZE_ATTITUDE_RAD:
-            return True
-        if np.max(np.abs(before.atVector(V(int(k))) - after.atVector(V(int(k))))) > (
-            RELINEARIZE_VELOCITY_M_S
-        ):
-            return True
-    return False
+    keyframes = np.union1d(problem.nhc_keyframes, problem.antenna_velocity_keyframes)
+    if not len(keyframes):
+        return False
+    rotation_a, velocity_a = rotations_and_velocities(before, keyframes)
+    rotation_b, velocity_b = rotations_and_velocities(after, keyframes)
+    if np.max(np.abs(velocity_a - velocity_b)) > RELINEARIZE_VELOCITY_M_S:
+        return True
+    relative = np.einsum("nji,njk->nik", rotation_a, rotation_b)  # R_a^T R_b
+    # Its skew part is sin(angle) * axis: the rotation vector to within angle^2 / 6 below
+    # 60 deg, where the limit (1e-3 rad) is decided; beyond, the trace says "moved".
+    sine_axis = 0.5 * np.stack(
+        [
+            relative[:, 2, 1] - relative[:, 1, 2],
+            relative[:, 0, 2] - relative[:, 2, 0],
+            relative[:, 1, 0] - relative[:, 0, 1],
+        ],
+        axis=1,
+    )
+    cosine = 0.5 * (np.trace(relative, axis1=1, axis2=2) - 1.0)
+    return bool(np.any(cosine < 0.5) or np.max(np.abs(sine_axis)) > RELINEARIZE_ATTITUDE_RAD)
 
 
 def _solve(
@@ -538,7 +554,8 @@ def _solve(
     at it)."""
     max_iterations = problem.config.smoother.batch_max_iterations
     has_linear = problem.has_linear_factors
-    nonlinear = _nonlinear_graph(problem, speeds)
+    imu_index: list[int] = []
+    nonlinear = _nonlinear_graph(problem, speeds, imu_index)
     settled = False
     previous_error = math.inf
     damping = 1e-5  # carried across rounds: LM's trust region survives the rebuilds
@@ -559,14 +576,15 @@ def _solve(
         end_error = graph.error(result)
         _check_finite(end_error, "after Levenberg-Marquardt", report.solver)
         converged = iterations < budget
-        redone = problem.repreintegrate(
+        redone_intervals = problem.repreintegrate(
             result, REPREINTEGRATE_GYRO_RAD_S, REPREINTEGRATE_ACCEL_M_S2
         )
+        redone = len(redone_intervals)
         report.repreintegrated += redone
         moved = has_linear and _linearisation_moved(problem, values, result)
         values = result
-        if redone:
-            nonlinear = _nonlinear_graph(problem, speeds)
+        for i in redone_intervals:  # only their IMU factors change
+            nonlinear.replace(imu_index[i], problem.imu_factor(int(i)))
         steady = abs(previous_error - end_error) <= SETTLED_RELATIVE_ERROR * end_error
         steady_rounds = steady_rounds + 1 if steady else 0
         previous_error = end_error

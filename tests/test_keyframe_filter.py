@@ -81,3 +81,22 @@ def test_keyframe_filter_is_a_good_filter_and_ends_where_the_smoother_ends(name,
     assert np.all(np.abs(body_error) < 3 * position_sigma + 0.01), (body_error, position_sigma)
     velocity_error = filtered.atVector(V(last)) - result.atVector(V(last))
     assert np.all(np.abs(velocity_error) < 3 * velocity_sigma + 0.01), (velocity_error, velocity_sigma)
+
+
+def test_a_failed_guess_filter_falls_back_to_dead_reckoning_and_says_so(monkeypatch):
+    from fgins.datatypes import FginsError
+
+    def fail(problem, progress=False):
+        raise FginsError("the initial-guess filter failed at keyframe 3: singular update")
+
+    monkeypatch.setattr(smoother, "keyframe_filter", fail)
+    run = SCENARIOS["highway"](seed=4, duration_s=60)
+    config = config_for_dataset(run.dataset)
+    batch = run_method(run.dataset, config, "batch", progress=False)
+    assert batch.info["initial_guess"] == "dead reckoning"
+    assert any("singular update" in w for w in batch.info.get("fit_warnings", []))
+    # The same optimum from the other start (the fit does not depend on the guess here).
+    monkeypatch.undo()
+    filtered = run_method(run.dataset, config, "batch", progress=False)
+    assert filtered.info["initial_guess"] == "keyframe EKF"
+    np.testing.assert_allclose(batch.position, filtered.position, atol=0.02)
