@@ -100,3 +100,28 @@ def test_a_failed_guess_filter_falls_back_to_dead_reckoning_and_says_so(monkeypa
     filtered = run_method(run.dataset, config, "batch", progress=False)
     assert filtered.info["initial_guess"] == "keyframe EKF"
     np.testing.assert_allclose(batch.position, filtered.position, atol=0.02)
+
+
+def test_each_keyframe_update_is_a_fixed_small_system(monkeypatch):
+    """Linear cost by construction: every keyframe's update solves a dense system over the
+    previous and the new keyframe's states only, whatever the drive's length."""
+    from fgins.graph import keyframe_filter as module
+
+    sizes: list[int] = []
+    original = module._update
+
+    def recording(factors, linearisation, carried_keys, root, dropped, kept, k):
+        sizes.append(len(dropped) + len(kept))
+        return original(factors, linearisation, carried_keys, root, dropped, kept, k)
+
+    monkeypatch.setattr(module, "_update", recording)
+    largest = []
+    for duration in (40.0, 120.0):
+        run = SCENARIOS["uav-loop-baro"](seed=1, duration_s=duration)  # with a baro bias state
+        problem = build_problem(run.dataset, config_for_dataset(run.dataset), progress=False)
+        sizes.clear()
+        keyframe_filter(problem)
+        assert len(sizes) >= problem.n_keyframes
+        largest.append(max(sizes))
+    # X, V, B and the barometer bias of two keyframes: 8 keys, on either drive.
+    assert largest == [8, 8], largest
