@@ -7,7 +7,11 @@ MCAP, KITTI, UBX), so the same drive read from different formats gets the same f
   noise), see :mod:`fgins.io.imu_checks`;
 * units: a gyro in deg/s (its integrated rotation over GNSS turns is ~57x the turn the fixes
   show, or its rates are routinely above any vehicle's), an accelerometer in g (median
-  specific-force norm ~1 instead of ~9.8) -> :class:`InputError`;
+  specific-force norm ~1 instead of ~9.8), IMU times in ms or ns (samples "seconds" apart)
+  -> :class:`InputError`;
+* signs: the gyro's rotation about up (the direction the accelerometer's gravity reaction
+  gives) turning against the GNSS track in the turns -> :class:`InputError` (an accelerometer
+  giving acceleration instead of specific force, or a left-handed / sign-flipped axis set);
 * geodetic ranges: |lat| > 90, |lon| > 180, altitude outside [-1000, 1e5] m -> fix dropped
   and counted (an error when no fix is left);
 * GNSS sigmas and DOPs that are not positive finite numbers -> ignored, counted;
@@ -60,6 +64,12 @@ STRAIGHT_MIN_WINDOWS = 10
 G = 9.80665
 ACCEL_G_RANGE = (0.5, 2.0)  # a median specific-force norm here is g, not m/s^2
 ACCEL_PLAUSIBLE_RANGE = (5.0, 20.0)  # m/s^2: gravity plus any vehicle's mean acceleration
+# No IMU samples slower than 1 Hz: samples 10 or 1e7 "seconds" apart are times in ms or ns.
+IMU_MAX_SAMPLE_INTERVAL_S = 1.0
+# In the clear turns, the gyro's rotation about up must turn the way the track does: over the
+# track's turn it gives ~+1 (median over the turns), ~-1 when its sign is reversed.
+TURN_SIGN_MIN_RATIO = -0.3
+TURN_SIGN_MIN_WINDOWS = 3
 GNSS_GAP_MIN_S = 5.0
 GNSS_GAP_PERIODS = 10.0
 
@@ -72,6 +82,7 @@ def validate_dataset(dataset: Dataset) -> Dataset:
     if dataset.metadata.get("input_checks") is not None:
         return dataset
     checks: list[str] = []
+    _check_imu_time_unit(dataset.imu.t)
     imu = flag_suspect(dataset.imu, checks)
     gnss, origin = _check_gnss(dataset.gnss, dataset.origin, checks)
     _check_time_bases(imu.t, gnss.t, checks)
@@ -324,6 +335,18 @@ def _check_time_bases(t_imu: np.ndarray, t_gnss: np.ndarray, checks: list[str]) 
 # --------------------------------------------------------------------------------------------
 
 
+def _check_imu_time_unit(t: np.ndarray) -> None:
+    if t.size < 2:
+        return
+    interval = float(np.median(np.diff(t)))
+    if interval > IMU_MAX_SAMPLE_INTERVAL_S:
+        raise InputError(
+            f"imu: the samples are {interval:.6g} time units apart ({1 / interval:.3g} Hz): no "
+            "IMU samples that slowly; the times look like milliseconds or nanoseconds, give "
+            "them in seconds (and the GNSS times on the same clock)"
+        )
+
+
 def _check_units(imu, gnss: GnssData, origin: Origin, *, has_accel_array: bool) -> None:
     accel_norm = np.linalg.norm(imu.accel, axis=1)
     median_accel = float(np.median(accel_norm))
@@ -358,13 +381,21 @@ def _check_units(imu, gnss: GnssData, origin: Origin, *, has_accel_array: bool) 
             f"far beyond any gyro's); multiply gyro_x, gyro_y, gyro_z by "
             f"pi/180 = {math.pi / 180:.6f}"
         )
-    ratio, turns = _gyro_turn_ratio(imu, gnss, origin)
+    ratio, turns, turn_sign = _gyro_turn_ratio(imu, gnss, origin)
     if turns >= TURN_MIN_WINDOWS and ratio > GYRO_TURN_RATIO_MAX:
         raise InputError(
             f"imu: the gyro looks like deg/s, not rad/s: over {turns} {TURN_WINDOW_S:g}-s windows "
             f"of the GNSS track it integrates to {ratio:.1f} times the turn the fixes show "
             f"(57.3 for deg/s, ~1 for rad/s); multiply gyro_x, gyro_y, gyro_z by "
             f"pi/180 = {math.pi / 180:.6f}"
+        )
+    if turns >= TURN_SIGN_MIN_WINDOWS and turn_sign < TURN_SIGN_MIN_RATIO:
+        raise InputError(
+            f"imu: the gyro turns against the GNSS track: over {turns} turns its rotation about "
+            "up (the direction of the accelerometer's mean reading) is "
+            f"{turn_sign:.2f} times the track's (~+1 expected); the accelerometer must give "
+            "specific force (+9.8 m/s^2 along up at rest, not the acceleration -9.8) and the "
+            "axes must be right-handed (a flipped axis sign flips the turn)"
         )
 
 
@@ -386,8 +417,10 @@ def _gyro_at_rest(imu, window_s: float = 1.0) -> float:
     return float(np.median(np.linalg.norm(gyro[rest].mean(axis=1), axis=1)))
 
 
-def _gyro_turn_ratio(imu, gnss: GnssData, origin: Origin) -> tuple[float, int]:
-    """Median of |integrated gyro| / |GNSS course change| over windows with a clear turn.
+def _gyro_turn_ratio(imu, gnss: GnssData, origin: Origin) -> tuple[float, int, float]:
+    """Median of |integrated gyro| / |GNSS course change| over windows with a clear turn,
+    their number, and the median over them of the gyro's rotation about up over the course
+    change (up: the mean accelerometer reading, the reaction to gravity; ~+1).
 
     The course at a time comes from positions TURN_WINDOW_S/2 apart (a few metres of noise are
     small against the tens of metres travelled); a window spans TURN_WINDOW_S seconds between
@@ -399,7 +432,7 @@ def _gyro_turn_ratio(imu, gnss: GnssData, origin: Origin) -> tuple[float, int]:
     half = TURN_WINDOW_S / 2
     lo, hi = max(t[0], imu.t[0]) + half, min(t[-1], imu.t[-1]) - half
     if t.size < 4 or hi - lo < TURN_WINDOW_S:
-        return math.nan, 0
+        return math.nan, 0, math.nan
     step = TURN_WINDOW_S / 4
     grid = np.arange(lo, hi, step)
     enu = lla_to_enu(gnss.lla, origin)
@@ -428,13 +461,25 @@ def _gyro_turn_ratio(imu, gnss: GnssData, origin: Origin) -> tuple[float, int]:
     )
     moving = good[i0] & good[i1]
     rotated = np.linalg.norm(rotation, axis=1)
-    use = moving & (turn > TURN_MIN_RAD)
+    signed_turn = course[i1] - course[i0]  # compass course: clockwise positive
+    use = moving & (np.abs(signed_turn) > TURN_MIN_RAD)
     if use.any():
-        return float(np.median(rotated[use] / turn[use])), int(use.sum())
+        up = np.mean(imu.accel, axis=0)
+        up = up / np.linalg.norm(up)
+        # A left turn (counter-clockwise from above, about up) lowers the compass course:
+        # the gyro's turn about up over the track's is ~+1 (about -1 when reversed); the
+        # median, as a few windows' courses are noise (slow driving, PDOP-biased fixes).
+        signed_ratio = (rotation[use] @ up) / -signed_turn[use]
+        return (
+            float(np.median(rotated[use] / turn[use])),
+            int(use.sum()),
+            float(np.median(signed_ratio)),
+        )
     # No clear turn (a motorway): driving straight, the gyro must not say it rotated far.
     if moving.sum() >= STRAIGHT_MIN_WINDOWS:
         median_rotation = float(np.median(rotated[moving]))
         median_turn = float(np.median(turn[moving]))
         if median_rotation > STRAIGHT_MAX_ROTATION_RAD:
-            return median_rotation / max(median_turn, median_rotation / 1e3), int(moving.sum())
-    return math.nan, 0
+            ratio = median_rotation / max(median_turn, median_rotation / 1e3)
+            return ratio, int(moving.sum()), math.nan
+    return math.nan, 0, math.nan

@@ -155,6 +155,41 @@ def test_accel_in_g_is_an_error(tmp_path, name, seed):
         load_dataset(_pair(tmp_path, data))
 
 
+@pytest.mark.parametrize(("name", "seed"), [("car-urban", 0), ("aircraft-ekf", 2), ("uav-loop-baro", 1)])
+@pytest.mark.parametrize("flip", ["acceleration", "gyro-z-sign"])
+def test_imu_turning_against_the_gnss_track_is_an_error(tmp_path, name, seed, flip):
+    """Acceleration instead of specific force (gravity's reaction reversed: "up" is down),
+    or a gyro axis with its sign flipped: the gyro's turns about up run against the track's.
+    The same drive with its IMU turned to FRD and any mounting passes."""
+    from dataclasses import replace
+
+    from fgins.tests.drive_fixtures import turned_imu
+
+    run = _run(name, seed, 150)
+    for rpy in ((180.0, 0.0, -90.0), (20.0, -10.0, 35.0)):
+        turned, _ = turned_imu(run, rpy)
+        assert load_dataset(_pair(tmp_path / f"ok{rpy[0]:g}", turned)).imu is not None
+    imu = run.dataset.imu
+    if flip == "acceleration":
+        imu = replace(imu, accel=-imu.accel)
+    else:
+        imu = replace(imu, gyro=imu.gyro * [1, 1, -1])
+    with pytest.raises(InputError, match=r"gyro turns against the GNSS track.*specific force"):
+        load_dataset(_pair(tmp_path / "bad", replace(run.dataset, imu=imu)))
+
+
+@pytest.mark.parametrize("scale", [1e3, 1e9])
+def test_imu_times_in_ms_or_ns_are_an_error(tmp_path, urban, scale):
+    from dataclasses import replace
+
+    data = urban.dataset
+    data = replace(
+        data, imu=replace(data.imu, t=data.imu.t * scale), gnss=replace(data.gnss, t=data.gnss.t * scale)
+    )
+    with pytest.raises(InputError, match=r"samples are .* apart.*milliseconds or nanoseconds"):
+        load_dataset(_pair(tmp_path, data))
+
+
 def test_gyro_free_derived_rates_are_not_taken_for_deg_per_s(tmp_path):
     folder = tmp_path / "cube"
     write_sim_dir(_run("gyrofree-cube", 0, 120), folder)
