@@ -48,6 +48,7 @@ JUMP_NEIGHBOURS = 3  # a fix is judged against this many fixes on each side
 # over a turn the GNSS track shows, a rad/s gyro gives ~1x the turn, a deg/s one 57x.
 GYRO_ROUTINE_MAX_RAD_PER_S = 10.0
 GYRO_TURN_RATIO_MAX = 8.0
+GYRO_TURN_RATIO_MIN = 0.25  # a right gyro gives 0.7-1.25 (median over the turns)
 TURN_WINDOW_S = 10.0
 TURN_MIN_RAD = 0.5  # a turn far above the course noise of the window's end points
 TURN_MIN_SPEED_M_PER_S = 3.0
@@ -388,6 +389,12 @@ def _check_units(imu, gnss: GnssData, origin: Origin, *, has_accel_array: bool) 
             f"of the GNSS track it integrates to {ratio:.1f} times the turn the fixes show "
             f"(57.3 for deg/s, ~1 for rad/s); multiply gyro_x, gyro_y, gyro_z by "
             f"pi/180 = {math.pi / 180:.6f}"
+        )
+    if turns >= TURN_SIGN_MIN_WINDOWS and ratio < GYRO_TURN_RATIO_MIN:
+        raise InputError(
+            f"imu: the gyro does not see the turns: over {turns} {TURN_WINDOW_S:g}-s windows of "
+            f"the GNSS track it integrates to {ratio:.3g} times the turn the fixes show (~1 "
+            "expected; 0.017 if rad/s were converted to rad/s again, 0 for a dead gyro)"
         )
     if turns >= TURN_SIGN_MIN_WINDOWS and turn_sign < TURN_SIGN_MIN_RATIO:
         raise InputError(

@@ -178,6 +178,14 @@ def test_imu_turning_against_the_gnss_track_is_an_error(tmp_path, name, seed, fl
         load_dataset(_pair(tmp_path / "bad", replace(run.dataset, imu=imu)))
 
 
+@pytest.mark.parametrize("scale", [0.0, math.pi / 180])
+def test_a_gyro_that_does_not_see_the_turns_is_an_error(tmp_path, scale):
+    run = _run("car-urban", 3, 150)
+    data = _with_imu(run.dataset, gyro_scale=scale)  # dead, or converted to rad/s twice
+    with pytest.raises(InputError, match=r"gyro does not see the turns"):
+        load_dataset(_pair(tmp_path, data))
+
+
 @pytest.mark.parametrize("scale", [1e3, 1e9])
 def test_imu_times_in_ms_or_ns_are_an_error(tmp_path, urban, scale):
     from dataclasses import replace
