@@ -34,3 +34,161 @@ def mounting_rotation(rpy_deg: tuple[float, float, float] | np.ndarray) -> np.nd
     roll, pitch, yaw = np.radians(np.asarray(rpy_deg, dtype=float))
     return _axis_rotation(2, yaw) @ _axis_rotation(1, pitch) @ _axis_rotation(0, roll)
 
+
+
+# Centripetal acceleration: the motion's own evidence of where the vehicle's nose points.
+MOTION_STEP_S = 0.2  # evaluated on this grid
+MOTION_WINDOW_S = 1.0  # IMU averaged over this around each grid time
+MOTION_MAX_FIX_GAP_S = 1.5  # speed interpolated only this close to a fix
+MOTION_MIN_SPEED_M_S = 3.0
+CENTRIPETAL_MIN_M_S2 = 0.5  # a time "in a turn" has v * w above this
+MOTION_MIN_TURN_S = 12.0  # seconds of turning needed to tell (9 s: up to 20 deg off)
+GRAVITY_M_S2 = 9.81
+MOTION_SCALE_RANGE = (0.7, 1.3)  # |specific force per v w| in the turns: ~1
+CHORD_S = 4.0  # speed from positions over this (when the GNSS has no velocity)
+
+
+def forward_axis_from_motion(dataset) -> tuple[np.ndarray, int] | None:
+    """The vehicle's forward axis in IMU axes as the motion shows it, or None when the drive
+    has too few turns to tell; with the seconds of turning used.
+
+    A ground vehicle turning at rate ``w`` (about up) with speed ``v`` accelerates toward the
+    turn's centre, ``v w`` along its left axis; the IMU's specific force shows it in the
+    horizontal plane (up: the mean accelerometer reading). Regressing the horizontal specific
+    force on ``v w`` over the turning epochs gives the left axis in IMU axes, and
+    forward = left x up. Independent of the configured mounting, so it can check it.
+    """
+    imu, gnss = dataset.imu, dataset.gnss
+    if len(gnss.t) < 3 or len(imu.t) < 10:
+        return None
+    # On a grid finer than the fixes (a turn lasts a few epochs), where fixes are dense.
+    epoch_speed = _speed(gnss.t, dataset.gnss_enu(), gnss.velocity)
+    start, end = max(gnss.t[0], imu.t[0]), min(gnss.t[-1], imu.t[-1])
+    if end - start < 10 * MOTION_STEP_S:
+        return None
+    t = np.arange(start, end, MOTION_STEP_S)
+    nearest_fix = np.abs(gnss.t[np.clip(np.searchsorted(gnss.t, t), 0, len(gnss.t) - 1)] - t)
+    speed = np.interp(t, gnss.t, epoch_speed)
+    speed[nearest_fix > MOTION_MAX_FIX_GAP_S] = np.nan
+    lo = np.searchsorted(imu.t, t - MOTION_WINDOW_S / 2)
+    hi = np.searchsorted(imu.t, t + MOTION_WINDOW_S / 2)
+    count = np.maximum(hi - lo, 1)[:, None]
+    accel = (_prefix_sums(imu.accel)[hi] - _prefix_sums(imu.accel)[lo]) / count
+    gyro = (_prefix_sums(imu.gyro)[hi] - _prefix_sums(imu.gyro)[lo]) / count
+    up = np.mean(imu.accel, axis=0)
+    up = up / np.linalg.norm(up)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        # The forward specific force: speeding up or slowing down, plus the grade's share of
+        # gravity (a road climbing through a curve); regressed out below.
+        along = np.gradient(speed, t)
+        if gnss.velocity is not None and np.mean(np.isfinite(gnss.velocity[:, 2])) > 0.5:
+            along = along + GRAVITY_M_S2 * np.interp(t, gnss.t, gnss.velocity[:, 2]) / speed
+    rate = gyro @ up
+    moving = (hi - lo >= 3) & np.isfinite(speed) & np.isfinite(along)
+    moving &= speed > MOTION_MIN_SPEED_M_S
+    straight = moving & (np.abs(speed * rate) < 0.5 * CENTRIPETAL_MIN_M_S2)
+    if straight.sum() >= 5:  # the gyro bias, which v turns into a false centripetal term
+        rate = rate - np.median(rate[straight])
+    centripetal = speed * rate
+    turning = moving & (np.abs(centripetal) > CENTRIPETAL_MIN_M_S2)
+    n = int(turning.sum())
+    if n * MOTION_STEP_S < MOTION_MIN_TURN_S:
+        return None
+    horizontal = accel[turning] - np.outer(accel[turning] @ up, up)
+    # Braking into a turn, or a grade through it, correlates the forward specific force
+    # with v w: a regressor too.
+    design = np.column_stack([centripetal[turning], along[turning], np.ones(n)])
+    coefficients, *_ = np.linalg.lstsq(design, horizontal, rcond=None)
+    left = coefficients[0]  # (3,): specific force per unit of v w, IMU axes (~unit length)
+    scale = float(np.linalg.norm(left))
+    if not MOTION_SCALE_RANGE[0] <= scale <= MOTION_SCALE_RANGE[1]:
+        return None  # the turns do not show as centripetal acceleration: cannot tell
+    forward = np.cross(left / scale, up)
+    return forward / np.linalg.norm(forward), round(n * MOTION_STEP_S)
+
+
+def _prefix_sums(samples: np.ndarray) -> np.ndarray:
+    return np.vstack([np.zeros(samples.shape[1]), np.cumsum(samples, axis=0)])
+
+
+def _speed(t: np.ndarray, enu: np.ndarray, velocity: np.ndarray | None) -> np.ndarray:
+    """Horizontal speed at each epoch: the receiver's velocity, else a position chord."""
+    if velocity is not None and np.mean(np.isfinite(velocity[:, 0])) > 0.5:
+        return np.hypot(velocity[:, 0], velocity[:, 1])
+    a = np.searchsorted(t, t - CHORD_S / 2)
+    b = np.clip(np.searchsorted(t, t + CHORD_S / 2, side="right") - 1, 0, len(t) - 1)
+    span = t[b] - t[a]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        speed = np.hypot(*(enu[b, :2] - enu[a, :2]).T) / span
+    return np.where(span > 0.5 * CHORD_S, speed, np.nan)
+
+
+def mounting_yaw_error_deg(dataset, rpy_deg) -> tuple[float, int] | None:
+    """Angle (deg, about up) from the configured mounting's forward axis to the one the
+    motion shows (:func:`forward_axis_from_motion`), with the seconds of turning used; None
+    when the drive cannot tell."""
+    found = forward_axis_from_motion(dataset)
+    if found is None:
+        return None
+    forward, epochs = found
+    up = np.mean(dataset.imu.accel, axis=0)
+    up = up / np.linalg.norm(up)
+    configured = mounting_rotation(rpy_deg)[0]
+    configured = configured - (configured @ up) * up
+    if np.linalg.norm(configured) < 0.1:  # forward configured along up: no yaw to compare
+        return None
+    configured = configured / np.linalg.norm(configured)
+    angle = np.degrees(np.arctan2(np.cross(configured, forward) @ up, configured @ forward))
+    return float(angle), epochs
+
+
+# A configured mounting whose forward axis lies this far (about up) from the one the motion
+# shows: beyond MOUNTING_ERROR_DEG the vehicle constraints would fight the data (an error);
+# beyond MOUNTING_WARN_DEG they would bend it (a warning). The estimate is good to ~1-5 deg.
+MOUNTING_WARN_DEG = 10.0
+MOUNTING_ERROR_DEG = 25.0
+
+
+def fitted_mounting_rpy_deg(dataset) -> np.ndarray | None:
+    """The mounting (deg, ZYX) the data show: forward from the turns
+    (:func:`forward_axis_from_motion`), up from gravity (roads are level on average)."""
+    found = forward_axis_from_motion(dataset)
+    if found is None:
+        return None
+    up = np.mean(dataset.imu.accel, axis=0)
+    up = up / np.linalg.norm(up)
+    forward = found[0] - (found[0] @ up) * up
+    forward = forward / np.linalg.norm(forward)
+    r_vi = np.vstack([forward, np.cross(up, forward), up])  # rows: vehicle axes in IMU axes
+    yaw = np.arctan2(r_vi[1, 0], r_vi[0, 0])
+    pitch = -np.arcsin(np.clip(r_vi[2, 0], -1.0, 1.0))
+    roll = np.arctan2(r_vi[2, 1], r_vi[2, 2])
+    return np.degrees([roll, pitch, yaw])
+
+
+def check_mounting(dataset, rpy_deg) -> str | None:
+    """Compare the configured mounting with the motion (ground vehicles: the turns'
+    centripetal acceleration). Raises ValueError (the caller's InputError) when the
+    forward axes are more than MOUNTING_ERROR_DEG apart; returns a warning line when more
+    than MOUNTING_WARN_DEG; None when they agree or the drive cannot tell."""
+    found = mounting_yaw_error_deg(dataset, rpy_deg)
+    if found is None or abs(found[0]) <= MOUNTING_WARN_DEG:
+        return None
+    angle, epochs = found
+    fitted = fitted_mounting_rpy_deg(dataset)
+    fit = "" if fitted is None else (
+        f"; a mounting that fits the data: imu_to_vehicle_rpy_deg = {_angles(fitted, 0)}"
+    )  # fmt: skip
+    message = (
+        f"imu: the vehicle's forward axis, from the centripetal acceleration over {epochs} s "
+        f"of turns, lies {angle:+.0f} deg about up from the configured mounting's "
+        f"(imu_to_vehicle_rpy_deg = {_angles(rpy_deg, 2)}){fit}"
+    )
+    if abs(angle) > MOUNTING_ERROR_DEG:
+        raise ValueError(message + "; the car constraints would fight the data")
+    return message
+
+
+def _angles(rpy_deg, digits: int) -> str:
+    rounded = np.round(np.asarray(rpy_deg, dtype=float), digits) + 0.0  # no "-0"
+    return "[" + ", ".join(f"{value:g}" for value in rounded) + "]"

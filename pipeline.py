@@ -8,7 +8,7 @@ from collections.abc import Callable
 import numpy as np
 
 from fgins.config import RunConfig
-from fgins.datatypes import Dataset, FginsError, Trajectory
+from fgins.datatypes import Dataset, FginsError, InputError, Trajectory
 from fgins.initial_guess import KeyframeGuess
 
 GRAPH_METHODS = ("batch", "isam2", "isam2-online")
@@ -33,6 +33,33 @@ def run_method(
     *,
     gnss_mask: np.ndarray | None = None,
     progress: bool = True,
+) -> Trajectory:
+    mounting_note = _check_mounting(dataset, config)
+    trajectory = _run(dataset, config, method, gnss_mask, progress)
+    if mounting_note:
+        trajectory.info.setdefault("fit_warnings", []).append(mounting_note)
+    return trajectory
+
+
+def _check_mounting(dataset: Dataset, config: RunConfig) -> str | None:
+    """A car's configured IMU mounting against the one its turns show (fgins.mounting):
+    the constraints every method applies in the vehicle frame depend on it."""
+    if not config.smoother.nhc or dataset.accel_array is not None:
+        return None  # no vehicle-frame constraint (or derived rates: too noisy to tell)
+    from fgins.mounting import check_mounting
+
+    try:
+        return check_mounting(dataset, config.smoother.imu_to_vehicle_rpy_deg)
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
+
+
+def _run(
+    dataset: Dataset,
+    config: RunConfig,
+    method: str,
+    gnss_mask: np.ndarray | None,
+    progress: bool,
 ) -> Trajectory:
     if method in GRAPH_METHODS:
         from fgins.graph.smoother import smooth

@@ -32,6 +32,7 @@ import numpy as np
 
 from fgins.bench.metrics import errors_against
 from fgins.config import config_for_dataset
+from fgins.datatypes import FginsError
 from fgins.outages import outage_mask
 from fgins.pipeline import run_method
 
@@ -144,10 +145,15 @@ def main() -> int:
         if "no car constraints" in label:
             config.smoother.use_nhc = config.smoother.use_zupt = False
         started = time.perf_counter()
-        trajectory = run_method(
-            run.dataset, config, "batch", gnss_mask=outage_mask(run.dataset, windows),
-            progress=False,
-        )
+        try:
+            trajectory = run_method(
+                run.dataset, config, "batch", gnss_mask=outage_mask(run.dataset, windows),
+                progress=False,
+            )
+        except FginsError as exc:  # the pre-solve mounting check (fgins.mounting) refused it
+            print(f"| {label} | [{', '.join(f'{x:.1f}' for x in configured)}] | refused: "
+                  f"{str(exc)[:160]} |", flush=True)  # fmt: skip
+            continue
         elapsed = time.perf_counter() - started
         errors = errors_against(
             trajectory, run.truth.t, run.truth.position, run.dataset.t0, windows
