@@ -37,6 +37,7 @@ def mounting_rotation(rpy_deg: tuple[float, float, float] | np.ndarray) -> np.nd
 
 
 # Centripetal acceleration: the motion's own evidence of where the vehicle's nose points.
+MOTION_MIN_RATE_RAD_S = 0.05  # ~3 deg/s: a turn, not a curve
 MOTION_STEP_S = 0.2  # evaluated on this grid
 MOTION_WINDOW_S = 1.0  # IMU averaged over this around each grid time
 MOTION_MAX_FIX_GAP_S = 1.5  # speed interpolated only this close to a fix
@@ -90,7 +91,10 @@ def forward_axis_from_motion(dataset) -> tuple[np.ndarray, int] | None:
     if straight.sum() >= 5:  # the gyro bias, which v turns into a false centripetal term
         rate = rate - np.median(rate[straight])
     centripetal = speed * rate
+    # Real turns only: a highway's gentle curves (~1 deg/s) at speed pass the centripetal
+    # bound too, and there lane changes and grades mislead the fit by 10-30 deg.
     turning = moving & (np.abs(centripetal) > CENTRIPETAL_MIN_M_S2)
+    turning &= np.abs(rate) > MOTION_MIN_RATE_RAD_S
     n = int(turning.sum())
     if n * MOTION_STEP_S < MOTION_MIN_TURN_S:
         return None
@@ -144,7 +148,7 @@ def mounting_yaw_error_deg(dataset, rpy_deg) -> tuple[float, int] | None:
 
 # A configured mounting whose forward axis lies this far (about up) from the one the motion
 # shows: beyond MOUNTING_ERROR_DEG the vehicle constraints would fight the data (an error);
-# beyond MOUNTING_WARN_DEG they would bend it (a warning). The estimate is good to ~1-5 deg.
+# beyond MOUNTING_WARN_DEG they would bend it (a warning). The estimate is good to ~0.1-0.5 deg.
 MOUNTING_WARN_DEG = 10.0
 MOUNTING_ERROR_DEG = 25.0
 

@@ -90,22 +90,23 @@ def test_a_mounting_15_deg_off_is_a_warning(drive):
 
 
 def test_forward_axis_from_motion_across_vehicles_and_mountings():
-    """Against the simulator's mounting: cars in town, on a highway with grades through its
-    curves, a consumer car with PDOP-biased fixes; FLU, FRD and turned IMUs; and KITTI
-    against its configured mounting. Too few turns: no verdict at all."""
+    """Against the simulator's mounting: cars in town, a consumer car with PDOP-biased
+    fixes; FLU, FRD and turned IMUs; and KITTI against its configured mounting. A highway's
+    gentle curves (no turn above 3 deg/s) or too few turns: no verdict at all."""
     from fgins.config import config_for_dataset
     from fgins.io.kitti import read_kitti
     from fgins.mounting import forward_axis_from_motion, mounting_yaw_error_deg
 
-    for name, seed in (("car-urban", 3), ("highway", 4), ("mems-car-pdop", 5)):
+    for name, seed in (("car-urban", 3), ("mems-car-pdop", 5)):
         run = SCENARIOS[name](seed=seed, duration_s=200)
         for rpy in ((0.0, 0.0, 0.0), (180.0, 0.0, 0.0), (10.0, 5.0, -120.0)):
             dataset, _ = turned_imu(run, rpy)
             error, turning_s = mounting_yaw_error_deg(dataset, rpy)  # about up
-            assert abs(error) < 5.0 and turning_s >= 12, (name, rpy, error, turning_s)
+            assert abs(error) < 2.0 and turning_s >= 12, (name, rpy, error, turning_s)
             assert abs(mounting_yaw_error_deg(dataset, (0.0, 0.0, 0.0))[0]) > 5 or rpy[2] == 0
     kitti = read_kitti()
     error, _ = mounting_yaw_error_deg(kitti, config_for_dataset(kitti).smoother.imu_to_vehicle_rpy_deg)
     assert abs(error) < 2.0
-    straight = SCENARIOS["highway"](seed=1, duration_s=50)
-    assert forward_axis_from_motion(straight.dataset) is None
+    for seed, duration in ((1, 50.0), (4, 200.0), (6, 60.0)):  # 4 and 6 fooled a curve fit
+        highway = SCENARIOS["highway"](seed=seed, duration_s=duration)
+        assert forward_axis_from_motion(highway.dataset) is None
