@@ -144,6 +144,17 @@ class Problem:
             and smoother.nhc_misalignment_vertical_walk_deg_per_sqrt_s == 0.0
         )
 
+    @property
+    def shared_keys(self) -> frozenset[int]:
+        """Keys every keyframe shares (a constant misalignment, the odometer scale): never
+        marginalised out of a running iSAM2."""
+        keys = set()
+        if self.estimates_misalignment and self.constant_misalignment:
+            keys.add(self.misalignment_key(0))
+        if self.has_odometer:
+            keys.add(odometer_model.scale_key())
+        return frozenset(keys)
+
     def misalignment_key(self, k: int) -> int:
         """The misalignment state keyframe k's NHC uses."""
         return vehicle_model.misalignment_key(0 if self.constant_misalignment else k)
