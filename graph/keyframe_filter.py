@@ -42,7 +42,7 @@ def keyframe_filter(problem: Problem, progress: bool = False) -> gtsam.Values:
     from tqdm import tqdm  # imported on use (import time)
 
     gnss_config = guess_config(problem.config).gnss
-    constants = problem.constant_keys()
+    constants = problem.shared_keys
     out = gtsam.Values()
     carried = gtsam.Values()  # the filter's current mean: keyframe k's states and constants
     carried_keys: list[int] = []

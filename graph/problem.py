@@ -147,14 +147,17 @@ class Problem:
             and smoother.nhc_misalignment_vertical_walk_deg_per_sqrt_s == 0.0
         )
 
-    def constant_keys(self) -> set[int]:
-        """States that are one key for the whole drive (not one per keyframe)."""
+    @property
+    def shared_keys(self) -> frozenset[int]:
+        """States that are one key for the whole drive, shared by every keyframe (a constant
+        misalignment, the odometer scale): carried along by the keyframe EKF, never
+        marginalised out of a running iSAM2."""
         keys = set()
-        if self.has_odometer:
-            keys.add(odometer_model.scale_key())
         if self.estimates_misalignment and self.constant_misalignment:
             keys.add(self.misalignment_key(0))
-        return keys
+        if self.has_odometer:
+            keys.add(odometer_model.scale_key())
+        return frozenset(keys)
 
     def misalignment_key(self, k: int) -> int:
         """The misalignment state keyframe k's NHC uses."""
