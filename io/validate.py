@@ -394,7 +394,8 @@ def _check_units(imu, gnss: GnssData, origin: Origin, *, has_accel_array: bool) 
         raise InputError(
             f"imu: the gyro does not see the turns: over {turns} {TURN_WINDOW_S:g}-s windows of "
             f"the GNSS track it integrates to {ratio:.3g} times the turn the fixes show (~1 "
-            "expected; 0.017 if rad/s were converted to rad/s again, 0 for a dead gyro)"
+            "expected; 0.017 if rad/s were converted to rad/s again, 0 for a dead gyro), or "
+            "the IMU and GNSS clocks are offset (give --time-offset SECONDS)"
         )
     if turns >= TURN_SIGN_MIN_WINDOWS and turn_sign < TURN_SIGN_MIN_RATIO:
         raise InputError(
@@ -402,7 +403,8 @@ def _check_units(imu, gnss: GnssData, origin: Origin, *, has_accel_array: bool) 
             "up (the direction of the accelerometer's mean reading) is "
             f"{turn_sign:.2f} times the track's (~+1 expected); the accelerometer must give "
             "specific force (+9.8 m/s^2 along up at rest, not the acceleration -9.8) and the "
-            "axes must be right-handed (a flipped axis sign flips the turn)"
+            "axes must be right-handed (a flipped axis sign flips the turn); or the IMU and "
+            "GNSS clocks are offset (give --time-offset SECONDS)"
         )
 
 

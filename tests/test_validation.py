@@ -186,6 +186,15 @@ def test_a_gyro_that_does_not_see_the_turns_is_an_error(tmp_path, scale):
         load_dataset(_pair(tmp_path, data))
 
 
+def test_clocks_30_s_apart_are_an_error_that_names_the_time_offset(tmp_path, urban):
+    """The spans overlap, but the turns of the track and the gyro's do not line up."""
+    from dataclasses import replace
+
+    gnss = replace(urban.dataset.gnss, t=urban.dataset.gnss.t + 30.0)
+    with pytest.raises(InputError, match=r"gyro does not see the turns.*--time-offset"):
+        load_dataset(_pair(tmp_path, replace(urban.dataset, gnss=gnss)))
+
+
 @pytest.mark.parametrize("scale", [1e3, 1e9])
 def test_imu_times_in_ms_or_ns_are_an_error(tmp_path, urban, scale):
     from dataclasses import replace
@@ -222,9 +231,12 @@ def test_imu_and_gnss_time_bases_apart_is_an_error(tmp_path, urban):
 def test_gnss_epochs_outside_the_imu_span_are_counted(tmp_path, urban):
     from dataclasses import replace
 
-    gnss = replace(urban.dataset.gnss, t=urban.dataset.gnss.t + 30.0)
-    checked = load_dataset(_pair(tmp_path, replace(urban.dataset, gnss=gnss)))
-    expected = int(np.sum(gnss.t > urban.dataset.imu.t[-1]))
+    imu = urban.dataset.imu
+    keep = imu.t <= imu.t[-1] - 30.0  # the IMU log stops 30 s before the GNSS one
+    imu = replace(imu, t=imu.t[keep], gyro=imu.gyro[keep], accel=imu.accel[keep])
+    checked = load_dataset(_pair(tmp_path, replace(urban.dataset, imu=imu)))
+    gnss = urban.dataset.gnss
+    expected = int(np.sum(gnss.t > imu.t[-1]))
     assert expected > 0
     assert any(
         f"{expected} of {len(gnss)} GNSS epoch(s) lie outside" in w for w in checked.warnings
