@@ -74,8 +74,9 @@ def forward_axis_from_motion(dataset) -> tuple[np.ndarray, int] | None:
     lo = np.searchsorted(imu.t, t - MOTION_WINDOW_S / 2)
     hi = np.searchsorted(imu.t, t + MOTION_WINDOW_S / 2)
     count = np.maximum(hi - lo, 1)[:, None]
-    accel = (_prefix_sums(imu.accel)[hi] - _prefix_sums(imu.accel)[lo]) / count
-    gyro = (_prefix_sums(imu.gyro)[hi] - _prefix_sums(imu.gyro)[lo]) / count
+    summed_accel, summed_gyro = _prefix_sums(imu.accel), _prefix_sums(imu.gyro)
+    accel = (summed_accel[hi] - summed_accel[lo]) / count
+    gyro = (summed_gyro[hi] - summed_gyro[lo]) / count
     up = np.mean(imu.accel, axis=0)
     up = up / np.linalg.norm(up)
     with np.errstate(invalid="ignore", divide="ignore"):
