@@ -403,8 +403,9 @@ def _check_units(imu, gnss: GnssData, origin: Origin, *, has_accel_array: bool) 
             "up (the direction of the accelerometer's mean reading) is "
             f"{turn_sign:.2f} times the track's (~+1 expected); the accelerometer must give "
             "specific force (+9.8 m/s^2 along up at rest, not the acceleration -9.8) and the "
-            "axes must be right-handed (a flipped axis sign flips the turn); or the IMU and "
-            "GNSS clocks are offset (give --time-offset SECONDS)"
+            "axes must be right-handed (a flipped axis sign flips the turn); or latitude and "
+            "longitude are swapped (a mirrored track), or the IMU and GNSS clocks are offset "
+            "(give --time-offset SECONDS)"
         )
 
 

@@ -195,6 +195,16 @@ def test_clocks_30_s_apart_are_an_error_that_names_the_time_offset(tmp_path, urb
         load_dataset(_pair(tmp_path, replace(urban.dataset, gnss=gnss)))
 
 
+def test_latitude_and_longitude_swapped_is_an_error(tmp_path, urban):
+    """A swapped pair mirrors the track: its turns run against the gyro's."""
+    from dataclasses import replace
+
+    lla = urban.dataset.gnss.lla[:, [1, 0, 2]]
+    data = replace(urban.dataset, gnss=replace(urban.dataset.gnss, lla=lla))
+    with pytest.raises(InputError, match=r"turns against the GNSS track.*latitude and longitude"):
+        load_dataset(_pair(tmp_path, data))
+
+
 @pytest.mark.parametrize("scale", [1e3, 1e9])
 def test_imu_times_in_ms_or_ns_are_an_error(tmp_path, urban, scale):
     from dataclasses import replace
