@@ -9,6 +9,8 @@ MCAP, KITTI, UBX), so the same drive read from different formats gets the same f
   show, or its rates are routinely above any vehicle's), an accelerometer in g (median
   specific-force norm ~1 instead of ~9.8), IMU times in ms or ns (samples "seconds" apart)
   -> :class:`InputError`;
+* GNSS velocity against the fixes' own track: speed ratio (km/h, knots), direction (east and
+  north swapped), climb rate against the altitude's (feet, a down velocity) -> :class:`InputError`;
 * signs: the gyro's rotation about up (the direction the accelerometer's gravity reaction
   gives) turning against the GNSS track in the turns -> :class:`InputError` (an accelerometer
   giving acceleration instead of specific force, or a left-handed / sign-flipped axis set);
@@ -71,6 +73,16 @@ IMU_MAX_SAMPLE_INTERVAL_S = 1.0
 # track's turn it gives ~+1 (median over the turns), ~-1 when its sign is reversed.
 TURN_SIGN_MIN_RATIO = -0.3
 TURN_SIGN_MIN_WINDOWS = 3
+# GNSS velocity against the track of the fixes (chords of VELOCITY_CHORD_S, moving epochs):
+# speed ratio ~1 (km/h gives 3.6, knots 1.94), direction within a few degrees (east and north
+# swapped mirror it), and the climb rate against the altitude's (feet give 3.28, NED's down
+# -1) where the vehicle climbs and sinks enough to tell.
+VELOCITY_CHORD_S = 4.0
+VELOCITY_MIN_EPOCHS = 10
+VELOCITY_SPEED_RATIO_RANGE = (0.7, 1.4)
+VELOCITY_MAX_ANGLE_DEG = 25.0
+CLIMB_MIN_STD_M_S = 1.0
+CLIMB_RATIO_RANGE = (0.6, 1.6)
 GNSS_GAP_MIN_S = 5.0
 GNSS_GAP_PERIODS = 10.0
 
@@ -88,6 +100,7 @@ def validate_dataset(dataset: Dataset) -> Dataset:
     gnss, origin = _check_gnss(dataset.gnss, dataset.origin, checks)
     _check_time_bases(imu.t, gnss.t, checks)
     _check_units(imu, gnss, origin, has_accel_array=dataset.accel_array is not None)
+    _check_gnss_velocity(gnss, origin)
     _report_gnss_time_gaps(gnss.t, checks)
     metadata = {**dataset.metadata, "input_checks": list(checks)}
     return replace(
@@ -407,6 +420,61 @@ def _check_units(imu, gnss: GnssData, origin: Origin, *, has_accel_array: bool) 
             "longitude are swapped (a mirrored track), or the IMU and GNSS clocks are offset "
             "(give --time-offset SECONDS)"
         )
+
+
+def _check_gnss_velocity(gnss: GnssData, origin: Origin) -> None:
+    """The receiver's velocity against the velocity its own fixes show (see the constants)."""
+    from fgins.geodesy import lla_to_enu
+
+    if gnss.velocity is None or len(gnss.t) < 3:
+        return
+    t = gnss.t
+    a = np.searchsorted(t, t - VELOCITY_CHORD_S / 2)
+    b = np.clip(np.searchsorted(t, t + VELOCITY_CHORD_S / 2, side="right") - 1, 0, len(t) - 1)
+    span = t[b] - t[a]
+    dense = span > 0.75 * VELOCITY_CHORD_S
+    if dense.sum() < VELOCITY_MIN_EPOCHS:
+        return
+    enu = lla_to_enu(gnss.lla, origin)
+    track = (enu[b] - enu[a])[dense] / span[dense, None]
+    given = gnss.velocity[dense]
+    track_speed = np.hypot(track[:, 0], track[:, 1])
+    given_speed = np.hypot(given[:, 0], given[:, 1])
+    # A chord's speed is only a speed well above what the fixes' own noise fakes over it
+    # (a few satellites: tens of metres of scatter, "metres per second" at a standstill).
+    sigma = _fix_sigma(gnss)
+    noise = np.sqrt(sigma[a] ** 2 + sigma[b] ** 2)[dense] / span[dense]
+    moving = np.isfinite(given_speed) & (track_speed > np.maximum(TURN_MIN_SPEED_M_PER_S, 3 * noise))
+    if moving.sum() >= VELOCITY_MIN_EPOCHS:
+        ratio = float(np.median(given_speed[moving] / track_speed[moving]))
+        if not VELOCITY_SPEED_RATIO_RANGE[0] <= ratio <= VELOCITY_SPEED_RATIO_RANGE[1]:
+            raise InputError(
+                f"gnss: the velocity columns give {ratio:.3g} times the speed the fixes show "
+                "(~1 expected; km/h gives 3.6, knots 1.94): give vel_east/north/up in m/s"
+            )
+        angle = np.degrees(np.abs(np.angle(
+            (given[moving, 0] + 1j * given[moving, 1]) / (track[moving, 0] + 1j * track[moving, 1])
+        )))  # fmt: skip
+        median_angle = float(np.median(angle))
+        if median_angle > VELOCITY_MAX_ANGLE_DEG:
+            raise InputError(
+                f"gnss: the velocity points {median_angle:.0f} deg away from the track the fixes "
+                "show (median; ~0 expected): east and north swapped (NED order?) or another "
+                "frame; give vel_east, vel_north, vel_up (ENU, m/s)"
+            )
+    climb = track[:, 2]
+    given_climb = given[:, 2]
+    usable = np.isfinite(given_climb)
+    if usable.sum() >= VELOCITY_MIN_EPOCHS and np.std(given_climb[usable]) >= CLIMB_MIN_STD_M_S:
+        slope = float(
+            np.sum(climb[usable] * given_climb[usable]) / np.sum(given_climb[usable] ** 2)
+        )
+        if not CLIMB_RATIO_RANGE[0] <= slope <= CLIMB_RATIO_RANGE[1]:
+            raise InputError(
+                f"gnss: the altitude changes {slope:.3g} times as fast as vel_up says (~1 "
+                "expected; 3.28 for altitude in feet, -1 for a down velocity): give the "
+                "altitude in metres and vel_up positive up"
+            )
 
 
 def _gyro_at_rest(imu, window_s: float = 1.0) -> float:

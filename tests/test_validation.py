@@ -195,6 +195,76 @@ def test_clocks_30_s_apart_are_an_error_that_names_the_time_offset(tmp_path, urb
         load_dataset(_pair(tmp_path, replace(urban.dataset, gnss=gnss)))
 
 
+@pytest.mark.parametrize(
+    ("change", "match"),
+    [
+        ("km/h", r"3\.\d+ times the speed the fixes show"),
+        ("knots", r"1\.9\d* times the speed"),
+        ("east-north swapped", r"velocity points \d+ deg away from the track"),
+    ],
+)
+def test_gnss_velocity_that_contradicts_the_fixes_is_an_error(tmp_path, urban, change, match):
+    from dataclasses import replace
+
+    velocity = urban.dataset.gnss.velocity.copy()
+    if change == "km/h":
+        velocity *= 3.6
+    elif change == "knots":
+        velocity *= 1.0 / 0.514444
+    else:
+        velocity[:, :2] = velocity[:, [1, 0]]
+    data = replace(urban.dataset, gnss=replace(urban.dataset.gnss, velocity=velocity))
+    with pytest.raises(InputError, match=match):
+        load_dataset(_pair(tmp_path, data))
+
+
+@pytest.mark.parametrize("change", ["feet", "down"])
+def test_aircraft_altitude_in_feet_or_a_down_velocity_is_an_error(tmp_path, change):
+    from dataclasses import replace
+
+    run = _run("aircraft-ekf", 1, 300)
+    gnss = run.dataset.gnss
+    assert load_dataset(_pair(tmp_path / "ok", run.dataset)).imu is not None
+    if change == "feet":
+        lla = gnss.lla.copy()
+        lla[:, 2] *= 3.28084
+        gnss = replace(gnss, lla=lla)
+    else:
+        gnss = replace(gnss, velocity=gnss.velocity * [1, 1, -1])
+    with pytest.raises(InputError, match=r"altitude changes .* times as fast as vel_up"):
+        load_dataset(_pair(tmp_path / "bad", replace(run.dataset, gnss=gnss)))
+
+
+def test_real_receiver_velocities_agree_with_their_fixes():
+    """Every shared gpsd NMEA and UBX log with enough motion passes the velocity check (a
+    3-satellite start scatters its fixes by tens of metres: the chords' noise is allowed)."""
+    import os
+
+    from fgins.datatypes import Origin
+    from fgins.io.nmea import read_nmea
+    from fgins.io.ubx import read_ubx_gnss
+    from fgins.io.validate import _check_gnss_velocity
+
+    shared = Path(os.environ.get("FGINS_SHARED") or Path(__file__).resolve().parents[2] / "shared")
+    shared = shared / "data"
+    logs = sorted((shared / "nmea" / "gpsd").glob("*.log")) + sorted(
+        (shared / "ubx" / "gpsd").glob("*.log")
+    )
+    assert len(logs) >= 60
+    checked = 0
+    for log in logs:
+        try:
+            gnss = read_ubx_gnss(log)[0] if log.parent.parent.name == "ubx" else read_nmea(log).gnss
+        except InputError:
+            continue  # a log without any fix
+        finite = np.all(np.isfinite(gnss.lla), axis=1)
+        if finite.sum() >= 3:
+            gnss = gnss.subset(finite)
+            _check_gnss_velocity(gnss, Origin(*gnss.lla[0]))
+            checked += 1
+    assert checked >= 50
+
+
 def test_latitude_and_longitude_swapped_is_an_error(tmp_path, urban):
     """A swapped pair mirrors the track: its turns run against the gyro's."""
     from dataclasses import replace
