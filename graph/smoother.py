@@ -795,15 +795,22 @@ def _run_isam2(
         return _run_isam2_with(problem, progress, online_covariance, "QR", relinearize_skip)
 
 
-def _isam2_step(isam: gtsam.ISAM2, factorization: str, what: str, *args, **kwargs):
+def _guarded(factorization: str, failure: str, call: Callable[[], object]):
+    """``call()``; a GTSAM failure restarts a Cholesky run on QR (_IndeterminateUpdate),
+    and on QR is an error: ``failure``, then GTSAM's first line."""
     try:
-        return isam.update(*args, **kwargs)
+        return call()
     except RuntimeError as exc:
         if factorization == "CHOLESKY":
             raise _IndeterminateUpdate from None
-        raise FginsError(
-            f"iSAM2: {what} failed even with QR factorization: {_first_line(exc)}"
-        ) from None
+        raise FginsError(f"{failure}: {_first_line(exc)}") from None
+
+
+def _isam2_step(isam: gtsam.ISAM2, factorization: str, what: str, *args, **kwargs):
+    return _guarded(
+        factorization, f"iSAM2: {what} failed even with QR factorization",
+        lambda: isam.update(*args, **kwargs),
+    )  # fmt: skip
 
 
 class _Window:
@@ -1002,20 +1009,16 @@ def _run_isam2_with(
         estimate = _estimate(isam, factorization)
         if windowed and round_ == 0:
             estimate.insert(left)
-        redone = [
-            i for i in range(n - 1)
-            if _bias_moved(problem.pims[i].biasHat(), estimate.atConstantBias(B(i)))
-        ]  # fmt: skip
+        redone = problem.repreintegrate(estimate, REPREINTEGRATE_GYRO_RAD_S, REPREINTEGRATE_ACCEL_M_S2)
         for i in redone:
-            problem.preintegrate(i, estimate.atConstantBias(B(i)))
-            nonlinear.replace(imu_index[i], problem.imu_factor(i))
+            nonlinear.replace(imu_index[int(i)], problem.imu_factor(int(i)))
         report.repreintegrated += len(redone)
         has_linear = problem.has_linear_factors
         settled = not math.isfinite(step_from) or (
             step_from - isam.getFactorsUnsafe().error(estimate)
             < ISAM2_SETTLED_RELATIVE_ERROR * step_from
         )
-        if not (windowed and round_ == 0) and not redone and settled and not (
+        if not (windowed and round_ == 0) and not len(redone) and settled and not (
             has_linear and _linearisation_moved(problem, linear_point, estimate)
         ):
             break
@@ -1049,14 +1052,10 @@ def _isam2_marginalize(isam: gtsam.ISAM2, factorization: str, keys: list[int]) -
     leaves = gtsam.KeyList()
     for key in keys:
         leaves.push_back(key)
-    try:
-        isam.marginalizeLeaves(leaves)
-    except RuntimeError as exc:
-        if factorization == "CHOLESKY":
-            raise _IndeterminateUpdate from None
-        raise FginsError(
-            f"iSAM2: marginalising old keyframes failed: {_first_line(exc)}"
-        ) from None
+    _guarded(
+        factorization, "iSAM2: marginalising old keyframes failed",
+        lambda: isam.marginalizeLeaves(leaves),
+    )  # fmt: skip
 
 
 def _first_line(exc: Exception) -> str:
@@ -1065,25 +1064,12 @@ def _first_line(exc: Exception) -> str:
     return " ".join(lines[:2]) if lines else type(exc).__name__
 
 
-def _bias_moved(used: gtsam.imuBias.ConstantBias, estimate: gtsam.imuBias.ConstantBias) -> bool:
-    return bool(
-        np.max(np.abs(estimate.gyroscope() - used.gyroscope())) > REPREINTEGRATE_GYRO_RAD_S
-        or np.max(np.abs(estimate.accelerometer() - used.accelerometer()))
-        > REPREINTEGRATE_ACCEL_M_S2
-    )
-
-
 def _estimate(isam: gtsam.ISAM2, factorization: str) -> gtsam.Values:
     """Every variable's estimate by a full back-substitution (not the wildfire one that
     the per-update estimates use, which leaves old variables' small changes unapplied)."""
-    try:
-        return isam.calculateBestEstimate()
-    except RuntimeError as exc:
-        if factorization == "CHOLESKY":
-            raise _IndeterminateUpdate from None
-        raise FginsError(
-            f"iSAM2: the estimate could not be computed: {_first_line(exc)}"
-        ) from None
+    return _guarded(
+        factorization, "iSAM2: the estimate could not be computed", isam.calculateBestEstimate
+    )
 
 
 def smooth_isam2(
