@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from fgins.datatypes import InputError
+
 
 def _axis_rotation(axis: int, angle: float) -> np.ndarray:
     c, s = np.cos(angle), np.sin(angle)
@@ -77,8 +79,7 @@ def forward_axis_from_motion(dataset) -> tuple[np.ndarray, int] | None:
     summed_accel, summed_gyro = _prefix_sums(imu.accel), _prefix_sums(imu.gyro)
     accel = (summed_accel[hi] - summed_accel[lo]) / count
     gyro = (summed_gyro[hi] - summed_gyro[lo]) / count
-    up = np.mean(imu.accel, axis=0)
-    up = up / np.linalg.norm(up)
+    up = _up_axis(imu)
     with np.errstate(invalid="ignore", divide="ignore"):
         # The forward specific force: speeding up or slowing down, plus the grade's share of
         # gravity (a road climbing through a curve); regressed out below.
@@ -112,6 +113,13 @@ def forward_axis_from_motion(dataset) -> tuple[np.ndarray, int] | None:
     return forward / np.linalg.norm(forward), round(n * MOTION_STEP_S)
 
 
+def _up_axis(imu) -> np.ndarray:
+    """Up in IMU axes: the mean accelerometer reading (gravity's reaction; roads are level
+    on average)."""
+    up = np.mean(imu.accel, axis=0)
+    return up / np.linalg.norm(up)
+
+
 def _prefix_sums(samples: np.ndarray) -> np.ndarray:
     return np.vstack([np.zeros(samples.shape[1]), np.cumsum(samples, axis=0)])
 
@@ -135,16 +143,17 @@ def mounting_yaw_error_deg(dataset, rpy_deg) -> tuple[float, int] | None:
     found = forward_axis_from_motion(dataset)
     if found is None:
         return None
-    forward, epochs = found
-    up = np.mean(dataset.imu.accel, axis=0)
-    up = up / np.linalg.norm(up)
+    angle = _yaw_error_deg(found[0], _up_axis(dataset.imu), rpy_deg)
+    return None if angle is None else (angle, found[1])
+
+
+def _yaw_error_deg(forward: np.ndarray, up: np.ndarray, rpy_deg) -> float | None:
     configured = mounting_rotation(rpy_deg)[0]
     configured = configured - (configured @ up) * up
     if np.linalg.norm(configured) < 0.1:  # forward configured along up: no yaw to compare
         return None
     configured = configured / np.linalg.norm(configured)
-    angle = np.degrees(np.arctan2(np.cross(configured, forward) @ up, configured @ forward))
-    return float(angle), epochs
+    return float(np.degrees(np.arctan2(np.cross(configured, forward) @ up, configured @ forward)))
 
 
 # A configured mounting whose forward axis lies this far (about up) from the one the motion
@@ -158,11 +167,11 @@ def fitted_mounting_rpy_deg(dataset) -> np.ndarray | None:
     """The mounting (deg, ZYX) the data show: forward from the turns
     (:func:`forward_axis_from_motion`), up from gravity (roads are level on average)."""
     found = forward_axis_from_motion(dataset)
-    if found is None:
-        return None
-    up = np.mean(dataset.imu.accel, axis=0)
-    up = up / np.linalg.norm(up)
-    forward = found[0] - (found[0] @ up) * up
+    return None if found is None else _mounting_rpy_deg(found[0], _up_axis(dataset.imu))
+
+
+def _mounting_rpy_deg(forward: np.ndarray, up: np.ndarray) -> np.ndarray:
+    forward = forward - (forward @ up) * up
     forward = forward / np.linalg.norm(forward)
     r_vi = np.vstack([forward, np.cross(up, forward), up])  # rows: vehicle axes in IMU axes
     yaw = np.arctan2(r_vi[1, 0], r_vi[0, 0])
@@ -173,24 +182,25 @@ def fitted_mounting_rpy_deg(dataset) -> np.ndarray | None:
 
 def check_mounting(dataset, rpy_deg) -> str | None:
     """Compare the configured mounting with the motion (ground vehicles: the turns'
-    centripetal acceleration). Raises ValueError (the caller's InputError) when the
-    forward axes are more than MOUNTING_ERROR_DEG apart; returns a warning line when more
-    than MOUNTING_WARN_DEG; None when they agree or the drive cannot tell."""
-    found = mounting_yaw_error_deg(dataset, rpy_deg)
-    if found is None or abs(found[0]) <= MOUNTING_WARN_DEG:
+    centripetal acceleration). Raises InputError when the forward axes are more than
+    MOUNTING_ERROR_DEG apart; returns a warning line when more than MOUNTING_WARN_DEG; None
+    when they agree or the drive cannot tell."""
+    found = forward_axis_from_motion(dataset)
+    if found is None:
         return None
-    angle, epochs = found
-    fitted = fitted_mounting_rpy_deg(dataset)
-    fit = "" if fitted is None else (
-        f"; a mounting that fits the data: imu_to_vehicle_rpy_deg = {_angles(fitted, 0)}"
-    )  # fmt: skip
+    forward, turning_s = found
+    up = _up_axis(dataset.imu)
+    angle = _yaw_error_deg(forward, up, rpy_deg)
+    if angle is None or abs(angle) <= MOUNTING_WARN_DEG:
+        return None
     message = (
-        f"imu: the vehicle's forward axis, from the centripetal acceleration over {epochs} s "
+        f"imu: the vehicle's forward axis, from the centripetal acceleration over {turning_s} s "
         f"of turns, lies {angle:+.0f} deg about up from the configured mounting's "
-        f"(imu_to_vehicle_rpy_deg = {_angles(rpy_deg, 2)}){fit}"
+        f"(imu_to_vehicle_rpy_deg = {_angles(rpy_deg, 2)}); a mounting that fits the data: "
+        f"imu_to_vehicle_rpy_deg = {_angles(_mounting_rpy_deg(forward, up), 0)}"
     )
     if abs(angle) > MOUNTING_ERROR_DEG:
-        raise ValueError(message + "; the car constraints would fight the data")
+        raise InputError(message + "; the car constraints would fight the data")
     return message
 
 

@@ -8,7 +8,7 @@ from collections.abc import Callable
 import numpy as np
 
 from fgins.config import RunConfig
-from fgins.datatypes import Dataset, FginsError, InputError, Trajectory
+from fgins.datatypes import Dataset, FginsError, Trajectory
 from fgins.initial_guess import KeyframeGuess
 
 GRAPH_METHODS = ("batch", "isam2", "isam2-online")
@@ -48,10 +48,7 @@ def _check_mounting(dataset: Dataset, config: RunConfig) -> str | None:
         return None  # no vehicle-frame constraint (or derived rates: too noisy to tell)
     from fgins.mounting import check_mounting
 
-    try:
-        return check_mounting(dataset, config.smoother.imu_to_vehicle_rpy_deg)
-    except ValueError as exc:
-        raise InputError(str(exc)) from None
+    return check_mounting(dataset, config.smoother.imu_to_vehicle_rpy_deg)
 
 
 def _run(
