@@ -245,8 +245,7 @@ class Problem:
         chosen = rows[rows >= 0]  # O(len(all_k)): an iSAM2 update asks for one keyframe
         if len(chosen):
             ks = antenna_k[chosen]
-            rotation = np.array([values.atPose3(X(int(k))).rotation().matrix() for k in ks])
-            velocity = np.array([values.atVector(V(int(k))) for k in ks])
+            rotation, velocity = rotations_and_velocities(values, ks)
             gyro_bias = np.array([values.atConstantBias(B(int(k))).gyroscope() for k in ks])
             for factor in gnss_model.antenna_velocity_factors(
                 _keys(X, ks), _keys(V, ks), _keys(B, ks), rotation, velocity, gyro[chosen],
