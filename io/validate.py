@@ -13,7 +13,9 @@ MCAP, KITTI, UBX), so the same drive read from different formats gets the same f
   north swapped), climb rate against the altitude's (feet, a down velocity) -> :class:`InputError`;
 * signs: the gyro's rotation about up (the direction the accelerometer's gravity reaction
   gives) turning against the GNSS track in the turns -> :class:`InputError` (an accelerometer
-  giving acceleration instead of specific force, or a left-handed / sign-flipped axis set);
+  giving acceleration instead of specific force, a gyro axis with its sign flipped, latitude
+  and longitude swapped); a gyro that does not see the turns (dead, converted twice, clocks
+  apart) likewise;
 * geodetic ranges: |lat| > 90, |lon| > 180, altitude outside [-1000, 1e5] m -> fix dropped
   and counted (an error when no fix is left);
 * GNSS sigmas and DOPs that are not positive finite numbers -> ignored, counted;
