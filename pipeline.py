@@ -79,13 +79,17 @@ def _run(
 
 def filter_initial_guess(
     dataset: Dataset, config: RunConfig, gnss_mask: np.ndarray | None
-) -> Callable[[np.ndarray], KeyframeGuess] | None:
-    """The initial guess the factor graph starts from, from the filter that matches the
-    input: for an accelerometer array (gyro-free), the 18-state EKF on the raw readings,
-    Huber-weighted GNSS updates, sampled at the keyframe times; for an IMU, None: the graph
-    runs its own keyframe EKF over the very factors it optimises
-    (:mod:`fgins.graph.keyframe_filter`: the same measurement models, a fifth of the cost of
-    the IMU-rate 15-state EKF).
+) -> Callable[[np.ndarray], list[KeyframeGuess]] | None:
+    """The initial guesses the factor graph may start from, for the input at hand.
+
+    For an IMU, None: the graph runs its own keyframe EKF over the very factors it
+    optimises (:mod:`fgins.graph.keyframe_filter`: the same measurement models, a fifth of
+    the cost of the IMU-rate 15-state EKF). For an accelerometer array (gyro-free): the
+    18-state EKF on the raw readings, with Huber-weighted GNSS updates, sampled at the
+    keyframe times; and, for a car, the guess from the GNSS track and gravity
+    (:mod:`fgins.track_guess`), which cannot diverge where the EKF does (GNSS at 0.2 Hz
+    leaves the EKF's attitude nothing to hold it between fixes). The graph starts from the
+    one that fits its factors best and restarts from the other if that fit fails.
 
     Huber-weighted updates bound what a gross outlier can do to the guess; a hard innovation
     gate would be worse: once it rejects a few fixes the filter can lock out
@@ -94,11 +98,24 @@ def filter_initial_guess(
     if dataset.accel_array is None:
         return None
 
-    def guess(times: np.ndarray) -> KeyframeGuess:
+    def guesses(times: np.ndarray) -> list[KeyframeGuess]:
         # The filter reports its states at the keyframes only (the same numbers as sampling
         # its IMU-rate output there, without making that output: issue 9).
         from fgins.baseline.guess import filter_guess
+        from fgins.track_guess import track_guess
 
-        return filter_guess(dataset, config, times, gnss_mask=gnss_mask)
+        candidates: list[KeyframeGuess] = []
+        failures: list[FginsError] = []
+        makers = [lambda: filter_guess(dataset, config, times, gnss_mask=gnss_mask)]
+        if config.smoother.nhc:  # the vehicle's nose follows its track
+            makers.append(lambda: track_guess(dataset, config, times, gnss_mask=gnss_mask))
+        for make in makers:
+            try:
+                candidates.append(make())
+            except FginsError as exc:
+                failures.append(exc)
+        if not candidates:
+            raise failures[0]
+        return candidates
 
-    return guess
+    return guesses

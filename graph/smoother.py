@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -47,9 +47,10 @@ class KeyframeGuess(Protocol):
     gyro_bias: np.ndarray  # (K, 3)
 
 
-# keyframe times (K,) -> states there; chosen and supplied by the pipeline (a Kalman filter
-# that matches the input), so graph/ does not depend on baseline/.
-InitialGuess = Callable[[np.ndarray], KeyframeGuess]
+# keyframe times (K,) -> candidate states there, best first; chosen and supplied by the
+# pipeline (a filter that matches the input, a guess from the GNSS track), so graph/ does not
+# depend on baseline/. The batch starts from the candidate with the least graph error.
+InitialGuess = Callable[[np.ndarray], Sequence[KeyframeGuess]]
 
 # A fix whose whitened residual exceeds this at the solution (chi-square, 3 dof, 99.9 %) has a
 # large residual; only a robust kernel actually down-weights it.
@@ -153,35 +154,96 @@ def _usable_guess(guess: KeyframeGuess | None, n: int) -> bool:
     return all(len(a) == n and np.all(np.isfinite(a)) for a in arrays)
 
 
+@dataclass
+class Start:
+    """A start for LM: initial values and what made them (the problem's preintegration is
+    about their biases when they are the current start)."""
+
+    values: gtsam.Values
+    source: str
+    guess: KeyframeGuess | None = None  # to re-preintegrate about when taken up again
+
+    def take(self, problem: Problem, progress: bool = False) -> gtsam.Values:
+        """Preintegrate about this start's biases (if it has its own) and return its values."""
+        if self.guess is not None:
+            problem.preintegrate_all(self.guess.accel_bias, self.guess.gyro_bias, progress)
+        return self.values
+
+
 def initial_values(
     problem: Problem, initial_guess: InitialGuess | None, progress: bool
-) -> tuple[gtsam.Values, str]:
-    """Initial values for every keyframe and the preintegration about their biases.
+) -> tuple[Start, list[Start]]:
+    """The start for LM, and the other candidates (for a restart), best first.
 
     Without ``initial_guess`` (an IMU): the keyframe EKF over the graph's own factors
     (:mod:`fgins.graph.keyframe_filter`), which preintegrates every interval about its
-    filtered bias as it goes. With one (the pipeline's ekf18 for an accelerometer array):
-    its states, every interval preintegrated about their biases. If neither gives a usable
-    start: GNSS-reset dead reckoning about zero bias.
+    filtered bias as it goes. With one (for an accelerometer array: the pipeline's ekf18 and
+    the GNSS-track guess): every usable candidate, each interval preintegrated about its
+    biases; LM starts from the one whose graph error is least. If none gives a usable start:
+    GNSS-reset dead reckoning about zero bias. On return the preintegration is about the
+    start's biases.
     """
     n = problem.n_keyframes
     try:
         if initial_guess is None:
-            return keyframe_filter(problem, progress), "keyframe EKF"
-        guess = initial_guess(problem.segments.times)
+            return Start(keyframe_filter(problem, progress), "keyframe EKF"), []
+        guesses = list(initial_guess(problem.segments.times))
     except FginsError as exc:
         problem.info.setdefault("fit_warnings", []).append(
             f"the initial-guess filter failed ({exc}); started from dead reckoning instead"
         )
-        guess = None
-    if _usable_guess(guess, n):
-        accel_bias = np.asarray(guess.accel_bias, dtype=float)
-        gyro_bias = np.asarray(guess.gyro_bias, dtype=float)
-        problem.preintegrate_all(accel_bias, gyro_bias, progress)
-        return _values_from_states(problem, guess), getattr(guess, "method", "filter")
+        guesses = []
+    starts = [
+        Start(_values_from_states(problem, guess), getattr(guess, "method", "filter"), guess)
+        for guess in guesses
+        if _usable_guess(guess, n)
+    ]
+    if len(starts) > 1:
+        errors = [_held_fit_error(problem, start.take(problem, progress)) for start in starts]
+        order = np.argsort(np.nan_to_num(np.array(errors), nan=np.inf), kind="stable")
+        starts = [starts[i] for i in order]
+        starts[0].take(problem, progress)
+        problem.info["initial_guess_errors"] = {
+            starts[j].source: float(errors[i]) for j, i in enumerate(order)
+        }
+    elif starts:
+        starts[0].take(problem, progress)
+    if starts:
+        return starts[0], starts[1:]
     zeros = np.zeros((n, 3))
     problem.preintegrate_all(zeros, zeros, progress)
-    return _dead_reckoning_guess(problem), "dead reckoning"
+    return Start(_dead_reckoning_guess(problem), "dead reckoning"), []
+
+
+# Candidate starts are compared with their attitudes and biases held this tightly.
+HELD_ATTITUDE_RAD = 1e-5
+HELD_BIAS = 1e-7
+HELD_FIT_ITERATIONS = 5
+
+
+def _held_fit_error(problem: Problem, values: gtsam.Values) -> float:
+    """The graph error once a candidate's positions and velocities are fitted to its own
+    attitudes and biases (held by tight priors): how well what is hard to find (attitude,
+    rate bias) explains the data. The error at the raw guess says little about that: it is
+    dominated by how the guess's positions and velocities fit each other (a track guess
+    interpolates fixes, a filter's states are propagated), which a few iterations put right
+    for any start; a heading 40 deg off barely changes it (tests/test_track_guess.py)."""
+    graph = _full_graph(problem, _nonlinear_graph(problem, None), values)
+    held = gtsam.NonlinearFactorGraph()
+    held.push_back(graph)
+    pose_noise = gtsam.noiseModel.Diagonal.Sigmas(
+        np.r_[np.full(3, HELD_ATTITUDE_RAD), np.full(3, 1e6)]  # Pose3 tangent: rotation first
+    )
+    bias_noise = gtsam.noiseModel.Isotropic.Sigma(6, HELD_BIAS)
+    for k in range(problem.n_keyframes):
+        held.add(gtsam.PriorFactorPose3(X(k), values.atPose3(X(k)), pose_noise))
+        held.add(gtsam.PriorFactorConstantBias(B(k), values.atConstantBias(B(k)), bias_noise))
+    try:
+        fitted = _lm(held, values, HELD_FIT_ITERATIONS, 1e-5, "batch LM")[0]
+    except (FginsError, RuntimeError):
+        return math.inf  # a start whose error is not even finite
+    error = graph.error(fitted)
+    return error if math.isfinite(error) else math.inf
 
 
 def _dead_reckoning_guess(problem: Problem) -> gtsam.Values:
@@ -641,14 +703,16 @@ def _solve_from(
 def _fall_back(
     problem: Problem,
     source: str,
+    others: list[Start],
     report: SolveReport,
     result: gtsam.Values,
     graph: gtsam.NonlinearFactorGraph,
 ) -> tuple[SolveReport, gtsam.Values, gtsam.NonlinearFactorGraph]:
     """The first start led LM to an unconverged or inconsistent fit (e.g. the filter
-    diverged in an outage, or with sparse GNSS): try GNSS-reset dead reckoning, then iSAM2
-    (whose incremental relinearisation follows a poor start far better), and keep the first
-    consistent fit, else the one with the least error. Says which it took."""
+    diverged in an outage, or with sparse GNSS): try the other candidate guesses, then
+    GNSS-reset dead reckoning, then iSAM2 (whose incremental relinearisation follows a poor
+    start far better), and keep the first consistent fit, else the one with the least error.
+    Says which it took."""
     first = report
 
     def dead_reckoning() -> gtsam.Values:
@@ -660,7 +724,11 @@ def _fall_back(
         return _run_isam2(problem, False, online_covariance=False, relinearize_skip=1)[1]
 
     best = (report, result, graph, source)
-    for name, start in (("dead reckoning", dead_reckoning), ("iSAM2", isam2)):
+    restarts: list[tuple[str, Callable[[], gtsam.Values]]] = [
+        (other.source, lambda other=other: other.take(problem)) for other in others
+    ]
+    restarts += [("dead reckoning", dead_reckoning), ("iSAM2", isam2)]
+    for name, start in restarts:
         if name == source:
             continue
         try:
@@ -706,10 +774,11 @@ def smooth_batch(
     wrong in an outage plant a false stop, which no optimiser recovers from.
     """
     started = time.perf_counter()
-    initial, source = initial_values(problem, initial_guess, progress)
-    report, result, graph = _solve_from(problem, initial)
+    start, others = initial_values(problem, initial_guess, progress)
+    source = start.source
+    report, result, graph = _solve_from(problem, start.values)
     if _suspect(report):
-        report, result, graph = _fall_back(problem, source, report, result, graph)
+        report, result, graph = _fall_back(problem, source, others, report, result, graph)
     if problem.config.smoother.zupt and problem.quiet.any():
         speeds = np.array(
             [np.linalg.norm(result.atVector(V(k))) for k in range(problem.n_keyframes)]

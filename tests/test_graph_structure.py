@@ -31,8 +31,8 @@ def _car_problem(duration_s: float, wheel: bool):
     config = load_config(dataset_imu=dataset.imu_config, dataset_gnss=dataset.gnss_config)
     config.smoother.vehicle = "car"
     problem = build_problem(dataset, config, progress=False)
-    values, _ = initial_values(problem, None, progress=False)
-    return problem, values
+    start, _ = initial_values(problem, None, progress=False)
+    return problem, start.values
 
 
 @pytest.mark.parametrize("wheel", [False, True])

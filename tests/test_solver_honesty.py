@@ -88,11 +88,35 @@ def test_constant_bias_aircraft_matches_rts():
         _check_sigmas(trajectory)
 
 
-def test_gyrofree_default_scenario_keeps_attitude():
-    """Item 2: `fgins sim gyrofree-cube` (defaults) lost attitude in batch (7.9 m, heading
-    errors of 60-140 deg) while the 18-state EKF got 2.5 m. The graph now starts from ekf18
-    and preintegrates about its bias, alternating re-preintegration with LM."""
-    run = SCENARIOS["gyrofree-cube"](seed=0)
+def _horizontal_rms(trajectory, truth) -> float:
+    error = np.linalg.norm(trajectory.position[:, :2] - truth.at(trajectory.t)[:, :2], axis=1)
+    return float(np.sqrt(np.mean(error**2)))
+
+
+# (grade, GNSS rate): the default scenario and the 0.2 Hz cases run by default; the others
+# are slow-marked. Measured, seeds 0-4, 300 s: batch 0.67-0.81 / 0.96-1.47 m (navigation,
+# 1 / 0.2 Hz), 1.04-1.15 / 1.76-2.35 m (tactical), 1.12 / 2.15-2.51 m (automotive); ekf18
+# 1.3-1.6 / 2.8-3.5, 2.6-2.9 / 50 m, 3.2 / 300 m (at 0.2 Hz its attitude runs away).
+GYROFREE_CASES = [
+    pytest.param("tactical", 1.0, id="tactical-1hz-default"),
+    pytest.param("tactical", 0.2, id="tactical-0.2hz"),
+    pytest.param("automotive", 0.2, id="automotive-0.2hz"),
+    pytest.param("navigation", 1.0, id="navigation-1hz", marks=pytest.mark.slow),
+    pytest.param("navigation", 0.2, id="navigation-0.2hz", marks=pytest.mark.slow),
+    pytest.param("automotive", 1.0, id="automotive-1hz", marks=pytest.mark.slow),
+]
+
+
+@pytest.mark.parametrize("grade, rate_hz", GYROFREE_CASES)
+def test_gyrofree_scenario_batch_no_worse_than_ekf18(grade: str, rate_hz: float):
+    """Item 2 and its acceptance: `fgins sim gyrofree-cube` (defaults: tactical, 1 Hz, 300 s)
+    lost attitude in batch (7.9 m, heading errors of 60-140 deg) while the 18-state EKF got
+    2.5 m; at 0.2 Hz the EKF itself runs away (50-300 m) and the batch started from it did
+    not converge (an error, no output). The graph now starts from the better-fitting of
+    ekf18 and the GNSS-track guess, preintegrates about its bias and alternates
+    re-preintegration with LM. Every grade and rate: batch no worse than ekf18; at 1 Hz,
+    tactical and navigation grade, below 0.7 x the GNSS sigma."""
+    run = SCENARIOS["gyrofree-cube"](seed=0, grade=grade, gnss_rate_hz=rate_hz)
     dataset = run.dataset
     config = load_config(dataset_imu=dataset.imu_config, dataset_gnss=dataset.gnss_config)
     config.smoother.vehicle = dataset.vehicle or "other"
@@ -100,14 +124,13 @@ def test_gyrofree_default_scenario_keeps_attitude():
     ekf18 = run_method(dataset, config, "ekf", progress=False)  # ekf18 for an accel array
     assert ekf18.method == "ekf18"
     batch = run_method(dataset, config, "batch", progress=False)
-    assert batch.info["initial_guess"] == "ekf18"  # the filter that matches the input
-    error = {
-        name: float(np.sqrt(np.mean(np.linalg.norm(
-            t.position[:, :2] - run.truth.at(t.t)[:, :2], axis=1) ** 2)))
-        for name, t in (("ekf18", ekf18), ("batch", batch))
-    }  # fmt: skip
+    # The candidates the pipeline hands over for an accelerometer array on a car.
+    assert set(batch.info["initial_guess_errors"]) == {"ekf18", "GNSS track + gravity"}
+    assert batch.info["initial_guess"] in batch.info["initial_guess_errors"]
+    error = {"ekf18": _horizontal_rms(ekf18, run.truth), "batch": _horizontal_rms(batch, run.truth)}
     assert error["batch"] <= error["ekf18"], error
-    assert error["batch"] < 0.7 * sigma, error
+    if rate_hz == 1.0 and grade != "automotive":
+        assert error["batch"] < 0.7 * sigma, error
     heading = batch.roll_pitch_heading_deg()[:, 2] - run.truth.roll_pitch_heading_deg()[:, 2]
     assert np.max(np.abs((heading + 180) % 360 - 180)) < 30
 
