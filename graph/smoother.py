@@ -97,6 +97,7 @@ class SolveReport:
     dof: int = 0
     converged: bool = True
     fallback: str | None = None
+    start: str | None = None  # what the initial values came from (batch)
     notes: list[str] = field(default_factory=list)
 
     @property
@@ -110,8 +111,10 @@ class SolveReport:
             if math.isnan(self.initial_error)
             else f"error {self.initial_error:.4g} -> {self.final_error:.4g}"
         )
+        start = f" from the {self.start} guess" if self.start else ""
         text = (
-            f"{self.solver}: {self.iterations} {steps}, {self.rounds} relinearisation round(s)"
+            f"{self.solver}{start}: {self.iterations} {steps}, {self.rounds} relinearisation "
+            "round(s)"
             f" ({self.repreintegrated} interval(s) re-preintegrated), {error}, chi2/dof "
             f"{self.chi2_per_dof:.2f} over {self.dof} dof"
         )
@@ -779,6 +782,7 @@ def smooth_batch(
     report, result, graph = _solve_from(problem, start.values)
     if _suspect(report):
         report, result, graph = _fall_back(problem, source, others, report, result, graph)
+    report.start = source  # a restart says so in report.fallback
     if problem.config.smoother.zupt and problem.quiet.any():
         speeds = np.array(
             [np.linalg.norm(result.atVector(V(k))) for k in range(problem.n_keyframes)]
@@ -1036,7 +1040,12 @@ def _run_isam2_with(
         except RuntimeError as exc:
             if factorization == "CHOLESKY":
                 raise _IndeterminateUpdate from None
-            raise FginsError(f"iSAM2: estimate at keyframe {k} failed: {_first_line(exc)}") from None
+            raise FginsError(
+                f"iSAM2: estimate at keyframe {k} (t = {times[k] - problem.dataset.t0:.1f} s) "
+                f"failed even with QR factorization: {_first_line(exc).rstrip('.')}; the online "
+                "solution lost track of a state the data observe only later (e.g. a gyro-free "
+                "IMU with sparse GNSS); no output written. Try --method batch"
+            ) from None
         state = gtsam.NavState(pose, velocity)
         online_states["rotation"][k] = pose.rotation().matrix()
         online_states["position"][k] = pose.translation()
