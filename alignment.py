@@ -24,7 +24,7 @@ import numpy as np
 
 from fgins.config import SmootherConfig
 from fgins.datatypes import Dataset, InputError
-from fgins.geodesy import normal_gravity, so3_exp
+from fgins.geodesy import normal_gravity, so3_exp, triad
 from fgins.mounting import mounting_rotation
 
 
@@ -40,20 +40,6 @@ class Alignment:
     velocity_sigma: float
     position_sigma: float
     moving: bool
-
-
-def _triad(
-    body_a: np.ndarray, body_b: np.ndarray, nav_a: np.ndarray, nav_b: np.ndarray
-) -> np.ndarray:
-    """Rotation body->nav matching a exactly and b as well as possible."""
-
-    def frame(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        e1 = a / np.linalg.norm(a)
-        e2 = np.cross(a, b)
-        e2 /= np.linalg.norm(e2)
-        return np.column_stack([e1, e2, np.cross(e1, e2)])
-
-    return frame(nav_a, nav_b) @ frame(body_a, body_b).T
 
 
 def _gnss_fit(
@@ -207,7 +193,7 @@ def _align_at(
     if speed >= moving_speed and not static:
         nav_force = acceleration - gravity
         forward = np.array([velocity[0], velocity[1], velocity[2]])
-        rotation = _triad(specific_force, forward_axis, nav_force, forward)
+        rotation = triad(specific_force, forward_axis, nav_force, forward)
         if heading_deg is not None:
             rotation = _with_heading(rotation, heading_deg, forward_axis)
         return Alignment(
@@ -230,7 +216,7 @@ def _align_at(
         )
     else:
         known = True
-    level = _triad(up_body, forward_axis, np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0]))
+    level = triad(up_body, forward_axis, np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0]))
     rotation = _with_heading(level, heading_deg, forward_axis)
     return Alignment(
         t=t0,

@@ -110,6 +110,24 @@ def skew_batch(v: np.ndarray) -> np.ndarray:
     return out
 
 
+def triad(
+    body_first: np.ndarray, body_second: np.ndarray, nav_first: np.ndarray, nav_second: np.ndarray
+) -> np.ndarray:
+    """TRIAD: the body -> nav rotation that maps ``body_first`` onto ``nav_first`` exactly
+    and ``body_second`` onto ``nav_second`` as well as the first allows; vectorised over
+    leading axes ((..., 3) each -> (..., 3, 3))."""
+
+    def frames(first: np.ndarray, second: np.ndarray) -> np.ndarray:
+        e1 = first / np.maximum(np.linalg.norm(first, axis=-1, keepdims=True), 1e-300)
+        e2 = np.cross(e1, second)
+        e2 = e2 / np.maximum(np.linalg.norm(e2, axis=-1, keepdims=True), 1e-300)
+        return np.stack([e1, e2, np.cross(e1, e2)], axis=-1)
+
+    body = frames(np.asarray(body_first, float), np.asarray(body_second, float))
+    nav = frames(np.asarray(nav_first, float), np.asarray(nav_second, float))
+    return nav @ np.swapaxes(body, -1, -2)
+
+
 def so3_exp(phi: np.ndarray) -> np.ndarray:
     """Rodrigues' formula, vectorised over leading axes: (..., 3) -> (..., 3, 3)."""
     phi = np.asarray(phi, dtype=float)

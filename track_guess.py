@@ -28,7 +28,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from fgins.config import RunConfig
 from fgins.datatypes import Dataset, InputError
-from fgins.geodesy import lla_to_enu, normal_gravity, so3_exp, so3_log
+from fgins.geodesy import lla_to_enu, normal_gravity, so3_exp, so3_log, triad
 from fgins.initial_guess import KeyframeGuess
 from fgins.mounting import mounting_rotation
 
@@ -105,17 +105,6 @@ def _interp(at: np.ndarray, t: np.ndarray, values: np.ndarray) -> np.ndarray:
     return np.column_stack([np.interp(at, t, values[:, j]) for j in range(values.shape[1])])
 
 
-def _unit(v: np.ndarray) -> np.ndarray:
-    return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)
-
-
-def _frames(first: np.ndarray, second: np.ndarray) -> np.ndarray:
-    """(n, 3, 3) orthonormal frames: columns first, first x second, and the third."""
-    e1 = _unit(first)
-    e2 = _unit(np.cross(e1, second))
-    return np.stack([e1, e2, np.cross(e1, e2)], axis=-1)
-
-
 def _attitude(
     dataset: Dataset,
     at: np.ndarray,
@@ -142,9 +131,7 @@ def _attitude(
     held = np.maximum.accumulate(np.where(moving, np.arange(len(at)), 0))
     held[: np.argmax(moving)] = np.argmax(moving)
     heading = np.column_stack([velocity[held, :2], np.zeros(len(at))])
-    nav = _frames(acceleration - gravity, heading)
-    body = _frames(force, np.broadcast_to(forward, force.shape))
-    return nav @ np.swapaxes(body, 1, 2)
+    return triad(force, np.broadcast_to(forward, force.shape), acceleration - gravity, heading)
 
 
 def _rate_rotations(imu, grid: np.ndarray) -> np.ndarray:
