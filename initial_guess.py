@@ -4,8 +4,9 @@ The pipeline chooses the guess (DESIGN.md: "the pipeline, not graph/, chooses an
 an initial guess"): for an IMU, the graph's own keyframe EKF (:mod:`fgins.graph.keyframe_filter`,
 which needs the graph's factors and so lives in graph/); for an accelerometer array, the
 18-state gyro-free EKF's states (:func:`fgins.baseline.ekf18.ekf18_states_at` through
-:func:`fgins.baseline.guess.filter_guess`), handed over through this GTSAM-free contract,
-which imports neither side. (:func:`fgins.baseline.ekf.ekf_states_at` gives the 15-state
+:func:`fgins.baseline.guess.filter_guess`) and, on a car, the states from the GNSS track and
+gravity (:func:`fgins.track_guess.track_guess`), handed over as candidates through this
+GTSAM-free contract, which imports neither side. (:func:`fgins.baseline.ekf.ekf_states_at` gives the 15-state
 EKF's states the same way.)
 
 Why keyframe states only: the smoother needs one state per keyframe (one per GNSS epoch and

@@ -28,6 +28,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from fgins.config import RunConfig
 from fgins.datatypes import Dataset, InputError
+from fgins.factors.gnss import gate_epochs
 from fgins.geodesy import lla_to_enu, normal_gravity, so3_exp, so3_log, triad
 from fgins.initial_guess import KeyframeGuess
 from fgins.mounting import mounting_rotation
@@ -53,14 +54,23 @@ def track_guess(
     Raises InputError when the track cannot give one: fewer than 3 usable fixes, or no
     stretch faster than 3 m/s to take a heading from."""
     times = np.asarray(times, dtype=float)
-    track_t, track_enu, track_velocity = _track(dataset, gnss_mask)
+    track_t, track_enu, track_velocity = _track(dataset, config, gnss_mask)
     position = _interp(times, track_t, track_enu)
     velocity = _interp(times, track_t, track_velocity)
     forward = mounting_rotation(config.smoother.imu_to_vehicle_rpy_deg)[0]
     gravity = np.array([0.0, 0.0, -normal_gravity(dataset.origin.lat, dataset.origin.alt)])
 
+    imu = dataset.imu
+    summed_force = np.vstack([np.zeros((1, 3)), np.cumsum(imu.accel, axis=0)])
+
     def attitude(at: np.ndarray) -> np.ndarray:
-        return _attitude(dataset, at, track_t, track_velocity, forward, gravity)
+        # The specific force averaged over FORCE_WINDOW_S around each time.
+        lo = np.searchsorted(imu.t, at - FORCE_WINDOW_S / 2)
+        hi = np.searchsorted(imu.t, at + FORCE_WINDOW_S / 2)
+        hi = np.clip(np.maximum(hi, lo + 1), 1, len(imu.t))
+        lo = np.minimum(lo, hi - 1)
+        force = (summed_force[hi] - summed_force[lo]) / (hi - lo)[:, None]
+        return _attitude(at, force, track_t, track_velocity, forward, gravity)
 
     rotation = attitude(times)
     gyro_bias = _gyro_bias(dataset, times, attitude)
@@ -76,13 +86,13 @@ def track_guess(
 
 
 def _track(
-    dataset: Dataset, gnss_mask: np.ndarray | None
+    dataset: Dataset, config: RunConfig, gnss_mask: np.ndarray | None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Usable fixes: times, ENU positions and velocities (receiver's, else chords)."""
+    """The fixes the smoother may use (the one GNSS gate, :func:`fgins.factors.gnss.gate_epochs`,
+    and the outage mask): times, ENU positions and velocities (the receiver's where given and
+    used, else chords)."""
     gnss = dataset.gnss
-    usable = np.all(np.isfinite(gnss.lla), axis=1)
-    if gnss.fix_quality is not None:
-        usable &= np.nan_to_num(gnss.fix_quality, nan=1.0) > 0
+    usable = gate_epochs(gnss, config.gnss).usable
     if gnss_mask is not None:
         usable &= np.asarray(gnss_mask, dtype=bool)
     if usable.sum() < 3:
@@ -94,7 +104,7 @@ def _track(
     hi = np.searchsorted(t, t + CHORD_S / 2, side="right") - 1
     hi = np.maximum(np.clip(hi, 0, len(t) - 1), np.minimum(index + 1, len(t) - 1))
     velocity = (enu[hi] - enu[lo]) / np.maximum(t[hi] - t[lo], 1e-9)[:, None]
-    if gnss.velocity is not None:
+    if gnss.velocity is not None and config.gnss.use_velocity:
         receiver = gnss.velocity[usable]
         given = np.all(np.isfinite(receiver), axis=1)
         velocity[given] = receiver[given]
@@ -106,22 +116,17 @@ def _interp(at: np.ndarray, t: np.ndarray, values: np.ndarray) -> np.ndarray:
 
 
 def _attitude(
-    dataset: Dataset,
     at: np.ndarray,
+    force: np.ndarray,
     track_t: np.ndarray,
     track_velocity: np.ndarray,
     forward: np.ndarray,
     gravity: np.ndarray,
 ) -> np.ndarray:
-    """Body -> ENU rotations at ``at`` by TRIAD (gravity pair first, then the heading)."""
+    """Body -> ENU rotations at ``at`` by TRIAD (gravity pair first, then the heading) from
+    the averaged specific ``force`` there and the track."""
     velocity = _interp(at, track_t, track_velocity)
     acceleration = np.gradient(velocity, at, axis=0) if len(at) > 2 else np.zeros_like(velocity)
-    imu = dataset.imu
-    sums = np.vstack([np.zeros((1, 3)), np.cumsum(imu.accel, axis=0)])
-    lo = np.searchsorted(imu.t, at - FORCE_WINDOW_S / 2)
-    hi = np.clip(np.maximum(np.searchsorted(imu.t, at + FORCE_WINDOW_S / 2), lo + 1), 1, len(imu.t))
-    lo = np.minimum(lo, hi - 1)
-    force = (sums[hi] - sums[lo]) / (hi - lo)[:, None]
     moving = np.hypot(velocity[:, 0], velocity[:, 1]) > MOVING_SPEED_M_S
     if not moving.any():
         raise InputError(

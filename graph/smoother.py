@@ -49,7 +49,7 @@ class KeyframeGuess(Protocol):
 
 # keyframe times (K,) -> candidate states there, best first; chosen and supplied by the
 # pipeline (a filter that matches the input, a guess from the GNSS track), so graph/ does not
-# depend on baseline/. The batch starts from the candidate with the least graph error.
+# depend on baseline/. The batch starts from the candidate that fits best (_held_fit_error).
 InitialGuess = Callable[[np.ndarray], Sequence[KeyframeGuess]]
 
 # A fix whose whitened residual exceeds this at the solution (chi-square, 3 dof, 99.9 %) has a
@@ -182,7 +182,8 @@ def initial_values(
     (:mod:`fgins.graph.keyframe_filter`), which preintegrates every interval about its
     filtered bias as it goes. With one (for an accelerometer array: the pipeline's ekf18 and
     the GNSS-track guess): every usable candidate, each interval preintegrated about its
-    biases; LM starts from the one whose graph error is least. If none gives a usable start:
+    biases; LM starts from the one that fits best (:func:`_held_fit_error`). If none gives a
+    usable start:
     GNSS-reset dead reckoning about zero bias. On return the preintegration is about the
     start's biases.
     """
@@ -204,8 +205,9 @@ def initial_values(
     if len(starts) > 1:
         errors = [_held_fit_error(problem, start.take(problem, progress)) for start in starts]
         order = np.argsort(np.nan_to_num(np.array(errors), nan=np.inf), kind="stable")
+        if order[0] != len(starts) - 1:  # the last one evaluated is preintegrated already
+            starts[order[0]].take(problem, progress)
         starts = [starts[i] for i in order]
-        starts[0].take(problem, progress)
         problem.info["initial_guess_errors"] = {
             starts[j].source: float(errors[i]) for j, i in enumerate(order)
         }
