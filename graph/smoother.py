@@ -34,7 +34,12 @@ from fgins.factors import vehicle as vehicle_model
 from fgins.factors.values import put_bias, put_double, put_pose, put_vector
 from fgins.graph.keyframe_filter import keyframe_filter
 from fgins.graph.output import KeyframeStates, densify
-from fgins.graph.problem import Problem, build_problem, rotations_and_velocities
+from fgins.graph.problem import (
+    Problem,
+    bias_estimates,
+    build_problem,
+    rotations_and_velocities,
+)
 
 
 class KeyframeGuess(Protocol):
@@ -746,7 +751,8 @@ def _fall_back(
             break
     report, result, graph, taken = best
     # The preintegration must be the one about the kept solution's biases.
-    problem.preintegrate_all(*_biases(problem, result), False)
+    bias = bias_estimates(result, problem.n_keyframes)
+    problem.preintegrate_all(bias[:, :3], bias[:, 3:], False)
     if taken != source:
         report.initial_error = first.initial_error
         report.iterations += first.iterations
@@ -758,14 +764,6 @@ def _fall_back(
         graph = _full_graph(problem, _nonlinear_graph(problem, None), result)
         _finish(report, graph, result)
     return report, result, graph
-
-
-def _biases(problem: Problem, values: gtsam.Values) -> tuple[np.ndarray, np.ndarray]:
-    bias = [values.atConstantBias(B(k)) for k in range(problem.n_keyframes)]
-    return (
-        np.array([b.accelerometer() for b in bias]),
-        np.array([b.gyroscope() for b in bias]),
-    )
 
 
 def smooth_batch(
