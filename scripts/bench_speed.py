@@ -11,6 +11,9 @@ that run's own, read from the child's ``getrusage`` at its end, and no run warms
 (b) A simulated 200 Hz highway drive (car constraints on) of 10/20/40/60 min (``--durations``;
     ``--quick``: 10 and 20 only): wall time, peak RSS, samples/s for batch, iSAM2 and EKF, and
     the linearity ratio (wall time per minute of drive at the longest over the shortest).
+(a') The same drive end to end, as a user runs it: the whole ``fgins smooth demo:kitti
+    --method M -o out.csv`` process against the whole reference script process (median of
+    ``--repeats`` runs).
 (c) iSAM2 per-update latency p50/p99/max on KITTI and on the longest drive, from
     ``trajectory.timings["isam2_update_s"]`` ("n/a" when the smoother does not record it),
     and beside it the preintegration of each interval (``"isam2_preintegrate_s"``), which
@@ -261,6 +264,43 @@ def kitti_table(methods: list[str], timeout: float) -> dict[str, dict]:
     return results
 
 
+def end_to_end_table(methods: list[str], repeats: int, timeout: float) -> None:
+    """Whole processes, as a user runs them (the issue's own measurement): ``fgins smooth
+    demo:kitti --method M -o out.csv`` (interpreter start, imports, reading and checking the
+    input, solve, covariances, the IMU-rate CSV) against ``python gtsam_reference.py``
+    (interpreter start, ``import gtsam``, reading the files, build, solve, no output file)."""
+
+    def timed(command: list[str]) -> float | None:
+        walls = []
+        for _ in range(repeats):
+            started = time.perf_counter()
+            try:
+                done = subprocess.run(command, capture_output=True, timeout=timeout, check=False)
+            except subprocess.TimeoutExpired:
+                return None
+            if done.returncode != 0:
+                return None
+            walls.append(time.perf_counter() - started)
+        return float(np.median(walls))
+
+    with tempfile.TemporaryDirectory(prefix="fgins-bench-") as tmp:
+        walls = {}
+        for method in methods:
+            output = str(Path(tmp) / f"{method}.csv")
+            command = ["smooth", "demo:kitti", "--method", method, "-o", output]
+            walls[method] = timed([sys.executable, "-m", "fgins", *command])
+    reference = timed([sys.executable, str(HERE / "gtsam_reference.py")])
+    print(
+        f"\n(a') demo:kitti end to end, whole processes as a user runs them (median of {repeats}): "
+        "fgins smooth ... -o out.csv against python gtsam_reference.py"
+    )
+    print(f"{'command':22s} {'wall s':>7s} {'x ref':>6s}")
+    for method, wall in walls.items():
+        ratio = wall / reference if wall and reference else None
+        print(f"{'fgins smooth ' + method:22s} {_fmt(wall, '7.2f')} {_fmt(ratio, '6.2f')}")
+    print(f"{'gtsam_reference.py':22s} {_fmt(reference, '7.2f')} {_fmt(1.0, '6.2f')}")
+
+
 def sim_table(durations_min: list[float], methods: list[str], timeout: float) -> dict:
     results: dict[float, dict[str, dict]] = {}
     with tempfile.TemporaryDirectory(prefix="fgins-bench-") as tmp:
@@ -346,6 +386,7 @@ def main() -> None:
     parser.add_argument("--methods", default="batch,isam2,ekf")
     parser.add_argument("--no-kitti", action="store_true", help="skip table (a)")
     parser.add_argument("--no-sim", action="store_true", help="skip table (b)")
+    parser.add_argument("--repeats", type=int, default=3, help="runs per end-to-end row")
     parser.add_argument("--timeout", type=float, default=900.0, help="seconds per child run")
     parser.add_argument("--child", help=argparse.SUPPRESS)
     parser.add_argument("--make-sim", nargs=2, help=argparse.SUPPRESS)
@@ -371,6 +412,8 @@ def main() -> None:
     if load > (os.cpu_count() or 1):
         print("  note: the machine is busy: wall times are inflated; compare the CPU column")
     kitti = {} if args.no_kitti else kitti_table(methods, args.timeout)
+    if not args.no_kitti:
+        end_to_end_table(methods, args.repeats, args.timeout)
     sim = {} if args.no_sim else sim_table(durations, methods, args.timeout)
     latency_table(kitti, sim)
     print("\nwhat limits each method:")
