@@ -46,14 +46,24 @@ SIM_FOLDER_FILES = ("imu.csv", "accel_array.csv", "gnss.csv", "baro.csv", "wheel
 
 
 def read_header(path: Path) -> list[str]:
+    """The header's column names, lower case. A UTF-8 byte-order mark (spreadsheet exports)
+    and quotes around the names are dropped; a header separated by ';' or tabs, not commas,
+    is an error that says so (its cells would be misread, e.g. decimal commas)."""
     try:
-        with path.open(newline="") as handle:
+        with path.open(newline="", encoding="utf-8-sig") as handle:
             first = handle.readline()
     except OSError as exc:
         raise InputError(f"{path}: cannot read ({exc.strerror})") from None
     except UnicodeDecodeError:
         raise InputError(f"{path}: not a text CSV file") from None
-    return [name.strip().lower() for name in first.strip().split(",")]
+    if "," not in first:
+        for separator, name in ((";", "semicolons"), ("\t", "tabs")):
+            if separator in first:
+                raise InputError(
+                    f"{path}: the fields are separated by {name}; fgins reads comma-separated "
+                    "files with '.' as the decimal point (re-export as CSV)"
+                )
+    return [name.strip().strip('"').strip().lower() for name in first.strip().split(",")]
 
 
 def csv_kind(path: Path) -> str | None:

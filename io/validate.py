@@ -344,6 +344,20 @@ def _check_time_bases(t_imu: np.ndarray, t_gnss: np.ndarray, checks: list[str]) 
             f"time: {outside} of {t_gnss.size} GNSS epoch(s) lie outside the IMU time span "
             f"({a:.3f} .. {b:.3f} s; GNSS {c:.3f} .. {d:.3f} s) and cannot be used"
         )
+    # The output covers the IMU's span; where no fix brackets it, it is dead reckoning.
+    first, last = float(t_gnss[inside][0]), float(t_gnss[inside][-1])
+    nominal = float(np.median(np.diff(t_gnss))) if t_gnss.size > 1 else 0.0
+    limit = max(GNSS_GAP_PERIODS * nominal, GNSS_GAP_MIN_S)
+    ends = [
+        f"{span:.1f} s {where}"
+        for span, where in ((first - a, "before the first fix"), (b - last, "after the last fix"))
+        if span > limit
+    ]
+    if ends:
+        checks.append(
+            f"time: the IMU runs {' and '.join(ends)}: the trajectory there is dead reckoning "
+            "(its std_* grow accordingly)"
+        )
 
 
 # --------------------------------------------------------------------------------------------

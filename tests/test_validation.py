@@ -323,6 +323,50 @@ def test_gnss_epochs_outside_the_imu_span_are_counted(tmp_path, urban):
     )
 
 
+@pytest.mark.parametrize("keep", [(0.0, 40.0), (45.0, 90.0)])
+def test_imu_beyond_the_fixes_is_named_as_dead_reckoning(tmp_path, urban, keep):
+    """GNSS for only part of the IMU's span: the rest of the output is dead reckoning, and
+    the summary says so with the lengths (a sim drive with the fixes cut, ends measured)."""
+    from dataclasses import replace
+
+    gnss = urban.dataset.gnss
+    t = gnss.t - gnss.t[0]
+    rows = (t >= keep[0]) & (t <= keep[1])
+    cut = gnss.subset(rows)
+    checked = load_dataset(_pair(tmp_path, replace(urban.dataset, gnss=cut)))
+    imu = urban.dataset.imu
+    before, after = cut.t[0] - imu.t[0], imu.t[-1] - cut.t[-1]
+    lines = [w for w in checked.warnings if "dead reckoning" in w]
+    assert len(lines) == 1
+    for span, where in ((before, "before the first fix"), (after, "after the last fix")):
+        assert (f"{span:.1f} s {where}" in lines[0]) == (span > 10.0), lines[0]
+    full = load_dataset(_pair(tmp_path / "full", urban.dataset))
+    assert not any("dead reckoning" in w for w in full.warnings)
+
+
+def test_spreadsheet_csv_header_bom_and_quotes_read_the_same(tmp_path, urban):
+    """A UTF-8 byte-order mark and quoted names (spreadsheet exports) change nothing."""
+    paths = _pair(tmp_path, urban.dataset)
+    plain = load_dataset(paths)
+    for path in paths:
+        text = Path(path).read_text()
+        header, rest = text.split("\n", 1)
+        quoted = ",".join(f'"{name}"' for name in header.split(","))
+        Path(path).write_bytes(("\ufeff" + quoted + "\r\n" + rest.replace("\n", "\r\n")).encode())
+    exported = load_dataset(paths)
+    np.testing.assert_array_equal(exported.imu.gyro, plain.imu.gyro)
+    np.testing.assert_array_equal(exported.gnss.lla, plain.gnss.lla)
+
+
+@pytest.mark.parametrize("separator,name", [(";", "semicolons"), ("\t", "tabs")])
+def test_csv_with_another_separator_is_an_error_that_says_so(tmp_path, urban, separator, name):
+    paths = _pair(tmp_path, urban.dataset)
+    gnss = Path(paths[1])
+    gnss.write_text(gnss.read_text().replace(",", separator))
+    with pytest.raises(InputError, match=f"separated by {name}"):
+        load_dataset(paths)
+
+
 # --- corrupt NMEA end to end ------------------------------------------------------------------
 
 
