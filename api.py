@@ -366,7 +366,7 @@ def smooth(
     >>> track.to_dataframe()[["east", "north", "up"]].shape
     (46968, 3)
     """
-    from fgins.outages import outage_mask
+    from fgins.outages import empty_windows, outage_mask
     from fgins.pipeline import METHODS, run_method
 
     if method not in METHODS:
@@ -396,6 +396,10 @@ def smooth(
     }
     # The raw fixes, for outputs that carry them beside the trajectory (MCAP).
     trajectory.info["source_gnss"] = dataset.gnss
+    # A window that withholds nothing makes the run no outage test: said with the rest.
+    unused = empty_windows(dataset, windows)
+    if unused:
+        trajectory.info["fit_warnings"] = unused + list(trajectory.info.get("fit_warnings", []))
     # What the solver found doubtful (an inconsistent fit, a mounting the vehicle constraints
     # contradict, unknown covariances) is said, never only stored.
     for message in trajectory.info.get("fit_warnings", []):

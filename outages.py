@@ -38,6 +38,20 @@ def outage_mask(dataset: Dataset, windows: list[tuple[float, float]]) -> np.ndar
     return keep
 
 
+def empty_windows(dataset: Dataset, windows: list[tuple[float, float]]) -> list[str]:
+    """One line per window that withholds no GNSS epoch (a typo or a window past the drive:
+    the run would be no outage test at all)."""
+    relative = dataset.gnss.t - dataset.t0
+    lines = []
+    for start, end in windows:
+        if not np.any((relative >= start) & (relative < end)):
+            lines.append(
+                f"--gnss-outage window {start:g}:{end:g} s withholds no GNSS epoch (the epochs "
+                f"span {relative.min():.1f} .. {relative.max():.1f} s after t0): no outage there"
+            )
+    return lines
+
+
 def in_windows(t: np.ndarray, t0: float, windows: list[tuple[float, float]]) -> np.ndarray:
     """True where ``t`` (absolute) lies inside any window."""
     relative = np.asarray(t) - t0

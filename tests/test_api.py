@@ -86,6 +86,18 @@ def test_smooth_summary_counts_add_up(sim_drive):
     assert "gnss_gating" in summary and summary["wall_s"] > 0
 
 
+def test_an_outage_window_that_withholds_nothing_is_said(sim_drive):
+    """A window past the drive (a typo, another drive's windows) makes no outage test."""
+    dataset = fgins.load(sim_drive)
+    with pytest.warns(fgins.FginsWarning, match=r"window 500:600 s withholds no GNSS epoch"):
+        track = fgins.smooth(dataset, "ekf", gnss_outage=[(20, 35), (500, 600)])
+    warned = [w for w in track.summary().get("fit_warnings", []) if "withholds no" in w]
+    assert len(warned) == 1 and "20:35" not in warned[0]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", fgins.FginsWarning)
+        fgins.smooth(dataset, "ekf", gnss_outage=[(20, 35)])
+
+
 def test_api_bench_reproduces_cli_table(sim_drive, tmp_path, capsys):
     capsys.readouterr()
     assert main(["bench", str(sim_drive), "--methods", "ekf,ekf-rts", "--gnss-outage", "20:35",
