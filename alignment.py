@@ -2,11 +2,13 @@
 
 Identity rotation is not an initialisation. Two cases:
 
-* at rest (GNSS speed below ``moving_speed``): roll/pitch from the averaged accelerometer
+* at rest (GNSS speed below ``moving_speed``, or a quiet IMU with fitted motion below what GNSS
+  drift can fake, ``MIN_CRUISE_DISTANCE_M``): roll/pitch from the averaged accelerometer
   (it measures -g in the body frame); heading from GNSS velocity at the first epoch where the
   vehicle moves, carried back to the start with the integrated gyro yaw rate, or a configured
   heading;
-* in motion (the KITTI drive starts at ~9 m/s): a quadratic fit to the first seconds of GNSS
+* in motion (the KITTI drive starts at ~9 m/s; an aircraft cruising straight and level, whose
+  IMU reads as if at rest): a quadratic fit to the first seconds of GNSS
   positions gives velocity and acceleration; the accelerometer average then measures
   R^T (a - g), and the velocity direction gives the body x axis (forward) in the navigation
   frame. TRIAD on these two vector pairs, with the gravity-dominated pair as the primary,
@@ -128,7 +130,11 @@ def initial_alignment(
     )
 
 
-MAX_LEAD_S = 2.0  # first usable fix this long after the IMU starts: align there, carry back
+MAX_LEAD_S = 2.0
+# Fitted motion over the alignment window that no GNSS drift at rest fakes (a receiver
+# converging after a cold start moves its fix by metres; the first-motion heading uses the
+# same 20 m chord).
+MIN_CRUISE_DISTANCE_M = 20.0  # first usable fix this long after the IMU starts: align there, carry back
 
 
 def _propagate_back(
@@ -187,10 +193,16 @@ def _align_at(
         start = int(np.searchsorted(imu.t, t0))
         first[start : start + 10] = True
     specific_force = imu.accel[first].mean(axis=0)
-    # The IMU decides "at rest": noisy GNSS fits show metres per second of false motion.
+    # A quiet IMU means no acceleration and no turning: at rest, or cruising straight at a
+    # constant speed (an aircraft in level flight, a car on a highway), which an IMU cannot
+    # tell apart. The fixes can: a converging receiver fakes a few metres of motion at rest,
+    # a cruising vehicle covers tens to thousands of metres in the fit window. So the IMU
+    # decides "at rest" only when the fitted motion is within what GNSS drift can fake.
     static = _imu_static(imu.gyro[first], imu.accel[first], g)
+    span = float(np.ptp(gnss_t[window])) if window.any() else 0.0
+    cruising = speed * span >= MIN_CRUISE_DISTANCE_M
 
-    if speed >= moving_speed and not static:
+    if speed >= moving_speed and (cruising or not static):
         nav_force = acceleration - gravity
         forward = np.array([velocity[0], velocity[1], velocity[2]])
         rotation = triad(specific_force, forward_axis, nav_force, forward)
