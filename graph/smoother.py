@@ -104,7 +104,7 @@ class SolveReport:
     fallback: str | None = None
     start: str | None = None  # what the initial values came from (batch)
     notes: list[str] = field(default_factory=list)
-    blame: str = ""  # which factors carry a diverged fit's error (said with the error)
+    blame: str = ""  # which factors carry an inconsistent fit's error (said with it)
 
     @property
     def chi2_per_dof(self) -> float:
@@ -391,7 +391,8 @@ def _solver_report(report: SolveReport) -> dict[str, object]:
         warnings.append(
             f"{report.solver}: the fit is inconsistent with the noise model (chi2/dof "
             f"{report.chi2_per_dof:.1f}; ~1 expected): the reported sigmas are too small for "
-            "this data; check the IMU preset (--imu-preset, --config) and the GNSS sigmas"
+            "this data; "
+            + (report.blame or "check the IMU preset (--imu-preset, --config) and the GNSS sigmas")
         )
     return {
         "solver": report.line(),
@@ -686,7 +687,7 @@ def _finish(report: SolveReport, graph: gtsam.NonlinearFactorGraph, values: gtsa
     report.final_error = graph.error(values)
     _check_finite(report.final_error, "at the solution", report.solver)
     report.dof = _dof(graph, values)
-    if report.chi2_per_dof > CHI2_FAIL:
+    if report.chi2_per_dof > CHI2_WARN:
         report.blame = _error_blame(graph, values)
 
 
@@ -700,10 +701,12 @@ FACTOR_KINDS = {
     "BarometricFactor": "barometer",
 }
 KIND_ADVICE = {
-    "GNSS position": "the fixes' sigmas (std_* columns, [gnss] settings) are far too small for "
+    "GNSS position": "the fixes' sigmas (std_* columns, [gnss] settings) are too small for "
     "these fixes, or IMU and GNSS disagree (clock offset, lever arm)",
-    "IMU": "the IMU noise (--imu-preset, [imu]) is far too small for this IMU, or its axes or "
+    "IMU": "the IMU noise (--imu-preset, [imu]) is too small for this IMU, or its axes or "
     "units are wrong",
+    "velocity (GNSS velocity, stops)": "the GNSS velocities disagree with the IMU (clock "
+    "offset, lever arm) or their sigmas are too small, or a detected stop was not one",
     "vehicle constraint / antenna velocity / odometer": "the vehicle constraints do not hold: "
     "check [smoother] imu_to_vehicle_rpy_deg and --vehicle",
 }
@@ -1163,7 +1166,7 @@ def _run_isam2_with(
     report.final_error = factors.error(final)
     _check_finite(report.final_error, "at the final estimate", "iSAM2")
     report.dof = _dof(factors, final)
-    if report.chi2_per_dof > CHI2_FAIL:
+    if report.chi2_per_dof > CHI2_WARN:
         report.blame = _error_blame(factors, final)
     report.iterations = n
     online_keyframes = KeyframeStates(

@@ -161,7 +161,7 @@ def test_a_diverged_fit_names_the_factors_that_carry_its_error(method):
     with pytest.raises(FginsError, match="diverged") as info:
         run_method(dataset, config, method, progress=False)
     assert "The GNSS position factors carry" in str(info.value)
-    assert "sigmas" in str(info.value)
+    assert "sigmas (std_* columns" in str(info.value)
 
 
 def test_every_solve_reports_its_consistency():
