@@ -489,10 +489,16 @@ def _assemble(path: Path, reader: _Reader, time_offset_s: float) -> NmeaResult:
             )
         )
     if not rows:
+        sentences = sum(reader.counts.values())
+        what = (
+            "most of the file is not NMEA: another receiver protocol (SiRF, TSIP, RTCM, ...)? "
+            "fgins reads NMEA 0183 and u-blox UBX logs"
+            if reader.corrupt > sentences
+            else "check that the receiver had a fix and the file is NMEA 0183"
+        )
         raise InputError(
-            f"{path}: no usable GNSS fix in {sum(reader.counts.values())} NMEA sentences "
-            f"({reader.corrupt} corrupt lines, {reader.checksum_failures} checksum failures); "
-            "check that the receiver had a fix and the file is NMEA 0183"
+            f"{path}: no usable GNSS fix in {sentences} NMEA sentences ({reader.corrupt} "
+            f"corrupt lines, {reader.checksum_failures} checksum failures); {what}"
         )
     table = np.array(rows, dtype=float)
     lat, lon, alt_msl, sep = table[:, 1], table[:, 2], table[:, 3], table[:, 4]

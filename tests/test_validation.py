@@ -358,6 +358,25 @@ def test_spreadsheet_csv_header_bom_and_quotes_read_the_same(tmp_path, urban):
     np.testing.assert_array_equal(exported.gnss.lla, plain.gnss.lla)
 
 
+def test_fixes_without_a_height_or_a_position_are_counted_apart(tmp_path, urban):
+    paths = _pair(tmp_path, urban.dataset)
+    gnss = Path(paths[1])
+    lines = gnss.read_text().splitlines()
+    header = lines[0].split(",")
+    lat, alt = header.index("lat"), header.index("alt")
+    for row, column in ((5, alt), (6, alt), (7, lat)):
+        cells = lines[row].split(",")
+        cells[column] = ""
+        lines[row] = ",".join(cells)
+    gnss.write_text("\n".join(lines) + "\n")
+    checked = load_dataset(paths)
+    assert len(checked.gnss) == len(urban.dataset.gnss) - 3
+    assert any(
+        "dropped 1 fix(es) without a position and 2 without a height (empty alt)" in w
+        for w in checked.warnings
+    ), checked.warnings
+
+
 @pytest.mark.parametrize("separator,name", [(";", "semicolons"), ("\t", "tabs")])
 def test_csv_with_another_separator_is_an_error_that_says_so(tmp_path, urban, separator, name):
     paths = _pair(tmp_path, urban.dataset)
