@@ -8,6 +8,7 @@ import tempfile
 from functools import reduce
 from pathlib import Path
 
+import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -156,3 +157,15 @@ def test_missing_separation_uses_geoid_model(tmp_path: Path) -> None:
     assert result.geoid_from_model == 1 and result.geoid_modelled.tolist() == [True]
     # EGM at 48.117N 11.517E (Munich) is about 47 m; the receiver line above says 46.9 m.
     assert result.gnss.lla[0, 2] == pytest.approx(545.4 + 46.9, abs=2.0)
+
+
+def test_a_log_of_another_binary_protocol_says_so(tmp_path) -> None:
+    """A SiRF/TSIP-like binary log with one NMEA text line (as receivers interleave): the
+    error names the likely cause and what fgins reads, not only "no fix"."""
+    rng = np.random.default_rng(7)
+    frames = [b"\xa0\xa2" + rng.integers(0, 256, 60, dtype=np.uint8).tobytes() + b"\xb0\xb3\n"
+              for _ in range(40)]  # fmt: skip
+    path = tmp_path / "binary.log"
+    path.write_bytes(b"".join(frames) + b"$GPTXT,01,01,01,ANTENNA OK*35\r\n")
+    with pytest.raises(InputError, match=r"another receiver protocol .*NMEA 0183 and u-blox UBX"):
+        read_nmea(path)
