@@ -599,6 +599,11 @@ def _lm(
     params.setRelativeErrorTol(1e-6)
     params.setAbsoluteErrorTol(1e-6)
     params.setlambdaInitial(lambda_initial)
+    # QR, not Cholesky: tight bias random walks over short keyframe intervals (an industrial
+    # IMU, 10 Hz GNSS) make the normal equations lose every digit; Cholesky's inexact steps
+    # then crawled for minutes (100s of LM iterations, error still falling) where QR
+    # converges in 6 iterations. At no measurable cost on KITTI or a 10 min 200 Hz drive.
+    params.setLinearSolverType("MULTIFRONTAL_QR")
     optimizer = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
     start_error = optimizer.error()
     _check_finite(start_error, "at the initial guess", solver)

@@ -1,0 +1,193 @@
+"""An independent car simulator for tests: written from scratch, shares no code with fgins.sim.
+
+Flat-Earth ENU tangent plane, constant normal gravity at the origin, Earth rate on (the
+conventions of DESIGN.md). The trajectory is analytic in speed, heading and flight-path
+angle (smooth steps and turns), integrated on a 1 ms grid. IMU samples are the
+*instantaneous* body rate and specific force at each (possibly jittered) timestamp, from
+4th-order central differences:
+
+    gyro  = vee(R^T dR/dt) + R^T w_ie,    accel = R^T (a - g + 2 w_ie x v)
+
+with turn-on biases, random-walk biases and white noise; GNSS fixes are positions with white
+noise and their sigmas in ``std_*``. It found a batch solve that crawled for minutes (Cholesky
+on an ill-conditioned system), which fgins's own simulator never produced.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pymap3d
+
+EARTH_RATE = 7.292115e-5
+A_WGS, F_WGS = 6378137.0, 1 / 298.257223563
+E2 = F_WGS * (2 - F_WGS)
+STEP_S = 1e-3  # differentiation step
+DEG = np.pi / 180
+
+# datasheet grades: gyro ARW deg/sqrt(h), instability deg/h, turn-on deg/h; accel VRW
+# m/s/sqrt(h), instability mg, turn-on mg
+INDUSTRIAL = dict(preset="industrial-mems", gyro_arw=0.15, gyro_bi=2.0, gyro_on=180.0,
+                  accel_vrw=0.05, accel_bi=0.03, accel_on=3.0)  # fmt: skip
+
+
+def normal_gravity(lat: float, h: float) -> float:
+    s2 = np.sin(np.radians(lat)) ** 2
+    g = 9.7803253359 * (1 + 0.00193185265241 * s2) / np.sqrt(1 - E2 * s2)
+    return g * (1 - 2 / A_WGS * (1 + F_WGS + 0.00344978650684 - 2 * F_WGS * s2) * h
+                + 3 / A_WGS**2 * h**2)  # fmt: skip
+
+
+def _d1(f, t):
+    h = STEP_S
+    return (-f(t + 2 * h) + 8 * f(t + h) - 8 * f(t - h) + f(t - 2 * h)) / (12 * h)
+
+
+def _smooth_step(u):
+    u = np.clip(u, 0, 1)
+    return u**3 * (10 - 15 * u + 6 * u * u)
+
+
+def _smooth_step_integral(u):
+    u = np.asarray(u, float)
+    uc = np.clip(u, 0, 1)
+    return np.where(u > 1, u - 0.5, uc**6 - 3 * uc**5 + 2.5 * uc**4)
+
+
+def _ramp(t, start, tau):
+    return _smooth_step((t - start) / tau)
+
+
+def _plateau_integral(t, start, end, tau):
+    return tau * (_smooth_step_integral((t - start) / tau) - _smooth_step_integral((t - end) / tau))
+
+
+def _frame(x, z_hint):
+    """FLU body axes as columns: x given, z = z_hint orthogonalised."""
+    x = x / np.linalg.norm(x, axis=-1, keepdims=True)
+    z = z_hint - np.sum(z_hint * x, axis=-1, keepdims=True) * x
+    z = z / np.linalg.norm(z, axis=-1, keepdims=True)
+    return np.stack([x, np.cross(z, x), z], axis=-1)
+
+
+def _vee_of_skew(m):
+    return 0.5 * np.stack(
+        [m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]], -1
+    )
+
+
+class CarProfile:
+    """Speed steps [(start, tau, dv)], turns [(start, end, tau, yaw rate)], road grade
+    angle gamma(t); the car's body is level across (no roll), pitched with the road."""
+
+    def __init__(self, steps, turns, gamma, heading0_deg: float = 30.0):
+        self.steps, self.turns, self.gamma = steps, turns, gamma
+        self.psi0 = np.radians(heading0_deg)
+
+    def speed(self, t):
+        v = 0.0 * np.asarray(t, float)
+        for start, tau, dv in self.steps:
+            v = v + dv * _ramp(t, start, tau)
+        return v
+
+    def _yaw(self, t):  # counter-clockwise from east
+        p = self.psi0 + 0.0 * np.asarray(t, float)
+        for start, end, tau, rate in self.turns:
+            p = p + rate * _plateau_integral(t, start, end, tau)
+        return p
+
+    def forward(self, t):
+        g, p = self.gamma(t), self._yaw(t)
+        return np.stack([np.cos(g) * np.cos(p), np.cos(g) * np.sin(p), np.sin(g)], -1)
+
+    def velocity(self, t):
+        return self.speed(t)[..., None] * self.forward(t)
+
+    def build(self, t0, t1, dt=1e-3):
+        grid = np.arange(t0 - 1, t1 + 1 + dt / 2, dt)
+        v, v_mid = self.velocity(grid), self.velocity(grid[:-1] + dt / 2)
+        p = np.vstack([np.zeros(3), np.cumsum(dt / 6 * (v[:-1] + 4 * v_mid + v[1:]), 0)])
+        self._grid = (grid, p - p[np.argmin(np.abs(grid))])
+
+    def position(self, t):  # cubic Hermite on the integration grid
+        grid, p = self._grid
+        t = np.asarray(t, float)
+        i = np.clip(np.searchsorted(grid, t) - 1, 0, len(grid) - 2)
+        h = grid[i + 1] - grid[i]
+        s = ((t - grid[i]) / h)[..., None]
+        v0, v1 = self.velocity(grid[i]), self.velocity(grid[i + 1])
+        return ((2 * s**3 - 3 * s**2 + 1) * p[i] + (s**3 - 2 * s**2 + s) * h[..., None] * v0
+                + (-2 * s**3 + 3 * s**2) * p[i + 1] + (s**3 - s**2) * h[..., None] * v1)  # fmt: skip
+
+    def rotation(self, t):
+        x = self.forward(t)
+        up = np.zeros_like(x)
+        up[..., 2] = 1.0
+        return _frame(x, up)
+
+
+def hilly_drive() -> CarProfile:
+    """At rest for 10 s, then 15 m/s over +-8 % grades with four turns."""
+
+    def gamma(t):
+        return np.arctan(0.08 * np.sin(2 * np.pi * (t - 20) / 70) * _ramp(t, 20, 5))
+
+    turns = [(40, 50, 4, 0.12), (115, 130, 4, 0.09), (170, 180, 4, -0.12), (220, 232, 4, -0.1)]
+    return CarProfile(steps=[(10, 10, 15.0)], turns=turns, gamma=gamma)
+
+
+def write_drive(folder: Path, profile: CarProfile, duration_s: float, *, grade: dict,
+                imu_rate: float, jitter: float, gnss_rate: float, seed: int,
+                lat0: float = 45.0, lon0: float = 10.0, alt0: float = 100.0,
+                sigma_h: float = 1.0, sigma_u: float = 1.5) -> None:  # fmt: skip
+    """imu.csv, gnss.csv, truth.csv and cfg.toml of ``profile`` in ``folder``."""
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    w_ie = EARTH_RATE * np.array([0, np.cos(np.radians(lat0)), np.sin(np.radians(lat0))])
+    gravity = np.array([0, 0, -normal_gravity(lat0, alt0)])
+    profile.build(0.0, duration_s)
+    n = round(duration_s * imu_rate) + 1
+    t = np.arange(n) / imu_rate
+    if jitter:
+        t = t + rng.uniform(-jitter, jitter, n) / imu_rate
+        t[0] = 0.0
+    p, v = profile.position(t), profile.velocity(t)
+    a = _d1(profile.velocity, t)
+    rot, rot_dot = profile.rotation(t), _d1(profile.rotation, t)
+    gyro = _vee_of_skew(np.einsum("nji,njk->nik", rot, rot_dot)) + np.einsum("nji,j->ni", rot, w_ie)
+    accel = np.einsum("nji,nj->ni", rot, a - gravity + 2 * np.cross(w_ie, v))
+    dt = np.diff(t, prepend=t[0])
+    walk_g = grade["gyro_bi"] * DEG / 3600 / np.sqrt(600.0)
+    walk_a = grade["accel_bi"] * 1e-3 * 9.80665 / np.sqrt(600.0)
+    bias_g0 = rng.normal(0, grade["gyro_on"] * DEG / 3600, 3)
+    bias_a0 = rng.normal(0, grade["accel_on"] * 1e-3 * 9.80665, 3)
+    bias_g = bias_g0 + np.cumsum(rng.normal(0, 1, (n, 3)) * (walk_g * np.sqrt(dt))[:, None], 0)
+    bias_a = bias_a0 + np.cumsum(rng.normal(0, 1, (n, 3)) * (walk_a * np.sqrt(dt))[:, None], 0)
+    white_g = grade["gyro_arw"] * DEG / 60 * np.sqrt(imu_rate)
+    white_a = grade["accel_vrw"] / 60 * np.sqrt(imu_rate)
+    gyro = gyro + bias_g + rng.normal(0, white_g, gyro.shape)
+    accel = accel + bias_a + rng.normal(0, white_a, accel.shape)
+    np.savetxt(folder / "imu.csv", np.column_stack([t, gyro, accel]), delimiter=",",
+               fmt="%.6f,%.10e,%.10e,%.10e,%.10e,%.10e,%.10e",
+               header="time,gyro_x,gyro_y,gyro_z,accel_x,accel_y,accel_z", comments="")  # fmt: skip
+    np.savetxt(folder / "truth.csv", np.column_stack([t, p, v]), delimiter=",", fmt="%.6f",
+               header="time,east,north,up,vel_east,vel_north,vel_up", comments="")  # fmt: skip
+    n_gnss = int(np.floor(duration_s * gnss_rate + 1e-9)) + 1
+    t_gnss = np.arange(n_gnss) / gnss_rate
+    fixes = profile.position(t_gnss) + np.column_stack([
+        rng.normal(0, sigma_h, n_gnss), rng.normal(0, sigma_h, n_gnss), rng.normal(0, sigma_u, n_gnss)
+    ])  # fmt: skip
+    lat, lon, alt = pymap3d.enu2geodetic(*fixes.T, lat0, lon0, alt0)
+    table = np.column_stack([t_gnss, lat, lon, alt, np.tile([sigma_h, sigma_h, sigma_u], (n_gnss, 1))])
+    np.savetxt(folder / "gnss.csv", table, delimiter=",", fmt="%.10f",
+               header="time,lat,lon,alt,std_east,std_north,std_up", comments="")  # fmt: skip
+    (folder / "cfg.toml").write_text(
+        f'[imu]\npreset = "{grade["preset"]}"\n'
+        f"gyro_arw_deg_per_sqrt_hr = {grade['gyro_arw']:g}\n"
+        f"gyro_bias_instability_deg_per_hr = {grade['gyro_bi']:g}\n"
+        f"gyro_turn_on_bias_deg_per_s = {grade['gyro_on'] / 3600:g}\n"
+        f"accel_vrw_m_per_s_per_sqrt_hr = {grade['accel_vrw']:g}\n"
+        f"accel_bias_instability_mg = {grade['accel_bi']:g}\n"
+        f"accel_turn_on_bias_mg = {grade['accel_on']:g}\n"
+    )
