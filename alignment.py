@@ -81,8 +81,13 @@ def initial_alignment(
     moving_speed: float = 2.0,
     fit_window_s: float = 6.0,
     forward_axis: np.ndarray | None = None,
+    gyro_bias_sigma: float = 0.0,
 ) -> Alignment:
     """Initial state at the first IMU sample (see module docstring).
+
+    ``gyro_bias_sigma`` (rad/s, the IMU's turn-on bias prior) bounds what the yaw carried
+    back from the first motion to the start can be off by when the gyro's bias could not be
+    read at rest first; the heading's sigma includes it.
 
     ``smoother`` (the run's settings) supplies the configured initial heading and the IMU
     mounting; ``heading_deg``/``forward_axis`` give them directly instead. ``forward_axis``
@@ -110,12 +115,13 @@ def initial_alignment(
     lead = float(gnss_t[0]) - t_start
     if lead <= MAX_LEAD_S:
         return _align_at(
-            dataset, t_start, gnss_t, gnss_enu, heading_deg, moving_speed, fit_window_s, forward
-        )
+            dataset, t_start, gnss_t, gnss_enu, heading_deg, moving_speed, fit_window_s, forward,
+            gyro_bias_sigma,
+        )  # fmt: skip
     later = _align_at(
         dataset, float(gnss_t[0]), gnss_t, gnss_enu, heading_deg, moving_speed, fit_window_s,
-        forward,
-    )
+        forward, gyro_bias_sigma,
+    )  # fmt: skip
     rotation, velocity, position = _propagate_back(dataset, later, t_start)
     # Dead reckoning over `lead` seconds: ~0.1 m/s^2 of unknown acceleration (tilt, bias).
     return Alignment(
@@ -172,6 +178,7 @@ def _align_at(
     moving_speed: float,
     fit_window_s: float,
     forward_axis: np.ndarray,
+    gyro_bias_sigma: float = 0.0,
 ) -> Alignment:
     """Alignment at time ``t0`` from the fixes around it and the IMU's first second there."""
     imu = dataset.imu
@@ -197,12 +204,17 @@ def _align_at(
     # constant speed (an aircraft in level flight, a car on a highway), which an IMU cannot
     # tell apart. The fixes can: a converging receiver fakes a few metres of motion at rest,
     # a cruising vehicle covers tens to thousands of metres in the fit window. So the IMU
-    # decides "at rest" only when the fitted motion is within what GNSS drift can fake.
+    # decides "at rest" only when the fixes move further than GNSS drift can fake, judged on
+    # medians (one multipath outlier near the start fakes tens of m/s in a quadratic fit).
     static = _imu_static(imu.gyro[first], imu.accel[first], g)
-    span = float(np.ptp(gnss_t[window])) if window.any() else 0.0
-    cruising = speed * span >= MIN_CRUISE_DISTANCE_M
+    cruise_velocity = _median_velocity(gnss_t[window], gnss_enu[window]) if static else None
+    if cruise_velocity is not None:
+        if not float(np.linalg.norm(cruise_velocity[:2])) >= moving_speed:
+            cruise_velocity = None
 
-    if speed >= moving_speed and (cruising or not static):
+    if cruise_velocity is not None or (speed >= moving_speed and not static):
+        if cruise_velocity is not None:  # no acceleration: the quiet IMU says so
+            velocity, acceleration = cruise_velocity, np.zeros(3)
         nav_force = acceleration - gravity
         forward = np.array([velocity[0], velocity[1], velocity[2]])
         rotation = triad(specific_force, forward_axis, nav_force, forward)
@@ -222,12 +234,13 @@ def _align_at(
     # At rest: level from gravity; heading from the first motion (or the configuration).
     heading_configured = heading_deg is not None
     up_body = specific_force / np.linalg.norm(specific_force)
+    heading_sigma_deg = 2.0 if heading_configured else 180.0
     if heading_deg is None:
-        heading_deg, known = _heading_from_first_motion(
-            dataset, gnss_t, gnss_enu, moving_speed, t0, up_body
-        )
-    else:
-        known = True
+        heading_deg, heading_sigma_deg = _heading_from_first_motion(
+            dataset, gnss_t, gnss_enu, moving_speed, t0, up_body,
+            rest_rate=_rest_rate_about(imu, t0, up_body, g) if static else None,
+            gyro_bias_sigma=gyro_bias_sigma,
+        )  # fmt: skip
     level = triad(up_body, forward_axis, np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0]))
     rotation = _with_heading(level, heading_deg, forward_axis)
     return Alignment(
@@ -236,12 +249,48 @@ def _align_at(
         velocity=np.zeros(3) if static else velocity,
         position=position,
         attitude_sigma_rad=np.radians(
-            [2.0, 2.0, 2.0 if heading_configured else (15.0 if known else 180.0)]
+            [2.0, 2.0, heading_sigma_deg]
         ),
         velocity_sigma=0.5,
         position_sigma=2.0,
         moving=False,
     )
+
+
+def _median_velocity(t: np.ndarray, enu: np.ndarray) -> np.ndarray | None:
+    """Constant velocity between the medians of the first and the second half of the fixes
+    (time and position), when they lie ``MIN_CRUISE_DISTANCE_M`` or more apart; else None."""
+    if len(t) < 4:
+        return None
+    order = np.argsort(t)
+    half = len(t) // 2
+    early, late = order[:half], order[len(t) - half :]
+    displacement = np.median(enu[late], axis=0) - np.median(enu[early], axis=0)
+    elapsed = float(np.median(t[late]) - np.median(t[early]))
+    if elapsed <= 0 or float(np.linalg.norm(displacement[:2])) < MIN_CRUISE_DISTANCE_M:
+        return None
+    return displacement / elapsed
+
+
+def _rest_rate_about(imu, t0: float, up_body: np.ndarray, gravity: float) -> float:
+    """Mean gyro rate about ``up_body`` over the 1 s blocks from ``t0`` while the IMU stays
+    at rest (up to ``MAX_REST_S``): the gyro bias plus the Earth's rate about up. A block
+    whose rate differs from the first's by more than ``REST_RATE_TOLERANCE`` ends the rest
+    (a car creeping off into a bend is still "quiet" to the IMU, but it turns)."""
+    rates: list[float] = []
+    for start in np.arange(t0, t0 + MAX_REST_S, 1.0):
+        block = (imu.t >= start) & (imu.t < start + 1.0)
+        if block.sum() < 10 or not _imu_static(imu.gyro[block], imu.accel[block], gravity):
+            break
+        rate = float(np.mean(imu.gyro[block] @ up_body))
+        if rates and abs(rate - rates[0]) > REST_RATE_TOLERANCE:
+            break
+        rates.append(rate)
+    return float(np.mean(rates)) if rates else 0.0
+
+
+MAX_REST_S = 120.0
+REST_RATE_TOLERANCE = 0.002  # rad/s (0.1 deg/s): far above a 1 s mean's gyro noise
 
 
 def _with_heading(rotation: np.ndarray, heading_deg: float, forward_axis: np.ndarray) -> np.ndarray:
@@ -274,12 +323,35 @@ def _heading_from_first_motion(
     up_body: np.ndarray,
     chord_s: float = 5.0,
     min_chord_m: float = 20.0,
-) -> tuple[float, bool]:
-    """Heading at the start: course once moving, minus the yaw turned since the start.
+    rest_rate: float | None = None,
+    gyro_bias_sigma: float = 0.0,
+) -> tuple[float, float]:
+    """(heading at the start, its 1-sigma) in deg: the course once moving, minus the yaw
+    turned since the start; (0, 180) when the vehicle never moves.
 
     The course comes from a chord of at least ``min_chord_m`` over ``chord_s`` seconds, so
     metre-level GNSS noise at rest cannot fake a direction (single-epoch differences can).
+    When the vehicle then goes straight (the gyro turns it less than ``STRAIGHT_TURN_DEG``,
+    up to ``MAX_CHORD_S``) the fixes along the whole straight give the course: an
+    aircraft's take-off roll or a car's first straight, good to a degree instead of the ~5
+    deg of 20 m of metre-level fixes. The sigma says which: the scatter of the fixes about
+    their line, the turn the gyro saw over them (a course fitted through a curve is not
+    the heading at one instant), and the unknown gyro bias over the time carried back.
+
+    ``rest_rate`` (rad/s) is what the gyro reads about up while the vehicle stands still
+    (its bias and the Earth's rate): a vehicle at rest does not turn, so that reading is
+    not counted as yaw turned. Without it (no rest at the start) ``gyro_bias_sigma`` times
+    the time carried back enters the sigma.
     """
+    imu = dataset.imu
+    # Yaw rate about the body's up (gravity at rest), any axes, less what it reads at rest.
+    rate_up = imu.gyro @ up_body - (0.0 if rest_rate is None else rest_rate)
+    unknown_rate = gyro_bias_sigma if rest_rate is None else 0.0
+    yaw = np.concatenate([[0.0], np.cumsum(rate_up[:-1] * np.diff(imu.t))])
+
+    def yaw_at(t: float) -> float:
+        return float(np.interp(t, imu.t, yaw))
+
     for k in range(len(gnss_t)):
         later = np.flatnonzero((gnss_t > gnss_t[k]) & (gnss_t <= gnss_t[k] + chord_s))
         if later.size == 0:
@@ -289,13 +361,57 @@ def _heading_from_first_motion(
         span = gnss_t[j] - gnss_t[k]
         length = float(np.linalg.norm(chord))
         if length >= min_chord_m and length / span >= moving_speed:
-            t_move = 0.5 * (gnss_t[k] + gnss_t[j])
-            heading = float(np.degrees(np.arctan2(chord[0], chord[1])))
-            imu = dataset.imu
-            before = (imu.t >= t0) & (imu.t <= t_move)
+            straight = np.flatnonzero((gnss_t > gnss_t[j]) & (gnss_t <= gnss_t[k] + MAX_CHORD_S))
+            for m in straight:  # stretch the chord while the vehicle goes straight
+                if abs(yaw_at(gnss_t[m]) - yaw_at(gnss_t[k])) > np.radians(STRAIGHT_TURN_DEG):
+                    break
+                j = int(m)
+            points = gnss_enu[k : j + 1, :2]
+            direction, line_sigma = _straight_direction(points)
+            # The fitted course is that of the middle of the stretch in distance, not in
+            # time (a vehicle speeding up through a curve): the heading of that instant.
+            along = (points - points[0]) @ direction
+            middle = 0.5 * (along.min() + along.max())
+            t_move = float(np.interp(middle, np.maximum.accumulate(along), gnss_t[k : j + 1]))
+            heading = float(np.degrees(np.arctan2(direction[0], direction[1])))
             # Yaw turned since the start: the rate about the body's up direction (gravity at
             # rest), whatever the IMU's axis convention (z up or z down).
-            rate_up = imu.gyro[before][:-1] @ up_body
-            yaw_turned = float(np.sum(rate_up * np.diff(imu.t[before])))
-            return float(np.mod(heading + np.degrees(yaw_turned), 360.0)), True
-    return 0.0, False
+            yaw_turned = yaw_at(t_move) - yaw_at(t0)
+            turn_over_chord = abs(yaw_at(gnss_t[j]) - yaw_at(gnss_t[k]))
+            carried = unknown_rate * abs(t_move - t0)
+            sigma = float(np.degrees(np.sqrt(line_sigma**2 + turn_over_chord**2 + carried**2)))
+            return float(np.mod(heading + np.degrees(yaw_turned), 360.0)), float(
+                np.clip(sigma, 2.0, 180.0)
+            )
+    return 0.0, 180.0
+
+
+def _straight_direction(points: np.ndarray) -> tuple[np.ndarray, float]:
+    """Unit direction of travel along a stretch of fixes (n, 2), first to last, and its
+    1-sigma (rad): the principal axis of the fixes, refitted once without those far off the
+    line (a multipath outlier at an end would turn a two-point chord by degrees), the sigma
+    from the scatter about the line and the stretch's extent."""
+    keep = np.ones(len(points), dtype=bool)
+    for _ in range(2):
+        centre = points[keep].mean(axis=0)
+        _, _, axes = np.linalg.svd(points[keep] - centre, full_matrices=False)
+        direction = axes[0]
+        if direction @ (points[-1] - points[0]) < 0:
+            direction = -direction
+        normal = np.array([-direction[1], direction[0]])
+        across = (points - centre) @ normal
+        spread = 1.4826 * float(np.median(np.abs(across[keep])))
+        keep = np.abs(across) <= max(3.0 * spread, MIN_LINE_SCATTER_M)
+    along = (points[keep] - centre) @ direction
+    n = int(keep.sum())
+    scatter = max(float(np.std(across[keep])) * np.sqrt(n / max(n - 2, 1)), MIN_LINE_SCATTER_M)
+    extent = float(np.sqrt(np.sum((along - along.mean()) ** 2)))
+    return direction, scatter / max(extent, 1e-6)
+
+
+# The first-motion chord is stretched over a straight stretch up to this long, and while
+# the gyro turns less than this; fixes are taken to scatter about the line by at least
+# this much (the sigma is never claimed from a few lucky fixes).
+MAX_CHORD_S = 30.0
+STRAIGHT_TURN_DEG = 2.0
+MIN_LINE_SCATTER_M = 1.0

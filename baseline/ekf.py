@@ -216,7 +216,9 @@ def prepare_filter(
     epochs = select_gnss(dataset, config, gnss_mask)
     noise = config.imu_noise()
     frame = NavFrame.at(dataset.origin)
-    align = initial_alignment(dataset, epochs.usable, smoother=config.smoother)
+    align = initial_alignment(
+        dataset, epochs.usable, smoother=config.smoother, gyro_bias_sigma=noise.gyro_bias_prior
+    )
     times = block_times(float(imu.t[0]), float(imu.t[-1]), epochs.t, max_block_s)
     segments = segment_imu(imu.t, times)
     # Which boundary carries which GNSS epoch (-1: none).

@@ -415,7 +415,10 @@ def _ekf18_pass(
     model = _ArrayModel(data)
     frame = NavFrame.at(dataset.origin)
     epochs = select_gnss(dataset, config, gnss_mask)
-    align = initial_alignment(dataset, epochs.usable, smoother=config.smoother)
+    align = initial_alignment(
+        dataset, epochs.usable, smoother=config.smoother,
+        gyro_bias_sigma=config.imu_noise().gyro_bias_prior,
+    )  # fmt: skip
     lever_arm = np.asarray(config.gnss.lever_arm_m, dtype=float)
     times = block_times(float(data.t[0]), float(data.t[-1]), epochs.t, max_block_s)
     segments = segment_imu(data.t, times)

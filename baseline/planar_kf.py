@@ -107,7 +107,10 @@ class PlanarInputs:
 
 def planar_inputs(dataset: Dataset, config: RunConfig, epochs: GnssEpochs) -> PlanarInputs:
     """Level-frame inputs and the initial state from the shared alignment."""
-    align = initial_alignment(dataset, epochs.usable, smoother=config.smoother)
+    align = initial_alignment(
+        dataset, epochs.usable, smoother=config.smoother,
+        gyro_bias_sigma=config.imu_noise().gyro_bias_prior,
+    )  # fmt: skip
     rotation = np.asarray(align.rotation, dtype=float)
     yaw = float(np.arctan2(rotation[1, 0], rotation[0, 0]))
     c, s = np.cos(yaw), np.sin(yaw)

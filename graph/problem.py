@@ -566,7 +566,9 @@ def build_problem(
     sigma = gnss_model.position_sigmas(gnss, config.gnss)
     velocity_sigma = gnss_model.velocity_sigmas(gnss, config.gnss)
     imu_to_vehicle = mounting_rotation(config.smoother.imu_to_vehicle_rpy_deg)
-    alignment = initial_alignment(dataset, usable, smoother=config.smoother)
+    alignment = initial_alignment(
+        dataset, usable, smoother=config.smoother, gyro_bias_sigma=noise.gyro_bias_prior
+    )
 
     decimated = _decimate(gnss.t, config.smoother.min_keyframe_interval_s)
     times = keyframe_times(

@@ -169,9 +169,10 @@ def test_land_vehicle_constraints_shrink_the_urban_outage_error(urban):
             rms[method.__name__, variant] = _rms(np.linalg.norm(error, axis=1))
             if nhc:
                 assert trajectory.info["nhc_updates"] >= 200  # about one per second
-    # Measured (seed 0): EKF 23.7 m -> 11.7 m with NHC alone -> 1.3 m with NHC + ZUPT at the
-    # stop inside the outage; UKF 16.1 -> 10.6 -> 1.4 m.
-    assert rms["run_ekf", "nhc"] < 0.6 * rms["run_ekf", "none"]
+    # Measured (seed 0): EKF 15.9 m -> 11.4 m with NHC alone -> ~1.3 m with NHC + ZUPT at the
+    # stop inside the outage. (It was 23.7 m without NHC while the start-up heading came from
+    # a 20 m chord, ~30 deg off here; NHC had more of an error to take out.)
+    assert rms["run_ekf", "nhc"] < 0.8 * rms["run_ekf", "none"]
     assert rms["run_ukf", "nhc"] < 0.8 * rms["run_ukf", "none"]
     for method in ("run_ekf", "run_ukf"):
         assert rms[method, "car"] < 0.2 * rms[method, "none"]
@@ -194,9 +195,11 @@ def test_nhc_removes_cross_track_and_vertical_drift_on_the_highway(motorways):
             cross = np.sum(error[:, :2] * left, axis=1)
             errors[nhc].append(_rms(np.hypot(cross, error[:, 2])))
     # Along-track drift (forward accelerometer bias) is what NHC cannot see; the directions it
-    # constrains shrink by 2.5x over these runs (measured: 2.60 -> 2.28, 5.27 -> 1.48, 8.02 ->
-    # 2.59 m; one run alone says little: on seed 0 the cross-track drift happens to be small).
-    assert np.sum(errors[True]) < np.sum(errors[False]) / 2.0
+    # constrains shrink by 1.6x over these runs (measured: 1.92 -> 2.90, 4.51 -> 1.59, 5.01 ->
+    # 2.47 m; one run alone says little: on seed 0 the cross-track drift happens to be small;
+    # before the start-up heading came from the whole first straight, 2.60 -> 2.28, 5.27 ->
+    # 1.48, 8.02 -> 2.59 m).
+    assert np.sum(errors[True]) < 0.7 * np.sum(errors[False])
 
 
 def test_zupt_holds_the_velocity_at_zero_during_a_stop_in_an_outage(urban):

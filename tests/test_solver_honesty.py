@@ -43,32 +43,38 @@ def _check_sigmas(trajectory) -> None:
     assert np.all(np.isfinite(std)) and np.all(std > 0)
 
 
-@pytest.mark.parametrize("seed", [0, 4])
-def test_constant_bias_car_batch_and_isam2_are_real_solutions(seed):
+def test_constant_bias_car_batch_and_isam2_are_real_solutions():
     """Item 1: a zero bias instability (a constant bias) made the IMU factor's noise
     singular: batch returned the EKF's guess labelled "batch", iSAM2 an internal error, and
-    every std was 0. Now it is a constant bias: both solve, converge, fit consistently."""
-    run = SCENARIOS["car-urban"](seed=seed, duration_s=150)
-    dataset = run.dataset
-    config = _constant_bias_config(dataset, "car")
-    windows = [(60.0, 100.0)]
-    mask = outage_mask(dataset, windows)
-    ekf = run_method(dataset, config, "ekf", gnss_mask=mask, progress=False)
-    rts = run_method(dataset, config, "ekf-rts", gnss_mask=mask, progress=False)
-    batch = run_method(dataset, config, "batch", gnss_mask=mask, progress=False)
-    isam2 = run_method(dataset, config, "isam2", gnss_mask=mask, progress=False)
-    assert "constant bias" in batch.info["imu_bias_model"]
-    assert batch.info["iterations"] > 0 and batch.info["final_error"] < batch.info["initial_error"]
-    assert 0.3 < batch.info["chi2_per_dof"] < 2.0
-    # Not the initial guess: the batch solution differs from the forward filter's.
-    assert np.max(np.abs(batch.position - ekf.position)) > 0.05
-    rms = {name: _outage_rms(t, run.truth, dataset, windows)
-           for name, t in (("ekf", ekf), ("rts", rts), ("batch", batch), ("isam2", isam2))}
-    assert rms["batch"] <= 1.1 * rms["rts"], rms
-    assert rms["isam2"] <= 1.1 * rms["rts"], rms
-    assert rms["batch"] < rms["ekf"], rms
-    _check_sigmas(batch)
-    _check_sigmas(isam2)
+    every std was 0. Now it is a constant bias: both solve, converge, fit consistently, and
+    inside the outage match EKF+RTS on the same models. Pooled over five seeds: one 40 s
+    window of one drive varies by +-20 % from seed to seed between equally good methods."""
+    pooled: dict[str, list[float]] = {"ekf": [], "rts": [], "batch": [], "isam2": []}
+    for seed in range(5):
+        run = SCENARIOS["car-urban"](seed=seed, duration_s=150)
+        dataset = run.dataset
+        config = _constant_bias_config(dataset, "car")
+        windows = [(60.0, 100.0)]
+        mask = outage_mask(dataset, windows)
+        ekf = run_method(dataset, config, "ekf", gnss_mask=mask, progress=False)
+        rts = run_method(dataset, config, "ekf-rts", gnss_mask=mask, progress=False)
+        batch = run_method(dataset, config, "batch", gnss_mask=mask, progress=False)
+        isam2 = run_method(dataset, config, "isam2", gnss_mask=mask, progress=False)
+        assert "constant bias" in batch.info["imu_bias_model"]
+        assert batch.info["iterations"] > 0
+        assert batch.info["final_error"] < batch.info["initial_error"]
+        assert 0.3 < batch.info["chi2_per_dof"] < 2.0
+        # Not the initial guess: the batch solution differs from the forward filter's.
+        assert np.max(np.abs(batch.position - ekf.position)) > 0.05
+        for name, track in (("ekf", ekf), ("rts", rts), ("batch", batch), ("isam2", isam2)):
+            pooled[name].append(_outage_rms(track, run.truth, dataset, windows))
+        _check_sigmas(batch)
+        _check_sigmas(isam2)
+    total = {name: float(np.sum(values)) for name, values in pooled.items()}
+    assert total["batch"] <= 1.02 * total["rts"], pooled
+    assert total["isam2"] <= 1.02 * total["rts"], pooled
+    assert total["batch"] < total["ekf"], pooled
+    assert all(b <= 1.3 * r for b, r in zip(pooled["batch"], pooled["rts"], strict=True)), pooled
 
 
 @pytest.mark.slow
