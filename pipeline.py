@@ -73,7 +73,15 @@ def _run(
             function = getattr(importlib.import_module(module_name), function_name)
         except (ImportError, AttributeError):
             raise FginsError(f"method {method!r} is not available in this build") from None
-        return function(dataset, config, gnss_mask=gnss_mask, progress=progress)
+        trajectory = function(dataset, config, gnss_mask=gnss_mask, progress=progress)
+        if dataset.odometer is not None and len(dataset.odometer.t):
+            # The Kalman baselines have no wheel-speed update: said, never silently ignored.
+            trajectory.info["fit_warnings"] = [
+                *trajectory.info.get("fit_warnings", []),
+                f"{method} does not use the wheel speed ({len(dataset.odometer.t)} samples); "
+                "--method batch or isam2 do",
+            ]
+        return trajectory
     raise FginsError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
 
 

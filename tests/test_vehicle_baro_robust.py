@@ -152,3 +152,20 @@ def test_wheel_speed_with_unknown_scale_bridges_an_outage(tmp_path):
     dataset = read_csv_dataset([folder])
     estimate = smooth(dataset, configure(dataset, vehicle="car"), "batch", progress=False)
     assert estimate.info["odometer_scale_error"] == pytest.approx(0.03, abs=0.005)
+
+
+@pytest.mark.parametrize("method", ["ekf", "ekf-rts"])
+def test_a_filter_that_cannot_use_the_wheel_speed_says_so(method):
+    """The Kalman baselines have no wheel-speed update: a wheel.csv they ignore is said."""
+    from dataclasses import replace
+
+    import fgins
+    from fgins.datatypes import OdometerData
+
+    run = SCENARIOS["car-urban"](seed=2, duration_s=40)
+    t = run.dataset.imu.t[::10]
+    dataset = replace(run.dataset, odometer=OdometerData(t=t, speed=np.full(len(t), 5.0)))
+    with pytest.warns(fgins.FginsWarning, match=f"{method} does not use the wheel speed"):
+        fgins.smooth(dataset, method)
+    track = fgins.smooth(run.dataset, method)
+    assert not any("wheel" in w for w in track.summary().get("fit_warnings", []))
