@@ -2,8 +2,8 @@
 
 Identity rotation is not an initialisation. Two cases:
 
-* at rest (GNSS speed below ``moving_speed``, or a quiet IMU with fitted motion below what GNSS
-  drift can fake, ``MIN_CRUISE_DISTANCE_M``): roll/pitch from the averaged accelerometer
+* at rest (GNSS speed below ``moving_speed``, or a quiet IMU whose fixes move less than GNSS
+  drift can fake, ``MIN_CRUISE_DISTANCE_M`` between medians): roll/pitch from the averaged accelerometer
   (it measures -g in the body frame); heading from GNSS velocity at the first epoch where the
   vehicle moves, carried back to the start with the integrated gyro yaw rate, or a configured
   heading;
@@ -20,6 +20,7 @@ state and the same uncertainty.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -136,11 +137,10 @@ def initial_alignment(
     )
 
 
-MAX_LEAD_S = 2.0
-# Fitted motion over the alignment window that no GNSS drift at rest fakes (a receiver
-# converging after a cold start moves its fix by metres; the first-motion heading uses the
-# same 20 m chord).
-MIN_CRUISE_DISTANCE_M = 20.0  # first usable fix this long after the IMU starts: align there, carry back
+MAX_LEAD_S = 2.0  # first usable fix this long after the IMU starts: align there, carry back
+# Motion over the alignment window that no GNSS drift at rest fakes (a receiver converging
+# after a cold start moves its fix by metres; the first-motion heading uses the same 20 m).
+MIN_CRUISE_DISTANCE_M = 20.0
 
 
 def _propagate_back(
@@ -208,9 +208,8 @@ def _align_at(
     # medians (one multipath outlier near the start fakes tens of m/s in a quadratic fit).
     static = _imu_static(imu.gyro[first], imu.accel[first], g)
     cruise_velocity = _median_velocity(gnss_t[window], gnss_enu[window]) if static else None
-    if cruise_velocity is not None:
-        if not float(np.linalg.norm(cruise_velocity[:2])) >= moving_speed:
-            cruise_velocity = None
+    if cruise_velocity is not None and not np.linalg.norm(cruise_velocity[:2]) >= moving_speed:
+        cruise_velocity = None
 
     if cruise_velocity is not None or (speed >= moving_speed and not static):
         if cruise_velocity is not None:  # no acceleration: the quiet IMU says so
@@ -278,9 +277,11 @@ def _rest_rate_about(imu, t0: float, up_body: np.ndarray, gravity: float) -> flo
     whose rate differs from the first's by more than ``REST_RATE_TOLERANCE`` ends the rest
     (a car creeping off into a bend is still "quiet" to the IMU, but it turns)."""
     rates: list[float] = []
-    for start in np.arange(t0, t0 + MAX_REST_S, 1.0):
-        block = (imu.t >= start) & (imu.t < start + 1.0)
-        if block.sum() < 10 or not _imu_static(imu.gyro[block], imu.accel[block], gravity):
+    starts = np.arange(t0, t0 + MAX_REST_S, 1.0)
+    bounds = np.searchsorted(imu.t, np.append(starts, starts[-1] + 1.0))  # [start, start + 1)
+    for lo, hi in itertools.pairwise(bounds):
+        block = slice(int(lo), int(hi))
+        if hi - lo < 10 or not _imu_static(imu.gyro[block], imu.accel[block], gravity):
             break
         rate = float(np.mean(imu.gyro[block] @ up_body))
         if rates and abs(rate - rates[0]) > REST_RATE_TOLERANCE:
@@ -352,17 +353,18 @@ def _heading_from_first_motion(
     def yaw_at(t: float) -> float:
         return float(np.interp(t, imu.t, yaw))
 
+    # The last fix within chord_s (and within MAX_CHORD_S) of each fix (times ascending).
+    chord_end = np.searchsorted(gnss_t, gnss_t + chord_s, side="right") - 1
+    stretch_end = np.searchsorted(gnss_t, gnss_t + MAX_CHORD_S, side="right") - 1
     for k in range(len(gnss_t)):
-        later = np.flatnonzero((gnss_t > gnss_t[k]) & (gnss_t <= gnss_t[k] + chord_s))
-        if later.size == 0:
+        j = int(chord_end[k])
+        if j <= k:
             continue
-        j = int(later[-1])
         chord = gnss_enu[j, :2] - gnss_enu[k, :2]
         span = gnss_t[j] - gnss_t[k]
         length = float(np.linalg.norm(chord))
         if length >= min_chord_m and length / span >= moving_speed:
-            straight = np.flatnonzero((gnss_t > gnss_t[j]) & (gnss_t <= gnss_t[k] + MAX_CHORD_S))
-            for m in straight:  # stretch the chord while the vehicle goes straight
+            for m in range(j + 1, int(stretch_end[k]) + 1):  # while the vehicle goes straight
                 if abs(yaw_at(gnss_t[m]) - yaw_at(gnss_t[k])) > np.radians(STRAIGHT_TURN_DEG):
                     break
                 j = int(m)

@@ -44,7 +44,7 @@ def empty_windows(dataset: Dataset, windows: list[tuple[float, float]]) -> list[
     relative = dataset.gnss.t - dataset.t0
     lines = []
     for start, end in windows:
-        if not np.any((relative >= start) & (relative < end)):
+        if not np.any(in_windows(dataset.gnss.t, dataset.t0, [(start, end)])):
             lines.append(
                 f"--gnss-outage window {start:g}:{end:g} s withholds no GNSS epoch (the epochs "
                 f"span {relative.min():.1f} .. {relative.max():.1f} s after t0): no outage there"

@@ -696,7 +696,7 @@ def _finish(report: SolveReport, graph: gtsam.NonlinearFactorGraph, values: gtsa
         report.blame = _error_blame(graph, values)
 
 
-# What each kind of factor stands for, and what to check when it carries a diverged fit.
+# What each kind of factor stands for, and what to check when it carries an inconsistent fit.
 FACTOR_KINDS = {
     "GPSFactor": "GNSS position",
     "GPSFactorArm": "GNSS position",

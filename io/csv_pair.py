@@ -260,9 +260,9 @@ def read_gnss_csv(path: str | Path, warnings: list[str] | None = None) -> GnssDa
         no_height = int(np.sum(np.isfinite(t) & np.all(np.isfinite(lla[:, :2]), axis=1) & ~keep))
         other = int((~keep).sum()) - no_height
         parts = [f"{other} fix(es) without a position"] if other else []
-        parts += [f"{no_height} {'' if other else 'fix(es) '}without a height (empty alt)"] * (
-            no_height > 0
-        )
+        if no_height:
+            unit = "" if other else "fix(es) "
+            parts.append(f"{no_height} {unit}without a height (empty alt)")
         warnings.append(f"{path.name}: dropped {' and '.join(parts)}")
     order = np.argsort(t[keep], kind="stable")
     if np.any(np.diff(t[keep]) < 0):

@@ -307,13 +307,18 @@ def _reject_persistent_jumps(gnss: GnssData) -> None:
         )
 
 
+def _gnss_gap_limit(t: np.ndarray) -> float:
+    """A stretch without fixes longer than this is a gap: 10 fix intervals, at least 5 s."""
+    nominal = float(np.median(np.diff(t))) if t.size > 1 else 0.0
+    return max(GNSS_GAP_PERIODS * nominal, GNSS_GAP_MIN_S)
+
+
 def _report_gnss_time_gaps(t: np.ndarray, checks: list[str]) -> None:
     """GNSS gaps far beyond the fix interval: outages, or a clock that jumped."""
     if len(t) < 3:
         return
     dt = np.diff(t)
-    nominal = float(np.median(dt))
-    limit = max(GNSS_GAP_PERIODS * nominal, GNSS_GAP_MIN_S)
+    limit = _gnss_gap_limit(t)
     jumps = np.flatnonzero(dt > limit)
     if jumps.size:
         largest = int(jumps[int(np.argmax(dt[jumps]))])
@@ -346,8 +351,7 @@ def _check_time_bases(t_imu: np.ndarray, t_gnss: np.ndarray, checks: list[str]) 
         )
     # The output covers the IMU's span; where no fix brackets it, it is dead reckoning.
     first, last = float(t_gnss[inside][0]), float(t_gnss[inside][-1])
-    nominal = float(np.median(np.diff(t_gnss))) if t_gnss.size > 1 else 0.0
-    limit = max(GNSS_GAP_PERIODS * nominal, GNSS_GAP_MIN_S)
+    limit = _gnss_gap_limit(t_gnss)
     ends = [
         f"{span:.1f} s {where}"
         for span, where in ((first - a, "before the first fix"), (b - last, "after the last fix"))
