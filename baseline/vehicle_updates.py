@@ -7,8 +7,8 @@ configuration keys and sigmas, applied at the filter's block boundaries:
 - **NHC** (``config.smoother.nhc``): vehicle-frame lateral and vertical velocity are zero,
   ``S R^T v = 0`` with ``S`` the vehicle y, z axes in IMU axes (mounting
   ``imu_to_vehicle_rpy_deg``, :mod:`fgins.mounting`), sigmas ``nhc_sigma_lateral/vertical_m_per_s``. Rate: at block
-  boundaries no closer than ``min_keyframe_interval_s`` -- i.e. once per graph keyframe (every
-  GNSS epoch, decimated like the graph, and every ``max_block_s`` = 1 s in outages). The NHC
+  boundaries no closer than ``vehicle_constraint_interval_s`` (0.2 s) -- the graph's rule for
+  its keyframes (every GNSS epoch up to 5 Hz, and every ``max_block_s`` = 1 s in outages). The NHC
   error (side-slip, mounting) is strongly time-correlated, so applying the same sigma at 10 or
   100 Hz would claim far more information than it carries and than the graph uses; matching the
   graph's rate keeps the comparison about the estimator.
@@ -194,7 +194,7 @@ def vehicle_aiding(
             [smoother.nhc_sigma_lateral_m_per_s, smoother.nhc_sigma_vertical_m_per_s]
         ),
         nhc_rows=mounting[1:3],  # R_vi rows: the vehicle's left and up axes in IMU axes
-        nhc_min_interval_s=smoother.min_keyframe_interval_s,
+        nhc_min_interval_s=smoother.vehicle_constraint_interval_s,
         zupt=smoother.zupt,
         zupt_sigma=smoother.zupt_sigma_m_per_s,
         zupt_max_speed=smoother.zupt_max_speed_m_per_s,

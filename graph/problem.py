@@ -57,6 +57,10 @@ class Problem:
     # (K, 2) lateral, vertical velocity of the non-holonomic point relative to the IMU
     # (yaw/pitch rate times the configured lever arm), added to the IMU's in the NHC
     nhc_offset: np.ndarray
+    # (K,) keyframes that carry the NHC and the wheel speed: at least
+    # ``vehicle_constraint_interval_s`` apart (their errors are correlated over seconds), the
+    # Kalman baselines' rule, while every fix up to 20 Hz is a keyframe
+    vehicle_keyframe: np.ndarray
     gnss_mask: np.ndarray | None = None  # the caller's withheld epochs (outages), True = keep
     info: dict[str, object] = field(default_factory=dict)
     # Factors that do not change between the batch's graph rebuilds, made once: the GNSS
@@ -195,7 +199,7 @@ class Problem:
         """Keyframes that carry a non-holonomic constraint."""
         if not self.config.smoother.nhc:
             return np.zeros(0, dtype=int)
-        return np.arange(self.n_keyframes)
+        return np.flatnonzero(self.vehicle_keyframe)
 
     def linear_factors(
         self, values: gtsam.Values, keyframes: np.ndarray | None = None
@@ -207,7 +211,7 @@ class Problem:
         """
         graph = gtsam.NonlinearFactorGraph()
         all_k = np.arange(self.n_keyframes) if keyframes is None else np.asarray(keyframes)
-        nhc_k = all_k if self.config.smoother.nhc else all_k[:0]
+        nhc_k = all_k[self.vehicle_keyframe[all_k]] if self.config.smoother.nhc else all_k[:0]
         if len(nhc_k) == 1:  # one keyframe (an iSAM2 update): no batching overhead
             k = int(nhc_k[0])
             key = self.misalignment_key(k) if self.estimates_misalignment else None
@@ -266,7 +270,7 @@ class Problem:
 
     def linear_factor_count(self, k: int) -> int:
         """How many factors :meth:`linear_factors` makes for keyframe k."""
-        nhc = 1 if self.config.smoother.nhc else 0
+        nhc = int(self.config.smoother.nhc and self.vehicle_keyframe[k])
         antenna = int(self._antenna_row[k] >= 0)
         return nhc + antenna + int(self.has_odometer and np.isfinite(self.odometer_speed[k]))
 
@@ -591,7 +595,8 @@ def build_problem(
         else np.zeros(len(times), dtype=bool)
     )
     baro_pressure = stationary.pressure_at(dataset.baro, times)
-    odometer_speed = _odometer_at(dataset, times)
+    vehicle_keyframe = _decimate(times, smoother.vehicle_constraint_interval_s)
+    odometer_speed = np.where(vehicle_keyframe, _odometer_at(dataset, times), np.nan)
     nhc_sigma = np.tile(
         [smoother.nhc_sigma_lateral_m_per_s, smoother.nhc_sigma_vertical_m_per_s],
         (len(times), 1),
@@ -623,6 +628,7 @@ def build_problem(
         imu_to_vehicle=imu_to_vehicle,
         nhc_sigma=nhc_sigma,
         nhc_offset=nhc_offset,
+        vehicle_keyframe=vehicle_keyframe,
         gnss_mask=gnss_mask,
         info={
             "gnss_gating": _gating_summary(

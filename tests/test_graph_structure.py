@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from fgins.config import load_config
-from fgins.datatypes import OdometerData
+from fgins.datatypes import GnssData, OdometerData
 from fgins.graph.problem import build_problem
 from fgins.graph.smoother import _callback_factors, _full_graph, _nonlinear_graph, initial_values
 from fgins.sim.scenarios import SCENARIOS
@@ -88,3 +88,29 @@ def test_odometer_scale_is_estimated_through_the_linearised_factors():
     trajectory = smooth_batch(problem, progress=False)
     assert trajectory.info["python_callback_factors"] == 0
     assert abs(trajectory.info["odometer_scale_error"] - 0.03) < 0.01
+
+
+def test_10hz_fixes_are_keyframes_and_car_constraints_stay_at_5hz():
+    """Every 10 Hz fix becomes a keyframe, but the NHC and the wheel speed go in at most every
+    0.2 s (``vehicle_constraint_interval_s``), the Kalman baselines' rule: their errors are
+    correlated over seconds, so a denser GNSS must not multiply their weight."""
+    run = SCENARIOS["car-urban"](seed=1, duration_s=40.0)
+    dataset = run.dataset
+    imu_t = dataset.imu.t
+    # 10 Hz fixes between the IMU's samples (the 1 Hz fixes interpolated: only times matter).
+    t = np.arange(imu_t[0] + 0.013, imu_t[-1], 0.1)
+    gnss = dataset.gnss
+    lla = np.column_stack([np.interp(t, gnss.t, gnss.lla[:, i]) for i in range(3)])
+    dataset.gnss = GnssData(t=t, lla=lla, std=np.ones((len(t), 3)))
+    dataset.odometer = OdometerData(t=imu_t[::10], speed=np.full(len(imu_t[::10]), 5.0))
+    config = load_config(dataset_imu=dataset.imu_config, dataset_gnss=dataset.gnss_config)
+    config.smoother.vehicle = "car"
+    problem = build_problem(dataset, config, progress=False)
+    assert problem.info["gnss_epochs_decimated"] == 0
+    assert problem.info["gnss_epochs_used"] == len(t)
+    constrained = problem.segments.times[problem.nhc_keyframes]
+    assert np.min(np.diff(constrained)) >= 0.2 - 1e-9
+    assert len(constrained) == pytest.approx(40.0 / 0.2, rel=0.05)
+    wheel = np.flatnonzero(np.isfinite(problem.odometer_speed))
+    assert set(wheel) <= set(problem.nhc_keyframes)
+    assert problem.n_keyframes >= len(t)
