@@ -112,16 +112,19 @@ def initial_alignment(
         if forward_axis is None:
             forward_axis = mounting_rotation(smoother.imu_to_vehicle_rpy_deg)[0]
     forward = np.array([1.0, 0.0, 0.0]) if forward_axis is None else np.asarray(forward_axis, float)
+    # A land vehicle (the NHC holds) travels along its forward axis, ahead or reversing; an
+    # aircraft ahead; a multirotor in any direction, where no sign test applies.
+    reversible = smoother is not None and smoother.nhc
     t_start = float(imu.t[0])
     lead = float(gnss_t[0]) - t_start
     if lead <= MAX_LEAD_S:
         return _align_at(
             dataset, t_start, gnss_t, gnss_enu, heading_deg, moving_speed, fit_window_s, forward,
-            gyro_bias_sigma,
+            gyro_bias_sigma, reversible,
         )  # fmt: skip
     later = _align_at(
         dataset, float(gnss_t[0]), gnss_t, gnss_enu, heading_deg, moving_speed, fit_window_s,
-        forward, gyro_bias_sigma,
+        forward, gyro_bias_sigma, reversible,
     )  # fmt: skip
     rotation, velocity, position = _propagate_back(dataset, later, t_start)
     # Dead reckoning over `lead` seconds: ~0.1 m/s^2 of unknown acceleration (tilt, bias).
@@ -179,8 +182,10 @@ def _align_at(
     fit_window_s: float,
     forward_axis: np.ndarray,
     gyro_bias_sigma: float = 0.0,
+    reversible: bool = False,
 ) -> Alignment:
-    """Alignment at time ``t0`` from the fixes around it and the IMU's first second there."""
+    """Alignment at time ``t0`` from the fixes around it and the IMU's first second there.
+    ``reversible``: a land vehicle, which may be reversing (:func:`_travels_backward`)."""
     imu = dataset.imu
     g = normal_gravity(dataset.origin.lat, dataset.origin.alt)
     gravity = np.array([0.0, 0.0, -g])
@@ -216,6 +221,11 @@ def _align_at(
             velocity, acceleration = cruise_velocity, np.zeros(3)
         nav_force = acceleration - gravity
         forward = np.array([velocity[0], velocity[1], velocity[2]])
+        up_now = specific_force / np.linalg.norm(specific_force)
+        if reversible and _travels_backward(
+            imu, gnss_t[window], gnss_enu[window], velocity[:2], forward_axis, up_now
+        ):
+            forward = -forward  # reversing: the body's forward axis points against the track
         rotation = triad(specific_force, forward_axis, nav_force, forward)
         if heading_deg is not None:
             rotation = _with_heading(rotation, heading_deg, forward_axis)
@@ -238,7 +248,8 @@ def _align_at(
         heading_deg, heading_sigma_deg = _heading_from_first_motion(
             dataset, gnss_t, gnss_enu, moving_speed, t0, up_body,
             rest_rate=_rest_rate_about(imu, t0, up_body, g) if static else None,
-            gyro_bias_sigma=gyro_bias_sigma,
+            gyro_bias_sigma=gyro_bias_sigma, forward_axis=forward_axis if reversible else None,
+            rest_force=specific_force if static else None,
         )  # fmt: skip
     level = triad(up_body, forward_axis, np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0]))
     rotation = _with_heading(level, heading_deg, forward_axis)
@@ -326,6 +337,8 @@ def _heading_from_first_motion(
     min_chord_m: float = 20.0,
     rest_rate: float | None = None,
     gyro_bias_sigma: float = 0.0,
+    forward_axis: np.ndarray | None = None,
+    rest_force: np.ndarray | None = None,
 ) -> tuple[float, float]:
     """(heading at the start, its 1-sigma) in deg: the course once moving, minus the yaw
     turned since the start; (0, 180) when the vehicle never moves.
@@ -343,6 +356,10 @@ def _heading_from_first_motion(
     (its bias and the Earth's rate): a vehicle at rest does not turn, so that reading is
     not counted as yaw turned. Without it (no rest at the start) ``gyro_bias_sigma`` times
     the time carried back enters the sigma.
+
+    A vehicle that first backs out (of a parking space, a hangar) travels against its
+    forward axis (``forward_axis``, IMU axes): :func:`_travels_backward` reads that from the
+    accelerometer, and the heading is then the course plus 180 deg.
     """
     imu = dataset.imu
     # Yaw rate about the body's up (gravity at rest), any axes, less what it reads at rest.
@@ -370,6 +387,14 @@ def _heading_from_first_motion(
                 j = int(m)
             points = gnss_enu[k : j + 1, :2]
             direction, line_sigma = _straight_direction(points)
+            # From the start (at rest: speed zero, the accelerometer's reading there its
+            # bias) through the stretch, so the test sees the vehicle pull away.
+            first = int(np.searchsorted(gnss_t, t0)) if rest_rate is not None else k
+            if forward_axis is not None and _travels_backward(
+                imu, gnss_t[first : j + 1], gnss_enu[first : j + 1], direction, forward_axis,
+                up_body, rest_force=rest_force,
+            ):  # fmt: skip
+                direction = -direction
             # The fitted course is that of the middle of the stretch in distance, not in
             # time (a vehicle speeding up through a curve): the heading of that instant.
             along = (points - points[0]) @ direction
@@ -386,6 +411,62 @@ def _heading_from_first_motion(
                 np.clip(sigma, 2.0, 180.0)
             )
     return 0.0, 180.0
+
+
+def _travels_backward(
+    imu,
+    gnss_t: np.ndarray,
+    gnss_enu: np.ndarray,
+    direction: np.ndarray,
+    forward_axis: np.ndarray,
+    up_body: np.ndarray,
+    rest_force: np.ndarray | None = None,
+) -> bool:
+    """Did the vehicle move along ``direction`` (the fixes' horizontal course over
+    ``gnss_t``) backwards, i.e. against its forward axis?
+
+    The accelerometer along the body's horizontal forward axis (``forward_axis`` less its
+    part along ``up_body``) integrates twice to a signed distance travelled, up to the
+    unknown initial speed; the fixes' distance along ``direction`` is fitted by
+    ``b + a t + c D(t)``: ``c`` near +1 means forward, near -1 backward. Only a speed change
+    tells the two apart (a vehicle cruising at constant speed reads nothing), so backward is
+    claimed only when ``c`` is below -0.5 and significantly negative (3 sigma, from the
+    fixes' scatter about the fit). Gravity leaking in through a pitch change and the
+    accelerometer bias look like a constant acceleration: they scale ``c`` towards zero but
+    do not flip it while the real acceleration dominates (a car pulling away: 1-3 m/s^2
+    against ~0.1). ``rest_force``: the specific force read at rest before (its horizontal
+    part is the accelerometer's bias and is taken off).
+    """
+    if len(gnss_t) < 5:
+        return False
+    axis = np.asarray(forward_axis, dtype=float)
+    axis = axis - (axis @ up_body) * up_body
+    if np.linalg.norm(axis) < 0.5:  # the forward axis is (nearly) vertical: no test
+        return False
+    axis = axis / np.linalg.norm(axis)
+    inside = (imu.t >= gnss_t[0]) & (imu.t <= gnss_t[-1])
+    if inside.sum() < 10:
+        return False
+    t = imu.t[inside]
+    step = np.diff(t)
+    force = imu.accel[inside] @ axis - (0.0 if rest_force is None else float(rest_force @ axis))
+    speed = np.concatenate([[0.0], np.cumsum(force[:-1] * step)])
+    distance = np.concatenate([[0.0], np.cumsum(0.5 * (speed[:-1] + speed[1:]) * step)])
+    along = (gnss_enu[:, :2] - gnss_enu[0, :2]) @ (direction / np.linalg.norm(direction))
+    design = np.column_stack(
+        [np.ones(len(gnss_t)), gnss_t - gnss_t[0], np.interp(gnss_t, t, distance)]
+    )
+    coef, *_ = np.linalg.lstsq(design, along, rcond=None)
+    residual = along - design @ coef
+    scatter = max(float(np.sqrt(residual @ residual / (len(gnss_t) - 3))), 0.3)
+    # The model must explain the motion (not a loop flown sideways, not a slipping vehicle).
+    if scatter > max(3.0, 0.2 * float(np.std(along))):
+        return False
+    normal = design.T @ design
+    if np.linalg.cond(normal) > 1e12:
+        return False
+    c_sigma = scatter * float(np.sqrt(np.linalg.inv(normal)[2, 2]))
+    return bool(coef[2] < -0.5 and coef[2] + 3.0 * c_sigma < 0.0)
 
 
 def _straight_direction(points: np.ndarray) -> tuple[np.ndarray, float]:

@@ -181,3 +181,38 @@ def test_heading_at_rest_comes_from_the_whole_first_straight(tmp_path, heading0,
     assert abs(error) < 3.0 * sigma
     if turn_after_s is None:  # hundreds of metres of straight: a degree-level heading
         assert sigma <= 2.5 and abs(error) < 1.5
+
+
+# A car that first backs out (straight or turning), stops, then drives off: the fixes' first
+# course is the reverse of the heading. Its forward controls drive the same path ahead.
+BACKING_OUT = {
+    "straight back, then a turn ahead": ([(8.0, 2.0, -5.0), (16.0, 2.0, 5.0), (19.0, 5.0, 12.0)],
+                                         [(19.0, 26.0, 2.0, 0.3)]),
+    "turning back": ([(10.0, 3.0, -5.0), (17.0, 3.0, 5.0), (24.0, 8.0, 15.0)],
+                     [(11.0, 17.0, 2.0, 0.25)]),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("heading0", [30.0, 170.0, 260.0])
+@pytest.mark.parametrize("backward", [True, False])
+@pytest.mark.parametrize("manoeuvre", sorted(BACKING_OUT))
+def test_a_car_backing_out_is_not_aligned_facing_backwards(tmp_path, manoeuvre, backward, heading0):
+    """The heading at rest came from the course of the first motion, so a car backing out of
+    a parking space while turning was aligned 180 deg off (sigma 57 deg): EKF+RTS 60 m off,
+    the forward EKF 450 m, with no warning. The accelerometer says which way the car pulled
+    away (``fgins.alignment._travels_backward``)."""
+    steps, turns = BACKING_OUT[manoeuvre]
+    sign = -1.0 if not backward else 1.0  # the forward control drives the first leg ahead
+    steps = [(start, tau, sign * dv) if i < 2 else (start, tau, dv)
+             for i, (start, tau, dv) in enumerate(steps)]  # fmt: skip
+    profile = CarProfile(steps=steps, turns=turns, gamma=lambda t: 0.0 * t,
+                         heading0_deg=90.0 - heading0)  # fmt: skip
+    write_drive(tmp_path, profile, 60.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
+                gnss_rate=1.0, seed=int(heading0) + backward)  # fmt: skip
+    dataset = fgins.load(tmp_path / "imu.csv", tmp_path / "gnss.csv", config=tmp_path / "cfg.toml",
+                         vehicle="car")  # fmt: skip
+    alignment = initial_alignment(dataset, smoother=dataset.metadata["run_config"].smoother)
+    forward = alignment.rotation[:, 0]
+    error = (np.degrees(np.arctan2(forward[0], forward[1])) - heading0 + 180.0) % 360.0 - 180.0
+    sigma = np.degrees(alignment.attitude_sigma_rad[2])
+    assert abs(error) < max(3.0 * sigma, 10.0) and abs(error) < 60.0, (error, sigma)
