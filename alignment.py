@@ -122,6 +122,12 @@ def initial_alignment(
             dataset, t_start, gnss_t, gnss_enu, heading_deg, moving_speed, fit_window_s, forward,
             gyro_bias_sigma, reversible,
         )  # fmt: skip
+    rest = _rest_before_first_fix(
+        dataset, gnss_t, gnss_enu, heading_deg, moving_speed, fit_window_s, forward,
+        gyro_bias_sigma, reversible,
+    )  # fmt: skip
+    if rest is not None:
+        return rest
     later = _align_at(
         dataset, float(gnss_t[0]), gnss_t, gnss_enu, heading_deg, moving_speed, fit_window_s,
         forward, gyro_bias_sigma, reversible,
@@ -144,6 +150,101 @@ MAX_LEAD_S = 2.0  # first usable fix this long after the IMU starts: align there
 # Motion over the alignment window that no GNSS drift at rest fakes (a receiver converging
 # after a cold start moves its fix by metres; the first-motion heading uses the same 20 m).
 MIN_CRUISE_DISTANCE_M = 20.0
+
+
+def _rest_before_first_fix(
+    dataset: Dataset,
+    gnss_t: np.ndarray,
+    gnss_enu: np.ndarray,
+    heading_deg: float | None,
+    moving_speed: float,
+    fit_window_s: float,
+    forward_axis: np.ndarray,
+    gyro_bias_sigma: float,
+    reversible: bool,
+) -> Alignment | None:
+    """The alignment at the first IMU sample when the vehicle stands there but the first
+    usable fix comes much later (a receiver's cold start, GNSS withheld at the start), or
+    None when the IMU does not start at rest or its dead reckoning to the first fix does not
+    arrive at the fixes' velocity (a vehicle cruising with a quiet IMU).
+
+    At rest the IMU itself gives level and zero velocity; the heading is the first motion's,
+    carried back with the gyro less its rest reading. Only the position is unknown: the first
+    fix less the dead-reckoned way there, with a sigma for a dead reckoning that long. The
+    alternative, aligning at the first fix and dead-reckoning backwards from there, starts
+    from a moving alignment's attitude (degrees off), and on a car whose first 40 s of fixes
+    were withheld the Kalman filters ended 300-1200 m off with sigmas 10-150x too small.
+    """
+    imu = dataset.imu
+    t_start = float(imu.t[0])
+    g = normal_gravity(dataset.origin.lat, dataset.origin.alt)
+    first = (imu.t >= t_start) & (imu.t <= t_start + 1.0)
+    if first.sum() < 10 or not _imu_static(imu.gyro[first], imu.accel[first], g):
+        return None
+    specific_force = imu.accel[first].mean(axis=0)
+    up_body = specific_force / np.linalg.norm(specific_force)
+    heading_sigma_deg = 2.0
+    if heading_deg is None:
+        heading_deg, heading_sigma_deg = _heading_from_first_motion(
+            dataset, gnss_t, gnss_enu, moving_speed, t_start, up_body,
+            rest_rate=_rest_rate_about(imu, t_start, up_body, g),
+            gyro_bias_sigma=gyro_bias_sigma, forward_axis=forward_axis if reversible else None,
+            rest_force=specific_force,
+        )  # fmt: skip
+    level = triad(up_body, forward_axis, np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0]))
+    rotation = _with_heading(level, heading_deg, forward_axis)
+    t_fix = float(gnss_t[0])
+    window = gnss_t <= t_fix + fit_window_s
+    fix_position, fix_velocity, _ = _gnss_fit(gnss_t[window], gnss_enu[window], t_fix)
+    # The gyro's reading at rest is its bias (and the Earth's rate): taken off (a MEMS gyro's
+    # few mrad/s would tilt the dead reckoning by degrees in half a minute).
+    velocity, way = _propagate_forward(
+        dataset, rotation, t_start, t_fix, imu.gyro[first].mean(axis=0)
+    )
+    lead = t_fix - t_start
+    # A level error of ~0.1 m/s^2 (0.6 deg, a MEMS accelerometer's bias) over the lead; a
+    # heading known to heading_sigma over the way.
+    if np.linalg.norm(velocity[:2] - fix_velocity[:2]) > 2.0 + DEAD_RECKONING_ACCEL * lead:
+        return None
+    position_sigma = float(
+        2.0 + 0.5 * DEAD_RECKONING_ACCEL * lead**2
+        + np.radians(heading_sigma_deg) * np.linalg.norm(way[:2])
+    )  # fmt: skip
+    return Alignment(
+        t=t_start,
+        rotation=rotation,
+        velocity=np.zeros(3),
+        position=fix_position - way,
+        attitude_sigma_rad=np.radians([2.0, 2.0, heading_sigma_deg]),
+        velocity_sigma=0.5,
+        position_sigma=position_sigma,
+        moving=False,
+    )
+
+
+DEAD_RECKONING_ACCEL = 0.15  # m/s^2: unknown acceleration of a dead reckoning from rest
+
+
+def _propagate_forward(
+    dataset: Dataset, rotation: np.ndarray, t_start: float, t_end: float, gyro_bias: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(velocity, displacement) at ``t_end`` of a strapdown (ENU, normal gravity, zero
+    accelerometer bias) from rest at ``t_start`` with attitude ``rotation``."""
+    imu = dataset.imu
+    gravity = np.array([0.0, 0.0, -normal_gravity(dataset.origin.lat, dataset.origin.alt)])
+    velocity, position = np.zeros(3), np.zeros(3)
+    start = max(int(np.searchsorted(imu.t, t_start, side="right")) - 1, 0)
+    end = int(np.searchsorted(imu.t, t_end, side="left"))
+    for k in range(start, end):
+        t_next = min(float(imu.t[k + 1]) if k + 1 < len(imu) else t_end, t_end)
+        dt = t_next - max(float(imu.t[k]), t_start)
+        if dt <= 0:
+            continue
+        acceleration = rotation @ imu.accel[k] + gravity
+        position = position + velocity * dt + 0.5 * acceleration * dt**2
+        velocity = velocity + acceleration * dt
+        rotation = rotation @ so3_exp((imu.gyro[k] - gyro_bias) * dt)
+    return velocity, position
 
 
 def _propagate_back(
