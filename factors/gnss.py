@@ -63,6 +63,14 @@ def position_sigmas(gnss: GnssData, config: GnssConfig) -> np.ndarray:
     return np.maximum(sigma, config.min_sigma_m)
 
 
+def sigmas_from_dop_model(gnss: GnssData, config: GnssConfig) -> np.ndarray:
+    """(M,) True where :func:`position_sigmas` had no sigma of the data's own or configured
+    and used UERE x DOP (or ``default_sigma_m``): a model whose scale the fit can check."""
+    if config.sigma_m is not None:
+        return np.zeros(len(gnss), dtype=bool)
+    return ~np.all(np.isfinite(_positive(gnss.std)), axis=1)
+
+
 def velocity_sigmas(gnss: GnssData, config: GnssConfig) -> np.ndarray:
     """1-sigma east/north/up velocity error per epoch (M, 3); NaN where there is no velocity."""
     n = len(gnss)

@@ -43,6 +43,7 @@ class Problem:
     gnss_at: np.ndarray  # (K,) index into the usable GNSS epochs, -1 where none
     gnss_enu: np.ndarray  # usable epochs, ENU
     gnss_sigma: np.ndarray
+    gnss_sigma_modelled: np.ndarray  # (M,) sigma from UERE x DOP, not the data's or configured
     gnss_velocity: np.ndarray
     gnss_gyro: np.ndarray  # (M, 3) the gyro sample held at each used GNSS epoch (lever arm)
     gnss_velocity_sigma: np.ndarray
@@ -430,7 +431,8 @@ class Problem:
                 put_double(values, key, self.baro_bias0)
 
     def gnss_whitened_residuals(self, values: gtsam.Values) -> tuple[np.ndarray, np.ndarray]:
-        """(times, |whitened residual|) of every GNSS position factor at an estimate."""
+        """(times, |whitened residual|) of every GNSS position factor at an estimate, in
+        the order of :attr:`gnss_used`."""
         keyframes = np.flatnonzero(self.gnss_at >= 0)
         lever = np.asarray(self.config.gnss.lever_arm_m, dtype=float)
         norms = np.empty(len(keyframes))
@@ -440,6 +442,11 @@ class Problem:
             antenna = pose.translation() + pose.rotation().matrix() @ lever
             norms[i] = np.linalg.norm((antenna - self.gnss_enu[g]) / self.gnss_sigma[g])
         return self.segments.times[keyframes], norms
+
+    @property
+    def gnss_used(self) -> np.ndarray:
+        """Rows (into the usable epochs) of the fixes with a position factor, by keyframe."""
+        return self.gnss_at[self.gnss_at >= 0]
 
     def preintegrate(self, i: int, bias: gtsam.imuBias.ConstantBias) -> None:
         """(Re)do interval i's preintegration about ``bias``."""
@@ -616,6 +623,7 @@ def build_problem(
         gnss_at=gnss_at,
         gnss_enu=enu,
         gnss_sigma=sigma,
+        gnss_sigma_modelled=gnss_model.sigmas_from_dop_model(gnss, config.gnss),
         gnss_velocity=gnss.velocity,
         gnss_gyro=imu.gyro[np.clip(np.searchsorted(imu.t, gnss.t, side="right") - 1, 0, len(imu) - 1)],
         gnss_velocity_sigma=velocity_sigma,

@@ -347,7 +347,39 @@ def _gnss_report(problem: Problem, values: gtsam.Values) -> dict[str, object]:
         "gnss_rejected_times": [float(t) for t in large] if kernel == "Cauchy" else [],
         "gnss_large_residual_times": [float(t) for t in large],
         "gnss_rejected": text + listed,
+        **_dop_model_scale(problem, norms),
     }
+
+
+def _dop_model_scale(problem: Problem, norms: np.ndarray) -> dict[str, object]:
+    """How the fixes whose sigmas come from UERE x DOP fit against those sigmas.
+
+    Without GST or a covariance in the data the sigmas are a model (3 m x HDOP for an
+    autonomous fix). A receiver much better than that makes every reported sigma that much
+    too large, and the overall chi-square, diluted by the IMU's, hides it (0.06 on a drive
+    whose fixes scatter by 1 m: 3x pessimistic). The smoothed residuals are somewhat smaller
+    than the fixes' errors (the fit follows them), so only a whitened RMS below 0.4 is
+    reported (white errors: the sigmas are then at least 2.5x too large; slow errors, which
+    the fit follows, also give small residuals, so the warning names both)."""
+    modelled = problem.gnss_sigma_modelled[problem.gnss_used]
+    if modelled.sum() < MIN_FIXES_FOR_SCALE:
+        return {}
+    scale = float(np.sqrt(np.mean(norms[modelled] ** 2) / 3.0))
+    out: dict[str, object] = {"gnss_dop_model_whitened_rms": scale}
+    if scale < DOP_MODEL_PESSIMISTIC:
+        out["fit_warnings"] = [
+            f"GNSS: {int(modelled.sum())} fixes have sigmas from UERE x DOP (no GST or "
+            f"covariance in the data) and residuals of only {scale:.2f} of them (whitened "
+            "RMS): either the receiver is better than the UERE table and the reported "
+            f"uncertainties are up to {1.0 / max(scale, 1e-9):.1f}x pessimistic (set "
+            "[gnss.uere_m], e.g. autonomous = 1.0, or [gnss] sigma_m), or its errors are "
+            "slow and the fit follows them"
+        ]
+    return out
+
+
+MIN_FIXES_FOR_SCALE = 30
+DOP_MODEL_PESSIMISTIC = 0.4
 
 
 def _vehicle_fit_report(problem: Problem, values: gtsam.Values) -> dict[str, object]:

@@ -245,3 +245,37 @@ def test_course_velocity_below_the_speed_threshold_adds_no_factor():
     trajectory = smooth(dataset, config, "batch", progress=False)
     assert np.all(np.isfinite(trajectory.position))
     assert _horizontal_rms(trajectory, run.truth) < 2.0
+
+
+@pytest.mark.parametrize("uere,warned", [(None, True), (1.0, False)])
+def test_fixes_far_better_than_their_uere_times_dop_sigmas_are_reported(tmp_path, uere, warned):
+    """Fixes without sigmas of their own (NMEA without GST) get UERE x HDOP, 3 m for an
+    autonomous fix. A receiver scattering by 1 m then makes every reported sigma ~3x too large
+    (an independent simulator's car: position z 0.3) while the overall chi-square (0.06,
+    diluted by the IMU's) raised nothing. Told the right UERE, the warning goes."""
+    import sys
+    from pathlib import Path
+
+    import pandas as pd
+
+    import fgins
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from independent_sim import INDUSTRIAL, hilly_drive, write_drive
+
+    write_drive(tmp_path, hilly_drive(), 120.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
+                gnss_rate=1.0, seed=4, sigma_h=1.0, sigma_u=1.0)  # fmt: skip
+    fixes = pd.read_csv(tmp_path / "gnss.csv").drop(columns=["std_east", "std_north", "std_up"])
+    fixes["hdop"], fixes["vdop"] = 1.0, 1.0
+    fixes.to_csv(tmp_path / "gnss.csv", index=False, float_format="%.10f")
+    config = (tmp_path / "cfg.toml").read_text()
+    if uere is not None:
+        config += f"\n[gnss.uere_m]\nautonomous = {uere}\n"
+    (tmp_path / "cfg.toml").write_text(config)
+    dataset = fgins.load(tmp_path / "imu.csv", tmp_path / "gnss.csv", config=tmp_path / "cfg.toml",
+                         vehicle="car")  # fmt: skip
+    summary = fgins.smooth(dataset, "batch").summary()
+    scale = summary["gnss_dop_model_whitened_rms"]
+    messages = [w for w in summary.get("fit_warnings", []) if "UERE x DOP" in w]
+    assert bool(messages) == warned, (scale, messages)
+    assert (scale < 0.4) == warned
