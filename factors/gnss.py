@@ -296,6 +296,35 @@ def position_factor(
     return gtsam.GPSFactor(pose_key, position_enu, noise)
 
 
+def lever_arm_key() -> int:
+    """The key of an antenna lever arm that is estimated (:func:`lever_arm_check_factor`)."""
+    import gtsam
+
+    return gtsam.symbol("l", 0)
+
+
+def lever_arm_check_factor(
+    pose_key: int, position_enu: np.ndarray, sigma: np.ndarray, config: GnssConfig
+):  # -> gtsam.NonlinearFactor
+    """The GNSS position factor of :func:`position_factor` with the lever arm a variable
+    (:func:`lever_arm_key`, body axes): for the check that the configured arm fits."""
+    import gtsam
+
+    return gtsam.GPSFactorArmCalib(
+        pose_key, lever_arm_key(), position_enu, position_noise_model(sigma, config)
+    )
+
+
+def lever_arm_prior(config: GnssConfig, sigma_m: float):  # -> gtsam.NonlinearFactor
+    """A loose prior holding the estimated lever arm at the configured one."""
+    import gtsam
+
+    return gtsam.PriorFactorPoint3(
+        lever_arm_key(), np.asarray(config.lever_arm_m, dtype=float),
+        gtsam.noiseModel.Isotropic.Sigma(3, sigma_m),
+    )  # fmt: skip
+
+
 def velocity_factor(velocity_key: int, velocity_enu: np.ndarray, sigma: np.ndarray):
     """Prior on the navigation-frame velocity key (GNSS Doppler velocity)."""
     import gtsam

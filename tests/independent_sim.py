@@ -140,8 +140,10 @@ def hilly_drive() -> CarProfile:
 def write_drive(folder: Path, profile: CarProfile, duration_s: float, *, grade: dict,
                 imu_rate: float, jitter: float, gnss_rate: float, seed: int,
                 lat0: float = 45.0, lon0: float = 10.0, alt0: float = 100.0,
-                sigma_h: float = 1.0, sigma_u: float = 1.5) -> None:  # fmt: skip
-    """imu.csv, gnss.csv, truth.csv and cfg.toml of ``profile`` in ``folder``."""
+                sigma_h: float = 1.0, sigma_u: float = 1.5,
+                lever_arm: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> None:  # fmt: skip
+    """imu.csv, gnss.csv, truth.csv and cfg.toml of ``profile`` in ``folder``; the fixes
+    are those of an antenna ``lever_arm`` (body axes) from the IMU (cfg.toml leaves it out)."""
     folder.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
     w_ie = EARTH_RATE * np.array([0, np.cos(np.radians(lat0)), np.sin(np.radians(lat0))])
@@ -175,7 +177,8 @@ def write_drive(folder: Path, profile: CarProfile, duration_s: float, *, grade: 
                header="time,east,north,up,vel_east,vel_north,vel_up", comments="")  # fmt: skip
     n_gnss = int(np.floor(duration_s * gnss_rate + 1e-9)) + 1
     t_gnss = np.arange(n_gnss) / gnss_rate
-    fixes = profile.position(t_gnss) + np.column_stack([
+    antenna = profile.position(t_gnss) + profile.rotation(t_gnss) @ np.asarray(lever_arm, float)
+    fixes = antenna + np.column_stack([
         rng.normal(0, sigma_h, n_gnss), rng.normal(0, sigma_h, n_gnss), rng.normal(0, sigma_u, n_gnss)
     ])  # fmt: skip
     lat, lon, alt = pymap3d.enu2geodetic(*fixes.T, lat0, lon0, alt0)
