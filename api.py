@@ -174,7 +174,8 @@ def load(
         clear error before any work) and kept in ``dataset.metadata["run_config"]``, which
         :func:`smooth` uses unless given another.
     time_offset : float, default 0.0
-        Seconds added to NMEA times (to put receiver UTC on the IMU's clock).
+        Seconds added to the GNSS times, whatever the format (to put the receiver's clock
+        on the IMU's: -18 for GPS time against UTC).
     imu_topic, gnss_topic : str, optional
         MCAP topics to use instead of the ones chosen by message schema.
     progress : bool, default False

@@ -66,8 +66,9 @@ def build_parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     smooth.add_argument("--plot", type=Path, help="also write a PNG: track and error vs time")
     smooth.add_argument(
-        "--time-offset", type=float, default=0.0, help="seconds added to NMEA times"
-    )
+        "--time-offset", type=float, default=0.0,
+        help="seconds added to the GNSS times (any input; e.g. -18 for GPS time against UTC)",
+    )  # fmt: skip
     smooth.add_argument("--imu-topic", help="MCAP: IMU topic (default: chosen by schema)")
     smooth.add_argument("--gnss-topic", help="MCAP: GNSS topic (default: chosen by schema)")
     smooth.add_argument(

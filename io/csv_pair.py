@@ -253,17 +253,11 @@ def read_gnss_csv(path: str | Path, warnings: list[str] | None = None) -> GnssDa
     columns = _read_required(path, warnings, "GNSS", GNSS_REQUIRED)
     t = columns["time"]
     lla = np.column_stack([columns["lat"], columns["lon"], columns["alt"]])
-    keep = np.isfinite(t) & np.all(np.isfinite(lla), axis=1)
+    # Latitude and longitude without a height (a 2-D fix, an empty alt cell) is kept: the
+    # validation layer gives it a held height with a large vertical sigma.
+    keep = np.isfinite(t) & np.all(np.isfinite(lla[:, :2]), axis=1)
     if not keep.all():
-        # Latitude and longitude without a height (a 2-D fix, an empty alt cell) is named
-        # apart: the fix is there, the smoother needs it in 3-D.
-        no_height = int(np.sum(np.isfinite(t) & np.all(np.isfinite(lla[:, :2]), axis=1) & ~keep))
-        other = int((~keep).sum()) - no_height
-        parts = [f"{other} fix(es) without a position"] if other else []
-        if no_height:
-            unit = "" if other else "fix(es) "
-            parts.append(f"{no_height} {unit}without a height (empty alt)")
-        warnings.append(f"{path.name}: dropped {' and '.join(parts)}")
+        warnings.append(f"{path.name}: dropped {int((~keep).sum())} fix(es) without a position")
     order = np.argsort(t[keep], kind="stable")
     if np.any(np.diff(t[keep]) < 0):
         warnings.append(f"{path.name}: fixes were out of time order; sorted")

@@ -8,6 +8,8 @@ one input-validation layer (:func:`fgins.io.validate.validate_dataset`), here an
 
 from __future__ import annotations
 
+import math
+from dataclasses import replace
 from pathlib import Path
 
 from fgins.datatypes import Dataset, InputError
@@ -43,16 +45,23 @@ def load_dataset(
     gnss_topic: str | None = None,
     progress: bool = True,
 ) -> Dataset:
-    """Read ``inputs`` with the reader for their format and check the result (see module)."""
-    return validated(
-        _parse(
-            inputs,
-            time_offset_s=time_offset_s,
-            imu_topic=imu_topic,
-            gnss_topic=gnss_topic,
-            progress=progress,
-        )
+    """Read ``inputs`` with the reader for their format and check the result (see module).
+    ``time_offset_s`` is added to the GNSS times, whatever the format (a receiver logging
+    GPS time against an IMU in UTC: -18)."""
+    if not math.isfinite(time_offset_s):
+        raise InputError(f"--time-offset {time_offset_s}: must be a finite number of seconds")
+    dataset = _parse(
+        inputs,
+        time_offset_s=time_offset_s,
+        imu_topic=imu_topic,
+        gnss_topic=gnss_topic,
+        progress=progress,
     )
+    if time_offset_s and not dataset.metadata.get("gnss_time_offset_applied"):
+        dataset.gnss = replace(dataset.gnss, t=dataset.gnss.t + time_offset_s)
+    if time_offset_s:
+        dataset.metadata["gnss_time_offset_s"] = time_offset_s
+    return validated(dataset)
 
 
 def _parse(
@@ -112,7 +121,7 @@ def _nmea_with_imu(nmea: list[Path], others: list[Path], time_offset_s: float) -
         )
     warnings: list[str] = []
     result = read_nmea(nmea[0], time_offset_s=time_offset_s)
-    warnings.extend(result.warnings)
+    warnings.extend(f"{nmea[0].name}: {warning}" for warning in result.warnings)
     imu = read_imu_csv(imu_files[0], warnings)
     gnss = result.gnss
     return Dataset(
@@ -121,5 +130,5 @@ def _nmea_with_imu(nmea: list[Path], others: list[Path], time_offset_s: float) -
         origin=Origin(*map(float, gnss.lla[0])),
         name=nmea[0].stem,
         warnings=warnings,
-        metadata={"nmea_counts": result.counts},
+        metadata={"nmea_counts": result.counts, "gnss_time_offset_applied": True},
     )

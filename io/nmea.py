@@ -514,6 +514,11 @@ def _assemble(path: Path, reader: _Reader, time_offset_s: float) -> NmeaResult:
     )
     if without_fix:
         warnings.append(f"{without_fix} epochs without a usable position were skipped")
+    if reader.corrupt or reader.checksum_failures:
+        warnings.append(
+            f"skipped {reader.corrupt} corrupt or truncated line(s) and "
+            f"{reader.checksum_failures} sentence(s) failing their checksum"
+        )
     if modelled.any():
         warnings.append(
             f"{int(modelled.sum())} epochs without geoid separation: used {GEOID_MODEL_NAME}"

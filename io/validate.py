@@ -3,6 +3,8 @@
 Readers parse; this module checks, whatever the source (CSV pair, sim folder, NMEA + IMU CSV,
 MCAP, KITTI, UBX), so the same drive read from different formats gets the same findings:
 
+* isolated IMU spike samples (more rotation or speed change within one sample than a vehicle
+  can make) -> replaced by the line through their neighbours, counted;
 * IMU gaps and linearly interpolated stretches -> ``ImuData.suspect`` (bridged with inflated
   noise), see :mod:`fgins.io.imu_checks`;
 * units: a gyro in deg/s (its integrated rotation over GNSS turns is ~57x the turn the fixes
@@ -37,7 +39,7 @@ from dataclasses import replace
 import numpy as np
 
 from fgins.datatypes import Dataset, GnssData, InputError, Origin
-from fgins.io.imu_checks import flag_suspect
+from fgins.io.imu_checks import flag_suspect, repair_spikes
 
 # Geodetic ranges for the supported vehicles (cars, UAVs, aircraft): below the Dead Sea shore
 # (-430 m) and deep mines with margin; above any aircraft (1e5 m is the Karman line).
@@ -98,7 +100,7 @@ def validate_dataset(dataset: Dataset) -> Dataset:
         return dataset
     checks: list[str] = []
     _check_imu_time_unit(dataset.imu.t)
-    imu = flag_suspect(dataset.imu, checks)
+    imu = flag_suspect(repair_spikes(dataset.imu, checks), checks)
     gnss, origin = _check_gnss(dataset.gnss, dataset.origin, checks)
     _check_time_bases(imu.t, gnss.t, checks)
     _check_units(imu, gnss, origin, has_accel_array=dataset.accel_array is not None)
@@ -217,8 +219,13 @@ def _check_gnss(gnss: GnssData, origin: Origin, checks: list[str]) -> tuple[Gnss
     if n == 0:
         raise InputError("gnss: no fix at all; nothing to anchor the trajectory")
     origin_is_first_fix = bool(
-        np.allclose([origin.lat, origin.lon, origin.alt], gnss.lla[0], rtol=0, atol=1e-12)
+        np.allclose(
+            [origin.lat, origin.lon, origin.alt], gnss.lla[0], rtol=0, atol=1e-12, equal_nan=True
+        )
     )
+    gnss = _fill_missing_heights(gnss, checks)
+    if origin_is_first_fix and not np.isfinite(origin.alt):  # a 2-D first fix, height given
+        origin = Origin(*(float(v) for v in gnss.lla[0]))
     keep = _geodetic_ok(gnss.lla)
     if not keep.any():
         raise InputError(
@@ -232,6 +239,7 @@ def _check_gnss(gnss: GnssData, origin: Origin, checks: list[str]) -> tuple[Gnss
         )
         gnss = gnss.subset(keep)
     gnss = _clean_sigmas(gnss, checks)
+    gnss = _drop_no_fix(gnss, checks)
     bad = _implausible_jumps(gnss.t, _ecef(gnss.lla), _fix_sigma(gnss))
     if bad.all() or (~bad).sum() < 1:
         raise InputError("gnss: no two fixes agree with each other; the positions are not usable")
@@ -260,6 +268,67 @@ def _check_gnss(gnss: GnssData, origin: Origin, checks: list[str]) -> tuple[Gnss
             f"({origin.lat:.7f}, {origin.lon:.7f}, {origin.alt:.2f} m)"
         )
     return gnss, origin
+
+
+def _fill_missing_heights(gnss: GnssData, checks: list[str]) -> GnssData:
+    """2-D fixes (latitude and longitude without a height: NMEA RMC without GGA, a GGA with
+    an empty altitude, a 2-D fix) get the height of the 3-D fixes around them (held at the
+    ends) with a vertical sigma of ``HELD_HEIGHT_SIGMA_M``; in a log without any height, 0 m
+    with ``NO_HEIGHT_SIGMA_M``: the horizontal solution is as good, the vertical says it is
+    unknown. Counted in one line."""
+    lla = gnss.lla
+    with np.errstate(invalid="ignore"):
+        flat = np.all(np.isfinite(lla[:, :2]), axis=1) & ~np.isfinite(lla[:, 2])
+    if not flat.any():
+        return gnss
+    solid = np.all(np.isfinite(lla), axis=1)
+    lla, std = lla.copy(), gnss.std.copy()
+    if solid.any():
+        lla[flat, 2] = np.interp(gnss.t[flat], gnss.t[solid], lla[solid, 2])
+        sigma, how = HELD_HEIGHT_SIGMA_M, "the height of the 3-D fixes around them"
+    else:
+        lla[flat, 2] = 0.0
+        sigma, how = NO_HEIGHT_SIGMA_M, "height 0 m (the log has no height at all)"
+    std[flat, 2] = np.fmax(np.nan_to_num(std[flat, 2], nan=0.0), sigma)
+    checks.append(
+        f"gnss: {int(flat.sum())} of {len(gnss)} fix(es) without a height (2-D: RMC without "
+        f"GGA, an empty altitude) given {how}, vertical sigma {sigma:g} m"
+    )
+    return replace(gnss, lla=lla, std=std)
+
+
+HELD_HEIGHT_SIGMA_M = 30.0
+NO_HEIGHT_SIGMA_M = 1000.0
+
+
+def _drop_no_fix(gnss: GnssData, checks: list[str]) -> GnssData:
+    """Epochs that are a receiver's "no fix" in a fix's clothes: position exactly (0, 0) (null
+    island, what a receiver reports before its first fix) or a horizontal sigma above
+    ``NO_FIX_SIGMA_M`` (u-blox NAV-POSLLH before a fix: hAcc 4,294,967 m). Kept, they became
+    the local frame's origin and the batch "diverged" with chi2/dof 1e11."""
+    lat, lon = gnss.lla[:, 0], gnss.lla[:, 1]
+    null_island = (lat == 0.0) & (lon == 0.0)
+    with np.errstate(invalid="ignore"):
+        vague = np.nan_to_num(np.hypot(gnss.std[:, 0], gnss.std[:, 1])) > NO_FIX_SIGMA_M
+    drop = null_island | vague
+    if not drop.any():
+        return gnss
+    if drop.all():
+        raise InputError(
+            f"gnss: none of the {len(gnss)} fixes is a fix: "
+            f"{int(null_island.sum())} at position (0, 0), {int((vague & ~null_island).sum())} "
+            f"with a horizontal sigma above {NO_FIX_SIGMA_M:g} m (what receivers report "
+            "without a fix)"
+        )
+    checks.append(
+        f"gnss: dropped {int(drop.sum())} of {len(gnss)} epoch(s) that report no fix "
+        f"({int(null_island.sum())} at position (0, 0), {int((vague & ~null_island).sum())} "
+        f"with a horizontal sigma above {NO_FIX_SIGMA_M:g} m)"
+    )
+    return gnss.subset(~drop)
+
+
+NO_FIX_SIGMA_M = 1000.0
 
 
 def _clean_sigmas(gnss: GnssData, checks: list[str]) -> GnssData:

@@ -191,3 +191,34 @@ def test_robust_flag_reaches_the_gnss_model_and_outputs_are_readable(tmp_path, s
     assert main(["smooth", str(sim_dir), "--robust", "cauchy", "-o", str(out)]) == 0
     assert "GNSS outliers" in capsys.readouterr().err
     assert out.stat().st_mode & stat.S_IRGRP  # not the 0600 of a temporary file
+
+
+def test_time_offset_applies_to_every_input_format(tmp_path, sim_dir, capsys):
+    """``--time-offset`` was applied to NMEA only: on the CSV pair (and MCAP) it was ignored
+    silently, while the "do not overlap" error told the user to give it."""
+    import fgins
+
+    gnss = (sim_dir / "gnss.csv").read_text().splitlines()
+    shifted = [gnss[0]] + [
+        ",".join([f"{float(r.split(',')[0]) + 200.0:.6f}", *r.split(",")[1:]]) for r in gnss[1:]
+    ]
+    (tmp_path / "gnss.csv").write_text("\n".join(shifted) + "\n")
+    inputs = [str(sim_dir / "imu.csv"), str(tmp_path / "gnss.csv")]
+    reference = fgins.load(sim_dir / "imu.csv", sim_dir / "gnss.csv")
+    moved = fgins.load(*inputs, time_offset=-200.0)
+    np.testing.assert_allclose(moved.gnss.t, reference.gnss.t, atol=1e-6)
+    out = tmp_path / "x.csv"
+    assert main(["smooth", *inputs, "--method", "ekf", "-o", str(out), "--no-progress",
+                 "--time-offset", "-200"]) == 0  # fmt: skip
+    assert out.exists()
+    capsys.readouterr()
+    for bad in ("nan", "inf"):
+        assert main(["smooth", *inputs, "-o", str(tmp_path / "y.csv"), "--time-offset", bad]) == 2
+        assert "--time-offset" in capsys.readouterr().err
+    sys.path.insert(0, str(Path(__file__).parent))
+    from mcap_fixtures import make_drive, write_ros2_bag
+
+    bag = write_ros2_bag(tmp_path / "bag", make_drive())
+    plain = fgins.load(bag)
+    offset = fgins.load(bag, time_offset=0.25)
+    np.testing.assert_allclose(offset.gnss.t, plain.gnss.t + 0.25, atol=1e-9)
