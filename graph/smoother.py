@@ -631,10 +631,10 @@ def _to_trajectory(
     problem: Problem, states: KeyframeStates, method: str, *, smoothed: bool
 ) -> Trajectory:
     imu = problem.dataset.imu
-    dense = densify(
+    dense = densify(  # densify picks each segment's sample itself (segments.sample)
         problem.segments,
-        imu.accel[problem.segments.sample],
-        imu.gyro[problem.segments.sample],
+        imu.accel,
+        imu.gyro,
         states,
         problem.gravity,
         problem.omega_earth,

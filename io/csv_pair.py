@@ -41,6 +41,10 @@ GNSS_OPTIONAL = [
     "hdop", "vdop", "pdop", "fix_quality", "num_sats", "speed", "course",
 ]  # fmt: skip
 BARO_COLUMNS = ["time", "pressure_pa"]
+# Columns fgins reads as numbers; a column of text elsewhere (a comment) is ignored.
+KNOWN_NUMERIC_COLUMNS = frozenset(
+    [*IMU_COLUMNS, *GNSS_REQUIRED, *GNSS_OPTIONAL, *BARO_COLUMNS, "baro_height", "wheel_speed"]
+)
 # The files a `fgins sim` folder holds that are inputs (config.toml is read separately).
 SIM_FOLDER_FILES = ("imu.csv", "accel_array.csv", "gnss.csv", "baro.csv", "wheel.csv")
 
@@ -92,19 +96,41 @@ def _read_columns(path: Path, warnings: list[str]) -> dict[str, np.ndarray]:
     ~18 s on a 1 h, 200 Hz drive); the numbers are the bits Python's ``float`` gives.
     """
     header = read_header(path)
+    text: list[int] = []
     try:
         table, bad = _parse_table(path, len(header))
+    except _TextColumns as found:
+        table, bad, text = found.table, found.bad, found.columns
     except _Fallback:
         table, bad = _parse_table_python(path, len(header))
     if bad:
         warnings.append(f"{path.name}: dropped {bad} malformed row(s)")
     if len(table) == 0:
         raise InputError(f"{path}: no data rows")
-    return {name: table[:, i] for i, name in enumerate(header)}
+    needed = [header[i] for i in text if header[i] in KNOWN_NUMERIC_COLUMNS]
+    if needed:
+        raise InputError(
+            f"{path}: column(s) {', '.join(needed)} hold text, not numbers (e.g. an ISO time "
+            "or 'GPS' for a fix type); write them as numbers (seconds, GGA fix codes)"
+        )
+    if text:
+        warnings.append(
+            f"{path.name}: ignored column(s) {', '.join(header[i] for i in text)} (text, "
+            "not used by fgins)"
+        )
+    return {name: table[:, i] for i, name in enumerate(header) if i not in text}
 
 
 class _Fallback(Exception):
     """pyarrow could not read the file as a plain CSV table: use the Python reader."""
+
+
+class _TextColumns(Exception):  # a result carried out of the reader, not an error
+    """The table, with some columns that hold only text (their cells NaN)."""
+
+    def __init__(self, table: np.ndarray, bad: int, columns: list[int]) -> None:
+        super().__init__("text columns")
+        self.table, self.bad, self.columns = table, bad, columns
 
 
 # A plain decimal number (after trimming): pyarrow's cast gives the same correctly rounded
@@ -176,6 +202,7 @@ def _parse_table(path: Path, n_columns: int) -> tuple[np.ndarray, int]:
     table = np.empty((n_rows, n_columns))
     blank_row = np.ones(n_rows, dtype=bool)
     failed = np.zeros(n_rows, dtype=bool)
+    text_columns: list[int] = []
     for i, name in enumerate(names):
         cells = pc.utf8_trim_whitespace(raw.column(name).combine_chunks())
         blank = np.asarray(pc.equal(pc.utf8_length(cells), 0), dtype=bool)
@@ -194,11 +221,16 @@ def _parse_table(path: Path, n_columns: int) -> tuple[np.ndarray, int]:
             parsed = [None if text.isspace() else _python_float(text) for text in texts]
             ok = np.array([v is not None for v in parsed]) & ~space
             values[other[ok]] = [v for v, good in zip(parsed, ok, strict=True) if good]
-            failed[other[~ok & ~space]] = True
+            if not decimal.any() and not ok.any():
+                text_columns.append(i)  # a column of text (a comment, "GPS"): no numbers
+            else:
+                failed[other[~ok & ~space]] = True
         table[:, i] = values
         blank_row &= blank
     keep = ~blank_row & ~failed
     bad += int(np.count_nonzero(failed & ~blank_row))
+    if text_columns:
+        raise _TextColumns(table[keep], bad, text_columns)
     return table[keep], bad
 
 

@@ -141,9 +141,11 @@ def write_drive(folder: Path, profile: CarProfile, duration_s: float, *, grade: 
                 imu_rate: float, jitter: float, gnss_rate: float, seed: int,
                 lat0: float = 45.0, lon0: float = 10.0, alt0: float = 100.0,
                 sigma_h: float = 1.0, sigma_u: float = 1.5,
-                lever_arm: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> None:  # fmt: skip
+                lever_arm: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                gnss_t0: float = 0.0) -> None:  # fmt: skip
     """imu.csv, gnss.csv, truth.csv and cfg.toml of ``profile`` in ``folder``; the fixes
-    are those of an antenna ``lever_arm`` (body axes) from the IMU (cfg.toml leaves it out)."""
+    are those of an antenna ``lever_arm`` (body axes) from the IMU (cfg.toml leaves it out),
+    the first at ``gnss_t0`` (off the IMU's sample grid when not a multiple of its period)."""
     folder.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
     w_ie = EARTH_RATE * np.array([0, np.cos(np.radians(lat0)), np.sin(np.radians(lat0))])
@@ -175,8 +177,8 @@ def write_drive(folder: Path, profile: CarProfile, duration_s: float, *, grade: 
                header="time,gyro_x,gyro_y,gyro_z,accel_x,accel_y,accel_z", comments="")  # fmt: skip
     np.savetxt(folder / "truth.csv", np.column_stack([t, p, v]), delimiter=",", fmt="%.6f",
                header="time,east,north,up,vel_east,vel_north,vel_up", comments="")  # fmt: skip
-    n_gnss = int(np.floor(duration_s * gnss_rate + 1e-9)) + 1
-    t_gnss = np.arange(n_gnss) / gnss_rate
+    n_gnss = int(np.floor((duration_s - gnss_t0) * gnss_rate + 1e-9)) + 1
+    t_gnss = gnss_t0 + np.arange(n_gnss) / gnss_rate
     antenna = profile.position(t_gnss) + profile.rotation(t_gnss) @ np.asarray(lever_arm, float)
     fixes = antenna + np.column_stack([
         rng.normal(0, sigma_h, n_gnss), rng.normal(0, sigma_h, n_gnss), rng.normal(0, sigma_u, n_gnss)

@@ -800,3 +800,22 @@ def test_no_fix_epochs_at_null_island_or_with_a_huge_sigma_are_dropped():
     assert len(checked.gnss) == len(gnss) - 11
     assert [w for w in checked.warnings if "dropped 11 of" in w and "report no fix" in w]
     assert checked.origin.lat == pytest.approx(gnss.lla[10, 0])
+
+
+def test_a_text_column_is_ignored_or_named_not_every_row_dropped(tmp_path, urban):
+    """An extra column of text (a comment) made every row "malformed": "gnss.csv: no data
+    rows". It is ignored with a note; text in a column fgins reads is an error naming it."""
+    paths = _pair(tmp_path, urban.dataset)
+    gnss = Path(paths[1])
+    lines = gnss.read_text().splitlines()
+    gnss.write_text("\n".join([lines[0] + ",comment"] + [row + ",ok" for row in lines[1:]]) + "\n")
+    checked = load_dataset(paths)
+    assert len(checked.gnss) == len(urban.dataset.gnss)
+    assert any("ignored column(s) comment" in w for w in checked.warnings)
+    header = lines[0].split(",")
+    quality = [row.split(",") for row in lines[1:]]
+    for cells in quality:
+        cells[header.index("time")] = "2024-05-01T12:00:00"
+    gnss.write_text("\n".join([lines[0]] + [",".join(c) for c in quality]) + "\n")
+    with pytest.raises(InputError, match="column\\(s\\) time hold text"):
+        load_dataset(paths)
