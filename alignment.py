@@ -45,6 +45,10 @@ class Alignment:
     moving: bool
 
 
+# How a vehicle travels relative to its forward axis (:func:`_travel`).
+AHEAD, AHEAD_OR_BACK, ANY_DIRECTION = "ahead", "ahead or back", "any direction"
+
+
 def _gnss_fit(
     t: np.ndarray, enu: np.ndarray, t_eval: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -112,25 +116,25 @@ def initial_alignment(
         if forward_axis is None:
             forward_axis = mounting_rotation(smoother.imu_to_vehicle_rpy_deg)[0]
     forward = np.array([1.0, 0.0, 0.0]) if forward_axis is None else np.asarray(forward_axis, float)
-    # A land vehicle (the NHC holds) travels along its forward axis, ahead or reversing; an
-    # aircraft ahead; a multirotor in any direction, where no sign test applies.
-    reversible = smoother is not None and smoother.nhc
+    # A land vehicle (the NHC holds) travels along its forward axis, ahead or reversing; a
+    # multirotor or a pedestrian in any direction; anything else (an aircraft) ahead.
+    travel = _travel(smoother)
     t_start = float(imu.t[0])
     lead = float(gnss_t[0]) - t_start
     if lead <= MAX_LEAD_S:
         return _align_at(
             dataset, t_start, gnss_t, gnss_enu, heading_deg, moving_speed, fit_window_s, forward,
-            gyro_bias_sigma, reversible,
+            gyro_bias_sigma, travel,
         )  # fmt: skip
     rest = _rest_before_first_fix(
         dataset, gnss_t, gnss_enu, heading_deg, moving_speed, fit_window_s, forward,
-        gyro_bias_sigma, reversible,
+        gyro_bias_sigma, travel,
     )  # fmt: skip
     if rest is not None:
         return rest
     later = _align_at(
         dataset, float(gnss_t[0]), gnss_t, gnss_enu, heading_deg, moving_speed, fit_window_s,
-        forward, gyro_bias_sigma, reversible,
+        forward, gyro_bias_sigma, travel,
     )  # fmt: skip
     rotation, velocity, position = _propagate_back(dataset, later, t_start)
     # Dead reckoning over `lead` seconds: ~0.1 m/s^2 of unknown acceleration (tilt, bias).
@@ -161,7 +165,7 @@ def _rest_before_first_fix(
     fit_window_s: float,
     forward_axis: np.ndarray,
     gyro_bias_sigma: float,
-    reversible: bool,
+    travel: str,
 ) -> Alignment | None:
     """The alignment at the first IMU sample when the vehicle stands there but the first
     usable fix comes much later (a receiver's cold start, GNSS withheld at the start), or
@@ -184,11 +188,19 @@ def _rest_before_first_fix(
     specific_force = imu.accel[first].mean(axis=0)
     up_body = specific_force / np.linalg.norm(specific_force)
     heading_sigma_deg = 2.0
+    if heading_deg is None and travel == ANY_DIRECTION:
+        found = _heading_from_acceleration(
+            dataset, gnss_t, gnss_enu, t_start, up_body, forward_axis,
+            imu.gyro[first].mean(axis=0),
+        )  # fmt: skip
+        if found is not None:
+            heading_deg, heading_sigma_deg = found
     if heading_deg is None:
         heading_deg, heading_sigma_deg = _heading_from_first_motion(
             dataset, gnss_t, gnss_enu, moving_speed, t_start, up_body,
             rest_rate=_rest_rate_about(imu, t_start, up_body, g),
-            gyro_bias_sigma=gyro_bias_sigma, forward_axis=forward_axis if reversible else None,
+            gyro_bias_sigma=gyro_bias_sigma,
+            forward_axis=forward_axis if travel == AHEAD_OR_BACK else None,
             rest_force=specific_force,
         )  # fmt: skip
     level = triad(up_body, forward_axis, np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0]))
@@ -283,10 +295,10 @@ def _align_at(
     fit_window_s: float,
     forward_axis: np.ndarray,
     gyro_bias_sigma: float = 0.0,
-    reversible: bool = False,
+    travel: str = AHEAD,
 ) -> Alignment:
     """Alignment at time ``t0`` from the fixes around it and the IMU's first second there.
-    ``reversible``: a land vehicle, which may be reversing (:func:`_travels_backward`)."""
+    ``travel``: how the vehicle moves relative to its forward axis (:func:`_travel`)."""
     imu = dataset.imu
     g = normal_gravity(dataset.origin.lat, dataset.origin.alt)
     gravity = np.array([0.0, 0.0, -g])
@@ -323,7 +335,7 @@ def _align_at(
         nav_force = acceleration - gravity
         forward = np.array([velocity[0], velocity[1], velocity[2]])
         up_now = specific_force / np.linalg.norm(specific_force)
-        if reversible and _travels_backward(
+        if travel == AHEAD_OR_BACK and _travels_backward(
             imu, gnss_t[window], gnss_enu[window], velocity[:2], forward_axis, up_now
         ):
             forward = -forward  # reversing: the body's forward axis points against the track
@@ -345,11 +357,18 @@ def _align_at(
     heading_configured = heading_deg is not None
     up_body = specific_force / np.linalg.norm(specific_force)
     heading_sigma_deg = 2.0 if heading_configured else 180.0
+    if heading_deg is None and travel == ANY_DIRECTION and static:
+        found = _heading_from_acceleration(
+            dataset, gnss_t, gnss_enu, t0, up_body, forward_axis, imu.gyro[first].mean(axis=0)
+        )
+        if found is not None:
+            heading_deg, heading_sigma_deg = found
     if heading_deg is None:
         heading_deg, heading_sigma_deg = _heading_from_first_motion(
             dataset, gnss_t, gnss_enu, moving_speed, t0, up_body,
             rest_rate=_rest_rate_about(imu, t0, up_body, g) if static else None,
-            gyro_bias_sigma=gyro_bias_sigma, forward_axis=forward_axis if reversible else None,
+            gyro_bias_sigma=gyro_bias_sigma,
+            forward_axis=forward_axis if travel == AHEAD_OR_BACK else None,
             rest_force=specific_force if static else None,
         )  # fmt: skip
     level = triad(up_body, forward_axis, np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0]))
@@ -512,6 +531,115 @@ def _heading_from_first_motion(
                 np.clip(sigma, 2.0, 180.0)
             )
     return 0.0, 180.0
+
+
+def _travel(smoother: SmootherConfig | None) -> str:
+    """How the vehicle moves relative to its forward axis: a land vehicle (the NHC holds)
+    ahead or reversing; a multirotor or a pedestrian in any direction (a drone flies
+    sideways with its nose held); anything else (an aircraft, a boat) ahead."""
+    if smoother is None:
+        return AHEAD
+    if smoother.nhc:
+        return AHEAD_OR_BACK
+    return ANY_DIRECTION if smoother.vehicle in ("uav", "pedestrian") else AHEAD
+
+
+def _heading_from_acceleration(
+    dataset: Dataset,
+    gnss_t: np.ndarray,
+    gnss_enu: np.ndarray,
+    t0: float,
+    up_body: np.ndarray,
+    forward_axis: np.ndarray,
+    gyro_bias: np.ndarray,
+) -> tuple[float, float] | None:
+    """(heading of the forward axis at ``t0``, its 1-sigma) in deg, for a vehicle at rest at
+    ``t0`` that may move in any direction; None when it does not move far enough to tell.
+
+    The course of the first motion is the heading only for a vehicle that travels along its
+    forward axis; a multirotor that takes off and flies sideways was aligned 90 deg off (the
+    Kalman filters 76-185 m off, z 100-300). Instead the IMU is dead-reckoned from rest in a
+    level frame of unknown heading (gyro less its rest reading, the accelerometer, gravity),
+    and the heading is the rotation about up that lays that track onto the fixes' (a least-
+    squares fit with the start position and a constant acceleration error free). Its sigma
+    from the fit, at least ``MIN_ACCEL_HEADING_SIGMA_DEG``."""
+    imu = dataset.imu
+    far = np.flatnonzero(
+        np.linalg.norm(gnss_enu[:, :2] - np.median(gnss_enu[: max(3, 1), :2], axis=0), axis=1)
+        >= ACCEL_HEADING_DISTANCE_M
+    )
+    far = far[gnss_t[far] > t0]
+    if not len(far):
+        return None
+    t_end = min(float(gnss_t[far[0]]) + ACCEL_HEADING_EXTRA_S, t0 + MAX_ACCEL_HEADING_S)
+    inside = (imu.t >= t0) & (imu.t <= t_end)
+    fixes = (gnss_t >= t0) & (gnss_t <= t_end)
+    if inside.sum() < 10 or fixes.sum() < 5:
+        return None
+    g = normal_gravity(dataset.origin.lat, dataset.origin.alt)
+    level = triad(up_body, forward_axis, np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0]))
+    t = imu.t[inside]
+    step = np.diff(t)
+    rotations = np.empty((len(t), 3, 3))
+    rotations[0] = level
+    for k in range(len(t) - 1):
+        rotations[k + 1] = rotations[k] @ so3_exp((imu.gyro[inside][k] - gyro_bias) * step[k])
+
+    def twice_integrated(acceleration: np.ndarray) -> np.ndarray:
+        """Position (at the fixes, horizontal) of a dead reckoning from rest, held samples."""
+        velocity = np.vstack([np.zeros(3), np.cumsum(acceleration[:-1] * step[:, None], axis=0)])
+        position = np.vstack([
+            np.zeros(3),
+            np.cumsum(velocity[:-1] * step[:, None] + 0.5 * acceleration[:-1] * step[:, None] ** 2,
+                      axis=0),
+        ])  # fmt: skip
+        return np.column_stack([np.interp(gnss_t[fixes], t, position[:, i]) for i in range(2)])
+
+    accel = imu.accel[inside]
+    dead = twice_integrated(np.einsum("nij,nj->ni", rotations, accel) + np.array([0.0, 0.0, -g]))
+    # What a constant accelerometer bias (body axes) does to the dead reckoning: one track per
+    # axis. A consumer IMU's 10 mg is 45 m over 30 s, and it turns with the body as the
+    # vehicle yaws, so a constant level-frame acceleration cannot absorb it.
+    bias_tracks = [twice_integrated(rotations[:, :, i]) for i in range(3)]
+    seen = gnss_enu[fixes, :2]
+    # seen = Rz(turn) (dead + sum_i b_i D_i) + c + d tau^2: linear in (cos, sin), c, d and,
+    # for each bias axis, the 2-vector (cos b_i, sin b_i) (a free pair: over-parametrised,
+    # unbiased). c: the start position; d: a level error (a constant acceleration).
+    tau = gnss_t[fixes] - t0
+    n = len(tau)
+
+    def rotated(track: np.ndarray) -> np.ndarray:
+        """Columns multiplying (cos, sin) in Rz(turn) @ track, east rows then north rows."""
+        return np.vstack([
+            np.column_stack([track[:, 0], -track[:, 1]]),
+            np.column_stack([track[:, 1], track[:, 0]]),
+        ])  # fmt: skip
+
+    offsets = np.zeros((2 * n, 4))
+    offsets[:n, 0], offsets[n:, 1] = 1.0, 1.0
+    offsets[:n, 2], offsets[n:, 3] = tau**2, tau**2
+    design = np.hstack([rotated(dead), offsets, *[rotated(track) for track in bias_tracks]])
+    observed = np.concatenate([seen[:, 0], seen[:, 1]])
+    coef, *_ = np.linalg.lstsq(design, observed, rcond=None)
+    scale = float(np.hypot(coef[0], coef[1]))
+    if not 0.5 < scale < 2.0:  # the dead reckoning does not look like the track: cannot tell
+        return None
+    turn = float(np.arctan2(coef[1], coef[0]))  # counter-clockwise from the level frame to ENU
+    residual = observed - design @ coef
+    scatter = max(float(np.sqrt(residual @ residual / max(2 * n - design.shape[1], 1))), 0.5)
+    covariance = scatter**2 * np.linalg.pinv(design.T @ design)[:2, :2]
+    tangent = np.array([-np.sin(turn), np.cos(turn)])
+    sigma = float(np.degrees(np.sqrt(tangent @ covariance @ tangent) / scale))
+    sigma = max(sigma, MIN_ACCEL_HEADING_SIGMA_DEG)
+    # The level frame's forward axis points north (heading 0); turned counter-clockwise by
+    # ``turn``, its heading (clockwise from north) is -turn.
+    return float(np.mod(-np.degrees(turn), 360.0)), float(min(sigma, 180.0))
+
+
+ACCEL_HEADING_DISTANCE_M = 20.0  # the fixes must move this far from the start to tell
+ACCEL_HEADING_EXTRA_S = 10.0  # and the fit runs this much longer
+MAX_ACCEL_HEADING_S = 60.0
+MIN_ACCEL_HEADING_SIGMA_DEG = 3.0
 
 
 def _travels_backward(

@@ -212,7 +212,7 @@ def load(
     items = [os.fspath(item) for item in inputs]
     dataset = load_dataset(
         items, time_offset_s=time_offset, imu_topic=imu_topic, gnss_topic=gnss_topic,
-        progress=progress,
+        progress=progress, vehicle=vehicle,
     )  # fmt: skip
     dataset.metadata["inputs"] = items
     dataset.metadata["run_config"] = configure(

@@ -30,11 +30,11 @@ def _looks_like_nmea(path: Path) -> bool:
     return b"$GP" in head or b"$GN" in head or b"$GL" in head or b"$GB" in head or b"$BD" in head
 
 
-def validated(dataset: Dataset) -> Dataset:
+def validated(dataset: Dataset, vehicle: str | None = None) -> Dataset:
     """The one call of the input-validation layer (checks, repairs, counted warnings)."""
     from fgins.io.validate import validate_dataset
 
-    return validate_dataset(dataset)
+    return validate_dataset(dataset, vehicle=vehicle)
 
 
 def load_dataset(
@@ -44,8 +44,11 @@ def load_dataset(
     imu_topic: str | None = None,
     gnss_topic: str | None = None,
     progress: bool = True,
+    vehicle: str | None = None,
 ) -> Dataset:
     """Read ``inputs`` with the reader for their format and check the result (see module).
+    ``vehicle``: the vehicle type when known (some checks assume a body that yaws with its
+    track, which a multirotor need not).
     ``time_offset_s`` is added to the GNSS times, whatever the format (a receiver logging
     GPS time against an IMU in UTC: -18)."""
     if not math.isfinite(time_offset_s):
@@ -61,7 +64,7 @@ def load_dataset(
         dataset.gnss = replace(dataset.gnss, t=dataset.gnss.t + time_offset_s)
     if time_offset_s:
         dataset.metadata["gnss_time_offset_s"] = time_offset_s
-    return validated(dataset)
+    return validated(dataset, vehicle)
 
 
 def _parse(

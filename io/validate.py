@@ -91,7 +91,7 @@ GNSS_GAP_MIN_S = 5.0
 GNSS_GAP_PERIODS = 10.0
 
 
-def validate_dataset(dataset: Dataset) -> Dataset:
+def validate_dataset(dataset: Dataset, vehicle: str | None = None) -> Dataset:
     """Check and repair ``dataset`` (see the module docstring); returns the checked dataset.
 
     Idempotent: a dataset already checked is returned unchanged.
@@ -103,7 +103,10 @@ def validate_dataset(dataset: Dataset) -> Dataset:
     imu = flag_suspect(repair_spikes(dataset.imu, checks), checks)
     gnss, origin = _check_gnss(dataset.gnss, dataset.origin, checks)
     _check_time_bases(imu.t, gnss.t, checks)
-    _check_units(imu, gnss, origin, has_accel_array=dataset.accel_array is not None)
+    _check_units(
+        imu, gnss, origin, checks, has_accel_array=dataset.accel_array is not None,
+        body_follows_track=vehicle not in FREE_BODY_VEHICLES,
+    )  # fmt: skip
     _check_gnss_velocity(gnss, origin)
     _report_gnss_time_gaps(gnss.t, checks)
     metadata = {**dataset.metadata, "input_checks": list(checks)}
@@ -450,7 +453,20 @@ def _check_imu_time_unit(t: np.ndarray) -> None:
         )
 
 
-def _check_units(imu, gnss: GnssData, origin: Origin, *, has_accel_array: bool) -> None:
+# A multirotor or a pedestrian need not yaw with its track (a drone circles with its nose
+# held): for them a gyro that does not follow the track's turns is a note, not an error.
+FREE_BODY_VEHICLES = ("uav", "pedestrian")
+
+
+def _check_units(
+    imu,
+    gnss: GnssData,
+    origin: Origin,
+    checks: list[str],
+    *,
+    has_accel_array: bool,
+    body_follows_track: bool = True,
+) -> None:
     accel_norm = np.linalg.norm(imu.accel, axis=1)
     median_accel = float(np.median(accel_norm))
     if ACCEL_G_RANGE[0] <= median_accel <= ACCEL_G_RANGE[1]:
@@ -492,15 +508,16 @@ def _check_units(imu, gnss: GnssData, origin: Origin, *, has_accel_array: bool) 
             f"(57.3 for deg/s, ~1 for rad/s); multiply gyro_x, gyro_y, gyro_z by "
             f"pi/180 = {math.pi / 180:.6f}"
         )
+    problems = []
     if turns >= TURN_SIGN_MIN_WINDOWS and ratio < GYRO_TURN_RATIO_MIN:
-        raise InputError(
+        problems.append(
             f"imu: the gyro does not see the turns: over {turns} {TURN_WINDOW_S:g}-s windows of "
             f"the GNSS track it integrates to {ratio:.3g} times the turn the fixes show (~1 "
             "expected; 0.017 if rad/s were converted to rad/s again, 0 for a dead gyro), or "
             "the IMU and GNSS clocks are offset (give --time-offset SECONDS)"
         )
     if turns >= TURN_SIGN_MIN_WINDOWS and turn_sign < TURN_SIGN_MIN_RATIO:
-        raise InputError(
+        problems.append(
             f"imu: the gyro turns against the GNSS track: over {turns} turns its rotation about "
             "up (the direction of the accelerometer's mean reading) is "
             f"{turn_sign:.2f} times the track's (~+1 expected); the accelerometer must give "
@@ -509,6 +526,13 @@ def _check_units(imu, gnss: GnssData, origin: Origin, *, has_accel_array: bool) 
             "longitude are swapped (a mirrored track), or the IMU and GNSS clocks are offset "
             "(give --time-offset SECONDS)"
         )
+    if problems and body_follows_track:
+        raise InputError(
+            problems[0] + "; a multirotor or a pedestrian, which need not yaw with the track: "
+            "--vehicle uav or pedestrian"
+        )
+    checks.extend(f"{problem} (a {'/'.join(FREE_BODY_VEHICLES)} need not yaw with its track: "
+                  "checked, not refused)" for problem in problems)  # fmt: skip
 
 
 def _check_gnss_velocity(gnss: GnssData, origin: Origin) -> None:
