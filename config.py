@@ -284,20 +284,25 @@ IMU_KEYS = {
     "rate_hz",
 }
 
+# Upper bounds far beyond any IMU that exists (the worst MEMS: ARW ~5 deg/sqrt(h), bias
+# instability ~100 deg/h, turn-on ~5 deg/s, 100 mg; the SI densities and turn-on also cover
+# the rates an accelerometer array derives, whose bias ramps to 2 rad/s): a value past them
+# is a unit or a typo
+# (an ARW of 1e30 made every sigma meaningless with chi2/dof 0.04, and nothing said).
 IMU_SCHEMA: dict[str, Check] = {
     "preset": Check("str", choices=tuple(IMU_PRESETS)),
-    "gyro_arw_deg_per_sqrt_hr": replace(POSITIVE, hint=WHITE_NOISE_HINT),
-    "accel_vrw_m_per_s_per_sqrt_hr": replace(POSITIVE, hint=WHITE_NOISE_HINT),
-    "gyro_noise_rad_per_s_per_sqrt_hz": replace(POSITIVE, hint=WHITE_NOISE_HINT),
-    "accel_noise_m_per_s2_per_sqrt_hz": replace(POSITIVE, hint=WHITE_NOISE_HINT),
+    "gyro_arw_deg_per_sqrt_hr": replace(POSITIVE, abs_max=100.0, hint=WHITE_NOISE_HINT),
+    "accel_vrw_m_per_s_per_sqrt_hr": replace(POSITIVE, abs_max=100.0, hint=WHITE_NOISE_HINT),
+    "gyro_noise_rad_per_s_per_sqrt_hz": replace(POSITIVE, abs_max=1.0, hint=WHITE_NOISE_HINT),
+    "accel_noise_m_per_s2_per_sqrt_hz": replace(POSITIVE, abs_max=2.0, hint=WHITE_NOISE_HINT),
     # Zero bias instability / random walk is valid: a constant bias (the smoother models it).
-    "gyro_bias_instability_deg_per_hr": replace(NON_NEGATIVE, hint=BIAS_HINT),
-    "accel_bias_instability_mg": replace(NON_NEGATIVE, hint=BIAS_HINT),
-    "gyro_bias_rw_rad_per_s_per_sqrt_s": replace(NON_NEGATIVE, hint=BIAS_HINT),
-    "accel_bias_rw_m_per_s2_per_sqrt_s": replace(NON_NEGATIVE, hint=BIAS_HINT),
+    "gyro_bias_instability_deg_per_hr": replace(NON_NEGATIVE, abs_max=1e4, hint=BIAS_HINT),
+    "accel_bias_instability_mg": replace(NON_NEGATIVE, abs_max=1e3, hint=BIAS_HINT),
+    "gyro_bias_rw_rad_per_s_per_sqrt_s": replace(NON_NEGATIVE, abs_max=1.0, hint=BIAS_HINT),
+    "accel_bias_rw_m_per_s2_per_sqrt_s": replace(NON_NEGATIVE, abs_max=0.5, hint=BIAS_HINT),
     # The turn-on bias is the prior sigma of the initial bias: 0 would be a hard constraint.
-    "gyro_turn_on_bias_deg_per_s": replace(POSITIVE, hint=TURN_ON_HINT),
-    "accel_turn_on_bias_mg": replace(POSITIVE, hint=TURN_ON_HINT),
+    "gyro_turn_on_bias_deg_per_s": replace(POSITIVE, abs_max=1000.0, hint=TURN_ON_HINT),
+    "accel_turn_on_bias_mg": replace(POSITIVE, abs_max=1e4, hint=TURN_ON_HINT),
     "bias_correlation_time_s": POSITIVE,
     "integration_sigma_m_per_s2_per_sqrt_hz": NON_NEGATIVE,
     "rate_hz": POSITIVE,
@@ -631,6 +636,12 @@ def load_config(
     }
     if "uere_m" in gnss_table:
         gnss_table["uere_m"] = {**DEFAULT_UERE_M, **gnss_table["uere_m"]}
+    file_gnss = table.get("gnss") or {}
+    if isinstance(file_gnss, dict) and {"huber_k", "cauchy_k"} <= set(file_gnss):
+        raise ConfigError(
+            f"{file_where}[gnss]: huber_k and cauchy_k both given; the GNSS kernel is one or "
+            "the other (Huber bounds an outlier's pull, Cauchy rejects it): keep one"
+        )
     # The data's own [smoother] settings (a sim folder's IMU mounting) under the user's.
     data_smoother = check_table(data_where, "smoother", dataset_smoother, SMOOTHER_SCHEMA)
     smoother_table = check_table(file_where, "smoother", table.get("smoother"), SMOOTHER_SCHEMA)

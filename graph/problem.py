@@ -510,21 +510,24 @@ def _gnss_selection(
     dataset: Dataset, config: RunConfig, gnss_mask: np.ndarray | None
 ) -> tuple[np.ndarray, dict[str, int]]:
     """Usable epochs and counts that add up: every epoch is counted once, outage first
-    (a withheld epoch is never "rejected for PDOP"), then the gates, then the IMU span."""
+    (a withheld epoch is never "rejected for PDOP"), then the IMU span, then the gates (the
+    order of :func:`fgins.factors.gnss.gate_epochs`: an epoch the IMU does not cover is
+    "outside the IMU span" whatever its PDOP)."""
     gnss, imu = dataset.gnss, dataset.imu
     kept = np.ones(len(gnss), dtype=bool) if gnss_mask is None else np.asarray(gnss_mask, bool)
-    gate = gnss_model.gate_epochs(gnss.subset(kept), config.gnss)
+    gate = gnss_model.gate_epochs(
+        gnss.subset(kept), config.gnss, imu_span=(float(imu.t[0]), float(imu.t[-1]))
+    )
     usable = np.zeros(len(gnss), dtype=bool)
     usable[kept] = gate.usable
-    in_span = (gnss.t >= imu.t[0]) & (gnss.t <= imu.t[-1])
     counts = {
         "total": len(gnss),
         "withheld": int((~kept).sum()),
         "gated_pdop": gate.rejected_pdop,
         "gated_quality": gate.rejected_quality,
-        "outside_imu_span": int((usable & ~in_span).sum()),
+        "outside_imu_span": gate.outside_span,
     }
-    return usable & in_span, counts
+    return usable, counts
 
 
 def _no_gnss_error(dataset: Dataset, config: RunConfig, counts: dict[str, int]) -> InputError:

@@ -86,6 +86,10 @@ ROUND_ITERATIONS = 1
 # solution is suspect (batch restarts from iSAM2) and reported as inconsistent.
 CHI2_SUSPECT = 10.0
 CHI2_WARN = 4.0
+# Below this the noise model is absurdly pessimistic (an ARW given 1e30 times too large:
+# 0.00). Real drives sit at 0.1-0.6 (KITTI 0.11: NHC and stop factors fit better than their
+# sigmas, which must cover slip), so only two orders of magnitude count.
+CHI2_FAR_TOO_GOOD = 0.01
 # Beyond this the solution is not a fit of the data at all (diverged): an error, no output.
 CHI2_FAIL = 100.0
 
@@ -431,12 +435,24 @@ def _dop_model_scale(problem: Problem, norms: np.ndarray) -> dict[str, object]:
     reported (white errors: the sigmas are then at least 2.5x too large; slow errors, which
     the fit follows, also give small residuals, so the warning names both)."""
     modelled = problem.gnss_sigma_modelled[problem.gnss_used]
+    out: dict[str, object] = {}
+    own = ~modelled
+    if own.sum() >= MIN_FIXES_FOR_SCALE:
+        own_scale = float(np.sqrt(np.mean(norms[own] ** 2) / 3.0))
+        out["gnss_data_sigma_whitened_rms"] = own_scale
+        if own_scale < DATA_SIGMA_ABSURD:
+            out["fit_warnings"] = [
+                f"GNSS: {int(own.sum())} fixes carry sigmas of their own (std columns, GST, a "
+                f"covariance) and fit {1.0 / max(own_scale, 1e-9):.0f}x better than them "
+                f"(whitened residual RMS {own_scale:.3f}): a unit (cm given as m?) or a "
+                "receiver's sigma far too pessimistic; the reported uncertainties are that large"
+            ]
     if modelled.sum() < MIN_FIXES_FOR_SCALE:
-        return {}
+        return out
     scale = float(np.sqrt(np.mean(norms[modelled] ** 2) / 3.0))
-    out: dict[str, object] = {"gnss_dop_model_whitened_rms": scale}
+    out["gnss_dop_model_whitened_rms"] = scale
     if scale < DOP_MODEL_PESSIMISTIC:
-        out["fit_warnings"] = [
+        out["fit_warnings"] = [*out.get("fit_warnings", []),  # type: ignore[misc]
             f"GNSS: {int(modelled.sum())} fixes have sigmas from UERE x DOP (no GST or "
             f"covariance in the data) and residuals of only {scale:.2f} of them (whitened "
             "RMS): either the receiver is better than the UERE table and the reported "
@@ -449,6 +465,8 @@ def _dop_model_scale(problem: Problem, norms: np.ndarray) -> dict[str, object]:
 
 MIN_FIXES_FOR_SCALE = 30
 DOP_MODEL_PESSIMISTIC = 0.4
+# A receiver's own sigmas are often pessimistic (u-blox hAcc: 2-3x); 10x is a unit.
+DATA_SIGMA_ABSURD = 0.1
 
 
 def _vehicle_fit_report(problem: Problem, values: gtsam.Values) -> dict[str, object]:
@@ -494,6 +512,12 @@ def _solver_report(report: SolveReport) -> dict[str, object]:
             f"{report.chi2_per_dof:.1f}; ~1 expected): the reported sigmas are too small for "
             "this data; "
             + (report.blame or "check the IMU preset (--imu-preset, --config) and the GNSS sigmas")
+        )
+    if report.chi2_per_dof < CHI2_FAR_TOO_GOOD:
+        warnings.append(
+            f"{report.solver}: the fit is far better than the noise model says (chi2/dof "
+            f"{report.chi2_per_dof:.3g}; ~1 expected, 0.1-0.6 usual): the reported sigmas are "
+            "far too large; check the [imu] noise values (their units) and the GNSS sigmas"
         )
     return {
         "solver": report.line(),

@@ -96,41 +96,30 @@ def _read_columns(path: Path, warnings: list[str]) -> dict[str, np.ndarray]:
     ~18 s on a 1 h, 200 Hz drive); the numbers are the bits Python's ``float`` gives.
     """
     header = read_header(path)
-    text: list[int] = []
+    textable = [name not in KNOWN_NUMERIC_COLUMNS for name in header]
     try:
-        table, bad = _parse_table(path, len(header))
-    except _TextColumns as found:
-        table, bad, text = found.table, found.bad, found.columns
+        table, bad, ignored, text = _parse_table(path, len(header), textable)
     except _Fallback:
-        table, bad = _parse_table_python(path, len(header))
+        table, bad, ignored, text = _parse_table_python(path, len(header), textable)
     if bad:
         warnings.append(f"{path.name}: dropped {bad} malformed row(s)")
     if len(table) == 0:
-        raise InputError(f"{path}: no data rows")
-    needed = [header[i] for i in text if header[i] in KNOWN_NUMERIC_COLUMNS]
-    if needed:
-        raise InputError(
-            f"{path}: column(s) {', '.join(needed)} hold text, not numbers (e.g. an ISO time "
-            "or 'GPS' for a fix type); write them as numbers (seconds, GGA fix codes)"
+        hint = (
+            f": column(s) {', '.join(header[i] for i in text)} hold text, not numbers (e.g. an "
+            "ISO time or 'GPS' for a fix type); write them as numbers (seconds, GGA fix codes)"
+            if text else ""
         )
-    if text:
+        raise InputError(f"{path}: no data rows{hint}")
+    if ignored:
         warnings.append(
-            f"{path.name}: ignored column(s) {', '.join(header[i] for i in text)} (text, "
+            f"{path.name}: ignored column(s) {', '.join(header[i] for i in ignored)} (text, "
             "not used by fgins)"
         )
-    return {name: table[:, i] for i, name in enumerate(header) if i not in text}
+    return {name: table[:, i] for i, name in enumerate(header) if i not in ignored}
 
 
 class _Fallback(Exception):
     """pyarrow could not read the file as a plain CSV table: use the Python reader."""
-
-
-class _TextColumns(Exception):  # a result carried out of the reader, not an error
-    """The table, with some columns that hold only text (their cells NaN)."""
-
-    def __init__(self, table: np.ndarray, bad: int, columns: list[int]) -> None:
-        super().__init__("text columns")
-        self.table, self.bad, self.columns = table, bad, columns
 
 
 # A plain decimal number (after trimming): pyarrow's cast gives the same correctly rounded
@@ -151,8 +140,13 @@ def _count_wrong_width(lines: list[str]) -> int:
     return sum(any(cell.strip() for row in csv.reader([text]) for cell in row) for text in lines)
 
 
-def _parse_table(path: Path, n_columns: int) -> tuple[np.ndarray, int]:
-    """(rows x columns table, malformed-row count) through pyarrow."""
+def _parse_table(
+    path: Path, n_columns: int, textable: list[bool] | None = None
+) -> tuple[np.ndarray, int, list[int], list[int]]:
+    """(rows x columns table, malformed-row count, text columns ignored, text columns that
+    made rows malformed) through pyarrow. A column that holds no number at all (a comment)
+    is text: ignored when ``textable`` says so (fgins does not read it), its cells NaN."""
+    textable = [False] * n_columns if textable is None else textable
     import pyarrow as pa
     import pyarrow.compute as pc
     import pyarrow.csv as pacsv
@@ -192,7 +186,7 @@ def _parse_table(path: Path, n_columns: int) -> tuple[np.ndarray, int]:
             column = numbers.column(name)
             blank_row &= np.asarray(column.is_null(), dtype=bool)
             table[:, i] = column.to_numpy(zero_copy_only=False)  # nulls -> NaN
-        return table[~blank_row], bad
+        return table[~blank_row], bad, [], []
     try:
         raw = read(pa.string(), strings_can_be_null=False, quoted_strings_can_be_null=False)
     except (pa.ArrowInvalid, pa.ArrowNotImplementedError, UnicodeDecodeError) as exc:
@@ -202,7 +196,8 @@ def _parse_table(path: Path, n_columns: int) -> tuple[np.ndarray, int]:
     table = np.empty((n_rows, n_columns))
     blank_row = np.ones(n_rows, dtype=bool)
     failed = np.zeros(n_rows, dtype=bool)
-    text_columns: list[int] = []
+    ignored: list[int] = []
+    text: list[int] = []  # all text, but a column fgins reads: its rows are malformed
     for i, name in enumerate(names):
         cells = pc.utf8_trim_whitespace(raw.column(name).combine_chunks())
         blank = np.asarray(pc.equal(pc.utf8_length(cells), 0), dtype=bool)
@@ -221,22 +216,27 @@ def _parse_table(path: Path, n_columns: int) -> tuple[np.ndarray, int]:
             parsed = [None if text.isspace() else _python_float(text) for text in texts]
             ok = np.array([v is not None for v in parsed]) & ~space
             values[other[ok]] = [v for v, good in zip(parsed, ok, strict=True) if good]
-            if not decimal.any() and not ok.any():
-                text_columns.append(i)  # a column of text (a comment, "GPS"): no numbers
+            all_text = not decimal.any() and not ok.any() and bool((~ok & ~space).any())
+            if all_text and textable[i]:
+                ignored.append(i)  # a column of text (a comment): no numbers, not read
             else:
                 failed[other[~ok & ~space]] = True
+                if all_text:
+                    text.append(i)
         table[:, i] = values
         blank_row &= blank
     keep = ~blank_row & ~failed
     bad += int(np.count_nonzero(failed & ~blank_row))
-    if text_columns:
-        raise _TextColumns(table[keep], bad, text_columns)
-    return table[keep], bad
+    return table[keep], bad, ignored, text
 
 
-def _parse_table_python(path: Path, n_columns: int) -> tuple[np.ndarray, int]:
-    """The reference reader (Python's csv, cell by cell), for files pyarrow rejects."""
-    rows: list[list[float]] = []
+def _parse_table_python(
+    path: Path, n_columns: int, textable: list[bool] | None = None
+) -> tuple[np.ndarray, int, list[int], list[int]]:
+    """The reference reader (Python's csv, cell by cell), for files pyarrow rejects; the
+    same result as :func:`_parse_table`."""
+    textable = [False] * n_columns if textable is None else textable
+    rows: list[list[str]] = []
     bad = 0
     try:
         with path.open(newline="") as handle:
@@ -248,15 +248,29 @@ def _parse_table_python(path: Path, n_columns: int) -> tuple[np.ndarray, int]:
                 if len(row) != n_columns:
                     bad += 1
                     continue
-                try:
-                    rows.append([float(cell) if cell.strip() else np.nan for cell in row])
-                except ValueError:
-                    bad += 1
+                rows.append(row)
     except UnicodeDecodeError:
         raise InputError(f"{path}: not a text CSV file (invalid UTF-8 after the header)") from None
     except csv.Error as exc:
         raise InputError(f"{path}: not a readable CSV file ({exc})") from None
-    return np.array(rows, dtype=float).reshape(len(rows), n_columns), bad
+
+    def number(cell: str) -> float | None:
+        return np.nan if not cell.strip() else _python_float(cell)
+
+    values = [[number(cell) for cell in row] for row in rows]
+    ignored, text = [], []
+    for i in range(n_columns):
+        cells = [v for row, v in zip(rows, (r[i] for r in values), strict=True) if row[i].strip()]
+        if cells and all(v is None for v in cells):
+            (ignored if textable[i] else text).append(i)
+    table = []
+    for row in values:
+        row = [np.nan if i in ignored else v for i, v in enumerate(row)]
+        if any(v is None for v in row):
+            bad += 1
+        else:
+            table.append(row)
+    return np.array(table, dtype=float).reshape(len(table), n_columns), bad, ignored, text
 
 
 def _read_required(

@@ -235,3 +235,10 @@ def test_every_scenario_and_kitti_settings_pass():
             math.isfinite(getattr(config.imu_noise(), f.name)) for f in fields(config.imu_noise())
         ), name
     config_for_dataset(read_kitti()).imu_noise()
+
+
+def test_both_gnss_kernels_are_an_error_not_a_silent_choice(tmp_path):
+    """huber_k and cauchy_k together used Cauchy without a word."""
+    path = _write(tmp_path, "[gnss]\nhuber_k = 1.5\ncauchy_k = 3.0\n")
+    with pytest.raises(ConfigError, match="huber_k and cauchy_k both given"):
+        load_config(path)

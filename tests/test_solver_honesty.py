@@ -224,3 +224,29 @@ def test_car_constraints_do_not_hurt_in_the_kitti_windows_where_they_did(kitti, 
             trajectory, kitti.gnss.t, kitti.gnss_enu(), kitti.t0, [window]
         ).summary()["h_rms_outage"]
     assert rms["car"] <= 1.1 * rms["other"], rms
+
+
+def test_gnss_sigmas_far_too_pessimistic_are_said(tmp_path):
+    """Sigmas given in cm as if m passed silently: the fit was "consistent" and every reported
+    sigma 100x too large. (An absurd IMU noise is refused by the config's ranges.)"""
+    import sys
+    from pathlib import Path
+
+    import pandas as pd
+
+    import fgins
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from independent_sim import INDUSTRIAL, hilly_drive, write_drive
+
+    write_drive(tmp_path, hilly_drive(), 120.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
+                gnss_rate=1.0, seed=2, sigma_h=0.05, sigma_u=0.1)  # fmt: skip
+    fixes = pd.read_csv(tmp_path / "gnss.csv")
+    for column in ("std_east", "std_north", "std_up"):
+        fixes[column] *= 100.0
+    fixes.to_csv(tmp_path / "gnss.csv", index=False, float_format="%.10f")
+    dataset = fgins.load(tmp_path / "imu.csv", tmp_path / "gnss.csv", config=tmp_path / "cfg.toml",
+                         vehicle="car")  # fmt: skip
+    summary = fgins.smooth(dataset, "batch").summary()
+    warned = " ".join(summary.get("fit_warnings", []))
+    assert "cm given as m" in warned, (summary.get("gnss_data_sigma_whitened_rms"), warned)

@@ -819,3 +819,23 @@ def test_a_text_column_is_ignored_or_named_not_every_row_dropped(tmp_path, urban
     gnss.write_text("\n".join([lines[0]] + [",".join(c) for c in quality]) + "\n")
     with pytest.raises(InputError, match="column\\(s\\) time hold text"):
         load_dataset(paths)
+
+
+def test_fixes_the_imu_does_not_cover_are_counted_outside_its_span_before_any_gate(urban):
+    """An IMU of 20 s against 90 s of fixes: the epochs it does not cover were partly counted
+    "gated by PDOP" (the urban stretch's) and partly "outside the IMU time span"."""
+    from dataclasses import replace as dc_replace
+
+    from fgins.config import config_for_dataset
+    from fgins.datatypes import ImuData
+    from fgins.graph.problem import _gnss_selection
+
+    dataset = urban.dataset
+    imu = dataset.imu
+    short = imu.t <= imu.t[0] + 20.0
+    clipped = dc_replace(dataset, imu=ImuData(t=imu.t[short], gyro=imu.gyro[short],
+                                              accel=imu.accel[short]))  # fmt: skip
+    usable, counts = _gnss_selection(clipped, config_for_dataset(clipped), None)
+    outside = (dataset.gnss.t < imu.t[0]) | (dataset.gnss.t > imu.t[short][-1])
+    assert counts["outside_imu_span"] == int(outside.sum())
+    assert not np.any(usable & outside)
