@@ -464,9 +464,28 @@ COMMANDS = {
 }
 
 
+def _joined_negative_windows(argv: list[str]) -> list[str]:
+    """``--gnss-outage -50:-10`` as ``--gnss-outage=-50:-10``: argparse takes a value that
+    starts with '-' for an option ("expected one argument")."""
+    out: list[str] = []
+    items = iter(argv)
+    for item in items:
+        if item == "--gnss-outage":
+            value = next(items, None)
+            if value is not None and value.startswith("-") and ":" in value:
+                out.append(f"--gnss-outage={value}")
+                continue
+            out.append(item)
+            if value is not None:
+                out.append(value)
+            continue
+        out.append(item)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(_joined_negative_windows(sys.argv[1:] if argv is None else argv))
     try:
         with warnings.catch_warnings():
             # The CLI prints every finding itself, as counted one-line `warning:`s.

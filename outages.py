@@ -9,8 +9,10 @@ from fgins.datatypes import Dataset, FginsError
 
 def parse_windows(text: str | None) -> list[tuple[float, float]]:
     """``"60:90,150:180"`` -> [(60.0, 90.0), (150.0, 180.0)] (seconds relative to t0)."""
-    if not text:
+    if text is None:
         return []
+    if not text.strip(" ,"):
+        raise FginsError("--gnss-outage: no window given (e.g. 60:90 or 60:90,150:180)")
     windows = []
     for part in text.split(","):
         part = part.strip()

@@ -1056,6 +1056,14 @@ def require_fix(result: UbxResult) -> GnssData:
         )
     if result.gnss is None or len(result.gnss) == 0:
         messages = sum(result.counts.values())
+        untimed = result.epochs_without_time
+        if untimed and untimed >= result.epochs - result.epochs_without_fix:
+            raise InputError(
+                f"{result.path}: no usable time: {result.epochs} navigation epochs, "
+                f"{result.epochs_without_time} without a valid time (NAV-PVT validDate/"
+                "validTime clear, no GPS week from NAV-SOL/NAV-TIMEGPS): a fix cannot be put "
+                "on a clock; log NAV-PVT after the receiver has a time, or NAV-TIMEGPS"
+            )
         raise InputError(
             f"{result.path}: no fix: {messages} messages, {result.epochs} navigation epochs, "
             f"{result.epochs_without_fix} without a position fix; the receiver had no fix "
@@ -1196,10 +1204,15 @@ def load_ubx_dataset(
     if imu is None:
         imu = result.imu
     if imu is None:
-        reason = (
-            f" ({result.imu_source} present but unusable: see the warnings)"
-            if result.imu_source else ""
-        )
+        # The reader's own reason (unpaired ESF-MEAS tags, ESF-RAW without timed epochs) is
+        # the one line the user needs: name it here, not only in `fgins inspect`.
+        esf = [w for w in result.warnings if w.startswith(("ESF-RAW", "ESF-MEAS"))]
+        if esf:
+            reason = f" (the IMU messages are there but unusable: {esf[0]})"
+        elif result.imu_source:
+            reason = f" ({result.imu_source} present but unusable: see the warnings)"
+        else:
+            reason = ""
         raise InputError(f"no IMU in {path}{reason}; give an imu.csv beside it")
     usable = gnss.fix_quality >= 1
     first = int(np.flatnonzero(usable)[0])

@@ -101,6 +101,13 @@ def validate_dataset(dataset: Dataset, vehicle: str | None = None) -> Dataset:
     checks: list[str] = []
     _check_imu_time_unit(dataset.imu.t)
     imu = flag_suspect(repair_spikes(dataset.imu, checks), checks)
+    span = float(imu.t[-1] - imu.t[0])
+    if span < SHORT_IMU_S:
+        checks.append(
+            f"imu: only {span:.1f} s of IMU data: too short to tell the heading (it needs a "
+            "turn or an acceleration the fixes also see) or the biases; the output covers only "
+            "those seconds, its attitude barely more than the alignment's guess"
+        )
     gnss, origin = _check_gnss(dataset.gnss, dataset.origin, checks)
     _check_time_bases(imu.t, gnss.t, checks)
     _check_units(
@@ -452,6 +459,8 @@ def _check_imu_time_unit(t: np.ndarray) -> None:
             "them in seconds (and the GNSS times on the same clock)"
         )
 
+
+SHORT_IMU_S = 10.0  # an IMU record shorter than this cannot show the heading or the biases
 
 # A multirotor or a pedestrian need not yaw with its track (a drone circles with its nose
 # held): for them a gyro that does not follow the track's turns is a note, not an error.

@@ -408,3 +408,29 @@ def test_sensor_clock_restart_is_refused_not_interleaved(tmp_path):
     result = read_ubx(_write(tmp_path, data))
     assert result.imu is None and len(result.gnss) == 10
     assert any("jump back" in w for w in result.warnings)
+
+
+def test_epochs_without_a_valid_time_are_named_as_the_cause(tmp_path):
+    """120 NAV-PVT epochs with validDate/validTime clear and no week source were reported as
+    "no fix ... 0 without a position fix; the receiver had no fix"."""
+    import struct
+
+    log = bytearray(_pvt_log(4))
+    # Clear the valid flags (byte 11 of each NAV-PVT payload) and re-checksum.
+    start = 0
+    out = bytearray()
+    while start < len(log):
+        length = struct.unpack_from("<H", log, start + 4)[0]
+        frame = bytearray(log[start : start + 8 + length])
+        if frame[2:4] == b"\x01\x07":
+            frame[6 + 11] = 0
+            a = b = 0
+            for byte in frame[2 : 6 + length]:
+                a = (a + byte) & 0xFF
+                b = (b + a) & 0xFF
+            frame[6 + length], frame[7 + length] = a, b
+        out += frame
+        start += 8 + length
+    result = read_ubx(_write(tmp_path, bytes(out)))
+    with pytest.raises(InputError, match="no usable time: 4 navigation epochs, 4 without a valid time"):
+        require_fix(result)
