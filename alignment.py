@@ -185,26 +185,10 @@ def _rest_before_first_fix(
     first = (imu.t >= t_start) & (imu.t <= t_start + 1.0)
     if first.sum() < 10 or not _imu_static(imu.gyro[first], imu.accel[first], g):
         return None
-    specific_force = imu.accel[first].mean(axis=0)
-    up_body = specific_force / np.linalg.norm(specific_force)
-    heading_sigma_deg = 2.0
-    if heading_deg is None and travel == ANY_DIRECTION:
-        found = _heading_from_acceleration(
-            dataset, gnss_t, gnss_enu, t_start, up_body, forward_axis,
-            imu.gyro[first].mean(axis=0),
-        )  # fmt: skip
-        if found is not None:
-            heading_deg, heading_sigma_deg = found
-    if heading_deg is None:
-        heading_deg, heading_sigma_deg = _heading_from_first_motion(
-            dataset, gnss_t, gnss_enu, moving_speed, t_start, up_body,
-            rest_rate=_rest_rate_about(imu, t_start, up_body, g),
-            gyro_bias_sigma=gyro_bias_sigma,
-            forward_axis=forward_axis if travel == AHEAD_OR_BACK else None,
-            rest_force=specific_force,
-        )  # fmt: skip
-    level = triad(up_body, forward_axis, np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0]))
-    rotation = _with_heading(level, heading_deg, forward_axis)
+    rotation, heading_sigma_deg = _rest_attitude(
+        dataset, gnss_t, gnss_enu, t_start, first, heading_deg, moving_speed, forward_axis,
+        gyro_bias_sigma, travel, static=True,
+    )  # fmt: skip
     t_fix = float(gnss_t[0])
     window = gnss_t <= t_fix + fit_window_s
     fix_position, fix_velocity, _ = _gnss_fit(gnss_t[window], gnss_enu[window], t_fix)
@@ -354,9 +338,46 @@ def _align_at(
         )
 
     # At rest: level from gravity; heading from the first motion (or the configuration).
-    heading_configured = heading_deg is not None
+    rotation, heading_sigma_deg = _rest_attitude(
+        dataset, gnss_t, gnss_enu, t0, first, heading_deg, moving_speed, forward_axis,
+        gyro_bias_sigma, travel, static,
+    )  # fmt: skip
+    return Alignment(
+        t=t0,
+        rotation=rotation,
+        velocity=np.zeros(3) if static else velocity,
+        position=position,
+        attitude_sigma_rad=np.radians(
+            [2.0, 2.0, heading_sigma_deg]
+        ),
+        velocity_sigma=0.5,
+        position_sigma=2.0,
+        moving=False,
+    )
+
+
+def _rest_attitude(
+    dataset: Dataset,
+    gnss_t: np.ndarray,
+    gnss_enu: np.ndarray,
+    t0: float,
+    first: np.ndarray,
+    heading_deg: float | None,
+    moving_speed: float,
+    forward_axis: np.ndarray,
+    gyro_bias_sigma: float,
+    travel: str,
+    static: bool,
+) -> tuple[np.ndarray, float]:
+    """(body -> ENU rotation, heading 1-sigma in deg) of a vehicle standing at ``t0``:
+    level from the specific force over the IMU samples ``first``; the heading configured,
+    else (a vehicle moving in any direction, at rest) from its accelerations, else from the
+    course of its first motion carried back with the gyro."""
+    imu = dataset.imu
+    g = normal_gravity(dataset.origin.lat, dataset.origin.alt)
+    specific_force = imu.accel[first].mean(axis=0)
     up_body = specific_force / np.linalg.norm(specific_force)
-    heading_sigma_deg = 2.0 if heading_configured else 180.0
+    heading_sigma_deg = 2.0
     if heading_deg is None and travel == ANY_DIRECTION and static:
         found = _heading_from_acceleration(
             dataset, gnss_t, gnss_enu, t0, up_body, forward_axis, imu.gyro[first].mean(axis=0)
@@ -372,19 +393,7 @@ def _align_at(
             rest_force=specific_force if static else None,
         )  # fmt: skip
     level = triad(up_body, forward_axis, np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0]))
-    rotation = _with_heading(level, heading_deg, forward_axis)
-    return Alignment(
-        t=t0,
-        rotation=rotation,
-        velocity=np.zeros(3) if static else velocity,
-        position=position,
-        attitude_sigma_rad=np.radians(
-            [2.0, 2.0, heading_sigma_deg]
-        ),
-        velocity_sigma=0.5,
-        position_sigma=2.0,
-        moving=False,
-    )
+    return _with_heading(level, heading_deg, forward_axis), heading_sigma_deg
 
 
 def _median_velocity(t: np.ndarray, enu: np.ndarray) -> np.ndarray | None:
@@ -565,7 +574,7 @@ def _heading_from_acceleration(
     from the fit, at least ``MIN_ACCEL_HEADING_SIGMA_DEG``."""
     imu = dataset.imu
     far = np.flatnonzero(
-        np.linalg.norm(gnss_enu[:, :2] - np.median(gnss_enu[: max(3, 1), :2], axis=0), axis=1)
+        np.linalg.norm(gnss_enu[:, :2] - np.median(gnss_enu[:3, :2], axis=0), axis=1)
         >= ACCEL_HEADING_DISTANCE_M
     )
     far = far[gnss_t[far] > t0]
@@ -580,10 +589,11 @@ def _heading_from_acceleration(
     level = triad(up_body, forward_axis, np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0]))
     t = imu.t[inside]
     step = np.diff(t)
+    gyro, accel = imu.gyro[inside], imu.accel[inside]  # once: not a masked copy per sample
     rotations = np.empty((len(t), 3, 3))
     rotations[0] = level
     for k in range(len(t) - 1):
-        rotations[k + 1] = rotations[k] @ so3_exp((imu.gyro[inside][k] - gyro_bias) * step[k])
+        rotations[k + 1] = rotations[k] @ so3_exp((gyro[k] - gyro_bias) * step[k])
 
     def twice_integrated(acceleration: np.ndarray) -> np.ndarray:
         """Position (at the fixes, horizontal) of a dead reckoning from rest, held samples."""
@@ -595,7 +605,6 @@ def _heading_from_acceleration(
         ])  # fmt: skip
         return np.column_stack([np.interp(gnss_t[fixes], t, position[:, i]) for i in range(2)])
 
-    accel = imu.accel[inside]
     dead = twice_integrated(np.einsum("nij,nj->ni", rotations, accel) + np.array([0.0, 0.0, -g]))
     # What a constant accelerometer bias (body axes) does to the dead reckoning: one track per
     # axis. A consumer IMU's 10 mg is 45 m over 30 s, and it turns with the body as the

@@ -159,6 +159,20 @@ sys.path.insert(0, str(Path(__file__).parent))
 from independent_sim import INDUSTRIAL, CarProfile, write_drive  # noqa: E402
 
 
+def _heading_error(tmp_path, profile, duration: float, seed: int, vehicle: str,
+                   true_heading: float):  # fmt: skip
+    """(alignment, heading error of its forward axis in deg) on ``profile`` written by the
+    independent simulator (industrial IMU at 100 Hz, 1 Hz fixes)."""
+    write_drive(tmp_path, profile, duration, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
+                gnss_rate=1.0, seed=seed)  # fmt: skip
+    dataset = fgins.load(tmp_path / "imu.csv", tmp_path / "gnss.csv", config=tmp_path / "cfg.toml",
+                         vehicle=vehicle)  # fmt: skip
+    alignment = initial_alignment(dataset, smoother=dataset.metadata["run_config"].smoother)
+    forward = alignment.rotation[:, 0]
+    heading = np.degrees(np.arctan2(forward[0], forward[1]))
+    return alignment, (heading - true_heading + 180.0) % 360.0 - 180.0
+
+
 @pytest.mark.parametrize("heading0", [30.0, 200.0, 330.0])
 @pytest.mark.parametrize("turn_after_s", [None, 8.0])
 def test_heading_at_rest_comes_from_the_whole_first_straight(tmp_path, heading0, turn_after_s):
@@ -169,13 +183,7 @@ def test_heading_at_rest_comes_from_the_whole_first_straight(tmp_path, heading0,
     turns = [] if turn_after_s is None else [(40.0 + turn_after_s, 70.0, 3.0, 0.1)]
     profile = CarProfile(steps=[(40.0, 35.0, 70.0)], turns=turns, gamma=lambda t: 0.0 * t,
                          heading0_deg=90.0 - heading0)  # fmt: skip
-    write_drive(tmp_path, profile, 90.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
-                gnss_rate=1.0, seed=int(heading0))  # fmt: skip
-    dataset = fgins.load(tmp_path / "imu.csv", tmp_path / "gnss.csv", config=tmp_path / "cfg.toml",
-                         vehicle="aircraft")  # fmt: skip
-    alignment = initial_alignment(dataset, smoother=dataset.metadata["run_config"].smoother)
-    forward = alignment.rotation[:, 0]
-    error = (np.degrees(np.arctan2(forward[0], forward[1])) - heading0 + 180.0) % 360.0 - 180.0
+    alignment, error = _heading_error(tmp_path, profile, 90.0, int(heading0), "aircraft", heading0)
     sigma = np.degrees(alignment.attitude_sigma_rad[2])
     assert not alignment.moving
     assert abs(error) < 3.0 * sigma
@@ -207,13 +215,8 @@ def test_a_car_backing_out_is_not_aligned_facing_backwards(tmp_path, manoeuvre, 
              for i, (start, tau, dv) in enumerate(steps)]  # fmt: skip
     profile = CarProfile(steps=steps, turns=turns, gamma=lambda t: 0.0 * t,
                          heading0_deg=90.0 - heading0)  # fmt: skip
-    write_drive(tmp_path, profile, 60.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
-                gnss_rate=1.0, seed=int(heading0) + backward)  # fmt: skip
-    dataset = fgins.load(tmp_path / "imu.csv", tmp_path / "gnss.csv", config=tmp_path / "cfg.toml",
-                         vehicle="car")  # fmt: skip
-    alignment = initial_alignment(dataset, smoother=dataset.metadata["run_config"].smoother)
-    forward = alignment.rotation[:, 0]
-    error = (np.degrees(np.arctan2(forward[0], forward[1])) - heading0 + 180.0) % 360.0 - 180.0
+    alignment, error = _heading_error(tmp_path, profile, 60.0, int(heading0) + backward, "car",
+                                      heading0)  # fmt: skip
     sigma = np.degrees(alignment.attitude_sigma_rad[2])
     assert abs(error) < max(3.0 * sigma, 10.0) and abs(error) < 60.0, (error, sigma)
 
@@ -241,14 +244,8 @@ def test_a_multirotor_flying_sideways_is_aligned_from_its_accelerations(tmp_path
     turns = [(25.0, 32.0, 2.0, 0.15), (50.0, 58.0, 2.0, -0.2)]
     profile = _Sideways(steps=[(8.0, 6.0, 6.0)], turns=turns, gamma=lambda t: 0.0 * t,
                         heading0_deg=90.0 - heading0, offset_deg=offset_deg)  # fmt: skip
-    write_drive(tmp_path, profile, 70.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
-                gnss_rate=1.0, seed=int(heading0))  # fmt: skip
-    dataset = fgins.load(tmp_path / "imu.csv", tmp_path / "gnss.csv", config=tmp_path / "cfg.toml",
-                         vehicle="uav")  # fmt: skip
-    alignment = initial_alignment(dataset, smoother=dataset.metadata["run_config"].smoother)
-    forward = alignment.rotation[:, 0]
     truth = profile.rotation(np.array([0.0]))[0][:, 0]
     true_heading = np.degrees(np.arctan2(truth[0], truth[1]))
-    error = (np.degrees(np.arctan2(forward[0], forward[1])) - true_heading + 180.0) % 360.0 - 180.0
+    alignment, error = _heading_error(tmp_path, profile, 70.0, int(heading0), "uav", true_heading)
     sigma = np.degrees(alignment.attitude_sigma_rad[2])
     assert abs(error) < max(3.0 * sigma, 5.0) and sigma < 20.0, (error, sigma)
