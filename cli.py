@@ -6,7 +6,9 @@ Every failure is one line on stderr and a non-zero exit; outputs are written ato
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
+import threading
 import warnings
 from pathlib import Path
 
@@ -483,9 +485,29 @@ def _joined_negative_windows(argv: list[str]) -> list[str]:
     return out
 
 
+class _Terminated(Exception):
+    """SIGTERM (a job scheduler, ``timeout``, ``kill``): unwound like Ctrl-C, so the
+    atomic writers remove their temporary files instead of leaving ``.part`` files behind."""
+
+
+def _raise_terminated(signum: int, frame: object) -> None:
+    raise _Terminated
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(_joined_negative_windows(sys.argv[1:] if argv is None else argv))
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        previous = signal.signal(signal.SIGTERM, _raise_terminated)
+    try:
+        return _dispatch(args)
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _dispatch(args: argparse.Namespace) -> int:
     try:
         with warnings.catch_warnings():
             # The CLI prints every finding itself, as counted one-line `warning:`s.
@@ -497,6 +519,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("fgins: interrupted", file=sys.stderr)
         return 130
+    except _Terminated:
+        print("fgins: terminated (SIGTERM)", file=sys.stderr)
+        return 143
     except MemoryError:
         print("fgins: error: out of memory", file=sys.stderr)
         return 1

@@ -705,4 +705,23 @@ def config_for_dataset(
         )
         if line not in dataset.warnings:
             dataset.warnings.append(line)
+    _check_stated_rate(config, dataset)
     return config
+
+
+def _check_stated_rate(config: RunConfig, dataset: Dataset) -> None:
+    """A stated ``[imu] rate_hz`` that the samples contradict: the noise model is in
+    densities (per sqrt(Hz)) and does not use it, but a mismatch means the wrong file, the
+    wrong time unit or a decimated log, which the user should hear about."""
+    stated = config.imu.get("rate_hz")
+    if not stated or len(dataset.imu) < 2:
+        return
+    actual = float(dataset.imu.rate_hz)
+    if math.isfinite(actual) and abs(actual / float(stated) - 1.0) > 0.1:
+        line = (
+            f"imu: [imu] rate_hz = {_show(stated)} but the IMU samples come at {actual:.4g} Hz "
+            "(median spacing); the data's rate is used (noise densities do not depend on it): "
+            "check the file, its time unit or the setting"
+        )
+        if line not in dataset.warnings:
+            dataset.warnings.append(line)

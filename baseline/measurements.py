@@ -73,7 +73,7 @@ def select_gnss(dataset: Dataset, config: RunConfig, gnss_mask: np.ndarray | Non
         velocity=subset.velocity,
         velocity_sigma=velocity_sigma,
         usable=usable,
-        gating_summary=gate.summary(),
+        gating_summary=gate.summary() + gnss_model.dropped_on_read_note(dataset.metadata),
         outside_imu_span=outside,
     )
 

@@ -151,6 +151,14 @@ class GateResult:
         return f"GNSS: {self.total} epochs: " + ", ".join(parts)
 
 
+def dropped_on_read_note(metadata: dict[str, object]) -> str:
+    """The epochs a reader dropped before the count line could see them (NMEA quality 0,
+    NavSatFix status -1, UBX without a fix), as a suffix of that line: the line's own
+    counts add up to the dataset's epochs, and the user still sees every epoch of the file."""
+    dropped = int(metadata.get("gnss_epochs_without_fix", 0) or 0)  # type: ignore[call-overload]
+    return f" (+{dropped} epochs without a fix, dropped on reading)" if dropped else ""
+
+
 def gate_epochs(
     gnss: GnssData,
     config: GnssConfig,

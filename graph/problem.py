@@ -644,7 +644,8 @@ def build_problem(
         info={
             "gnss_gating": _gating_summary(
                 counts, int(matched.sum()), int((~decimated).sum()), config
-            ),
+            )
+            + gnss_model.dropped_on_read_note(dataset.metadata),
             "gnss_counts": {**counts, "used": int(matched.sum()),
                             "decimated": int((~decimated).sum())},
             "gnss_epochs_used": int(matched.sum()),

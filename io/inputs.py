@@ -133,5 +133,9 @@ def _nmea_with_imu(nmea: list[Path], others: list[Path], time_offset_s: float) -
         origin=Origin(*map(float, gnss.lla[0])),
         name=nmea[0].stem,
         warnings=warnings,
-        metadata={"nmea_counts": result.counts, "gnss_time_offset_applied": True},
+        metadata={
+            "nmea_counts": result.counts,
+            "gnss_time_offset_applied": True,
+            "gnss_epochs_without_fix": result.epochs_without_fix,
+        },
     )

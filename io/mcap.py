@@ -928,6 +928,7 @@ def _assemble(scan: _McapScan) -> McapResult:
             "format": "mcap",
             "topics": {role: c.topic for role, c in (scan.chosen or {}).items()},
             "time_base": "header stamp" if scan.use_header_stamp else "log time",
+            "gnss_epochs_without_fix": getattr(gnss_acc, "no_fix", 0),
         },
     )
     return McapResult(dataset=dataset, report=report, warnings=warnings)

@@ -541,3 +541,31 @@ def test_output_inside_a_sim_folder_keeps_it_readable(sim_dir, tmp_path, capsys)
         ["smooth", str(drive), "--method", "ekf", "-o", str(tmp_path / "again.csv")], capsys
     )
     assert code == 0, f"the folder no longer reads after writing into it: {stderr}"
+
+
+def test_no_fix_epochs_dropped_on_reading_appear_in_the_gnss_count_line(sim_dir, tmp_path, capsys):
+    """GGA epochs with fix quality 0 are dropped by the NMEA reader, before the gates count:
+    the count line used to show only the epochs left (a file of N epochs reported as fewer,
+    the difference in a separate warning). It now names them on the same line, and its own
+    counts still add up to the epochs that reached the gates."""
+    lines = _nmea_from_gnss_csv(sim_dir / "gnss.csv", corrupt=False).split("\r\n")
+    fixes = [line for line in lines if line]
+    no_fix = set(range(5, len(fixes), 7))
+    edited = []
+    for k, line in enumerate(fixes):
+        if k in no_fix:
+            fields = line[1:].split("*")[0].split(",")
+            fields[6] = "0"  # fix quality: invalid
+            line = _with_checksum(",".join(fields))
+        edited.append(line)
+    nmea = tmp_path / "log.nmea"
+    nmea.write_text("\r\n".join(edited) + "\r\n")
+    out = tmp_path / "out.csv"
+    args = ["smooth", str(nmea), str(sim_dir / "imu.csv"), "--method", "ekf", "-o", str(out)]
+    code, stdout, stderr = _run([*args, "--no-progress"], capsys)
+    assert code == 0, stderr
+    printed = (stdout + stderr).splitlines()
+    count_line = next(line for line in printed if line.startswith("GNSS: "))
+    total = int(re.match(r"GNSS: (\d+) epochs", count_line).group(1))
+    assert total == len(fixes) - len(no_fix)
+    assert f"(+{len(no_fix)} epochs without a fix, dropped on reading)" in count_line

@@ -59,6 +59,7 @@ def test_ros2_bag_values_are_read_exactly(ros2_bag: Path, drive: Drive) -> None:
     no_fix = int(np.sum(~valid))
     assert no_fix > 0
     assert any(f"{no_fix} no-fix messages dropped" in w for w in result.warnings)
+    assert data.metadata["gnss_epochs_without_fix"] == no_fix  # for the GNSS count line
 
 
 def test_log_time_is_used_when_asked(ros2_bag: Path, drive: Drive) -> None:

@@ -198,3 +198,30 @@ def test_api_write_refuses_the_inputs_of_its_run(tmp_path, drive):
     with pytest.raises(fgins.OutputError, match="is an input of this run"):
         track.write(imu)
     assert imu.read_bytes() == before
+
+
+def test_sigterm_mid_write_leaves_no_file_and_exits_143(tmp_path, monkeypatch, capsys):
+    """A job scheduler's SIGTERM while an output is being written unwinds like Ctrl-C: the
+    atomic writer removes its temporary file, nothing lands under the output's name, exit 143
+    with one line, and the previous SIGTERM handler is back afterwards."""
+    import signal
+    import time
+
+    from fgins import cli
+    from fgins.io.atomic import atomic_path
+
+    target = tmp_path / "out.csv"
+    before = signal.getsignal(signal.SIGTERM)
+
+    def writing_when_killed(args) -> int:
+        with atomic_path(target) as part:
+            part.write_text("half a trajectory")
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(5)  # the handler raises before this ends
+        raise AssertionError("SIGTERM did not interrupt the write")
+
+    monkeypatch.setitem(cli.COMMANDS, "demo", writing_when_killed)
+    assert cli.main(["demo"]) == 143
+    assert capsys.readouterr().err.strip() == "fgins: terminated (SIGTERM)"
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+    assert signal.getsignal(signal.SIGTERM) is before
