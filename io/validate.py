@@ -263,6 +263,7 @@ def _check_gnss(gnss: GnssData, origin: Origin, checks: list[str]) -> tuple[Gnss
         )
         gnss = gnss.subset(~bad)
     _reject_persistent_jumps(gnss)
+    _warn_radians(gnss, checks)
     if not _geodetic_ok(np.array([[origin.lat, origin.lon, origin.alt]]))[0]:
         if not origin_is_first_fix:
             raise InputError(
@@ -278,6 +279,19 @@ def _check_gnss(gnss: GnssData, origin: Origin, checks: list[str]) -> tuple[Gnss
             f"({origin.lat:.7f}, {origin.lon:.7f}, {origin.alt:.2f} m)"
         )
     return gnss, origin
+
+
+def _warn_radians(gnss: GnssData, checks: list[str]) -> None:
+    """Every fix inside |lat| <= pi/2, |lon| <= pi: latitude and longitude given in radians
+    look like a valid place in the Gulf of Guinea, 57x too close together (a drive of 1 km
+    shrinks to 17 m). Rare for real data there, so a warning, not an error; with velocity
+    columns the speed check below turns it into a clear error."""
+    lat, lon = gnss.lla[:, 0], gnss.lla[:, 1]
+    if len(lat) and np.all(np.abs(lat) <= np.pi / 2) and np.all(np.abs(lon) <= np.pi):
+        checks.append(
+            f"gnss: every fix lies within {np.pi / 2:.4f} deg of latitude and {np.pi:.4f} deg of "
+            "longitude of (0, 0): if the lat/lon columns are in radians, convert them to degrees"
+        )
 
 
 def _fill_missing_heights(gnss: GnssData, checks: list[str]) -> GnssData:
@@ -566,13 +580,22 @@ def _check_gnss_velocity(gnss: GnssData, origin: Origin) -> None:
     # (a few satellites: tens of metres of scatter, "metres per second" at a standstill).
     sigma = _fix_sigma(gnss)
     noise = np.sqrt(sigma[a] ** 2 + sigma[b] ** 2)[dense] / span[dense]
-    moving = np.isfinite(given_speed) & (track_speed > np.maximum(TURN_MIN_SPEED_M_PER_S, 3 * noise))
+    floor = np.maximum(TURN_MIN_SPEED_M_PER_S, 3 * noise)
+    moving = np.isfinite(given_speed) & (track_speed > floor)
+    # Moving by the receiver's own velocity while the fixes barely move: positions shrunk
+    # (lat/lon in radians: 57x), which the track-speed selection above cannot see.
+    said_moving = np.isfinite(given_speed) & (given_speed > floor)
+    if moving.sum() < VELOCITY_MIN_EPOCHS and said_moving.sum() >= VELOCITY_MIN_EPOCHS:
+        moving = said_moving
     if moving.sum() >= VELOCITY_MIN_EPOCHS:
-        ratio = float(np.median(given_speed[moving] / track_speed[moving]))
+        ratio = float(
+            np.median(given_speed[moving] / np.maximum(track_speed[moving], 1e-9))
+        )
         if not VELOCITY_SPEED_RATIO_RANGE[0] <= ratio <= VELOCITY_SPEED_RATIO_RANGE[1]:
             raise InputError(
                 f"gnss: the velocity columns give {ratio:.3g} times the speed the fixes show "
-                "(~1 expected; km/h gives 3.6, knots 1.94): give vel_east/north/up in m/s"
+                "(~1 expected; km/h gives 3.6, knots 1.94, lat/lon in radians ~57): give "
+                "vel_east/north/up in m/s and lat/lon in degrees"
             )
         angle = np.degrees(np.abs(np.angle(
             (given[moving, 0] + 1j * given[moving, 1]) / (track[moving, 0] + 1j * track[moving, 1])

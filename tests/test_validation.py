@@ -839,3 +839,35 @@ def test_fixes_the_imu_does_not_cover_are_counted_outside_its_span_before_any_ga
     outside = (dataset.gnss.t < imu.t[0]) | (dataset.gnss.t > imu.t[short][-1])
     assert counts["outside_imu_span"] == int(outside.sum())
     assert not np.any(usable & outside)
+
+
+@pytest.mark.parametrize("with_velocity", [True, False])
+def test_lat_lon_in_radians_is_named(tmp_path, urban, with_velocity):
+    """Latitude and longitude written in radians (48.1 deg -> 0.84) look like a valid place
+    off West Africa, 57x too close together: with velocity columns the run ended in "LM
+    diverged ... the GNSS velocities disagree with the IMU"; without, it ran at chi2/dof 9
+    with no word about units. Now: an error naming radians when the receiver's velocity
+    shows the shrink; otherwise a warning naming radians. Real fixes elsewhere say nothing."""
+    paths = _pair(tmp_path, urban.dataset)
+    gnss_path = Path(paths[1])
+    lines = gnss_path.read_text().splitlines()
+    header = lines[0].split(",")
+    lat_col, lon_col = header.index("lat"), header.index("lon")
+    velocity_cols = [header.index(c) for c in ("vel_east", "vel_north", "vel_up")]
+    rows = []
+    for line in lines[1:]:
+        cells = line.split(",")
+        cells[lat_col] = f"{math.radians(float(cells[lat_col])):.12f}"
+        cells[lon_col] = f"{math.radians(float(cells[lon_col])):.12f}"
+        if not with_velocity:
+            for c in velocity_cols:
+                cells[c] = ""
+        rows.append(",".join(cells))
+    assert not any("radians" in w for w in load_dataset(paths).warnings)  # degrees: silent
+    gnss_path.write_text("\n".join([lines[0], *rows]) + "\n")
+    if with_velocity:
+        with pytest.raises(InputError, match="lat/lon in radians"):
+            load_dataset(paths)
+    else:
+        checked = load_dataset(paths)
+        assert [w for w in checked.warnings if "in radians, convert them to degrees" in w]
