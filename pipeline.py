@@ -8,7 +8,7 @@ from collections.abc import Callable
 import numpy as np
 
 from fgins.config import RunConfig
-from fgins.datatypes import Dataset, FginsError, Trajectory
+from fgins.datatypes import Dataset, FginsError, InputError, Trajectory
 from fgins.initial_guess import KeyframeGuess
 
 GRAPH_METHODS = ("batch", "isam2", "isam2-online")
@@ -34,11 +34,58 @@ def run_method(
     gnss_mask: np.ndarray | None = None,
     progress: bool = True,
 ) -> Trajectory:
+    check_imu_gaps(dataset, config, gnss_mask)
     mounting_note = _check_mounting(dataset, config)
     trajectory = _run(dataset, config, method, gnss_mask, progress)
     if mounting_note:
         trajectory.info.setdefault("fit_warnings", []).append(mounting_note)
     return trajectory
+
+
+def check_imu_gaps(dataset: Dataset, config: RunConfig, gnss_mask: np.ndarray | None) -> None:
+    """Refuse, with the gap named, an IMU gap no method can bridge: longer than
+    ``max_imu_gap_s``, or with more than ``max_unaided_imu_gap_s`` of it without a usable
+    GNSS fix (withheld by an outage, gated, or none). Shorter gaps are bridged with inflated
+    noise (and said so by the reader's warning)."""
+    from fgins.factors.gnss import gate_epochs
+
+    imu, gnss, smoother = dataset.imu, dataset.gnss, config.smoother
+    if len(imu) < 3:
+        return
+    spacing = np.diff(imu.t)
+    period = float(np.median(spacing))
+    starts = np.flatnonzero(spacing > 3.0 * period)
+    if not len(starts):
+        return
+    withheld = None if gnss_mask is None else ~np.asarray(gnss_mask, dtype=bool)
+    gate = gate_epochs(gnss, config.gnss, withheld=withheld)
+    fixes = gnss.t[gate.used]
+    t0 = dataset.t0
+    for i in starts:
+        a, b = float(imu.t[i]), float(imu.t[i + 1])
+        missing = b - a - period  # the samples' own period is not missing
+        where = (
+            f"imu: the {b - a:.1f} s gap in the IMU data at t - t0 = {a - t0:.1f}-{b - t0:.1f} s"
+        )
+        if missing > smoother.max_imu_gap_s + 1e-9:
+            raise InputError(
+                f"{where} is longer than fgins bridges ([smoother] max_imu_gap_s = "
+                f"{smoother.max_imu_gap_s:g} s): attitude and velocity cannot be carried across "
+                "it; split the log at the gap and smooth the parts"
+            )
+        inside = fixes[(fixes > a) & (fixes < b)]
+        unaided = float(np.max(np.diff(np.concatenate([[a], inside, [b]])))) - period
+        if unaided > smoother.max_unaided_imu_gap_s + 1e-9:
+            cause = (
+                "the outage windows withhold its fixes"
+                if gnss_mask is not None and len(gnss.t[(gnss.t > a) & (gnss.t < b)]) > len(inside)
+                else "no usable GNSS fix falls in it"
+            )
+            raise InputError(
+                f"{where} goes {unaided:.1f} s without IMU or GNSS ({cause}); fgins bridges at "
+                f"most {smoother.max_unaided_imu_gap_s:g} s of neither ([smoother] "
+                "max_unaided_imu_gap_s): move the outage window off the gap, or split the log"
+            )
 
 
 def _check_mounting(dataset: Dataset, config: RunConfig) -> str | None:

@@ -580,22 +580,16 @@ def _check_gnss_velocity(gnss: GnssData, origin: Origin) -> None:
     # (a few satellites: tens of metres of scatter, "metres per second" at a standstill).
     sigma = _fix_sigma(gnss)
     noise = np.sqrt(sigma[a] ** 2 + sigma[b] ** 2)[dense] / span[dense]
-    floor = np.maximum(TURN_MIN_SPEED_M_PER_S, 3 * noise)
-    moving = np.isfinite(given_speed) & (track_speed > floor)
-    # Moving by the receiver's own velocity while the fixes barely move: positions shrunk
-    # (lat/lon in radians: 57x), which the track-speed selection above cannot see.
-    said_moving = np.isfinite(given_speed) & (given_speed > floor)
-    if moving.sum() < VELOCITY_MIN_EPOCHS and said_moving.sum() >= VELOCITY_MIN_EPOCHS:
-        moving = said_moving
+    moving = np.isfinite(given_speed) & (
+        track_speed > np.maximum(TURN_MIN_SPEED_M_PER_S, 3 * noise)
+    )
+    _check_shrunk_track(gnss, enu, sigma)
     if moving.sum() >= VELOCITY_MIN_EPOCHS:
-        ratio = float(
-            np.median(given_speed[moving] / np.maximum(track_speed[moving], 1e-9))
-        )
+        ratio = float(np.median(given_speed[moving] / track_speed[moving]))
         if not VELOCITY_SPEED_RATIO_RANGE[0] <= ratio <= VELOCITY_SPEED_RATIO_RANGE[1]:
             raise InputError(
                 f"gnss: the velocity columns give {ratio:.3g} times the speed the fixes show "
-                "(~1 expected; km/h gives 3.6, knots 1.94, lat/lon in radians ~57): give "
-                "vel_east/north/up in m/s and lat/lon in degrees"
+                "(~1 expected; km/h gives 3.6, knots 1.94): give vel_east/north/up in m/s"
             )
         angle = np.degrees(np.abs(np.angle(
             (given[moving, 0] + 1j * given[moving, 1]) / (track[moving, 0] + 1j * track[moving, 1])
@@ -620,6 +614,37 @@ def _check_gnss_velocity(gnss: GnssData, origin: Origin) -> None:
                 "expected; 3.28 for altitude in feet, -1 for a down velocity): give the "
                 "altitude in metres and vel_up positive up"
             )
+
+
+def _check_shrunk_track(gnss: GnssData, enu: np.ndarray, sigma: np.ndarray) -> None:
+    """Fixes that move far less than the receiver's own velocity says, over the shortest
+    stretch (at most 5 s) whose path length is well above the fixes' noise: positions shrunk
+    by a unit (lat/lon in radians: 57x closer together). The chord check above cannot see
+    it: its track speeds fall below the speed floor. Short stretches, so a small loop (a
+    chord much shorter than its arc) cannot trigger it: over 5 s a 25 m loop at 11 km/h
+    still gives 0.94."""
+    t = gnss.t
+    speed = np.hypot(gnss.velocity[:, 0], gnss.velocity[:, 1])
+    finite = np.isfinite(speed) & np.all(np.isfinite(enu[:, :2]), axis=1)
+    if finite.sum() < VELOCITY_MIN_EPOCHS:
+        return
+    t, speed, xy, noise = t[finite], speed[finite], enu[finite, :2], sigma[finite]
+    path = np.concatenate([[0.0], np.cumsum(0.5 * (speed[:-1] + speed[1:]) * np.diff(t))])
+    end = np.searchsorted(path, path + 3.0 * np.sqrt(2.0) * noise)
+    usable = end < len(t)
+    end = np.minimum(end, len(t) - 1)
+    usable &= (t[end] - t <= 5.0) & (path[end] > path)
+    if usable.sum() < VELOCITY_MIN_EPOCHS:
+        return
+    start = np.flatnonzero(usable)
+    chord = np.hypot(*(xy[end[start]] - xy[start]).T)
+    ratio = float(np.median(chord / (path[end[start]] - path[start])))
+    if ratio < 0.1:
+        raise InputError(
+            f"gnss: the fixes move {1 / max(ratio, 1e-12):.3g} times less than the velocity "
+            "columns say (~1 expected; lat/lon in radians gives 57): give lat/lon in degrees "
+            "(and the velocity in m/s)"
+        )
 
 
 def _gyro_at_rest(imu, window_s: float = 1.0) -> float:

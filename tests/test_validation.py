@@ -866,7 +866,7 @@ def test_lat_lon_in_radians_is_named(tmp_path, urban, with_velocity):
     assert not any("radians" in w for w in load_dataset(paths).warnings)  # degrees: silent
     gnss_path.write_text("\n".join([lines[0], *rows]) + "\n")
     if with_velocity:
-        with pytest.raises(InputError, match="lat/lon in radians"):
+        with pytest.raises(InputError, match="lat/lon in radians gives 57"):
             load_dataset(paths)
     else:
         checked = load_dataset(paths)
