@@ -121,6 +121,9 @@ def _run(
         except (ImportError, AttributeError):
             raise FginsError(f"method {method!r} is not available in this build") from None
         trajectory = function(dataset, config, gnss_mask=gnss_mask, progress=progress)
+        fit_note = _filter_fit_note(dataset, config, gnss_mask, trajectory, method)
+        if fit_note:
+            trajectory.info["fit_warnings"] = [*trajectory.info.get("fit_warnings", []), fit_note]
         if dataset.odometer is not None and len(dataset.odometer.t):
             # The Kalman baselines have no wheel-speed update: said, never silently ignored.
             trajectory.info["fit_warnings"] = [
@@ -130,6 +133,41 @@ def _run(
             ]
         return trajectory
     raise FginsError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+
+
+# A Kalman baseline's horizontal residuals at the fixes it used, over their own variances:
+# about 1 or below for a filter that holds (0.07-1.04 on KITTI and simulated cars and
+# aircraft), 11-240 where it diverged (an IMU gap it could not bridge); the batch and
+# iSAM2 run their own chi-square checks.
+FILTER_FIT_CHI2_MAX = 5.0
+
+
+def _filter_fit_note(
+    dataset: Dataset,
+    config: RunConfig,
+    gnss_mask: np.ndarray | None,
+    trajectory: Trajectory,
+    method: str,
+) -> str | None:
+    """A warning when a Kalman baseline's track does not fit the fixes it used."""
+    from fgins.baseline.measurements import select_gnss
+
+    epochs = select_gnss(dataset, config, gnss_mask)
+    if len(epochs.t) < 10 or len(trajectory) < 2:
+        return None
+    nearest = np.clip(np.searchsorted(trajectory.t, epochs.t), 0, len(trajectory) - 1)
+    lever = np.asarray(config.gnss.lever_arm_m, dtype=float)
+    antenna = trajectory.at(epochs.t) + trajectory.rotation[nearest] @ lever
+    z2 = ((antenna - epochs.position)[:, :2] / epochs.position_sigma[:, :2]) ** 2
+    chi2 = float(np.nanmean(z2))
+    if not np.isfinite(chi2) or chi2 <= FILTER_FIT_CHI2_MAX:
+        return None
+    return (
+        f"{method}: its track does not fit the GNSS fixes it used: horizontal residuals "
+        f"chi2/dof {chi2:.3g} (about 1 or below expected from their sigmas); the filter "
+        "diverged (IMU gaps, axes or units, noise too small for this IMU) or the GNSS sigmas "
+        "are too small: compare --method batch, which checks its own fit"
+    )
 
 
 def filter_initial_guess(

@@ -250,3 +250,27 @@ def test_gnss_sigmas_far_too_pessimistic_are_said(tmp_path):
     summary = fgins.smooth(dataset, "batch").summary()
     warned = " ".join(summary.get("fit_warnings", []))
     assert "cm given as m" in warned, (summary.get("gnss_data_sigma_whitened_rms"), warned)
+
+
+@pytest.mark.parametrize("method", ["ekf", "ekf-rts", "ukf"])
+def test_a_kalman_baseline_that_diverged_says_so(method):
+    """A 25 s IMU gap (let through by raising max_imu_gap_s) sent the Kalman baselines 50-360
+    m off the fixes they used, with exit 0 and no word: their fit is now checked as the
+    graph's is (horizontal residuals at the used fixes over their sigmas), and the same drive
+    without the gap passes the check."""
+    run = SCENARIOS["car-urban"](seed=0, duration_s=120.0)
+    dataset, imu = run.dataset, run.dataset.imu
+    config = load_config(dataset_imu=dataset.imu_config, dataset_gnss=dataset.gnss_config)
+    config.smoother.vehicle = "car"
+    config.smoother.max_imu_gap_s = config.smoother.max_unaided_imu_gap_s = 100.0
+    clean = run_method(dataset, config, method, progress=False)
+    assert not [w for w in clean.info.get("fit_warnings", []) if "does not fit" in w]
+    keep = (imu.t < imu.t[0] + 40.0) | (imu.t >= imu.t[0] + 65.0)
+    gapped = replace(dataset, imu=replace(imu, t=imu.t[keep], gyro=imu.gyro[keep],
+                                          accel=imu.accel[keep], suspect=[]))  # fmt: skip
+    from fgins.io.imu_checks import flag_suspect
+
+    gapped = replace(gapped, imu=flag_suspect(gapped.imu, []))
+    track = run_method(gapped, config, method, progress=False)
+    notes = [w for w in track.info.get("fit_warnings", []) if "does not fit the GNSS fixes" in w]
+    assert notes and notes[0].startswith(f"{method}: ")
