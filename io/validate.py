@@ -426,6 +426,10 @@ def _report_gnss_time_gaps(t: np.ndarray, checks: list[str]) -> None:
 # --------------------------------------------------------------------------------------------
 
 
+# No navigation receiver reports fixes this far apart (the gyro-free study's slowest is 5 s).
+GNSS_MAX_EPOCH_INTERVAL_S = 100.0
+
+
 def _check_time_bases(t_imu: np.ndarray, t_gnss: np.ndarray, checks: list[str]) -> None:
     a, b = float(t_imu[0]), float(t_imu[-1])
     c, d = float(t_gnss[0]), float(t_gnss[-1])
@@ -435,6 +439,21 @@ def _check_time_bases(t_imu: np.ndarray, t_gnss: np.ndarray, checks: list[str]) 
             f"the IMU ({a:.3f} .. {b:.3f} s) and the GNSS ({c:.3f} .. {d:.3f} s) time spans do "
             f"not overlap (offset ~{c - a:+.3f} s): the files use different time bases; give "
             "--time-offset SECONDS (added to the GNSS times) or convert one clock"
+        )
+    if inside.sum() < 2:
+        # One fix cannot anchor a trajectory; say why there is only one, not "alignment
+        # needs 2 fixes" (GNSS times in milliseconds overlap the IMU at t = 0 only).
+        spacing = float(np.median(np.diff(t_gnss))) if t_gnss.size > 1 else float("nan")
+        hint = (
+            f"the GNSS times look like milliseconds (fixes {spacing:.4g} units apart): give "
+            "them in seconds"
+            if spacing >= GNSS_MAX_EPOCH_INTERVAL_S
+            else "the files use different time bases? give --time-offset SECONDS or convert "
+            "one clock"
+        )
+        raise InputError(
+            f"only {int(inside.sum())} of {t_gnss.size} GNSS fixes lie within the IMU time "
+            f"span ({a:.3f} .. {b:.3f} s; GNSS {c:.3f} .. {d:.3f} s): {hint}"
         )
     outside = int((~inside).sum())
     if outside:

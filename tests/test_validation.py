@@ -871,3 +871,23 @@ def test_lat_lon_in_radians_is_named(tmp_path, urban, with_velocity):
     else:
         checked = load_dataset(paths)
         assert [w for w in checked.warnings if "in radians, convert them to degrees" in w]
+
+
+@pytest.mark.parametrize("scale,expect", [(1000.0, "look like milliseconds"),
+                                          (1.0, "different time bases")])  # fmt: skip
+def test_a_single_fix_in_the_imu_span_names_the_cause(tmp_path, urban, scale, expect):
+    """GNSS times in milliseconds against an IMU in seconds overlap at t = 0 only: the run
+    ended in "alignment needs at least 2 usable GNSS fixes". The error now counts the fixes
+    in the IMU span and names the likely cause (a unit, or two clocks)."""
+    paths = _pair(tmp_path, urban.dataset)
+    gnss_path = Path(paths[1])
+    lines = gnss_path.read_text().splitlines()
+    rows = [line.split(",") for line in lines[1:]]
+    t_first = float(rows[0][0])
+    for k, cells in enumerate(rows):
+        t = float(cells[0])
+        # scale 1: all but the first fix moved past the IMU's end (another clock)
+        cells[0] = f"{t_first + (t - t_first) * scale + (0.0 if scale > 1 or k == 0 else 1e5):.6f}"
+    gnss_path.write_text("\n".join([lines[0], *(",".join(c) for c in rows)]) + "\n")
+    with pytest.raises(InputError, match=f"only 1 of {len(rows)} GNSS fixes lie within the IMU time span.*{expect}"):
+        load_dataset(paths)
