@@ -608,7 +608,14 @@ def _heading_from_acceleration(
     dead = twice_integrated(np.einsum("nij,nj->ni", rotations, accel) + np.array([0.0, 0.0, -g]))
     # What a constant accelerometer bias (body axes) does to the dead reckoning: one track per
     # axis. A consumer IMU's 10 mg is 45 m over 30 s, and it turns with the body as the
-    # vehicle yaws, so a constant level-frame acceleration cannot absorb it.
+    # vehicle yaws, so a constant level-frame acceleration cannot absorb it. The track of the
+    # axis along up stands for the rest level's tilt error (that bias tilts the level, and
+    # the error turns with the body). Each bias is bounded by a prior (below): a multirotor
+    # tilts its up (thrust) axis toward its acceleration, so that track is the dead
+    # reckoning itself over g, and a free coefficient on it made the fit's scale and turn
+    # arbitrary (3-13 instead of 1 on an outside tester's flights; the heading fell back to
+    # the course of the first motion, 90-180 deg off). Mimicking the scale needs ~g there,
+    # 20 prior sigmas away.
     bias_tracks = [twice_integrated(rotations[:, :, i]) for i in range(3)]
     seen = gnss_enu[fixes, :2]
     # seen = Rz(turn) (dead + sum_i b_i D_i) + c + d tau^2: linear in (cos, sin), c, d and,
@@ -629,14 +636,20 @@ def _heading_from_acceleration(
     offsets[:n, 2], offsets[n:, 3] = tau**2, tau**2
     design = np.hstack([rotated(dead), offsets, *[rotated(track) for track in bias_tracks]])
     observed = np.concatenate([seen[:, 0], seen[:, 1]])
-    coef, *_ = np.linalg.lstsq(design, observed, rcond=None)
+    # Prior rows: each bias coefficient (m/s^2) is 0 +- ACCEL_HEADING_BIAS_PRIOR, against
+    # fixes of ~ACCEL_HEADING_FIX_SIGMA_M (metres): weights in the fit's own units.
+    n_bias = 2 * len(bias_tracks)
+    prior = np.zeros((n_bias, design.shape[1]))
+    prior[:, -n_bias:] = np.eye(n_bias) * (ACCEL_HEADING_FIX_SIGMA_M / ACCEL_HEADING_BIAS_PRIOR)
+    design_p = np.vstack([design, prior])
+    coef, *_ = np.linalg.lstsq(design_p, np.concatenate([observed, np.zeros(n_bias)]), rcond=None)
     scale = float(np.hypot(coef[0], coef[1]))
     if not 0.5 < scale < 2.0:  # the dead reckoning does not look like the track: cannot tell
         return None
     turn = float(np.arctan2(coef[1], coef[0]))  # counter-clockwise from the level frame to ENU
     residual = observed - design @ coef
     scatter = max(float(np.sqrt(residual @ residual / max(2 * n - design.shape[1], 1))), 0.5)
-    covariance = scatter**2 * np.linalg.pinv(design.T @ design)[:2, :2]
+    covariance = scatter**2 * np.linalg.pinv(design_p.T @ design_p)[:2, :2]
     tangent = np.array([-np.sin(turn), np.cos(turn)])
     sigma = float(np.degrees(np.sqrt(tangent @ covariance @ tangent) / scale))
     sigma = max(sigma, MIN_ACCEL_HEADING_SIGMA_DEG)
@@ -649,6 +662,8 @@ ACCEL_HEADING_DISTANCE_M = 20.0  # the fixes must move this far from the start t
 ACCEL_HEADING_EXTRA_S = 10.0  # and the fit runs this much longer
 MAX_ACCEL_HEADING_S = 60.0
 MIN_ACCEL_HEADING_SIGMA_DEG = 3.0
+ACCEL_HEADING_BIAS_PRIOR = 0.5  # m/s^2 (50 mg): beyond any MEMS turn-on bias
+ACCEL_HEADING_FIX_SIGMA_M = 1.0
 
 
 def _travels_backward(

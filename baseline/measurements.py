@@ -159,9 +159,14 @@ def huber_variances(
 
 
 def reset_jacobian(phi: np.ndarray, dim: int = STATE_DIM) -> np.ndarray:
-    """Covariance reset after injecting an attitude correction ``phi`` (first order)."""
+    """Covariance reset after injecting an attitude correction ``phi`` (first order).
+
+    The error is global (``R_true = Exp(e) R``) and the correction is injected on the left
+    (``R+ = Exp(phi) R``), so the new error is ``log(Exp(e) Exp(-phi)) ~ e - phi +
+    [phi]x e / 2``: d(e+)/de = I + [phi]x / 2 (I - [phi]x / 2 is the reset of a local,
+    right-multiplied error)."""
     g = np.eye(dim)
-    g[ATT, ATT] -= 0.5 * skew_batch(phi)
+    g[ATT, ATT] += 0.5 * skew_batch(phi)
     return g
 
 
