@@ -36,8 +36,11 @@ def preintegration_params(
 # random walk in its noise, which a zero walk makes singular (NaN error, LM stalls at its
 # start). A constant bias is modelled by a floor on the walk tied to the run: over the whole
 # run the bias may move by at most this fraction of its turn-on sigma, i.e. it is constant to
-# the estimator while every factor stays well-conditioned.
-CONSTANT_BIAS_DRIFT_FRACTION = 1e-2
+# the estimator while every factor stays well-conditioned. At 1 % the batch was 5 % worse
+# than EKF+RTS (whose bias is exactly constant) inside the constant-bias aircraft's 60 s
+# outage (1.52 vs 1.45 m); at 0.1 % 1.7 % (1.47 m), with LM and the marginals still well
+# conditioned (QR).
+CONSTANT_BIAS_DRIFT_FRACTION = 1e-3
 
 
 def conditioned_noise(noise: ImuNoise, span_s: float) -> tuple[ImuNoise, list[str]]:
