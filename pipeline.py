@@ -48,21 +48,20 @@ def check_imu_gaps(dataset: Dataset, config: RunConfig, gnss_mask: np.ndarray | 
     GNSS fix (withheld by an outage, gated, or none). Shorter gaps are bridged with inflated
     noise (and said so by the reader's warning)."""
     from fgins.factors.gnss import gate_epochs
+    from fgins.io.imu_checks import find_gaps
 
     imu, gnss, smoother = dataset.imu, dataset.gnss, config.smoother
     if len(imu) < 3:
         return
-    spacing = np.diff(imu.t)
-    period = float(np.median(spacing))
-    starts = np.flatnonzero(spacing > 3.0 * period)
-    if not len(starts):
+    gaps = find_gaps(imu.t)  # the reader's own rule (flag_suspect): > 3 sample periods
+    if not gaps:
         return
+    period = float(np.median(np.diff(imu.t)))
     withheld = None if gnss_mask is None else ~np.asarray(gnss_mask, dtype=bool)
     gate = gate_epochs(gnss, config.gnss, withheld=withheld)
     fixes = gnss.t[gate.used]
     t0 = dataset.t0
-    for i in starts:
-        a, b = float(imu.t[i]), float(imu.t[i + 1])
+    for a, b in gaps:
         missing = b - a - period  # the samples' own period is not missing
         where = (
             f"imu: the {b - a:.1f} s gap in the IMU data at t - t0 = {a - t0:.1f}-{b - t0:.1f} s"
@@ -123,7 +122,7 @@ def _run(
         trajectory = function(dataset, config, gnss_mask=gnss_mask, progress=progress)
         fit_note = _filter_fit_note(dataset, config, gnss_mask, trajectory, method)
         if fit_note:
-            trajectory.info["fit_warnings"] = [*trajectory.info.get("fit_warnings", []), fit_note]
+            trajectory.info.setdefault("fit_warnings", []).append(fit_note)
         if dataset.odometer is not None and len(dataset.odometer.t):
             # The Kalman baselines have no wheel-speed update: said, never silently ignored.
             trajectory.info["fit_warnings"] = [
