@@ -101,12 +101,18 @@ def quiet_imu(
     before_s: float = 0.5,
     after_s: float = 0.5,
     require_steady: bool = True,
+    use_gyro: bool = True,
 ) -> np.ndarray:
     """True where the IMU shows no motion within ``[t - before_s, t + after_s)`` of each time.
 
     Thresholds sit well above the sensor's own white noise at its sample rate and below what
     a moving road vehicle's vibration gives; with ``require_steady`` the window must also
     show no trend (:func:`steady_imu`). Vectorised over the windows (bounded-memory chunks).
+
+    ``use_gyro=False`` judges by the accelerometers alone: for rates derived from an
+    accelerometer array, which at rest ramp with the integrated angular-acceleration bias
+    (a trend and a mean no bias prior allows), so a stop would never be seen by them. A
+    steady straight run then also looks quiet: the caller must confirm every stop by speed.
     """
     rate = imu.rate_hz
     gyro_threshold = max(4.0 * noise.gyro_noise * np.sqrt(rate), 0.005)
@@ -121,14 +127,14 @@ def quiet_imu(
     _, accel_var = _window_stats(imu.accel, lo, hi, 0)
     with np.errstate(invalid="ignore"):
         # A steady turn is smooth too: the mean rate must be no more than a bias could give.
-        quiet = (
-            (hi - lo >= MIN_QUIET_SAMPLES)
-            & (np.sqrt(gyro_var).max(axis=1) < gyro_threshold)
-            & (np.sqrt(accel_var).max(axis=1) < accel_threshold)
-            & ~(np.linalg.norm(gyro_mean, axis=1) > turn_threshold)
-        )
+        quiet = (hi - lo >= MIN_QUIET_SAMPLES) & (np.sqrt(accel_var).max(axis=1) < accel_threshold)
+        if use_gyro:
+            quiet &= (np.sqrt(gyro_var).max(axis=1) < gyro_threshold) & ~(
+                np.linalg.norm(gyro_mean, axis=1) > turn_threshold
+            )
     if require_steady:
-        quiet &= steady_imu(imu.t, [imu.accel, imu.gyro], times, before_s, after_s)
+        signals = [imu.accel, imu.gyro] if use_gyro else [imu.accel]
+        quiet &= steady_imu(imu.t, signals, times, before_s, after_s)
     return quiet
 
 

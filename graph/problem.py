@@ -600,7 +600,9 @@ def build_problem(
     suspect_params = _suspect_params(imu, segments, noise, config, dataset)
     smoother = config.smoother
     quiet = (
-        stationary.quiet_imu(imu, times, noise)
+        # Rates derived from an accelerometer array ramp at rest: judge stops by the specific
+        # force alone (each stop is still confirmed by the solution's speed, _add_stop).
+        stationary.quiet_imu(imu, times, noise, use_gyro=dataset.accel_array is None)
         if smoother.zupt
         else np.zeros(len(times), dtype=bool)
     )
