@@ -65,6 +65,11 @@ STRAIGHT_MAX_ROTATION_RAD = 1.5
 # At rest a gyro reads its bias plus Earth rate: 0.2 rad/s (11 deg/s) is beyond any real gyro
 # bias (consumer MEMS: < 5 deg/s), while a 0.2-deg/s bias read as rad/s is exactly this.
 GYRO_REST_MAX_RAD_PER_S = 0.2
+# A multirotor's or pedestrian's gyro need not follow the track's turns, but it is alive:
+# its rates vary (tilting to accelerate, own yaw) by more than this at the 90th percentile
+# about their median; a dead gyro (noise only) or one converted to rad/s twice (57x too
+# small) varies by less.
+GYRO_ALIVE_RAD_PER_S = 0.02
 REST_ACCEL_STD_M_S2 = 0.05
 REST_ACCEL_NORM_TOL_M_S2 = 0.3
 STRAIGHT_MIN_WINDOWS = 10
@@ -551,7 +556,15 @@ def _check_units(
             f"pi/180 = {math.pi / 180:.6f}"
         )
     problems = []
-    if turns >= TURN_SIGN_MIN_WINDOWS and ratio < GYRO_TURN_RATIO_MIN:
+    gyro_alive = (
+        float(np.percentile(np.linalg.norm(imu.gyro - np.median(imu.gyro, axis=0), axis=1), 90))
+        > GYRO_ALIVE_RAD_PER_S
+    )
+    if (
+        turns >= TURN_SIGN_MIN_WINDOWS
+        and ratio < GYRO_TURN_RATIO_MIN
+        and (body_follows_track or not gyro_alive)
+    ):
         problems.append(
             f"imu: the gyro does not see the turns: over {turns} {TURN_WINDOW_S:g}-s windows of "
             f"the GNSS track it integrates to {ratio:.3g} times the turn the fixes show (~1 "

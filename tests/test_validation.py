@@ -186,6 +186,19 @@ def test_a_gyro_that_does_not_see_the_turns_is_an_error(tmp_path, scale):
         load_dataset(_pair(tmp_path, data))
 
 
+@pytest.mark.parametrize("scale", [0.0, math.pi / 180])
+def test_a_dead_gyro_on_a_free_body_vehicle_is_still_noted(scale):
+    """A multirotor need not yaw with its track, so there it is a note, not an error; but a
+    gyro that shows no rotation at all (dead, or converted to rad/s twice) is still named.
+    (A live multirotor gyro gets no note: tests/test_flights_independent.py.)"""
+    from fgins.io.validate import validate_dataset
+
+    run = _run("car-urban", 3, 150)
+    checked = validate_dataset(_with_imu(run.dataset, gyro_scale=scale), vehicle="uav")
+    notes = checked.metadata["input_checks"]
+    assert any("gyro does not see the turns" in note for note in notes), notes
+
+
 def test_clocks_30_s_apart_are_an_error_that_names_the_time_offset(tmp_path, urban):
     """The spans overlap, but the turns of the track and the gyro's do not line up."""
     from dataclasses import replace
