@@ -280,10 +280,18 @@ class Dataset:
 
     @property
     def t0(self) -> float:
-        """Time of the first GNSS epoch: the reference of outage windows."""
+        """Time of the first GNSS epoch in the input, usable or not: the reference of outage
+        windows (DESIGN.md). Readers that drop epochs without a fix (NMEA quality 0, a
+        NavSatFix with status -1, a UBX epoch without a fix) record the first epoch's time as
+        ``metadata["gnss_first_epoch_t"]``, so such a prefix does not move the windows."""
         if len(self.gnss) == 0:
             raise InputError(f"{self.name or 'dataset'}: no GNSS epochs at all")
-        return float(self.gnss.t[0])
+        first = float(self.gnss.t[0])
+        recorded = self.metadata.get("gnss_first_epoch_t")
+        # Within a day before the first fix (a stray time in a no-fix epoch is not a t0).
+        if isinstance(recorded, (int, float)) and 0.0 <= first - recorded <= 86400.0:
+            return float(recorded)
+        return first
 
     def gnss_enu(self) -> np.ndarray:
         """GNSS positions in the local ENU frame (M, 3)."""

@@ -62,6 +62,9 @@ def load_dataset(
     )
     if time_offset_s and not dataset.metadata.get("gnss_time_offset_applied"):
         dataset.gnss = replace(dataset.gnss, t=dataset.gnss.t + time_offset_s)
+        first = dataset.metadata.get("gnss_first_epoch_t")
+        if isinstance(first, float):
+            dataset.metadata["gnss_first_epoch_t"] = first + time_offset_s
     if time_offset_s:
         dataset.metadata["gnss_time_offset_s"] = time_offset_s
     return validated(dataset, vehicle)
@@ -137,5 +140,6 @@ def _nmea_with_imu(nmea: list[Path], others: list[Path], time_offset_s: float) -
             "nmea_counts": result.counts,
             "gnss_time_offset_applied": True,
             "gnss_epochs_without_fix": result.epochs_without_fix,
+            "gnss_first_epoch_t": result.first_epoch_t,
         },
     )

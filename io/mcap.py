@@ -446,6 +446,7 @@ class _FixAccumulator(_Accumulator):
         super().__init__(topic, schema_name)
         self.rows = array("d")
         self.no_fix = 0
+        self.first_t = math.inf  # of any message, with a fix or not (the t0 of outages)
 
     def add(self, msg: Any, log_time: int, use_header_stamp: bool) -> None:
         nan = math.nan
@@ -465,6 +466,7 @@ class _FixAccumulator(_Accumulator):
             status = int(msg.status.status)
             if status < 0:
                 self.no_fix += 1
+                self.first_t = min(self.first_t, self.time(stamp, log_time, use_header_stamp))
                 return
             quality = float(NAVSAT_STATUS_TO_QUALITY.get(status, 1))
             if self.schema_name == GPSFIX:
@@ -479,10 +481,12 @@ class _FixAccumulator(_Accumulator):
         lat = float(_get(msg, "latitude", nan))
         lon = float(_get(msg, "longitude", nan))
         alt = float(_get(msg, "altitude", nan))
+        t = self.time(stamp, log_time, use_header_stamp)
+        self.first_t = min(self.first_t, t)
         if not (math.isfinite(lat) and math.isfinite(lon) and math.isfinite(alt)):
             self.no_fix += 1
             return
-        self.t.append(self.time(stamp, log_time, use_header_stamp))
+        self.t.append(t)
         self.rows.extend((lat, lon, alt, *std, quality, hdop, vdop, pdop, *velocity))
         self.rows.extend((speed, course, sats))
 
@@ -929,6 +933,7 @@ def _assemble(scan: _McapScan) -> McapResult:
             "topics": {role: c.topic for role, c in (scan.chosen or {}).items()},
             "time_base": "header stamp" if scan.use_header_stamp else "log time",
             "gnss_epochs_without_fix": getattr(gnss_acc, "no_fix", 0),
+            "gnss_first_epoch_t": float(getattr(gnss_acc, "first_t", math.nan)),
         },
     )
     return McapResult(dataset=dataset, report=report, warnings=warnings)

@@ -69,6 +69,8 @@ class NmeaResult:
     geoid_from_model: int
     talkers: dict[str, int] = field(default_factory=dict)
     epochs_without_fix: int = 0
+    # Time of the first epoch with a time, with a fix or not (the t0 of outage windows).
+    first_epoch_t: float = math.nan
     geoid_modelled: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     epoch_quality_histogram: dict[int, int] = field(default_factory=dict)
 
@@ -546,6 +548,7 @@ def _assemble(path: Path, reader: _Reader, time_offset_s: float) -> NmeaResult:
         geoid_from_model=int(modelled.sum()),
         talkers=dict(reader.talkers),
         epochs_without_fix=without_fix,
+        first_epoch_t=float(seconds[0]) + time_offset_s if len(seconds) else math.nan,
         geoid_modelled=modelled,
         epoch_quality_histogram=dict(quality_histogram),
     )

@@ -263,6 +263,8 @@ class UbxResult:
     wheel_ticks: int = 0
     esf_meas_messages: list[tuple[int, dict[int, float]]] = field(default_factory=list)
     first_time: float = math.nan
+    # The first timed navigation epoch, with a fix or not (the t0 of outage windows).
+    first_epoch_time: float = math.nan
     last_time: float = math.nan
 
 
@@ -494,6 +496,7 @@ class _EpochBuilder:
         self.histogram: Counter[int] = Counter()
         self.last_week: int | None = None
         self.last_time: float | None = None
+        self.first_time = math.inf  # of any timed epoch, with a fix or not (t0 of outages)
 
     def _time(self, e: _Epoch) -> float | None:
         m = e.msgs
@@ -576,6 +579,7 @@ class _EpochBuilder:
         if t is None:
             self.without_time += 1
             return None
+        self.first_time = min(self.first_time, t)
         status = self._status(e)
         position = self._position(e) if status is not None else None
         if status is None or position is None:
@@ -972,6 +976,7 @@ def read_ubx(path: str | Path) -> UbxResult:
     )  # fmt: skip
     if gnss is not None:
         result.first_time, result.last_time = float(gnss.t[0]), float(gnss.t[-1])
+    result.first_epoch_time = float(builder.first_time)
     _attach_imu(result, scanner, fix_anchor or epoch_times)
     return result
 
@@ -1224,7 +1229,9 @@ def load_ubx_dataset(
         name=path.stem,
         warnings=warnings,
         metadata={"ubx_counts": result.counts, "imu_source": imu_from,
-                  "ubx_time_maps": [m.describe() for m in result.time_maps]},
+                  "ubx_time_maps": [m.describe() for m in result.time_maps],
+                  "gnss_epochs_without_fix": result.epochs_without_fix,
+                  "gnss_first_epoch_t": result.first_epoch_time},
     )  # fmt: skip
 
 

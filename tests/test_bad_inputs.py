@@ -569,3 +569,29 @@ def test_no_fix_epochs_dropped_on_reading_appear_in_the_gnss_count_line(sim_dir,
     total = int(re.match(r"GNSS: (\d+) epochs", count_line).group(1))
     assert total == len(fixes) - len(no_fix)
     assert f"(+{len(no_fix)} epochs without a fix, dropped on reading)" in count_line
+
+
+def test_no_fix_epochs_before_the_first_fix_do_not_move_the_outage_windows(sim_dir, tmp_path):
+    """``--gnss-outage A:B`` counts from the first GNSS epoch in the input, usable or not
+    (DESIGN.md). The NMEA reader drops quality-0 epochs, and t0 used to be the first *fix*:
+    a log whose receiver needed 4 s for its first fix had every window 4 s late."""
+    from fgins.io.inputs import load_dataset
+    from fgins.outages import outage_mask
+
+    lines = _nmea_from_gnss_csv(sim_dir / "gnss.csv", corrupt=False).split("\r\n")
+    fixes = [line for line in lines if line]
+    edited = []
+    for k, line in enumerate(fixes):
+        if k < 4:
+            fields = line[1:].split("*")[0].split(",")
+            fields[6] = "0"  # no fix yet
+            line = _with_checksum(",".join(fields))
+        edited.append(line)
+    nmea = tmp_path / "log.nmea"
+    nmea.write_text("\r\n".join(edited) + "\r\n")
+    reference = load_dataset([str(sim_dir / "gnss.csv"), str(sim_dir / "imu.csv")], progress=False)
+    dataset = load_dataset([str(nmea), str(sim_dir / "imu.csv")], progress=False)
+    assert len(dataset.gnss) == len(reference.gnss) - 4
+    assert dataset.t0 == pytest.approx(reference.t0, abs=0.01)
+    withheld = dataset.gnss.t[~outage_mask(dataset, [(10.0, 20.0)])] - reference.t0
+    assert len(withheld) and withheld.min() >= 10.0 - 0.01 and withheld.max() < 20.0

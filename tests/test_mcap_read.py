@@ -60,6 +60,8 @@ def test_ros2_bag_values_are_read_exactly(ros2_bag: Path, drive: Drive) -> None:
     assert no_fix > 0
     assert any(f"{no_fix} no-fix messages dropped" in w for w in result.warnings)
     assert data.metadata["gnss_epochs_without_fix"] == no_fix  # for the GNSS count line
+    # Outage windows count from the first GNSS message, with a fix or not (DESIGN.md).
+    assert data.t0 == drive.gnss_ns.min() / 1e9
 
 
 def test_log_time_is_used_when_asked(ros2_bag: Path, drive: Drive) -> None:

@@ -120,6 +120,18 @@ def test_no_fix_epochs_and_invalid_only(tmp_path):
         require_fix(result)
 
 
+def test_no_fix_epochs_before_the_first_fix_keep_the_t0_of_outage_windows(tmp_path):
+    """Outage windows count from the first GNSS epoch in the input, usable or not
+    (DESIGN.md): a receiver that logs 3 epochs before its first fix must not move them."""
+    data = b"".join(
+        nav_pvt(T0 + k, LAT, LON, H, (1.0, 2.0, 0.5), fix_type=0 if k < 3 else 3)
+        for k in range(6)
+    )
+    result = read_ubx(_write(tmp_path, data))
+    assert result.epochs_without_fix == 3 and len(result.gnss) == 3
+    assert result.first_epoch_time == pytest.approx(result.gnss.t[0] - 3.0, abs=1e-6)
+
+
 def test_hpposllh_preferred(tmp_path):
     lat_hp, lon_hp, h_hp = 48.137212345, 11.575543219, 520.1237
     data = b"".join(
