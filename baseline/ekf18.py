@@ -52,8 +52,10 @@ from fgins.baseline.mechanization import (
     segment_imu,
     skew_batch,
 )
+from fgins.baseline.vehicle_updates import FILTER_STOP_SIGMA_AIDED_S
 from fgins.config import RunConfig, SmootherConfig
 from fgins.datatypes import AccelArrayData, Dataset, InputError, Trajectory
+from fgins.factors import stationary
 from fgins.factors.accel_array import AccelArray, rate_monomials
 from fgins.initial_guess import KeyframeGuess
 from fgins.mounting import mounting_rotation
@@ -490,7 +492,18 @@ def _ekf18_pass(
         counts["velocity_updates"] += int(lin.n_velocity > 0)
 
     def vehicle_updates(k: int) -> None:
-        if smoother.zupt and quiet[k] and np.linalg.norm(nav.velocity) < zupt_max_speed:
+        if (
+            smoother.zupt
+            and quiet[k]
+            and stationary.speed_confirms_stop(
+                float(np.linalg.norm(nav.velocity)),
+                # its sigma only while GNSS anchors it (see baseline.vehicle_updates)
+                stationary.speed_sigma(cov[VEL, VEL])
+                if times[k] - last_fix <= FILTER_STOP_SIGMA_AIDED_S
+                else None,
+                zupt_max_speed,
+            )
+        ):
             h, residual, variance = standstill_measurement(nav, rate, frame, smoother)
             correct(h, residual, variance)
             counts["zupt_updates"] += 1
@@ -499,10 +512,14 @@ def _ekf18_pass(
             correct(h, residual, variance)
             counts["nhc_updates"] += 1
 
+    last_fix = -np.inf
+
     def boundary(k: int) -> None:
+        nonlocal last_fix
         prior = cov
         if gnss_at[k] >= 0:
             gnss_update(k)
+            last_fix = float(times[k])
         vehicle_updates(k)
         store.covariance(k, prior, cov)
 

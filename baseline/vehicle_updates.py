@@ -58,7 +58,10 @@ QUIET_WINDOW_S = 1.0  # the graph's +-0.5 s, looking back only
 BARO_WINDOW_S = 0.25
 # Half-window means of a stop differ by noise only: a difference beyond this many of its own
 # standard errors is a trend (starting or stopping), not rest.
-NO_MOTION_RATE_SIGMA = np.radians(0.01)  # the graph's no-motion rotation sigma per ~1 s keyframe
+NO_MOTION_RATE_SIGMA = np.radians(0.01)
+# A quiet boundary this soon after a GNSS update needs its speed within 3 sigma of zero to be
+# a stop (fgins.factors.stationary.speed_confirms_stop); later only below the speed cap.
+FILTER_STOP_SIGMA_AIDED_S = 2.0  # the graph's no-motion rotation sigma per ~1 s keyframe
 
 
 @dataclass
@@ -83,6 +86,7 @@ class VehicleAiding:
     counts: dict[str, int] = field(default_factory=dict)
     zupt_times: list[float] = field(default_factory=list)  # boundaries taken as stops
     _last_nhc: float = -np.inf
+    _last_fix: float = -np.inf  # time of the last GNSS update (fix_applied)
 
     @property
     def has_baro(self) -> bool:
@@ -104,11 +108,19 @@ class VehicleAiding:
         first = self.baro_height[np.isfinite(self.baro_height)][0]
         return np.array([first - up]), np.array([BARO_BIAS_PRIOR_SIGMA_M**2])
 
+    def fix_applied(self, t: float) -> None:
+        """The filter made a GNSS update at time ``t`` (its velocity sigma is anchored)."""
+        self._last_fix = float(t)
+
     def update(
         self, k: int, state: NominalState, cov: np.ndarray
     ) -> tuple[NominalState, np.ndarray]:
         """Apply the pseudo-measurements due at boundary ``k`` (after any GNSS update)."""
         t = float(self.times[k])
+        # A stop is confirmed by the speed's sigma only while GNSS anchors the filter: dead
+        # reckoning in an outage, a filter can be far more sure of its speed than it should
+        # be (0.1 m/s sigma, 1 m/s off), and refusing real stops then lets it drift away.
+        aided = t - self._last_fix <= FILTER_STOP_SIGMA_AIDED_S
         if self.nhc and t >= self._last_nhc + self.nhc_min_interval_s - 1e-9:
             state, cov = kalman_update(state, cov, *self.nhc_measurement(state, len(cov)))
             self._last_nhc = t
@@ -116,7 +128,11 @@ class VehicleAiding:
         if (
             self.zupt
             and self.quiet[k]
-            and float(np.linalg.norm(state.velocity)) < self.zupt_max_speed
+            and stationary.speed_confirms_stop(
+                float(np.linalg.norm(state.velocity)),
+                stationary.speed_sigma(cov[VEL, VEL]) if aided else None,
+                self.zupt_max_speed,
+            )
         ):
             state, cov = kalman_update(state, cov, *self.zupt_measurement(k, state, len(cov)))
             self.counts["zupt_updates"] += 1

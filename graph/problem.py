@@ -105,18 +105,23 @@ class Problem:
         return graph
 
     def keyframe_factors(
-        self, k: int, predicted_speed: float | None = None, gnss_config: GnssConfig | None = None
+        self,
+        k: int,
+        predicted_speed: float | None = None,
+        gnss_config: GnssConfig | None = None,
+        speed_sigma: float | None = None,
     ) -> gtsam.NonlinearFactorGraph:
         """Factors that arrive with keyframe k: the IMU factor from k-1, k's GNSS, land-vehicle
         constraints, odometer and barometer. ``predicted_speed`` (the current best guess of
-        the speed at k) must confirm a stop before a quiet IMU is taken as one.
+        the speed at k, with its sigma ``speed_sigma`` when known) must confirm a stop before
+        a quiet IMU is taken as one (:meth:`speed_confirms_stop`).
         ``gnss_config``: the GNSS position kernel to use instead of the run's (the initial
         guess's Huber weighting)."""
         graph = gtsam.NonlinearFactorGraph()
         if k > 0:
             graph.add(self.imu_factor(k - 1))
         self._add_gnss(graph, k, gnss_config or self.config.gnss)
-        self._add_stop(graph, k, predicted_speed)
+        self._add_stop(graph, k, predicted_speed, speed_sigma)
         self._add_misalignment(graph, k)
         if k == 0 and self.has_odometer:
             graph.add(odometer_model.scale_prior(self.config.smoother.odometer_scale_sigma))
@@ -355,15 +360,25 @@ class Problem:
             np.asarray(gyro).reshape(shape),
         )
 
+    def speed_confirms_stop(self, speed: float | None, sigma: float | None) -> bool:
+        """Does a solution's speed (m/s, with its sigma when known) at a quiet keyframe
+        confirm a stop? (:func:`fgins.factors.stationary.speed_confirms_stop`)"""
+        return stationary.speed_confirms_stop(
+            speed, sigma, self.config.smoother.zupt_max_speed_m_per_s
+        )
+
     def _add_stop(
-        self, graph: gtsam.NonlinearFactorGraph, k: int, predicted_speed: float | None
+        self,
+        graph: gtsam.NonlinearFactorGraph,
+        k: int,
+        predicted_speed: float | None,
+        speed_sigma: float | None = None,
     ) -> None:
         smoother = self.config.smoother
         stopped = (
             smoother.zupt
             and bool(self.quiet[k])
-            and predicted_speed is not None
-            and predicted_speed < smoother.zupt_max_speed_m_per_s
+            and self.speed_confirms_stop(predicted_speed, speed_sigma)
         )
         if stopped:
             graph.add(vehicle_model.zero_velocity_factor(V(k), smoother.zupt_sigma_m_per_s))

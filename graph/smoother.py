@@ -31,6 +31,7 @@ from fgins.config import RunConfig
 from fgins.datatypes import Dataset, FginsError, Trajectory
 from fgins.factors import gnss as gnss_model
 from fgins.factors import odometer as odometer_model
+from fgins.factors import stationary
 from fgins.factors import vehicle as vehicle_model
 from fgins.factors.values import put_bias, put_double, put_pose, put_vector
 from fgins.graph.keyframe_filter import keyframe_filter
@@ -946,6 +947,31 @@ def _fall_back(
     return report, result, graph
 
 
+def _stop_speeds(
+    problem: Problem, graph: gtsam.NonlinearFactorGraph, result: gtsam.Values
+) -> np.ndarray:
+    """The solved speed at each keyframe where it confirms a stop, inf elsewhere.
+
+    At the quiet keyframes slow enough to be stops, the speed's sigma (the largest of its
+    velocity marginal's) decides too (:meth:`Problem.speed_confirms_stop`); one marginal
+    factorisation, made only when there is such a keyframe.
+    """
+    speeds = np.array([np.linalg.norm(result.atVector(V(k))) for k in range(problem.n_keyframes)])
+    out = np.full(problem.n_keyframes, np.inf)
+    slow = [
+        int(k) for k in np.flatnonzero(problem.quiet)
+        if problem.speed_confirms_stop(float(speeds[k]), None)
+    ]  # fmt: skip
+    if not slow:
+        return out
+    marginal = _marginal_function(graph, result)
+    for k in slow:
+        sigma = stationary.speed_sigma(marginal(V(k)))
+        if problem.speed_confirms_stop(float(speeds[k]), sigma):
+            out[k] = speeds[k]
+    return out
+
+
 def smooth_batch(
     problem: Problem, progress: bool = True, initial_guess: InitialGuess | None = None
 ) -> Trajectory:
@@ -964,15 +990,10 @@ def smooth_batch(
         report, result, graph = _fall_back(problem, source, others, report, result, graph)
     report.start = source  # a restart says so in report.fallback
     if problem.config.smoother.zupt and problem.quiet.any():
-        speeds = np.array(
-            [np.linalg.norm(result.atVector(V(k))) for k in range(problem.n_keyframes)]
-        )
+        speeds = _stop_speeds(problem, graph, result)
         problem.zupt_keyframes.clear()
-        candidates = [
-            k for k in range(problem.n_keyframes)
-            if problem.quiet[k] and speeds[k] < problem.config.smoother.zupt_max_speed_m_per_s
-        ]  # fmt: skip
-        if candidates:
+        candidates = np.flatnonzero(problem.quiet & np.isfinite(speeds))
+        if len(candidates):
             zupt_report = SolveReport(solver="batch LM", initial_error=report.initial_error)
             result, graph = _solve(problem, result, speeds, zupt_report)
             report.iterations += zupt_report.iterations
@@ -1124,6 +1145,26 @@ class _Window:
         return leaving, groups, everything
 
 
+def _isam2_speed_sigma(
+    problem: Problem, isam: gtsam.ISAM2, k: int, predicted: gtsam.NavState
+) -> float | None:
+    """The sigma of the speed predicted at quiet keyframe k: that of V(k-1) in the running
+    iSAM2 (one marginal, asked only where it decides a stop); None where not needed or
+    not available (the speed cap alone decides then)."""
+    speed = float(np.linalg.norm(predicted.velocity()))
+    if not (
+        problem.config.smoother.zupt
+        and problem.quiet[k]
+        and speed >= stationary.STOP_SPEED_FLOOR_M_PER_S
+        and problem.speed_confirms_stop(speed, None)
+    ):
+        return None
+    try:
+        return stationary.speed_sigma(isam.marginalCovariance(V(k - 1)))
+    except RuntimeError:
+        return None
+
+
 def _run_isam2_with(
     problem: Problem,
     progress: bool,
@@ -1184,9 +1225,13 @@ def _run_isam2_with(
         step_started = time.perf_counter()
         graph = problem.prior_factors() if k == 0 else gtsam.NonlinearFactorGraph()
         new_values = gtsam.Values()
+        speed_sigma = None
         if k > 0:
             state = problem.predict(k - 1, state, bias)
-        keyframe = problem.keyframe_factors(k, float(np.linalg.norm(state.velocity())))
+            speed_sigma = _isam2_speed_sigma(problem, isam, k, state)
+        keyframe = problem.keyframe_factors(
+            k, float(np.linalg.norm(state.velocity())), speed_sigma=speed_sigma
+        )
         if k > 0:
             imu_index[k - 1] = nonlinear.size() + graph.size()  # the IMU factor comes first
         graph.push_back(keyframe)
@@ -1291,6 +1336,8 @@ def _run_isam2_with(
         report.rounds += 1
     for _ in range(2):
         _isam2_step(isam, factorization, "final update")
+    if problem.zupt_keyframes:
+        isam = _isam2_redecide_stops(problem, isam, params, factorization, report)
     final = _estimate(isam, factorization)
     factors = _compact(isam.getFactorsUnsafe())
     report.initial_error = float("nan")
@@ -1307,6 +1354,63 @@ def _run_isam2_with(
         attitude_cov=online["attitude"],
     )
     return isam, final, online_keyframes, online, report, (update_s, preintegrate_s)
+
+
+def _isam2_redecide_stops(
+    problem: Problem,
+    isam: gtsam.ISAM2,
+    params: gtsam.ISAM2Params,
+    factorization: str,
+    report: SolveReport,
+) -> gtsam.ISAM2:
+    """The online pass decided each stop from its causal prediction: dead reckoning through
+    an outage, the predicted speed of a car creeping at 1.2 m/s can drift below the floor
+    where a quiet IMU is taken as a stop, and the false stops then freeze the track (20 m
+    off). The final estimate re-decides them as the batch does: solve the whole graph
+    without stops, keep the quiet keyframes whose smoothed speed and its sigma confirm one
+    (:func:`_stop_speeds`), and re-solve with those. Unchanged stops keep ``isam``."""
+    online_stops = set(problem.zupt_keyframes)
+    estimate = _estimate(isam, factorization)
+    free, free_estimate, _ = _isam2_solve_full(problem, None, estimate, params, factorization)
+    speeds = _stop_speeds(problem, free, free_estimate)
+    confirmed = {int(k) for k in np.flatnonzero(problem.quiet & np.isfinite(speeds))}
+    if confirmed == online_stops:
+        problem.zupt_keyframes = online_stops
+        return isam
+    problem.info["stops_redecided"] = (
+        f"stops re-decided on the smoothed solution: {len(online_stops)} taken online, "
+        f"{len(online_stops - confirmed)} dropped, {len(confirmed - online_stops)} added "
+        "(the online output keeps its own)"
+    )
+    report.rounds += 2
+    return _isam2_solve_full(problem, speeds, free_estimate, params, factorization)[2]
+
+
+def _isam2_solve_full(
+    problem: Problem,
+    speeds: np.ndarray | None,
+    start: gtsam.Values,
+    params: gtsam.ISAM2Params,
+    factorization: str,
+) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, gtsam.ISAM2]:
+    """The whole graph (stops where ``speeds`` confirm them) solved by a new iSAM2 from
+    ``start``, the vehicle constraints relinearised until they settle. Returns (the graph
+    at the solution, the solution, the iSAM2)."""
+    estimate = start
+    for _ in range(ISAM2_FINAL_ROUNDS):
+        graph = _full_graph(problem, _nonlinear_graph(problem, speeds), estimate)
+        isam = gtsam.ISAM2(params)
+        _isam2_step(isam, factorization, "stop re-decision", graph, estimate)
+        for _ in range(2):
+            _isam2_step(isam, factorization, "stop re-decision")
+        moved = problem.has_linear_factors and _linearisation_moved(
+            problem, estimate, _estimate(isam, factorization)
+        )
+        estimate = _estimate(isam, factorization)
+        if not moved:
+            break
+    graph = _full_graph(problem, _nonlinear_graph(problem, speeds), estimate)
+    return graph, estimate, isam
 
 
 def _isam2_marginalize(isam: gtsam.ISAM2, factorization: str, keys: list[int]) -> None:
@@ -1376,7 +1480,10 @@ def smooth_isam2(
             _solver_report(report),
             _vehicle_fit_report(problem, result),
             _covariance_report(covariances),
-            {"python_callback_factors": _callback_factors(factors)},
+            {
+                "python_callback_factors": _callback_factors(factors),
+                "zupt_keyframes": len(problem.zupt_keyframes),
+            },
         )
         final.timings.update({**timings, "final": time.perf_counter() - incremental})
         return final
