@@ -67,12 +67,49 @@ def dumps_toml(tables: dict[str, dict[str, Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_sim_dir(run: SimRun, out_dir: str | Path) -> None:
-    """Write ``run`` into ``out_dir`` (created if needed)."""
-    folder = Path(out_dir)
+SIM_FILES = ("imu.csv", ACCEL_ARRAY_FILE, "gnss.csv", "baro.csv", "config.toml", "truth.csv")
+
+
+def _is_sim_folder(folder: Path) -> bool:
+    """Written by an earlier ``fgins sim``: a config.toml with its [scenario] table."""
+    try:
+        return "[scenario]" in (folder / "config.toml").read_text(errors="replace")
+    except OSError:
+        return False
+
+
+def _check_out_dir(folder: Path) -> None:
+    """A new or empty folder, or one an earlier ``fgins sim`` wrote (rewritten whole: its
+    files that this run does not make are removed, so an old baro.csv cannot join a new
+    drive). Anything else is the user's data and is never written over."""
     if folder.exists() and not folder.is_dir():
         raise InputError(f"{folder}: exists and is not a folder; choose another output path")
+    if not folder.is_dir():
+        return
+    entries = sorted(entry.name for entry in folder.iterdir())
+    if not entries:
+        return
+    foreign = [name for name in entries if name not in SIM_FILES]
+    if foreign or not _is_sim_folder(folder):
+        shown = ", ".join((foreign or entries)[:4]) + (" ..." if len(foreign or entries) > 4 else "")
+        raise InputError(
+            f"{folder}: the folder is not empty ({shown}) and was not written by fgins sim; "
+            "give a new or empty folder (nothing was written)"
+        )
+
+
+def write_sim_dir(run: SimRun, out_dir: str | Path) -> None:
+    """Write ``run`` into ``out_dir``: a new or empty folder, or one an earlier run wrote."""
+    folder = Path(out_dir)
+    _check_out_dir(folder)
     folder.mkdir(parents=True, exist_ok=True)
+    # Files of an earlier scenario this one does not write (its barometer, its array).
+    written = {"gnss.csv", "config.toml", "truth.csv"}
+    written.add(ACCEL_ARRAY_FILE if run.dataset.accel_array is not None else "imu.csv")
+    if run.dataset.baro is not None:
+        written.add("baro.csv")
+    for name in set(SIM_FILES) - written:
+        (folder / name).unlink(missing_ok=True)
     dataset = run.dataset
     if dataset.accel_array is not None:
         # Gyro-free IMU: the raw readings are the data; the IMU is derived when reading.

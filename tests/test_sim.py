@@ -566,3 +566,26 @@ def test_bad_imu_options_are_one_clear_error() -> None:
     for options in bad:
         with pytest.raises(InputError, match=r"option|grade|GNSS rate"):
             SCENARIOS["car-urban"](seed=0, **{"duration_s": 10.0, **options})
+
+
+def test_sim_never_writes_over_a_folder_it_did_not_write(tmp_path: Path) -> None:
+    """``fgins sim -o FOLDER`` overwrote imu.csv, gnss.csv, config.toml and truth.csv of
+    whatever folder it was given (an outside tester lost a drive that way), and left an
+    earlier scenario's baro.csv behind, which the next smooth then used (566 -> 627 dof).
+    Now: a folder with anything but an earlier sim's files is refused, nothing written; an
+    earlier sim folder is rewritten whole."""
+    own = tmp_path / "drive"
+    own.mkdir()
+    (own / "imu.csv").write_text("my data\n")
+    (own / "notes.txt").write_text("keep\n")
+    with pytest.raises(InputError, match="not empty .* not written by fgins sim"):
+        write_sim_dir(SCENARIOS["car-urban"](seed=1, duration_s=20), own)
+    assert (own / "imu.csv").read_text() == "my data\n"
+    assert sorted(p.name for p in own.iterdir()) == ["imu.csv", "notes.txt"]
+
+    folder = tmp_path / "sim"
+    write_sim_dir(SCENARIOS["uav-loop-baro"](seed=1, duration_s=20), folder)
+    assert (folder / "baro.csv").exists()
+    write_sim_dir(SCENARIOS["car-urban"](seed=1, duration_s=20), folder)
+    assert not (folder / "baro.csv").exists()
+    assert read_csv_dataset([folder]).baro is None
