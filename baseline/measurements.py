@@ -56,10 +56,8 @@ def select_gnss(dataset: Dataset, config: RunConfig, gnss_mask: np.ndarray | Non
     imu_t = dataset.imu.t
     in_span = (gnss.t >= imu_t[0]) & (gnss.t <= imu_t[-1])
     if not np.any(usable & in_span):
-        raise InputError(
-            f"{dataset.name or 'input'}: no usable GNSS epoch within the IMU time span "
-            f"({imu_t[0]:.3f}-{imu_t[-1]:.3f} s); check the time bases (--time-offset)"
-        )
+        _, counts = gnss_model.select_epochs(dataset, config.gnss, gnss_mask)
+        raise gnss_model.no_usable_gnss_error(dataset, config.gnss, counts)
     outside = int((usable & ~in_span).sum())
     usable = usable & in_span
     subset = gnss.subset(usable)

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgins.config import GnssConfig
-from fgins.datatypes import GnssData, InputError
+from fgins.datatypes import Dataset, GnssData, InputError
 from fgins.geodesy import skew, skew_batch
 
 # NMEA GGA fix-quality codes -> UERE table key.
@@ -396,3 +396,62 @@ def antenna_velocity_factors(
         out.append(gtsam.LinearContainerFactor(linear, point))
     return out
 
+
+
+def select_epochs(
+    dataset: Dataset, config: GnssConfig, gnss_mask: np.ndarray | None
+) -> tuple[np.ndarray, dict[str, int]]:
+    """Usable epochs and counts that add up: every epoch is counted once, outage first
+    (a withheld epoch is never "rejected for PDOP"), then the IMU span, then the gates (the
+    order of :func:`gate_epochs`: an epoch the IMU does not cover is "outside the IMU span"
+    whatever its PDOP). The graph and the Kalman baselines count alike."""
+    gnss, imu = dataset.gnss, dataset.imu
+    kept = np.ones(len(gnss), dtype=bool) if gnss_mask is None else np.asarray(gnss_mask, bool)
+    gate = gate_epochs(gnss.subset(kept), config, imu_span=(float(imu.t[0]), float(imu.t[-1])))
+    usable = np.zeros(len(gnss), dtype=bool)
+    usable[kept] = gate.usable
+    counts = {
+        "total": len(gnss),
+        "withheld": int((~kept).sum()),
+        "gated_pdop": gate.rejected_pdop,
+        "gated_quality": gate.rejected_quality,
+        "outside_imu_span": gate.outside_span,
+    }
+    return usable, counts
+
+
+def no_usable_gnss_error(
+    dataset: Dataset, config: GnssConfig, counts: dict[str, int]
+) -> InputError:
+    """Why no GNSS epoch is usable, naming the actual causes: the time bases only when every
+    epoch left after the outages lies outside the IMU span (all fixes gated used to be
+    blamed on the clocks too)."""
+    imu = dataset.imu
+    name = dataset.name or "input"
+    total, withheld = counts["total"], counts["withheld"]
+    outside = counts["outside_imu_span"]
+    if withheld == total:
+        return InputError(
+            f"{name}: no usable GNSS epoch: the GNSS outage windows withhold every one ({total})"
+        )
+    if outside == total - withheld:
+        return InputError(
+            f"{name}: no GNSS epoch within the IMU time span ({imu.t[0]:.3f}-{imu.t[-1]:.3f} s; "
+            f"GNSS {dataset.gnss.t[0]:.3f}-{dataset.gnss.t[-1]:.3f} s); check the time bases "
+            "(--time-offset)"
+        )
+    parts = []
+    if withheld:
+        parts.append(f"{withheld} withheld by the outage windows")
+    if counts["gated_pdop"]:
+        parts.append(
+            f"{counts['gated_pdop']} gated by PDOP > {config.pdop_max} ([gnss] pdop_max)"
+        )
+    if counts["gated_quality"]:
+        parts.append(
+            f"{counts['gated_quality']} by fix quality < {config.min_fix_quality} (0 = no fix; "
+            "[gnss] min_fix_quality)"
+        )
+    if outside:
+        parts.append(f"{outside} outside the IMU time span")
+    return InputError(f"{name}: no usable GNSS epoch of {total}: " + ", ".join(parts))

@@ -15,7 +15,7 @@ from gtsam.symbol_shorthand import B, V, X
 
 from fgins.alignment import Alignment, initial_alignment
 from fgins.config import GnssConfig, ImuNoise, RunConfig
-from fgins.datatypes import Dataset, InputError
+from fgins.datatypes import Dataset
 from fgins.factors import baro as baro_model
 from fgins.factors import gnss as gnss_model
 from fgins.factors import imu as imu_model
@@ -521,49 +521,6 @@ def _keys(symbol, keyframes: np.ndarray) -> np.ndarray:
     return np.array([symbol(int(k)) for k in keyframes], dtype=np.int64)
 
 
-def _gnss_selection(
-    dataset: Dataset, config: RunConfig, gnss_mask: np.ndarray | None
-) -> tuple[np.ndarray, dict[str, int]]:
-    """Usable epochs and counts that add up: every epoch is counted once, outage first
-    (a withheld epoch is never "rejected for PDOP"), then the IMU span, then the gates (the
-    order of :func:`fgins.factors.gnss.gate_epochs`: an epoch the IMU does not cover is
-    "outside the IMU span" whatever its PDOP)."""
-    gnss, imu = dataset.gnss, dataset.imu
-    kept = np.ones(len(gnss), dtype=bool) if gnss_mask is None else np.asarray(gnss_mask, bool)
-    gate = gnss_model.gate_epochs(
-        gnss.subset(kept), config.gnss, imu_span=(float(imu.t[0]), float(imu.t[-1]))
-    )
-    usable = np.zeros(len(gnss), dtype=bool)
-    usable[kept] = gate.usable
-    counts = {
-        "total": len(gnss),
-        "withheld": int((~kept).sum()),
-        "gated_pdop": gate.rejected_pdop,
-        "gated_quality": gate.rejected_quality,
-        "outside_imu_span": gate.outside_span,
-    }
-    return usable, counts
-
-
-def _no_gnss_error(dataset: Dataset, config: RunConfig, counts: dict[str, int]) -> InputError:
-    """Why no GNSS epoch is usable, naming the actual cause."""
-    imu = dataset.imu
-    name = dataset.name or "input"
-    if counts["withheld"] == counts["total"]:
-        return InputError(f"{name}: the GNSS outage windows withhold every GNSS epoch")
-    if counts["outside_imu_span"]:
-        return InputError(
-            f"{name}: no usable GNSS epoch within the IMU time span "
-            f"({imu.t[0]:.3f}-{imu.t[-1]:.3f} s; GNSS {dataset.gnss.t[0]:.3f}-"
-            f"{dataset.gnss.t[-1]:.3f} s); check the time bases (--time-offset)"
-        )
-    return InputError(
-        f"{name}: no usable GNSS epoch: {counts['withheld']} withheld by outages, "
-        f"{counts['gated_pdop']} gated by PDOP > {config.gnss.pdop_max}, "
-        f"{counts['gated_quality']} by fix quality < {config.gnss.min_fix_quality}"
-    )
-
-
 def _gating_summary(counts: dict[str, int], used: int, decimated: int, config: RunConfig) -> str:
     parts = [f"{used} used"]
     if counts["withheld"]:
@@ -583,9 +540,9 @@ def build_problem(
 ) -> Problem:
     """Keyframes and GNSS assignment (preintegration comes later, about a bias estimate).
     ``gnss_mask`` withholds epochs (outages)."""
-    usable, counts = _gnss_selection(dataset, config, gnss_mask)
+    usable, counts = gnss_model.select_epochs(dataset, config.gnss, gnss_mask)
     if not np.any(usable):
-        raise _no_gnss_error(dataset, config, counts)
+        raise gnss_model.no_usable_gnss_error(dataset, config.gnss, counts)
     imu = dataset.imu
     noise, bias_notes = imu_model.conditioned_noise(
         config.imu_noise(), float(imu.t[-1] - imu.t[0])

@@ -327,6 +327,30 @@ def test_no_usable_gnss_is_an_input_error(car_urban):
         run_ekf(run.dataset, config, gnss_mask=np.zeros(len(run.dataset.gnss), bool))
 
 
+@pytest.mark.parametrize("method", ["batch", "ekf", "ekf-rts"])
+@pytest.mark.parametrize("cause", ["quality", "pdop"])
+def test_every_fix_gated_names_the_gate_not_the_clocks(car_urban, method, cause):
+    """Every fix gated (fix quality 0, or a PDOP gate below every PDOP) used to end in "no
+    usable GNSS epoch within the IMU time span; check the time bases" for the Kalman
+    baselines: the clocks were fine. The graph and the filters now share the counts."""
+    from dataclasses import replace
+
+    from fgins.pipeline import run_method
+
+    run, config = car_urban
+    gnss = run.dataset.gnss
+    if cause == "quality":
+        gnss = replace(gnss, fix_quality=np.zeros(len(gnss)))
+        expect = rf"no usable GNSS epoch of {len(gnss)}: {len(gnss)} by fix quality < 1"
+    else:
+        gnss = replace(gnss, pdop=np.full(len(gnss), 3.0))
+        config = replace(config, gnss=replace(config.gnss, pdop_max=1.0))
+        expect = rf"no usable GNSS epoch of {len(gnss)}: {len(gnss)} gated by PDOP > 1.0"
+    with pytest.raises(InputError, match=expect) as info:
+        run_method(replace(run.dataset, gnss=gnss), config, method, progress=False)
+    assert "time bases" not in str(info.value)
+
+
 def test_gnss_outside_the_imu_span_is_an_input_error(car_urban):
     run, config = car_urban
     gnss = run.dataset.gnss

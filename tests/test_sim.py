@@ -578,7 +578,7 @@ def test_sim_never_writes_over_a_folder_it_did_not_write(tmp_path: Path) -> None
     own.mkdir()
     (own / "imu.csv").write_text("my data\n")
     (own / "notes.txt").write_text("keep\n")
-    with pytest.raises(InputError, match="not empty .* not written by fgins sim"):
+    with pytest.raises(InputError, match=r"not empty .* not written by fgins sim"):
         write_sim_dir(SCENARIOS["car-urban"](seed=1, duration_s=20), own)
     assert (own / "imu.csv").read_text() == "my data\n"
     assert sorted(p.name for p in own.iterdir()) == ["imu.csv", "notes.txt"]
