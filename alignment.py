@@ -43,6 +43,9 @@ class Alignment:
     velocity_sigma: float
     position_sigma: float
     moving: bool
+    # At rest by the IMU, but the fixes' fit did not rule out a steady motion (the velocity
+    # sigma covers it): stops at the start wait until the fixes can tell.
+    steady_motion_possible: bool = False
 
 
 # How a vehicle travels relative to its forward axis (:func:`_travel`).
@@ -147,6 +150,7 @@ def initial_alignment(
         velocity_sigma=later.velocity_sigma + 0.1 * lead,
         position_sigma=later.position_sigma + 0.05 * lead**2 + later.velocity_sigma * lead,
         moving=later.moving,
+        steady_motion_possible=later.steady_motion_possible,
     )
 
 
@@ -342,17 +346,24 @@ def _align_at(
         dataset, gnss_t, gnss_enu, t0, first, heading_deg, moving_speed, forward_axis,
         gyro_bias_sigma, travel, static,
     )  # fmt: skip
+    # A quiet IMU is at rest or moving at a constant velocity. Where the fixes' fit says it
+    # moves (over 2 of its sigmas) but not far enough to rule out a converging receiver's
+    # drift (the medians above), either may be true: rest, with a sigma that covers the
+    # fitted speed. A car reversing at a steady 3 m/s was started at 0 +- 0.5 m/s (fit 3.2
+    # +- 1.0): iSAM2's online pass never recovered (20 m off in its first outage).
+    velocity_sigma = 0.5
+    if static and speed > 2.0 * speed_sigma:
+        velocity_sigma = max(velocity_sigma, speed)
     return Alignment(
         t=t0,
         rotation=rotation,
         velocity=np.zeros(3) if static else velocity,
         position=position,
-        attitude_sigma_rad=np.radians(
-            [2.0, 2.0, heading_sigma_deg]
-        ),
-        velocity_sigma=0.5,
+        attitude_sigma_rad=np.radians([2.0, 2.0, heading_sigma_deg]),
+        velocity_sigma=velocity_sigma,
         position_sigma=2.0,
         moving=False,
+        steady_motion_possible=velocity_sigma > 0.5,
     )
 
 

@@ -40,6 +40,48 @@ def speed_confirms_stop(speed: float | None, sigma: float | None, max_speed: flo
     return speed < max(STOP_SPEED_FLOOR_M_PER_S, STOP_SPEED_SIGMAS * sigma)
 
 
+GNSS_MOTION_WINDOW_S = 4.0  # fixes this far back from a keyframe show whether it moves
+GNSS_MOTION_MIN_SPAN_S = 2.0
+
+
+def gnss_moving(
+    times: np.ndarray,
+    gnss_t: np.ndarray,
+    gnss_enu: np.ndarray,
+    gnss_sigma: np.ndarray,
+    moving_before_fixes: bool = False,
+) -> np.ndarray:
+    """True (K,) where the fixes of the last ``GNSS_MOTION_WINDOW_S`` before each time moved
+    further than their own noise can fake: the chord's horizontal speed above
+    ``STOP_SPEED_SIGMAS`` sigmas (from the two fixes' sigmas) and the floor. Causal, so the
+    online solvers can use it: an estimate that starts at 0 +- 3 m/s (a quiet IMU at a
+    steady speed) cannot refuse a stop by its sigma, the fixes can (a car reversing at 3
+    m/s from the first sample was held still by iSAM2's online pass, 20 m off).
+    ``moving_before_fixes``: the answer for the times before the fixes can first tell (the
+    alignment's: True when it could not rule out a steady motion at the start).
+    """
+    times = np.asarray(times, dtype=float)
+    out = np.zeros(len(times), dtype=bool)
+    if len(gnss_t) < 2:
+        return out
+    last = np.searchsorted(gnss_t, times, side="right") - 1
+    first = np.searchsorted(gnss_t, times - GNSS_MOTION_WINDOW_S, side="left")
+    ok = (last >= 0) & (last > first)
+    first, last = np.clip(first, 0, len(gnss_t) - 1), np.clip(last, 0, len(gnss_t) - 1)
+    span = gnss_t[last] - gnss_t[first]
+    ok &= span >= GNSS_MOTION_MIN_SPAN_S
+    with np.errstate(invalid="ignore", divide="ignore"):
+        chord = np.linalg.norm(gnss_enu[last, :2] - gnss_enu[first, :2], axis=1) / span
+        sigma = np.sqrt(np.sum(gnss_sigma[first, :2] ** 2 + gnss_sigma[last, :2] ** 2, axis=1)
+                        / 2.0) * np.sqrt(2.0) / span  # fmt: skip
+    out[ok] = chord[ok] > np.maximum(STOP_SPEED_FLOOR_M_PER_S, STOP_SPEED_SIGMAS * sigma[ok])
+    if moving_before_fixes and np.any(ok):
+        out[times < times[np.argmax(ok)]] = True
+    elif moving_before_fixes:
+        out[:] = True
+    return out
+
+
 def speed_sigma(velocity_cov: np.ndarray) -> float:
     """The largest sigma (m/s) of a velocity covariance (3, 3): the speed's, whatever its
     direction (at a stop the direction of the estimated velocity is noise); NaN if unknown."""

@@ -51,6 +51,8 @@ class Problem:
     gravity: np.ndarray
     omega_earth: np.ndarray
     quiet: np.ndarray  # (K,) the IMU is quiet around keyframe k (a stop, if the speed agrees)
+    # (K,) the fixes of the last seconds before keyframe k moved (stationary.gnss_moving)
+    gnss_moving: np.ndarray
     baro_pressure: np.ndarray  # (K,) mean pressure (Pa) around keyframe k, NaN where none
     odometer_speed: np.ndarray  # (K,) mean wheel speed (m/s) around keyframe k, NaN where none
     imu_to_vehicle: np.ndarray  # R_vi: IMU axes -> vehicle axes (fgins.mounting)
@@ -378,6 +380,7 @@ class Problem:
         stopped = (
             smoother.zupt
             and bool(self.quiet[k])
+            and not bool(self.gnss_moving[k])
             and self.speed_confirms_stop(predicted_speed, speed_sigma)
         )
         if stopped:
@@ -608,6 +611,9 @@ def build_problem(
         gravity=np.array([0.0, 0.0, -normal_gravity(dataset.origin.lat, dataset.origin.alt)]),
         omega_earth=earth_rate_enu(dataset.origin.lat),
         quiet=quiet,
+        gnss_moving=stationary.gnss_moving(
+            times, gnss.t, enu, sigma, moving_before_fixes=alignment.steady_motion_possible
+        ),
         baro_pressure=baro_pressure,
         odometer_speed=odometer_speed,
         imu_to_vehicle=imu_to_vehicle,
