@@ -21,10 +21,11 @@ imported by the functions that need them.
 from __future__ import annotations
 
 import math
+import numbers
 import os
 import time
 import warnings
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -67,6 +68,8 @@ __all__ = [
 
 #: Trajectory output formats, chosen by the file extension.
 OUTPUT_SUFFIXES = (".csv", ".geojson", ".kml", ".mcap", ".tum")
+#: Figure formats of :func:`plot` (and ``--plot``), chosen by the file extension.
+PLOT_SUFFIXES = (".png", ".pdf", ".svg")
 #: File names a folder input (``fgins sim`` output) is read from: an output never takes one of
 #: these names inside an input folder (it would become an input of the next run).
 INPUT_FOLDER_FILES = (
@@ -81,6 +84,63 @@ class FginsWarning(UserWarning):
 
 
 Window = tuple[float, float]
+
+
+# ---------------------------------------------------------------------------------------------
+# Argument checks of the public functions
+
+
+def _is_real(value: Any) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+
+
+def _is_number(value: Any) -> bool:
+    return _is_real(value) and math.isfinite(float(value))
+
+
+def _is_path(value: Any) -> bool:
+    return isinstance(value, (str, os.PathLike)) and isinstance(os.fspath(value), str)
+
+
+def _is_config(value: Any) -> bool:
+    from fgins.config import RunConfig
+
+    return _is_path(value) or isinstance(value, RunConfig)
+
+
+#: Argument kinds of :func:`_check_arguments`: kind -> (test, what a value must be).
+_ARGUMENT_KINDS: dict[str, tuple[Callable[[Any], bool], str]] = {
+    "bool": (lambda v: isinstance(v, bool), "True or False"),
+    "number": (_is_number, "a finite real number"),
+    "real": (_is_real, "a real number"),  # finite or not: the callee says which are usable
+    "seed": (
+        lambda v: isinstance(v, numbers.Integral) and not isinstance(v, bool) and v >= 0,
+        "a non-negative integer",
+    ),
+    "text": (lambda v: isinstance(v, str), "a string"),
+    "path": (_is_path, "a path (str or os.PathLike)"),
+    "config": (_is_config, "a TOML path or a fgins.config.RunConfig"),
+    "dataset": (lambda v: isinstance(v, Dataset), "a Dataset (from fgins.load)"),
+    "trajectory": (lambda v: isinstance(v, Trajectory), "a Trajectory (from fgins.smooth)"),
+}
+
+
+def _check_arguments(function: str, **arguments: tuple[Any, str]) -> None:
+    """Check the arguments of the public ``function``: each ``name=(value, kind)`` with a kind
+    of :data:`_ARGUMENT_KINDS`, ``"kind?"`` also allowing None. A wrong one is an
+    :class:`InputError` naming it and what it must be (not a TypeError deep inside)."""
+    for name, (value, kind) in arguments.items():
+        optional = kind.endswith("?")
+        if optional and value is None:
+            continue
+        test, what = _ARGUMENT_KINDS[kind.removesuffix("?")]
+        if not test(value):
+            shown = repr(value)
+            shown = shown if len(shown) <= 60 else shown[:57] + "..."
+            raise InputError(
+                f"{function}(): {name} must be {what}{' or None' if optional else ''}, "
+                f"not {type(value).__name__} {shown}"
+            )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -126,6 +186,10 @@ def configure(
     """
     from fgins.config import IMU_PRESETS, RunConfig, config_for_dataset
 
+    _check_arguments(
+        "configure", dataset=(dataset, "dataset"), config=(config, "config?"),
+        imu_preset=(imu_preset, "text?"), vehicle=(vehicle, "text?"), robust=(robust, "text?"),
+    )  # fmt: skip
     if isinstance(config, RunConfig):
         return config
     if imu_preset is not None and imu_preset not in IMU_PRESETS:
@@ -209,9 +273,16 @@ def load(
 
     if len(inputs) == 1 and isinstance(inputs[0], (list, tuple)):
         inputs = tuple(inputs[0])  # load(["imu.csv", "gnss.csv"]) as well
+    _check_arguments("load", **{f"inputs[{i}]": (item, "path") for i, item in enumerate(inputs)})
+    _check_arguments(
+        "load", config=(config, "config?"), imu_preset=(imu_preset, "text?"),
+        vehicle=(vehicle, "text?"), robust=(robust, "text?"), time_offset=(time_offset, "real"),
+        imu_topic=(imu_topic, "text?"), gnss_topic=(gnss_topic, "text?"),
+        progress=(progress, "bool"),
+    )  # fmt: skip
     items = [os.fspath(item) for item in inputs]
     dataset = load_dataset(
-        items, time_offset_s=time_offset, imu_topic=imu_topic, gnss_topic=gnss_topic,
+        items, time_offset_s=float(time_offset), imu_topic=imu_topic, gnss_topic=gnss_topic,
         progress=progress, vehicle=vehicle,
     )  # fmt: skip
     dataset.metadata["inputs"] = items
@@ -231,6 +302,10 @@ def _simulate(
     options: dict[str, Any] | None = None,
 ) -> tuple[Path, Any]:
     """Simulate and write; (folder, the scenario run with its dataset and truth)."""
+    _check_arguments(
+        "simulate", scenario=(scenario, "text"), output_dir=(output_dir, "path"),
+        seed=(seed, "seed"), duration=(duration, "number?"),
+    )  # fmt: skip
     try:
         from fgins.sim.scenarios import SCENARIOS
         from fgins.sim.writer import write_sim_dir
@@ -301,14 +376,19 @@ def _windows(gnss_outage: str | Iterable[Sequence[float]] | None) -> list[Window
         return []
     if isinstance(gnss_outage, str):
         return parse_windows(gnss_outage)
+    if not isinstance(gnss_outage, Iterable):
+        raise ConfigError(
+            "gnss_outage: must be a list of (start, end) pairs of seconds, e.g. [(60, 90)], or "
+            f"a string '60:90,150:180', not {type(gnss_outage).__name__} {gnss_outage!r}"
+        )
     windows = []
     for item in gnss_outage:
-        try:
-            start, end = (float(v) for v in item)
-        except (TypeError, ValueError):
+        pair = list(item) if isinstance(item, Iterable) and not isinstance(item, str) else []
+        if len(pair) != 2 or not all(_is_real(v) for v in pair):
             raise ConfigError(
                 f"gnss_outage: {item!r} is not a (start, end) pair of seconds, e.g. (60, 90)"
-            ) from None
+            )
+        start, end = float(pair[0]), float(pair[1])
         if not (math.isfinite(start) and math.isfinite(end)) or end <= start:
             raise ConfigError(f"gnss_outage: window {item!r} must have finite start < end")
         windows.append((start, end))
@@ -370,6 +450,10 @@ def smooth(
     from fgins.outages import empty_windows, outage_mask
     from fgins.pipeline import METHODS, run_method
 
+    _check_arguments(
+        "smooth", dataset=(dataset, "dataset"), method=(method, "text"),
+        config=(config, "config?"), online=(online, "bool"), progress=(progress, "bool"),
+    )  # fmt: skip
     if method not in METHODS:
         raise ConfigError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
     if online and method != "isam2":
@@ -426,6 +510,34 @@ def _input_paths(inputs: Iterable[str | os.PathLike[str]]) -> list[Path]:
     return paths
 
 
+#: Longest file or folder name, in bytes (NAME_MAX of Linux, macOS and Windows file systems).
+NAME_MAX_BYTES = 255
+#: What :func:`fgins.io.atomic.atomic_path` adds to an output's name for its temporary file
+#: beside it (``.NAME.XXXXXXXX.part``): the name itself must leave room for that.
+_TEMPORARY_NAME_EXTRA = 15
+
+
+def _shortened(path: str | os.PathLike[str]) -> str:
+    text = os.fspath(path)
+    return text if len(text) <= 100 else f"{text[:50]}...{text[-30:]}"
+
+
+def _check_name_lengths(path: str | os.PathLike[str], target: Path) -> None:
+    """Refuse a name the file system cannot hold (ENAMETOOLONG), with the limit said."""
+    parts = target.parts
+    for index, part in enumerate(parts):
+        last = index == len(parts) - 1
+        limit = NAME_MAX_BYTES - (_TEMPORARY_NAME_EXTRA if last else 0)
+        size = len(os.fsencode(part))
+        if size > limit:
+            kind = "file name" if last else f"folder name {_shortened(part)!r}"
+            raise OutputError(
+                f"{_shortened(path)}: {kind} too long ({size} bytes; at most {limit} bytes"
+                + (f", {NAME_MAX_BYTES} less the temporary name written first" if last else "")
+                + ")"
+            )
+
+
 def check_output(
     path: str | os.PathLike[str],
     inputs: Iterable[str | os.PathLike[str]] = (),
@@ -438,16 +550,36 @@ def check_output(
     The format must be known (from the extension); the nearest existing ancestor must be a
     writable folder (missing folders are created on writing), not a file; ``path`` must not be
     a folder, nor any of ``inputs`` (symlinks and hard links resolved), nor one of the file
-    names of an input folder (:data:`INPUT_FOLDER_FILES`), which would turn it into input.
+    names of an input folder (:data:`INPUT_FOLDER_FILES`), which would turn it into input;
+    no name in it may be longer than the file system allows.
 
     Returns the path as given. Raises :class:`OutputError` with a one-line message.
     """
+    _check_arguments("check_output", path=(path, "path"), what=(what, "text"))
     target = Path(path).expanduser()
     suffix = target.suffix.lower()
     if suffix not in suffixes:
         raise OutputError(
-            f"{path}: {what} format must be one of {', '.join(suffixes)} (from the extension)"
+            f"{_shortened(path)}: {what} format must be one of {', '.join(suffixes)} "
+            "(from the extension)"
         )
+    _check_name_lengths(path, target)
+    try:
+        _check_output_place(path, target, suffix, inputs)
+    except OSError as exc:  # a path the system refuses to look at (too long, no permission...)
+        raise OutputError(
+            f"{_shortened(path)}: cannot write there ({exc.strerror or type(exc).__name__})"
+        ) from None
+    return Path(path)
+
+
+def _check_output_place(
+    path: str | os.PathLike[str],
+    target: Path,
+    suffix: str,
+    inputs: Iterable[str | os.PathLike[str]],
+) -> None:
+    """The file-system half of :func:`check_output` (may raise OSError)."""
     if target.is_dir():
         raise OutputError(f"{path}: is a folder; give a file name ending in {suffix}")
     ancestor = target.parent if str(target.parent) else Path(".")
@@ -473,7 +605,6 @@ def check_output(
                 f"{path}: {target.name} is a file name the input folder {source} is read from; "
                 "write the output elsewhere or under another name"
             )
-    return Path(path)
 
 
 def write(
@@ -498,9 +629,15 @@ def write(
     -------
     >>> track.write(tmp_path / "track.tum")  # doctest: +SKIP
     """
+    _check_arguments(
+        "write", trajectory=(trajectory, "trajectory"), path=(path, "path"),
+        with_input=(with_input, "bool"),
+    )  # fmt: skip
     run = trajectory.info.get("run", {})
     inputs = run.get("inputs", []) if isinstance(run, dict) else []
     check_output(path, inputs)
+    if with_input:
+        _check_with_input(inputs, path, option="with_input=True")
     suffix = Path(path).suffix.lower()
     if suffix == ".csv":
         from fgins.io.trajectory_csv import write_trajectory_csv
@@ -517,13 +654,33 @@ def write(
     else:  # .mcap (check_output allowed nothing else)
         from fgins.io.mcap_writer import write_mcap
 
-        if with_input and not inputs:
-            raise OutputError(f"{path}: with_input needs a trajectory from fgins.smooth")
         write_mcap(
             trajectory, path, gnss=trajectory.info.get("source_gnss"),
             input_path=str(inputs[0]) if with_input else None,
         )  # fmt: skip
     return Path(path)
+
+
+def _check_with_input(
+    inputs: Sequence[str | os.PathLike[str]],
+    output: str | os.PathLike[str],
+    *,
+    option: str = "--with-input",
+) -> None:
+    """Copying the input's channels needs an MCAP output and one MCAP input: else an
+    :class:`OutputError` / :class:`InputError` saying what was given."""
+    if Path(output).suffix.lower() != ".mcap":
+        raise OutputError(f"{option} needs an MCAP output (got {_shortened(output)})")
+    items = [os.fspath(item) for item in inputs]
+    if len(items) == 1 and Path(items[0]).suffix.lower() == ".mcap" and Path(items[0]).is_file():
+        return
+    if not items:
+        got = "a trajectory without inputs; with_input needs one from fgins.smooth"
+    elif len(items) == 1 and Path(items[0]).is_dir():
+        got = f"the folder {items[0]}"
+    else:
+        got = " ".join(items)
+    raise InputError(f"{option} needs an MCAP input (got {got})")
 
 
 def to_dataframe(trajectory: Trajectory) -> pd.DataFrame:
@@ -539,6 +696,7 @@ def to_dataframe(trajectory: Trajectory) -> pd.DataFrame:
 
     from fgins.io.trajectory_csv import trajectory_columns
 
+    _check_arguments("to_dataframe", trajectory=(trajectory, "trajectory"))
     header, table = trajectory_columns(trajectory)
     return pd.DataFrame(table, columns=header)
 
@@ -567,6 +725,7 @@ def summary(trajectory: Trajectory) -> dict[str, Any]:
     """
     import numpy as np
 
+    _check_arguments("summary", trajectory=(trajectory, "trajectory"))
     out: dict[str, Any] = {
         "method": trajectory.method,
         "states": len(trajectory),
@@ -617,16 +776,35 @@ def _truth_for(dataset: Dataset, truth: Any) -> Trajectory | None:
     return read_trajectory_csv(truth, dataset.origin)
 
 
-def check_methods(methods: Iterable[str]) -> list[str]:
-    """``methods`` as a list, or a :class:`ConfigError` naming the unknown ones."""
+def check_methods(methods: str | Iterable[str], baseline: str | None = None) -> list[str]:
+    """``methods`` (names, or one comma-separated string) as a list, checked: at least one,
+    all known; and ``baseline``, when given, one of the rows they make (``isam2`` also makes
+    ``isam2-online``). Else a :class:`ConfigError` naming what is wrong."""
     from fgins.pipeline import METHODS
 
+    if isinstance(methods, str):
+        methods = [m.strip() for m in methods.split(",") if m.strip()]
+    elif not isinstance(methods, Iterable):
+        raise ConfigError(
+            f"--methods: must be a list of method names, not {type(methods).__name__} {methods!r}"
+        )
     methods = list(methods)
-    unknown = sorted(set(methods) - set(METHODS))
+    if not methods:
+        raise ConfigError(f"--methods: no method given; choose from {', '.join(METHODS)}")
+    unknown = sorted({str(m) for m in methods if not isinstance(m, str) or m not in METHODS})
     if unknown:
         raise ConfigError(
             f"--methods: unknown {', '.join(unknown)}; choose from {', '.join(METHODS)}"
         )
+    if baseline is not None:
+        rows = [*methods, *(["isam2-online"] if "isam2" in methods else [])]
+        if baseline not in rows:
+            known = "unknown method" if baseline not in METHODS else "not among --methods"
+            raise ConfigError(
+                f"--baseline {baseline!r}: {known}; the ratios are taken against a method of "
+                f"the same run: choose one of {', '.join(dict.fromkeys(rows))}"
+                + (" or add it to --methods" if baseline in METHODS else "")
+            )
     return methods
 
 
@@ -637,7 +815,7 @@ def bench(
     *,
     config: str | os.PathLike[str] | RunConfig | None = None,
     truth: Trajectory | str | os.PathLike[str] | None = "auto",
-    baseline: str = "ekf",
+    baseline: str | None = None,
     outage_duration: float = 30.0,
     outage_period: float = 90.0,
     outage_start: float = 60.0,
@@ -660,8 +838,10 @@ def bench(
     truth : Trajectory, path, "auto" or None, default "auto"
         Reference. ``"auto"``: a simulator folder's ``truth.csv`` when the dataset was loaded
         from one; otherwise (and with None) the withheld GNSS fixes themselves.
-    baseline : str, default "ekf"
-        Method the ``rms_ratio`` column is taken against (measured in the same run).
+    baseline : str, optional
+        Method the ``rms_ratio`` column is taken against (measured in the same run, so one
+        of ``methods``, or ``isam2-online`` with ``isam2``). Default: ``ekf`` when among
+        ``methods``, else the first of them.
     output_dir : path, optional
         Also write ``outages.json``, ``outages.md`` and one plot per case there.
 
@@ -682,7 +862,15 @@ def bench(
     from fgins.bench.outages import BenchCase, results_frame, run_case, write_results
     from fgins.outages import periodic_windows
 
-    methods = check_methods(methods)
+    _check_arguments(
+        "bench", dataset=(dataset, "dataset"), config=(config, "config?"),
+        baseline=(baseline, "text?"), outage_duration=(outage_duration, "number"),
+        outage_period=(outage_period, "number"), outage_start=(outage_start, "number"),
+        output_dir=(output_dir, "path?"), progress=(progress, "bool"),
+    )  # fmt: skip
+    methods = check_methods(methods, baseline)
+    if baseline is None:
+        baseline = "ekf" if "ekf" in methods else methods[0]
     if output_dir is not None and Path(output_dir).exists() and not Path(output_dir).is_dir():
         raise OutputError(f"{output_dir}: exists and is not a folder")
     run_config = (
@@ -728,7 +916,23 @@ def plot(
     """
     from fgins.bench.plots import plot_track_and_errors
 
-    items = [trajectories] if isinstance(trajectories, Trajectory) else list(trajectories)
+    items = (
+        [trajectories]
+        if isinstance(trajectories, Trajectory) or not isinstance(trajectories, Iterable)
+        else list(trajectories)
+    )
+    if not items:
+        raise InputError("plot(): trajectories is empty; give a Trajectory (from fgins.smooth)")
+    _check_arguments(
+        "plot", **{f"trajectories[{i}]": (item, "trajectory") for i, item in enumerate(items)}
+    )
+    _check_arguments(
+        "plot", dataset=(dataset, "dataset"), path=(path, "path?"), title=(title, "text")
+    )
+    if path is not None:
+        run = items[0].info.get("run", {})
+        inputs = run.get("inputs", []) if isinstance(run, dict) else []
+        check_output(path, inputs, suffixes=PLOT_SUFFIXES, what="plot")
     if gnss_outage is None:
         run = items[0].info.get("run", {}) if items else {}
         windows = list(run.get("gnss_outage", [])) if isinstance(run, dict) else []

@@ -17,11 +17,12 @@ import numpy as np
 from fgins import __version__, api
 from fgins.config import IMU_PRESETS, RunConfig
 from fgins.datatypes import Dataset, FginsError, Trajectory
+from fgins.io.inputs import check_time_offset
 from fgins.outages import parse_windows
 from fgins.pipeline import METHODS
 
 OUTPUT_SUFFIXES = api.OUTPUT_SUFFIXES
-PLOT_SUFFIXES = (".png", ".pdf", ".svg")
+PLOT_SUFFIXES = api.PLOT_SUFFIXES
 GNSS_OUTPUT_SUFFIXES = (".csv", ".geojson", ".kml", ".tum")
 
 
@@ -104,7 +105,10 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--outage-duration", type=float, default=30.0)
     bench.add_argument("--outage-period", type=float, default=90.0)
     bench.add_argument("--outage-start", type=float, default=60.0)
-    bench.add_argument("--baseline", default="ekf", help="method the ratios are taken against")
+    bench.add_argument(
+        "--baseline",
+        help="method of --methods the ratios are taken against (default: ekf if run, else the first)",
+    )
     bench.add_argument("-o", "--output-dir", type=Path, default=Path("out/bench"))
     _add_sensor_options(bench)
 
@@ -197,6 +201,8 @@ def _report(dataset: Dataset, trajectory: Trajectory) -> None:
 def cmd_smooth(args: argparse.Namespace) -> int:
     # Every output is checked before any work (a bad path is not found after the solve).
     api.check_output(args.output, args.inputs)
+    if args.with_input:
+        api._check_with_input(args.inputs, args.output)
     if args.plot:
         api.check_output(
             args.plot, [*args.inputs, args.output], suffixes=PLOT_SUFFIXES, what="plot"
@@ -251,17 +257,24 @@ def cmd_demo(args: argparse.Namespace) -> int:
     print(
         f"  GNSS withheld in {', '.join(f'{a:g}-{b:g} s' for a, b in windows)} after the first epoch"
     )
-    print(
-        f"  horizontal error inside the outage vs withheld GNSS: RMS {summary['h_rms_outage']:.2f} m, "
-        f"max {summary['h_max_outage']:.2f} m"
-    )
+    # What smooth warns of (a window that withholds nothing, a doubtful fit), said here too.
+    for warning in trajectory.info.get("fit_warnings", []):
+        print(f"warning: {warning}", file=sys.stderr)
+    measured = bool(np.isfinite(summary["h_rms_outage"]))
+    if measured:
+        print(
+            f"  horizontal error inside the outage vs withheld GNSS: RMS {summary['h_rms_outage']:.2f} m, "
+            f"max {summary['h_max_outage']:.2f} m"
+        )
+    else:
+        print("  horizontal error inside the outage: not measured (no GNSS epoch withheld)")
     print(f"  horizontal RMS at GNSS epochs used: {summary['h_rms_aided']:.3f} m")
     if "within_3sigma_outage" in summary:
         print(
             f"  outage epochs inside the reported 3-sigma: {100 * summary['within_3sigma_outage']:.0f}%"
         )
     print(f"  wall time {elapsed:.2f} s ({len(dataset.imu) / elapsed:,.0f} IMU samples/s)")
-    if args.method != "ekf":
+    if args.method != "ekf" and measured:
         # The same data and outage through the forward EKF baseline, for scale.
         ekf = api.smooth(dataset, "ekf", gnss_outage=windows, progress=False)
         ekf_summary = errors_against(ekf, dataset.gnss.t, gnss_enu, dataset.t0, windows).summary()
@@ -314,7 +327,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
     from fgins.bench.outages import frame_to_markdown
 
-    methods = api.check_methods([m for m in args.methods.split(",") if m])
+    methods = api.check_methods(args.methods, args.baseline)  # before any work
     api.check_output(args.output_dir / "outages.json", args.inputs, suffixes=(".json",))
     windows = parse_windows(args.gnss_outage)
     started = time.perf_counter()
@@ -324,7 +337,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         outage_duration=args.outage_duration, outage_period=args.outage_period,
         outage_start=args.outage_start, output_dir=args.output_dir, progress=_progress(args),
     )  # fmt: skip
-    print(frame_to_markdown(table, baseline=args.baseline))
+    print(frame_to_markdown(table, baseline=table.attrs["baseline"]))
     reference = (
         "simulator truth" if table.attrs["reference"] == "truth" else "the withheld GNSS fixes"
     )
@@ -365,7 +378,7 @@ def cmd_convert(args: argparse.Namespace) -> int:
         print(convert_ubx_imu(args.input, args.output), file=sys.stderr)
         return 0
     api.check_output(args.output, [args.input], suffixes=GNSS_OUTPUT_SUFFIXES, what="GNSS output")
-    gnss, warnings = _read_gnss_only(args.input, args.time_offset)
+    gnss, warnings = _read_gnss_only(args.input, check_time_offset(args.time_offset))
     if args.output.suffix.lower() == ".tum":
         _write_gnss_tum(gnss, args.output)
     else:

@@ -233,6 +233,31 @@ def _smooth_and_write(drive: Drive, options: FleetOptions, output: Path) -> dict
 # The fleet
 
 
+def check_scheduler_address(address: str) -> str:
+    """``address`` if it has the form of a Dask scheduler address (``tcp://host:port``, or
+    another scheme Dask knows), else an :class:`InputError` naming ``--scheduler``. Whether a
+    scheduler answers there is found on connecting."""
+    from distributed.comm.addressing import parse_address, parse_host_port
+    from distributed.comm.registry import backends
+
+    try:
+        if not isinstance(address, str) or not address.strip() or any(c.isspace() for c in address):
+            raise ValueError
+        scheme, location = parse_address(address)
+        if scheme not in backends:
+            raise ValueError
+        if scheme != "inproc":
+            host, port = parse_host_port(location)
+            if not host or not 0 < int(port) < 65536:
+                raise ValueError
+    except (ValueError, TypeError):
+        raise InputError(
+            f"--scheduler {address!r}: not a Dask scheduler address; expected tcp://HOST:PORT "
+            "(e.g. tcp://10.0.0.5:8786), or omit --scheduler for a local cluster"
+        ) from None
+    return address
+
+
 @contextlib.contextmanager
 def _client(
     workers: int | None, scheduler: str | None, connect_timeout_s: float = 10.0
@@ -319,6 +344,8 @@ def run_fleet(
         raise InputError(
             f"output format {options.output_format!r}: choose one of {', '.join(FORMATS)}"
         )
+    if scheduler is not None:
+        check_scheduler_address(scheduler)
     names = [d.name for d in drives]
     if len(set(names)) != len(names):
         raise InputError("two drives share an output name; rename one of them")

@@ -37,6 +37,24 @@ def validated(dataset: Dataset, vehicle: str | None = None) -> Dataset:
     return validate_dataset(dataset, vehicle=vehicle)
 
 
+#: Largest ``--time-offset`` magnitude taken (s, about 317 years; GNSS in seconds of the day
+#: against an IMU in POSIX time needs ~1.8e9): beyond it the offset is a mistake
+#: (nanoseconds), not a clock difference.
+MAX_TIME_OFFSET_S = 1e10
+
+
+def check_time_offset(time_offset_s: float) -> float:
+    """``time_offset_s`` if it is a usable clock offset, else an :class:`InputError`."""
+    if not math.isfinite(time_offset_s):
+        raise InputError(f"--time-offset {time_offset_s}: must be a finite number of seconds")
+    if abs(time_offset_s) > MAX_TIME_OFFSET_S:
+        raise InputError(
+            f"--time-offset {time_offset_s:g}: more than {MAX_TIME_OFFSET_S:g} s (about 317 years) "
+            "from zero; it is seconds added to the GNSS times (e.g. -18 for GPS time against UTC)"
+        )
+    return time_offset_s
+
+
 def load_dataset(
     inputs: list[str],
     *,
@@ -51,8 +69,7 @@ def load_dataset(
     track, which a multirotor need not).
     ``time_offset_s`` is added to the GNSS times, whatever the format (a receiver logging
     GPS time against an IMU in UTC: -18)."""
-    if not math.isfinite(time_offset_s):
-        raise InputError(f"--time-offset {time_offset_s}: must be a finite number of seconds")
+    check_time_offset(time_offset_s)
     dataset = _parse(
         inputs,
         time_offset_s=time_offset_s,
