@@ -60,10 +60,19 @@ def _gnss_fit(
     return position, velocity, acceleration
 
 
+# Residuals of fewer degrees of freedom than this say little about the fixes' noise: their
+# own sigma (or this default, metre-level autonomous GNSS) is the floor.
+FIT_MIN_DOF = 3
+DEFAULT_FIX_SIGMA_M = 3.0
+
+
 def _gnss_fit_with_sigma(
-    t: np.ndarray, enu: np.ndarray, t_eval: float
+    t: np.ndarray, enu: np.ndarray, t_eval: float, fix_sigma: float | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-    """As :func:`_gnss_fit`, plus the 1-sigma of the horizontal speed from the residuals."""
+    """As :func:`_gnss_fit`, plus the 1-sigma of the horizontal speed: from the residuals,
+    and with few of them at least from ``fix_sigma`` (m, horizontal per axis). Two fixes
+    used to give a sigma of 0 (no residual): a speed of 23 +- 0 m/s from fixes 3 m apart
+    in noise, the dead reckoning after them 4-5x more certain than its errors."""
     dt = t - t_eval
     degree = 2 if len(t) >= 4 else 1
     design = np.vander(dt, degree + 1, increasing=True)
@@ -72,11 +81,14 @@ def _gnss_fit_with_sigma(
     velocity = coeffs[1]
     acceleration = 2 * coeffs[2] if degree == 2 else np.zeros(3)
     dof = len(t) - (degree + 1)
-    if dof <= 0:
-        return position, velocity, acceleration, 0.0
-    residual = enu[:, :2] - design @ coeffs[:, :2]
-    noise = float(np.sqrt(np.sum(residual**2) / (2 * dof)))
-    covariance = np.linalg.inv(design.T @ design)
+    noise = 0.0
+    if dof > 0:
+        residual = enu[:, :2] - design @ coeffs[:, :2]
+        noise = float(np.sqrt(np.sum(residual**2) / (2 * dof)))
+    if dof < FIT_MIN_DOF:
+        floor = fix_sigma if fix_sigma is not None and np.isfinite(fix_sigma) else None
+        noise = max(noise, DEFAULT_FIX_SIGMA_M if floor is None else floor)
+    covariance = np.linalg.pinv(design.T @ design)
     return position, velocity, acceleration, noise * float(np.sqrt(covariance[1, 1]))
 
 
@@ -294,9 +306,12 @@ def _align_at(
     window = gnss_t <= max(gnss_t[0], t0) + fit_window_s
     if window.sum() < 3:
         window = np.arange(len(gnss_t)) < 3
+    std = dataset.gnss.std
+    horizontal = std[:, :2][np.isfinite(std[:, :2])] if std is not None else np.zeros(0)
     position, velocity, acceleration, speed_sigma = _gnss_fit_with_sigma(
-        gnss_t[window], gnss_enu[window], t0
-    )
+        gnss_t[window], gnss_enu[window], t0,
+        float(np.median(horizontal)) if len(horizontal) else None,
+    )  # fmt: skip
     speed = float(np.linalg.norm(velocity[:2]))
     # Motion must stand out of the fit's own noise (metre-level fixes fake m/s at rest).
     moving_speed = max(moving_speed, 3.0 * speed_sigma)
@@ -328,15 +343,18 @@ def _align_at(
         ):
             forward = -forward  # reversing: the body's forward axis points against the track
         rotation = triad(specific_force, forward_axis, nav_force, forward)
+        course_sigma_deg = max(10.0, float(np.degrees(np.arctan2(speed_sigma, max(speed, 1e-3)))))
         if heading_deg is not None:
             rotation = _with_heading(rotation, heading_deg, forward_axis)
+            course_sigma_deg = 2.0
         return Alignment(
             t=t0,
             rotation=rotation,
             velocity=velocity,
             position=position,
-            attitude_sigma_rad=np.radians([3.0, 3.0, 10.0 if heading_deg is None else 2.0]),
-            velocity_sigma=1.0,
+            # The course's own uncertainty (a fit over few or noisy fixes) bounds the heading.
+            attitude_sigma_rad=np.radians([3.0, 3.0, course_sigma_deg]),
+            velocity_sigma=max(1.0, float(speed_sigma)),
             position_sigma=2.0,
             moving=True,
         )
@@ -466,6 +484,25 @@ def _imu_static(gyro: np.ndarray, accel: np.ndarray, gravity: float) -> bool:
     )
 
 
+# A first-motion chord at speed v needs the accelerometer (less its rest level) to have
+# integrated to at least this fraction of v since the start, or CHORD_SPEED_SEEN_M_PER_S.
+CHORD_SPEED_SEEN_FRACTION = 0.25
+CHORD_SPEED_SEEN_M_PER_S = 1.0
+
+
+def _imu_saw_speed(imu, rest_force: np.ndarray, t0: float, t1: float, speed: float) -> bool:
+    """Did the IMU, at rest at ``t0``, pick up speed by ``t1``? The specific force less its
+    rest level, integrated (the velocity change in body axes, near enough over a start
+    that turns little): a vehicle that stood still has ~0 however far its fixes jump (two
+    fixes 23 m apart in 1 s at a standstill gave a heading 34 deg off with an 8 deg sigma)."""
+    inside = (imu.t >= t0) & (imu.t <= t1)
+    if inside.sum() < 2:
+        return True
+    dt = np.diff(imu.t[inside], append=imu.t[inside][-1])
+    gained = float(np.linalg.norm(((imu.accel[inside] - rest_force) * dt[:, None]).sum(axis=0)))
+    return gained >= min(CHORD_SPEED_SEEN_FRACTION * speed, CHORD_SPEED_SEEN_M_PER_S)
+
+
 def _heading_from_first_motion(
     dataset: Dataset,
     gnss_t: np.ndarray,
@@ -521,6 +558,10 @@ def _heading_from_first_motion(
         span = gnss_t[j] - gnss_t[k]
         length = float(np.linalg.norm(chord))
         if length >= min_chord_m and length / span >= moving_speed:
+            if rest_force is not None and not _imu_saw_speed(
+                imu, rest_force, t0, float(gnss_t[j]), length / span
+            ):
+                continue  # fixes that jump while the IMU stays at rest: noise, not motion
             for m in range(j + 1, int(stretch_end[k]) + 1):  # while the vehicle goes straight
                 if abs(yaw_at(gnss_t[m]) - yaw_at(gnss_t[k])) > np.radians(STRAIGHT_TURN_DEG):
                     break

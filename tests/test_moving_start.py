@@ -18,6 +18,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pymap3d
 import pytest
 
@@ -249,3 +250,35 @@ def test_a_multirotor_flying_sideways_is_aligned_from_its_accelerations(tmp_path
     alignment, error = _heading_error(tmp_path, profile, 70.0, int(heading0), "uav", true_heading)
     sigma = np.degrees(alignment.attitude_sigma_rad[2])
     assert abs(error) < max(3.0 * sigma, 5.0) and sigma < 20.0, (error, sigma)
+
+
+def test_fixes_that_jump_while_the_imu_stands_still_give_no_heading(tmp_path):
+    """Two fixes only, 1 s apart while the car still stands, the second 23 m off (noise or
+    multipath). The first-motion heading took that chord as the course, with an 8 deg
+    sigma (an outside tester's drive: 34 deg off, the dead reckoning after it 4x more
+    certain than its errors). A chord the IMU did not pick up speed for is not motion: the
+    heading at the start stays unknown."""
+    profile = CarProfile(steps=[(20, 8, 12.0)], turns=[(35, 41, 1.5, 0.2)],
+                         gamma=lambda t: 0.0 * np.asarray(t, float))  # fmt: skip
+    write_drive(tmp_path, profile, 60.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
+                gnss_rate=1.0, seed=4)  # fmt: skip
+    gnss = pd.read_csv(tmp_path / "gnss.csv")
+    two = gnss[(gnss.time >= 10.0) & (gnss.time <= 11.0)].copy()
+    two.loc[two.time == 11.0, "lat"] += 23.0 / 111_320.0  # 23 m north
+    two.to_csv(tmp_path / "gnss.csv", index=False)
+    dataset = fgins.load(tmp_path / "imu.csv", tmp_path / "gnss.csv",
+                         config=tmp_path / "cfg.toml", vehicle="car")  # fmt: skip
+    config = fgins.configure(dataset, tmp_path / "cfg.toml", vehicle="car")
+    alignment = initial_alignment(dataset, smoother=config.smoother)
+    assert np.degrees(alignment.attitude_sigma_rad[2]) >= 90.0
+    # The same two fixes after the car has pulled away do give its course.
+    moving = gnss[(gnss.time >= 30.0) & (gnss.time <= 33.0)]
+    moving.to_csv(tmp_path / "gnss.csv", index=False)
+    dataset = fgins.load(tmp_path / "imu.csv", tmp_path / "gnss.csv",
+                         config=tmp_path / "cfg.toml", vehicle="car")  # fmt: skip
+    alignment = initial_alignment(dataset, smoother=config.smoother)
+    forward = alignment.rotation[:, 0]
+    heading = np.degrees(np.arctan2(forward[0], forward[1]))
+    assert abs((heading - 60.0 + 180.0) % 360.0 - 180.0) < 3 * np.degrees(
+        alignment.attitude_sigma_rad[2]
+    ) < 30.0
