@@ -324,10 +324,21 @@ def read_gnss_csv(path: str | Path, warnings: list[str] | None = None) -> GnssDa
             [columns[n][index] if n in columns else np.full(len(index), np.nan) for n in names]
         )
 
+    # speed/course (m/s, degrees from north) give the horizontal velocity where the vel_*
+    # columns do not (absent, or empty cells): vel_* win where both are given.
+    velocity = triple(["vel_east", "vel_north", "vel_up"])
+    if "speed" in columns and "course" in columns:
+        speed, course = columns["speed"][index], columns["course"][index]
+        fill = np.isfinite(speed) & np.isfinite(course)
+        if velocity is not None:
+            fill &= ~np.any(np.isfinite(velocity[:, :2]), axis=1)
+        if fill.any():
+            velocity = np.full((len(index), 3), np.nan) if velocity is None else velocity
+            velocity[fill, :2] = _velocity_from_speed_course(speed[fill], course[fill])[:, :2]
     return GnssData(
         t=t[index],
         lla=lla[index],
-        velocity=triple(["vel_east", "vel_north", "vel_up"]),
+        velocity=velocity,
         std=triple(["std_east", "std_north", "std_up"]),
         hdop=column("hdop"),
         vdop=column("vdop"),
@@ -336,6 +347,16 @@ def read_gnss_csv(path: str | Path, warnings: list[str] | None = None) -> GnssDa
         num_sats=column("num_sats"),
         speed=column("speed"),
         course=column("course"),
+    )
+
+
+def _velocity_from_speed_course(speed: np.ndarray, course: np.ndarray) -> np.ndarray:
+    """ENU velocity (m/s) from speed over ground (m/s) and course over ground (degrees
+    clockwise from north), as the NMEA reader builds it; no vertical component (NaN). The
+    validation layer checks it against the fixes' own track (km/h, radians are errors)."""
+    course_rad = np.radians(course)
+    return np.column_stack(
+        [speed * np.sin(course_rad), speed * np.cos(course_rad), np.full(len(speed), np.nan)]
     )
 
 

@@ -20,6 +20,7 @@ import math
 import os
 import struct
 import tempfile
+import zlib
 from array import array
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -29,8 +30,8 @@ from typing import Any
 import numpy as np
 from mcap.exceptions import InvalidMagic
 from mcap.reader import make_reader
-from mcap.records import Channel, Chunk, Footer, Message, Schema
-from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap.records import Channel, Chunk, Footer, Message, MessageIndex, Schema
+from mcap.stream_reader import StreamReader
 
 from fgins.datatypes import BaroData, Dataset, GnssData, ImuData, InputError, Origin
 from fgins.io.imu_checks import imu_from_samples
@@ -112,6 +113,17 @@ class _ByteProgress:
 
 
 @dataclass
+class _DamagedChunk:
+    """A complete chunk record whose content is damaged (corrupt bytes inside it)."""
+
+    at: int  # file offset of the chunk record
+    why: str
+    read: int = 0  # messages read from it, before the damage
+    dropped: int = 0  # messages parsed but not used (a failed CRC: no message trusted)
+    indexed: int = 0  # messages its message-index records list (0: no index)
+
+
+@dataclass
 class _StreamOutcome:
     truncated: bool = False
     error: str = ""
@@ -121,6 +133,10 @@ class _StreamOutcome:
     torn_chunk: str = ""  # how much of the chunk the cut went through could be read
     messages: int = 0
     last_log_time_ns: int | None = None
+    damaged: list[_DamagedChunk] = field(default_factory=list)
+    # A top-level record that does not parse in a file that ends with its magic: corrupt
+    # bytes, not a cut; nothing after it can be framed (-1: none).
+    damaged_record_at: int = -1
 
 
 _CHUNK_OPCODE = 0x06
@@ -155,11 +171,179 @@ def _decompress_prefix(compression: str, data: bytes) -> tuple[bytes, str]:
     return b"", f"compression {compression!r} not supported for a torn chunk"
 
 
-def _records_in_torn_chunk(body: bytes, outcome: _StreamOutcome) -> Iterator[Any]:
-    """The complete Schema/Channel/Message records inside a chunk cut off by the file's end."""
+class _ChunkDamage(Exception):
+    """Raised by :func:`_chunk_records` at the first damaged record of a chunk."""
+
+    def __init__(self, offset: int, why: str) -> None:
+        super().__init__(why)
+        self.offset = offset
+
+
+def _chunk_records(data: bytes, offset: int) -> Iterator[Any]:
+    """The Schema/Channel/Message records of a chunk's (decompressed) records from byte
+    ``offset`` on, in order. Raises :class:`_ChunkDamage` at the first one that does not
+    parse: a header cut at the end, a length past the end, or bytes that are no Schema,
+    Channel or Message record (a chunk holds only these)."""
     from io import BytesIO
 
     from mcap.data_stream import ReadDataStream
+
+    while offset < len(data):
+        if offset + 9 > len(data):
+            raise _ChunkDamage(offset, f"a record header cut at byte {offset} of {len(data)}")
+        opcode = data[offset]
+        (length,) = struct.unpack_from("<Q", data, offset + 1)
+        end = offset + 9 + length
+        if opcode not in (_MESSAGE_OPCODE, _SCHEMA_OPCODE, _CHANNEL_OPCODE):
+            raise _ChunkDamage(offset, f"no record at byte {offset} of {len(data)}")
+        if end > len(data):
+            raise _ChunkDamage(offset, f"a record at byte {offset} of {len(data)} runs past it")
+        stream = ReadDataStream(BytesIO(data[offset + 9 : end]))
+        try:
+            if opcode == _MESSAGE_OPCODE:
+                record: Any = Message.read(stream, length)
+            elif opcode == _SCHEMA_OPCODE:
+                record = Schema.read(stream)
+            else:
+                record = Channel.read(stream)
+        except Exception:  # mcap raises EndOfFile, struct and decoding errors
+            why = f"an unreadable record at byte {offset} of {len(data)}"
+            raise _ChunkDamage(offset, why) from None
+        yield record
+        offset = end
+
+
+# Message record header: opcode (1), length (8), channel id (2), sequence (4), log time (8),
+# publish time (8); then the message data.
+_MESSAGE_HEADER = 9 + 2 + 4 + 8 + 8
+
+
+def _resync(data: bytes, start: int, chunk: Chunk, channels: set[int]) -> int | None:
+    """The offset of the first intact Message record after damage at ``start`` (None: none).
+
+    A candidate must be a Message record of a channel the file declared, with a log time
+    inside the chunk's own time range, fit in the chunk, and end where another record (or
+    the chunk) begins: corrupt bytes pass all of that by chance about once in 10^10."""
+    position = start + 1
+    while (position := data.find(b"\x05", position)) >= 0:
+        if position + _MESSAGE_HEADER > len(data):
+            return None
+        (length,) = struct.unpack_from("<Q", data, position + 1)
+        end = position + 9 + length
+        channel_id, _, log_time = struct.unpack_from("<HIQ", data, position + 9)
+        fits = length >= _MESSAGE_HEADER - 9 and end <= len(data)
+        in_time = chunk.message_start_time <= log_time <= chunk.message_end_time
+        if fits and in_time and channel_id in channels:
+            if end == len(data):
+                return position
+            known = data[end] in (_MESSAGE_OPCODE, _SCHEMA_OPCODE, _CHANNEL_OPCODE)
+            if known and end + 9 <= len(data):
+                (next_length,) = struct.unpack_from("<Q", data, end + 1)
+                if end + 9 + next_length <= len(data):
+                    return position
+        position += 1
+    return None
+
+
+def _chunk_data(chunk: Chunk) -> tuple[bytes, str]:
+    """A chunk's decompressed records, and "" or what is wrong with them (a failed CRC, a
+    compressed stream that breaks off: then the prefix the decompressor gave)."""
+    data = chunk.data
+    problem = ""
+    if chunk.compression:
+        try:
+            if chunk.compression == "zstd":
+                import zstandard
+
+                data = zstandard.decompress(chunk.data, chunk.uncompressed_size)
+            elif chunk.compression == "lz4":
+                import lz4.frame
+
+                data = lz4.frame.decompress(chunk.data)
+            else:
+                return b"", f"compression {chunk.compression!r} not supported"
+        except Exception as exc:
+            data, _ = _decompress_prefix(chunk.compression, chunk.data)
+            problem = f"{chunk.compression} data do not decompress ({type(exc).__name__})"
+    if not problem and len(data) != chunk.uncompressed_size:
+        problem = f"{len(data)} bytes where the chunk header says {chunk.uncompressed_size}"
+    elif not problem and chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
+        problem = CRC_FAILED
+    return data, problem
+
+
+CRC_FAILED = "its CRC fails"
+
+
+def _open_chunk(
+    chunk: Chunk, at: int, outcome: _StreamOutcome, channels: set[int]
+) -> Iterator[Any]:
+    """The records of one complete chunk record (``at``: its file offset). In a damaged one
+    the records before the damage are read (the last message before it dropped: the damage
+    may begin inside it), the damaged bytes skipped to the next intact message record, and
+    the chunk counted in ``outcome.damaged``. A chunk whose CRC fails gives its Schema and
+    Channel records only: its messages are damaged somewhere, none can be trusted."""
+    data, problem = _chunk_data(chunk)
+    crc_failed = problem == CRC_FAILED
+    records: list[Any] = []
+    offset, skipped, regions = 0, 0, 0
+    while True:
+        try:
+            records.extend(_chunk_records(data, offset))
+            break
+        except _ChunkDamage as exc:
+            regions += 1
+            if regions == 1:
+                problem = f"{problem}; {exc}" if problem else str(exc)
+            for k in range(len(records) - 1, -1, -1):
+                if isinstance(records[k], Message):
+                    del records[k]  # the message just before the damage: maybe damaged too
+                    break
+            channels.update(r.id for r in records if isinstance(r, Channel))
+            resume = _resync(data, exc.offset, chunk, channels)
+            skipped += (len(data) if resume is None else resume) - exc.offset
+            if resume is None:
+                break
+            offset = resume
+    if not problem:
+        yield from records
+        return
+    if regions:
+        problem += f" ({skipped} damaged byte(s) skipped in {regions} place(s))"
+    damage = _DamagedChunk(at=at, why=problem)
+    outcome.damaged.append(damage)
+    for record in records:
+        if isinstance(record, Message):
+            if crc_failed:
+                damage.dropped += 1
+                continue
+            damage.read += 1
+        yield record
+
+
+def _damage_warning(path: Path, outcome: _StreamOutcome) -> str:
+    """One counted warning for the damaged chunks of a file ("" when there is none)."""
+    if not outcome.damaged:
+        return ""
+    parts = []
+    for damage in outcome.damaged[:3]:
+        text = f"the chunk at byte {damage.at}: {damage.why}; {damage.read} message(s) read"
+        lost = damage.indexed - damage.read
+        if damage.indexed and lost > 0:
+            text += f", {lost} of its {damage.indexed} lost"
+        if damage.dropped:
+            text += f" ({damage.dropped} parsed but none trusted)"
+        parts.append(text)
+    more = f"; and {len(outcome.damaged) - 3} more" if len(outcome.damaged) > 3 else ""
+    return (
+        f"{path}: {len(outcome.damaged)} damaged chunk(s) (corrupt bytes inside the "
+        f"recording; the rest of the file is read): {'; '.join(parts)}{more}"
+    )
+
+
+def _records_in_torn_chunk(body: bytes, outcome: _StreamOutcome) -> Iterator[Any]:
+    """The complete Schema/Channel/Message records inside a chunk cut off by the file's end."""
+
 
     head = 8 + 8 + 8 + 4
     if len(body) < head + 4:
@@ -173,21 +357,10 @@ def _records_in_torn_chunk(body: bytes, outcome: _StreamOutcome) -> Iterator[Any
     compression = body[head + 4 : head + 4 + name_len].decode("utf-8", "replace")
     data, bound = _decompress_prefix(compression, body[start:])
     outcome.torn_chunk = bound
-    offset = 0
-    while offset + 9 <= len(data):
-        opcode = data[offset]
-        (length,) = struct.unpack_from("<Q", data, offset + 1)
-        end = offset + 9 + length
-        if end > len(data):
-            break  # the record the cut went through
-        stream = ReadDataStream(BytesIO(data[offset + 9 : end]))
-        if opcode == _MESSAGE_OPCODE:
-            yield Message.read(stream, length)
-        elif opcode == _SCHEMA_OPCODE:
-            yield Schema.read(stream)
-        elif opcode == _CHANNEL_OPCODE:
-            yield Channel.read(stream)
-        offset = end
+    try:
+        yield from _chunk_records(data, 0)
+    except _ChunkDamage:
+        return  # the record the cut went through (or corrupt bytes: nothing after them)
 
 
 def _stream_records(
@@ -205,6 +378,8 @@ def _stream_records(
             records = reader.records
             count = 0
             next_record_at = 8  # after the magic
+            last_chunk_at = -1  # the chunk the message-index records that follow belong to
+            channels: set[int] = set()  # ids of the channels declared so far
             while True:
                 try:
                     record = next(records)
@@ -222,23 +397,44 @@ def _stream_records(
                     # (EndOfFile, struct errors, ...): everything before it is intact.
                     outcome.truncated = True
                     outcome.error = f"{type(exc).__name__}: {exc}"
+                    if _ends_with_magic(file, size):  # a complete file: damage, not a cut
+                        outcome.damaged_record_at = next_record_at
                     yield from _count(_torn_tail(file, next_record_at, size, outcome), outcome)
                     break
-                next_record_at = file.tell()
+                record_at, next_record_at = next_record_at, file.tell()
                 count += 1
+                if isinstance(record, MessageIndex):
+                    if outcome.damaged and outcome.damaged[-1].at == last_chunk_at:
+                        outcome.damaged[-1].indexed += len(record.records)
+                elif not isinstance(record, Chunk):
+                    last_chunk_at = -1
                 if isinstance(record, Footer):
                     outcome.has_footer = True
                     outcome.has_summary = record.summary_start != 0
                 if count % _PROGRESS_EVERY_RECORDS == 0:
                     bar.update()
                 if isinstance(record, Chunk):
-                    yield from _count(breakup_chunk(record), outcome)
+                    last_chunk_at = record_at
+                    for inner in _count(_open_chunk(record, record_at, outcome, channels), outcome):
+                        if isinstance(inner, Channel):
+                            channels.add(inner.id)
+                        yield inner
                 else:
+                    if isinstance(record, Channel):
+                        channels.add(record.id)
                     yield from _count((record,), outcome)
         finally:
             bar.close()
     if outcome.truncated:
         outcome.cut_at = size
+
+
+def _ends_with_magic(file: Any, size: int) -> bool:
+    """Whether the file ends with the closing MCAP magic (it was written to the end)."""
+    if size < 16:
+        return False
+    file.seek(size - 8)
+    return bool(file.read(8) == b"\x89MCAP0\r\n")
 
 
 def _count(records: Any, outcome: _StreamOutcome) -> Iterator[Any]:
@@ -854,11 +1050,21 @@ def _assemble(scan: _McapScan) -> McapResult:
             if outcome.last_log_time_ns is not None
             else "no complete message"
         )
-        warnings.append(
-            f"{path}: file truncated at byte {outcome.cut_at}: {outcome.messages} messages read, "
-            f"{last}"
-            + (f"; torn chunk {outcome.torn_chunk}" if outcome.torn_chunk else "")
-        )
+        if outcome.damaged_record_at >= 0:
+            warnings.append(
+                f"{path}: a damaged record at byte {outcome.damaged_record_at} of "
+                f"{outcome.cut_at} (corrupt bytes in a complete file): {outcome.messages} "
+                f"messages read, {last}; the rest of the file cannot be read"
+            )
+        else:
+            torn = f"; torn chunk {outcome.torn_chunk}" if outcome.torn_chunk else ""
+            warnings.append(
+                f"{path}: file truncated at byte {outcome.cut_at}: {outcome.messages} messages "
+                f"read, {last}{torn}"
+            )
+    damage = _damage_warning(path, scan.outcome)
+    if damage:
+        warnings.append(damage)
     for cid, why in sorted(scan.skipped.items()):
         topic = scan.channels[cid].topic
         report.append(f"skipped {topic}: {why} ({scan.counts.get(cid, 0)} messages)")
@@ -1012,8 +1218,16 @@ def summarize_mcap(path: str | Path, *, progress: bool = False) -> str:
             channels.setdefault(record.id, record)
     size_mb = path.stat().st_size / 1e6
     lines = [f"{path} ({size_mb:.1f} MB)"]
-    if outcome.truncated:
+    if outcome.damaged_record_at >= 0:
+        lines.append(
+            f"DAMAGED: a record at byte {outcome.damaged_record_at} does not parse ("
+            f"{outcome.error}); everything before it is listed"
+        )
+    elif outcome.truncated:
         lines.append(f"TRUNCATED: {outcome.error}; everything before the cut is listed")
+    damage = _damage_warning(path, outcome)
+    if damage:
+        lines.append(f"DAMAGED: {damage}")
     lines.append(
         "summary section: "
         + ("yes" if outcome.has_summary else "no (fgins streams the whole file to choose topics)")

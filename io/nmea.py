@@ -48,6 +48,15 @@ _MODE_RANK = "RFPDAEMSN"
 # Position sources, best first: GGA and GNS carry altitude and quality, RMC/GLL only 2D.
 _POSITION_PRIORITY = ("GGA", "GNS", "RMC", "GLL")
 
+# Two valid positions for one epoch time further apart than this (horizontal, m) are two
+# receivers (interleaved talkers, or logs concatenated), not one fix printed twice (RMC's
+# coarser digits, a GGA and a GNS of one solution agree to centimetres).
+CONFLICT_DISTANCE_M = 5.0
+# More epochs than this fraction in conflict: the log is two receivers' streams, an error.
+CONFLICT_MAX_FRACTION = 0.5
+
+_Position = tuple[float, float, float, float, int, bool]
+
 
 @dataclass
 class NmeaResult:
@@ -79,13 +88,17 @@ class _Epoch:
     """Everything the sentences of one time of day said."""
 
     __slots__ = (
+        "by_talker",
         "course",
         "date",
         "dops",
         "gga_hdop",
         "gsa_sats",
+        "motion_by_talker",
         "num_sats",
         "positions",
+        "repeat_distance",
+        "repeat_talker",
         "speed",
         "std",
         "tod",
@@ -93,8 +106,15 @@ class _Epoch:
 
     def __init__(self, tod: float) -> None:
         self.tod = tod
-        # source -> (lat, lon, alt_msl, geoid_sep, quality, valid)
-        self.positions: dict[str, tuple[float, float, float, float, int, bool]] = {}
+        # source -> (lat, lon, alt_msl, geoid_sep, quality, valid); the latest of any talker
+        self.positions: dict[str, _Position] = {}
+        # talker -> source -> position: which receiver stream said what (see _resolve)
+        self.by_talker: dict[str, dict[str, _Position]] = {}
+        # talker -> (speed, course) of that talker's RMC/VTG
+        self.motion_by_talker: dict[str, tuple[float, float]] = {}
+        # one talker, one sentence type, two positions far apart (the first is kept)
+        self.repeat_distance = 0.0
+        self.repeat_talker = ""
         self.date: tuple[int, int, int] | None = None
         self.dops: tuple[float, float, float] | None = None  # pdop, hdop, vdop from GSA
         self.gga_hdop = math.nan
@@ -162,6 +182,16 @@ def _mode_quality(mode: str) -> int:
     return _MODE_TO_QUALITY[best]
 
 
+def _distance_m(a: tuple[float, ...], b: tuple[float, ...]) -> float:
+    """Horizontal distance (m) between two (lat, lon, ...) positions metres apart (the WGS-84
+    radii of curvature at the first one)."""
+    e2 = 6.69437999014e-3
+    w = 1.0 - e2 * math.sin(math.radians(a[0])) ** 2
+    north = math.radians(a[0] - b[0]) * 6_378_137.0 * (1.0 - e2) / w**1.5
+    east = math.radians(a[1] - b[1]) * 6_378_137.0 / math.sqrt(w) * math.cos(math.radians(a[0]))
+    return math.hypot(east, north)
+
+
 def _checksum_ok(sentence: str) -> bool:
     """True when the '*HH' checksum matches or is absent (some old receivers send none)."""
     body, star, given = sentence[1:].partition("*")
@@ -193,6 +223,7 @@ class _Reader:
         self.last_tod: float | None = None
         self.untimed_before_first = 0
         self.backward_jumps = 0
+        self.talker = ""  # the talker of the sentence being handled
 
     # -- line level -------------------------------------------------------------------------
     def feed_line(self, line: str) -> None:
@@ -236,6 +267,7 @@ class _Reader:
             self.corrupt += 1  # no checksum and too short: a truncated line
             return
         handler = getattr(self, f"_on_{kind.lower()}", None)
+        self.talker = address[:2]
         if handler is not None:
             try:
                 handler(fields)
@@ -278,6 +310,28 @@ class _Reader:
         self.current = epoch
         return epoch
 
+    def _set_position(self, epoch: _Epoch, source: str, position: _Position) -> None:
+        """Store one sentence's position, per talker too; a talker repeating a sentence type
+        at one time with a position far from its first is a second receiver: first kept."""
+        own = epoch.by_talker.setdefault(self.talker, {})
+        first = own.get(source)
+        if first is not None and first[5] and position[5]:
+            distance = _distance_m(first, position)
+            if distance > CONFLICT_DISTANCE_M:
+                epoch.repeat_distance = max(epoch.repeat_distance, distance)
+                epoch.repeat_talker = self.talker
+                return
+        own[source] = position
+        epoch.positions[source] = position
+
+    def _set_motion(self, epoch: _Epoch, speed: float, course: float) -> None:
+        old_speed, old_course = epoch.motion_by_talker.get(self.talker, (math.nan, math.nan))
+        if math.isfinite(speed):
+            epoch.speed = old_speed = speed
+        if math.isfinite(course):
+            epoch.course = old_course = course
+        epoch.motion_by_talker[self.talker] = (old_speed, old_course)
+
     def _untimed_epoch(self) -> _Epoch | None:
         if self.current is None:
             self.untimed_before_first += 1
@@ -300,7 +354,7 @@ class _Reader:
         alt = _num(_field(f, 8))
         sep = _num(_field(f, 10))
         valid = quality > 0 and math.isfinite(lat) and math.isfinite(lon)
-        epoch.positions["GGA"] = (lat, lon, alt, sep, quality, valid)
+        self._set_position(epoch, "GGA", (lat, lon, alt, sep, quality, valid))
 
     def _on_gns(self, f: list[str]) -> None:
         if not f[0]:
@@ -315,7 +369,7 @@ class _Reader:
             epoch.gga_hdop = _num(_field(f, 7))
         valid = quality > 0 and math.isfinite(lat) and math.isfinite(lon)
         sep = _num(_field(f, 9))
-        epoch.positions["GNS"] = (lat, lon, _num(_field(f, 8)), sep, quality, valid)
+        self._set_position(epoch, "GNS", (lat, lon, _num(_field(f, 8)), sep, quality, valid))
 
     def _on_rmc(self, f: list[str]) -> None:
         if not f[0]:
@@ -331,13 +385,8 @@ class _Reader:
         mode = _mode_quality(_field(f, 11))
         valid = f[1] == "A" and mode != 0 and math.isfinite(lat) and math.isfinite(lon)
         quality = mode if mode > 0 else 1
-        epoch.positions["RMC"] = (lat, lon, math.nan, math.nan, quality, valid)
-        speed = _num(_field(f, 6)) * KNOT_M_S
-        course = _num(_field(f, 7))
-        if math.isfinite(speed):
-            epoch.speed = speed
-        if math.isfinite(course):
-            epoch.course = course
+        self._set_position(epoch, "RMC", (lat, lon, math.nan, math.nan, quality, valid))
+        self._set_motion(epoch, _num(_field(f, 6)) * KNOT_M_S, _num(_field(f, 7)))
 
     def _on_gll(self, f: list[str]) -> None:
         if len(f) < 6 or not f[4]:
@@ -346,7 +395,8 @@ class _Reader:
         lat, lon = _lat_lon(f, 0)
         mode = _mode_quality(_field(f, 6))
         valid = f[5] == "A" and mode != 0 and math.isfinite(lat) and math.isfinite(lon)
-        epoch.positions["GLL"] = (lat, lon, math.nan, math.nan, mode if mode > 0 else 1, valid)
+        quality = mode if mode > 0 else 1
+        self._set_position(epoch, "GLL", (lat, lon, math.nan, math.nan, quality, valid))
 
     def _on_zda(self, f: list[str]) -> None:
         if not f[0]:
@@ -382,26 +432,114 @@ class _Reader:
         knots = _num(_field(f, 4))
         kmh = _num(_field(f, 6))
         speed = knots * KNOT_M_S if math.isfinite(knots) else kmh * KMH_M_S
-        if math.isfinite(speed):
-            epoch.speed = speed
-        if math.isfinite(course):
-            epoch.course = course
+        self._set_motion(epoch, speed, course)
 
 
-def _epoch_position(epoch: _Epoch) -> tuple[float, float, float, float, int] | None:
+def _epoch_position(
+    positions: dict[str, _Position],
+) -> tuple[float, float, float, float, int] | None:
     """(lat, lon, alt_msl, geoid_sep, quality) from the best valid source, or None."""
     for source in _POSITION_PRIORITY:
-        pos = epoch.positions.get(source)
+        pos = positions.get(source)
         if pos is not None and pos[5]:
             lat, lon, alt, sep, quality, _ = pos
             if not math.isfinite(alt):  # a 2D source: borrow altitude from GGA/GNS if any
                 for other in ("GGA", "GNS"):
-                    alt_pos = epoch.positions.get(other)
+                    alt_pos = positions.get(other)
                     if alt_pos is not None and math.isfinite(alt_pos[2]):
                         alt, sep = alt_pos[2], alt_pos[3]
                         break
             return lat, lon, alt, sep, quality
     return None
+
+
+@dataclass
+class _Conflicts:
+    """Epochs where two receivers' positions met at one time (see CONFLICT_DISTANCE_M)."""
+
+    kept: str = ""  # the talker whose positions are used where talkers disagree
+    talker_distances: list[float] = field(default_factory=list)
+    dropped_talkers: Counter[str] = field(default_factory=Counter)
+    repeat_distances: list[float] = field(default_factory=list)
+    repeat_talkers: Counter[str] = field(default_factory=Counter)
+    epochs: int = 0  # epochs with either kind of conflict
+
+
+def _kept_talker(epochs: list[_Epoch]) -> str:
+    """The talker with a valid position in most epochs (the first seen on a tie)."""
+    counts: Counter[str] = Counter()
+    for epoch in epochs:
+        for talker, positions in epoch.by_talker.items():
+            if _epoch_position(positions) is not None:
+                counts[talker] += 1
+    return max(counts, key=lambda talker: counts[talker]) if counts else ""
+
+
+def _resolve(
+    epoch: _Epoch, conflicts: _Conflicts
+) -> tuple[tuple[float, float, float, float, int] | None, float, float]:
+    """The epoch's position, speed and course. Talkers that agree are merged (one receiver
+    printing GN and GP sentences); talkers that disagree are two receivers: the kept
+    talker's stream is used and the epoch counted."""
+    if epoch.repeat_distance > 0:
+        conflicts.repeat_distances.append(epoch.repeat_distance)
+        conflicts.repeat_talkers[epoch.repeat_talker] += 1
+    merged = (_epoch_position(epoch.positions), epoch.speed, epoch.course)
+    valid = {
+        talker: position
+        for talker, positions in epoch.by_talker.items()
+        if (position := _epoch_position(positions)) is not None
+    }
+    reference = conflicts.kept if conflicts.kept in valid else next(iter(valid), "")
+    far = {
+        talker: distance
+        for talker, position in valid.items()
+        if talker != reference
+        and (distance := _distance_m(valid[reference], position)) > CONFLICT_DISTANCE_M
+    }
+    conflicts.epochs += bool(far) or epoch.repeat_distance > 0
+    if not far:
+        return merged
+    conflicts.talker_distances.append(max(far.values()))
+    conflicts.dropped_talkers.update(far)
+    speed, course = epoch.motion_by_talker.get(reference, (math.nan, math.nan))
+    return valid[reference], speed, course
+
+
+def _conflict_messages(path: Path, conflicts: _Conflicts, n_fixes: int) -> list[str]:
+    """Warnings for a few epochs with two receivers' positions; InputError for most."""
+    parts = []
+    if conflicts.talker_distances:
+        dropped = "/".join(sorted(conflicts.dropped_talkers))
+        parts.append(
+            f"talkers {conflicts.kept} and {dropped} give positions "
+            f"{np.median(conflicts.talker_distances):.0f} m apart (median) for one time in "
+            f"{len(conflicts.talker_distances)} epoch(s)"
+        )
+    if conflicts.repeat_distances:
+        talkers = "/".join(sorted(conflicts.repeat_talkers))
+        parts.append(
+            f"talker {talkers} gives two positions {np.median(conflicts.repeat_distances):.0f} m "
+            f"apart (median) for one time in {len(conflicts.repeat_distances)} epoch(s)"
+        )
+    if not parts:
+        return []
+    if conflicts.epochs > CONFLICT_MAX_FRACTION * n_fixes:
+        advice = (
+            f"split it by talker (e.g. keep only the ${conflicts.kept} lines) and give one receiver's log"
+            if not conflicts.repeat_distances
+            else "give each receiver's (or each session's) log on its own"
+        )
+        raise InputError(
+            f"{path}: two receivers in one log: {'; '.join(parts)} ({conflicts.epochs} of "
+            f"{n_fixes} fix epochs); {advice}"
+        )
+    kept = []
+    if conflicts.talker_distances:
+        kept.append(f"kept talker {conflicts.kept}'s positions there")
+    if conflicts.repeat_distances:
+        kept.append("kept the first of each repeated sentence")
+    return [f"two positions for one time: {'; '.join(parts)}; {' and '.join(kept)}"]
 
 
 def _read_lines(path: Path) -> list[str]:
@@ -459,8 +597,9 @@ def _assemble(path: Path, reader: _Reader, time_offset_s: float) -> NmeaResult:
     rows: list[tuple[float, ...]] = []
     quality_histogram: Counter[int] = Counter()
     without_fix = 0
+    conflicts = _Conflicts(kept=_kept_talker(epochs))
     for t, epoch in zip(seconds, epochs, strict=True):
-        position = _epoch_position(epoch)
+        position, speed, course = _resolve(epoch, conflicts)
         if position is None:
             without_fix += 1
             gga = epoch.positions.get("GGA")
@@ -486,8 +625,8 @@ def _assemble(path: Path, reader: _Reader, time_offset_s: float) -> NmeaResult:
                 pdop,
                 quality,
                 sats,
-                epoch.speed,
-                epoch.course,
+                speed,
+                course,
             )
         )
     if not rows:
@@ -502,6 +641,7 @@ def _assemble(path: Path, reader: _Reader, time_offset_s: float) -> NmeaResult:
             f"{path}: no usable GNSS fix in {sentences} NMEA sentences ({reader.corrupt} "
             f"corrupt lines, {reader.checksum_failures} checksum failures); {what}"
         )
+    warnings.extend(_conflict_messages(path, conflicts, len(rows)))
     table = np.array(rows, dtype=float)
     lat, lon, alt_msl, sep = table[:, 1], table[:, 2], table[:, 3], table[:, 4]
     modelled = np.isfinite(alt_msl) & ~np.isfinite(sep)
@@ -576,7 +716,7 @@ def summarize_nmea(path: str | Path) -> str:
     try:
         result = _assemble(path, reader, 0.0)
     except InputError as error:
-        lines.append(f"  no usable fix: {error}")
+        lines.append(f"  not usable: {error}")
         return "\n".join(lines)
     gnss = result.gnss
     t = gnss.t

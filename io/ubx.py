@@ -82,6 +82,9 @@ UBX_SYNC = b"\xb5\x62"
 GPS_EPOCH_POSIX = 315964800  # 1980-01-06T00:00:00Z
 WEEK_S = 604800
 TWO_D_MIN_VERTICAL_SIGMA_M = 100.0
+# A repeated epoch (same iTOW) whose position lies further than this from the kept one is
+# reported with its distance (another session or receiver, not a copy of one solution).
+REPEAT_SAME_POSITION_M = 1.0
 ESF_RAW_TICK_S = 1.0 / 25600.0
 ESF_MEAS_TICK_S = 1e-3
 MIN_FIT_ANCHORS = 5
@@ -197,6 +200,10 @@ class _Epoch:
         self.itow = itow
         self.order = order  # stream index of its first navigation message
         self.msgs: dict[str, object] = {}
+        # Messages of a type the epoch already had, with another payload: the same iTOW
+        # again (a receiver restart, two logs concatenated, a second receiver). The first of
+        # each type is used; these are counted (see _repeat_warning), never merged.
+        self.repeats: dict[str, object] = {}
 
 
 @dataclass
@@ -395,7 +402,9 @@ class _Scanner:
         if epoch is None:
             epoch = self._by_key[key] = _Epoch(itow, self.index)
             self.epochs.append(epoch)
-        epoch.msgs.setdefault(name, msg)
+        first = epoch.msgs.setdefault(name, msg)
+        if first is not msg and getattr(first, "payload", None) != getattr(msg, "payload", 0):
+            epoch.repeats.setdefault(name, msg)  # an identical copy of a frame loses nothing
 
     # The ESF messages are the high-rate stream (one a sample or ten samples a message): their
     # fixed u-blox layout is decoded here, vectorised later, because pyubx2 takes about 1 ms a
@@ -933,6 +942,9 @@ def read_ubx(path: str | Path) -> UbxResult:
         kept.append(row)
     if duplicates:
         warnings.append(f"{duplicates} navigation epochs repeat an earlier time: dropped")
+    repeat_warning = _repeat_warning(scanner.epochs)
+    if repeat_warning:
+        warnings.append(repeat_warning)
     ubx_times = np.array([r[0] for r in kept])
     nmea_rows, nmea_counts = _nmea_rows(scanner, ubx_times, warnings)
     counts = dict(scanner.counts)
@@ -979,6 +991,46 @@ def read_ubx(path: str | Path) -> UbxResult:
     result.first_epoch_time = float(builder.first_time)
     _attach_imu(result, scanner, fix_anchor or epoch_times)
     return result
+
+
+def _repeat_warning(epochs: list[_Epoch]) -> str:
+    """A counted warning for the epochs whose iTOW came again with other messages (dropped:
+    the first of each message type is used), and how far the dropped positions lie from the
+    kept ones."""
+    from fgins.datatypes import Origin
+    from fgins.geodesy import lla_to_enu
+
+    repeated = [e for e in epochs if e.repeats]
+    if not repeated:
+        return ""
+    distances = []
+    for epoch in repeated:
+        kept = _EpochBuilder._position(epoch)
+        shadow = _Epoch(epoch.itow, epoch.order)
+        shadow.msgs = epoch.repeats
+        other = _EpochBuilder._position(shadow)
+        if kept is None or other is None:
+            continue
+        origin = Origin(kept[0], kept[1], 0.0)
+        east, north, _ = lla_to_enu(np.array([[other[0], other[1], 0.0]]), origin)[0]
+        distances.append(math.hypot(east, north))
+    kinds = "/".join(sorted({name for e in repeated for name in e.repeats}))
+    message = (
+        f"dropped {len(repeated)} navigation epoch(s) with repeated time: their iTOW (GPS time "
+        f"of week) came again with different {kinds} messages (a receiver restart or two logs "
+        "concatenated?); the first of each kept"
+    )
+    far = [d for d in distances if d > REPEAT_SAME_POSITION_M]
+    if len(far) == 1:
+        message += f"; 1 of them with a position {far[0]:.0f} m from the kept one"
+    elif far:
+        message += (
+            f"; {len(far)} of them with positions {np.median(far):.0f} m (median, up to "
+            f"{max(far):.0f} m) from the kept ones"
+        )
+    elif distances:
+        message += f" (positions within {REPEAT_SAME_POSITION_M:g} m of the kept ones)"
+    return message
 
 
 def _attach_imu(result: UbxResult, scanner: _Scanner, anchors: list[tuple[int, float]]) -> None:

@@ -590,6 +590,20 @@ def _check_units(
                   "checked, not refused)" for problem in problems)  # fmt: skip
 
 
+def _velocity_from_speed_course(gnss: GnssData) -> bool:
+    """Whether the velocity is the horizontal one built from speed and course (CSV speed and
+    course columns, NMEA RMC/VTG), so that a complaint names those, not vel_* columns."""
+    if gnss.velocity is None or gnss.speed is None or gnss.course is None:
+        return False
+    if np.any(np.isfinite(gnss.velocity[:, 2])):
+        return False
+    course = np.radians(gnss.course)
+    built = np.column_stack([gnss.speed * np.sin(course), gnss.speed * np.cos(course)])
+    given = gnss.velocity[:, :2]
+    both = np.all(np.isfinite(given), axis=1) & np.all(np.isfinite(built), axis=1)
+    return bool(both.any()) and bool(np.allclose(given[both], built[both], atol=1e-6))
+
+
 def _check_gnss_velocity(gnss: GnssData, origin: Origin) -> None:
     """The receiver's velocity against the velocity its own fixes show (see the constants)."""
     from fgins.geodesy import lla_to_enu
@@ -617,17 +631,36 @@ def _check_gnss_velocity(gnss: GnssData, origin: Origin) -> None:
     )
     _check_shrunk_track(gnss, enu, sigma)
     if moving.sum() >= VELOCITY_MIN_EPOCHS:
+        from_course = _velocity_from_speed_course(gnss)
         ratio = float(np.median(given_speed[moving] / track_speed[moving]))
         if not VELOCITY_SPEED_RATIO_RANGE[0] <= ratio <= VELOCITY_SPEED_RATIO_RANGE[1]:
+            what, fix = (
+                ("speed over ground gives", "give the speed column in m/s")
+                if from_course
+                else ("velocity columns give", "give vel_east/north/up in m/s")
+            )
             raise InputError(
-                f"gnss: the velocity columns give {ratio:.3g} times the speed the fixes show "
-                "(~1 expected; km/h gives 3.6, knots 1.94): give vel_east/north/up in m/s"
+                f"gnss: the {what} {ratio:.3g} times the speed the fixes show "
+                f"(~1 expected; km/h gives 3.6, knots 1.94): {fix}"
             )
         angle = np.degrees(np.abs(np.angle(
             (given[moving, 0] + 1j * given[moving, 1]) / (track[moving, 0] + 1j * track[moving, 1])
         )))  # fmt: skip
         median_angle = float(np.median(angle))
         if median_angle > VELOCITY_MAX_ANGLE_DEG:
+            if from_course:
+                course = np.asarray(gnss.course, dtype=float)
+                course = course[np.isfinite(course)]
+                why = (
+                    "all course values lie within 0..6.3: radians?"
+                    if np.all(np.abs(course) <= 2 * np.pi + 0.01)
+                    else "a course not measured clockwise from north?"
+                )
+                raise InputError(
+                    f"gnss: the course points {median_angle:.0f} deg away from the track the "
+                    f"fixes show (median; ~0 expected): {why} give the course column in degrees "
+                    "clockwise from north"
+                )
             raise InputError(
                 f"gnss: the velocity points {median_angle:.0f} deg away from the track the fixes "
                 "show (median; ~0 expected): east and north swapped (NED order?) or another "

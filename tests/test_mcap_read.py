@@ -233,3 +233,108 @@ def test_simulated_urban_drive_round_trips_through_a_ros2_bag(tmp_path: Path) ->
     np.testing.assert_array_equal(data.imu.accel, run.dataset.imu.accel)
     np.testing.assert_array_equal(data.gnss.lla, run.dataset.gnss.lla[valid])
     np.testing.assert_allclose(data.gnss.std, run.dataset.gnss.std[valid], rtol=1e-14)
+
+
+# --- corrupt bytes inside a chunk --------------------------------------------------------------
+
+
+def _imu_only_mcap(path: Path, drive: Drive, compression: str, crcs: bool) -> Path:
+    """The drive's Imu messages (CDR) in small chunks, with the plain mcap writer."""
+    from mcap.writer import CompressionType, Writer
+
+    from fgins.tests.mcap_fixtures import imu_cdr_bytes, imu_ros2msg_schema
+
+    kind = {"": CompressionType.NONE, "zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4}
+    with open(path, "wb") as stream:
+        writer = Writer(stream, chunk_size=16384, compression=kind[compression], enable_crcs=crcs)
+        writer.start(profile="", library="fgins-tests")
+        schema = writer.register_schema(
+            "sensor_msgs/msg/Imu", "ros2msg", imu_ros2msg_schema().encode()
+        )
+        channel = writer.register_channel("/imu", "cdr", schema)
+        for ns, payload, _ in imu_cdr_bytes(drive):
+            writer.add_message(channel, log_time=ns, data=payload, publish_time=ns)
+        writer.finish()
+    return path
+
+
+def _chunk_spans(path: Path) -> list[tuple[int, int]]:
+    """(start, end) file offsets of the chunk records, by mcap's own stream reader."""
+    from mcap.records import Chunk
+    from mcap.stream_reader import StreamReader
+
+    spans = []
+    with open(path, "rb") as file:
+        reader = StreamReader(file, emit_chunks=True)
+        start = file.tell()
+        for record in reader.records:
+            if isinstance(record, Chunk):
+                spans.append((start, file.tell()))
+            start = file.tell()
+    return spans
+
+
+def _damage(path: Path, out: Path, at: int, length: int) -> Path:
+    data = bytearray(path.read_bytes())
+    for k in range(at, at + length):
+        data[k] ^= 0xFF
+    out.write_bytes(bytes(data))
+    return out
+
+
+def _imu_only_scan(path: Path):
+    """The message log times of an IMU-only file and the stream outcome (read_mcap wants a
+    GNSS topic too)."""
+    from mcap.records import Message
+
+    from fgins.io.mcap import _stream_records, _StreamOutcome
+
+    outcome = _StreamOutcome()
+    stamps = []
+    for record in _stream_records(path, outcome, False, ""):
+        if isinstance(record, Message):
+            stamps.append(record.log_time)
+    return np.array(stamps), outcome
+
+
+def test_corrupt_bytes_inside_a_ros2_bag_chunk_lose_only_the_damaged_messages(
+    drive: Drive, tmp_path: Path
+) -> None:
+    """rosbags writes uncompressed chunks without CRC: 1000 corrupt bytes in the middle of one
+    used to end the read with "OverflowError: cannot fit 'int' into an index-sized integer"."""
+    good_path = write_ros2_bag(tmp_path / "bag", drive, with_unknown=False)
+    good = read_mcap(good_path, progress=False).dataset
+    ((start, end),) = [span for span in _chunk_spans(good_path) if span[1] - span[0] > 100_000]
+    bad_path = _damage(good_path, tmp_path / "damaged.mcap", (start + end) // 2, 1000)
+    result = read_mcap(bad_path, progress=False)
+    (warning,) = [w for w in result.warnings if "damaged chunk" in w]
+    assert "1 damaged chunk(s)" in warning and "damaged byte(s) skipped" in warning, warning
+    imu = result.dataset.imu
+    # only the messages the damage touched are lost (1000 bytes: a few Imu messages)
+    assert len(good.imu) - 8 <= len(imu) < len(good.imu)
+    kept = np.searchsorted(good.imu.t, imu.t)
+    np.testing.assert_array_equal(good.imu.t[kept], imu.t)
+    np.testing.assert_array_equal(good.imu.gyro[kept], imu.gyro)  # no damaged value read
+    np.testing.assert_array_equal(good.imu.accel[kept], imu.accel)
+    summary = summarize_mcap(bad_path)
+    assert "DAMAGED:" in summary and "TRUNCATED" not in summary
+
+
+@pytest.mark.parametrize(("compression", "crcs"), [("zstd", True), ("lz4", True), ("", True)])
+def test_a_damaged_chunk_is_counted_and_the_chunks_after_it_read(
+    drive: Drive, tmp_path: Path, compression: str, crcs: bool
+) -> None:
+    good_path = _imu_only_mcap(tmp_path / "good.mcap", drive, compression, crcs)
+    good_stamps, _ = _imu_only_scan(good_path)
+    spans = _chunk_spans(good_path)
+    assert len(spans) > 5
+    start, end = spans[len(spans) // 2]
+    bad_path = _damage(good_path, tmp_path / "bad.mcap", (start + end) // 2, 64)
+    stamps, outcome = _imu_only_scan(bad_path)
+    assert len(outcome.damaged) == 1 and not outcome.truncated
+    assert set(stamps) <= set(good_stamps)
+    assert stamps[-1] == good_stamps[-1]  # the chunks after the damaged one are read
+    lost = len(good_stamps) - len(stamps)
+    assert 0 < lost <= len(good_stamps) // len(spans) + 2  # at most that chunk
+    if compression == "":  # uncompressed, payload bytes damaged: only its CRC tells
+        assert "CRC fails" in outcome.damaged[0].why and outcome.damaged[0].dropped > 0

@@ -4,6 +4,7 @@ clean one-line InputError for "no usable fix", and damaged lines are counted."""
 from __future__ import annotations
 
 import math
+import re
 import tempfile
 from functools import reduce
 from pathlib import Path
@@ -168,4 +169,106 @@ def test_a_log_of_another_binary_protocol_says_so(tmp_path) -> None:
     path = tmp_path / "binary.log"
     path.write_bytes(b"".join(frames) + b"$GPTXT,01,01,01,ANTENNA OK*35\r\n")
     with pytest.raises(InputError, match=r"another receiver protocol .*NMEA 0183 and u-blox UBX"):
+        read_nmea(path)
+
+
+# --- two receivers in one log (one epoch time, two positions) ------------------------------
+
+LAT0, LON0 = 48.1173, 11.5167
+
+
+def _ddmm(value: float, degree_digits: int) -> str:
+    degrees = int(value)
+    return f"{degrees:0{degree_digits}d}{(value - degrees) * 60:08.5f}"
+
+
+def _fix_lines(talker: str, second: int, east_m: float, rmc: bool = True) -> list[str]:
+    """GGA (+ RMC) of one fix ``east_m`` east of the reference point at 12:00:SS UTC."""
+    lon = LON0 + east_m / (111_320.0 * math.cos(math.radians(LAT0)))
+    lat, lon_text = _ddmm(LAT0, 2), _ddmm(lon, 3)
+    time = f"1200{second:02d}.00"
+    lines = [_with_checksum(f"{talker}GGA,{time},{lat},N,{lon_text},E,1,08,0.9,545.4,M,46.9,M,,")]
+    if rmc:
+        lines.append(_with_checksum(f"{talker}RMC,{time},A,{lat},N,{lon_text},E,0.0,,010524,,,A"))
+    return lines
+
+
+def _east_m(result) -> np.ndarray:
+    lon = result.gnss.lla[:, 1]
+    return (lon - LON0) * 111_320.0 * math.cos(math.radians(LAT0))
+
+
+def test_two_receivers_interleaved_with_one_time_are_an_error(tmp_path: Path) -> None:
+    """Two receivers (GP, GN) 30 m apart, same stamps, every epoch: the later one used to
+    overwrite the earlier in silence (half the GGA lost, the track 30 m off)."""
+    lines = []
+    for second in range(20):
+        lines += _fix_lines("GP", second, 0.0) + _fix_lines("GN", second, 30.0)
+    path = tmp_path / "two_rx.nmea"
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(
+        InputError,
+        match=r"two receivers in one log: talkers GP and GN give positions 30 m apart .*"
+        r"20 epoch.*\(20 of 20 fix epochs\); split it by talker",
+    ):
+        read_nmea(path)
+
+
+def test_a_few_epochs_of_a_second_talker_are_counted_and_the_main_one_kept(
+    tmp_path: Path,
+) -> None:
+    lines = []
+    for second in range(20):
+        lines += _fix_lines("GP", second, 0.0)
+        if second in (5, 6, 7):
+            lines += _fix_lines("GN", second, 30.0)
+    path = tmp_path / "some_two_rx.nmea"
+    path.write_text("\n".join(lines) + "\n")
+    result = read_nmea(path)
+    assert len(result.gnss) == 20
+    np.testing.assert_allclose(_east_m(result), 0.0, atol=0.05)  # GP kept everywhere
+    messages = [w for w in result.warnings if "two positions for one time" in w]
+    assert len(messages) == 1, result.warnings
+    assert re.search(
+        r"talkers GP and GN .*30 m apart.* in 3 epoch\(s\).*kept talker GP", messages[0]
+    )
+
+
+def test_one_receiver_with_two_talkers_that_agree_is_merged_quietly(tmp_path: Path) -> None:
+    """A multi-GNSS receiver printing GNGGA and GPRMC of one fix: no conflict, GGA's height."""
+    lines = []
+    for second in range(10):
+        lines += _fix_lines("GN", second, 0.0, rmc=False) + _fix_lines("GP", second, 0.3)[1:]
+    path = tmp_path / "one_rx.nmea"
+    path.write_text("\n".join(lines) + "\n")
+    result = read_nmea(path)
+    assert len(result.gnss) == 10 and not any("two" in w for w in result.warnings)
+    np.testing.assert_allclose(result.gnss.lla[:, 2], 545.4 + 46.9)
+
+
+def test_a_talker_repeating_an_epoch_far_away_is_counted_and_the_first_kept(
+    tmp_path: Path,
+) -> None:
+    lines = []
+    for second in range(20):
+        lines += _fix_lines("GP", second, 0.0, rmc=False)
+        if second in (3, 9):
+            lines += _fix_lines("GP", second, 111.0, rmc=False)
+    path = tmp_path / "repeat.nmea"
+    path.write_text("\n".join(lines) + "\n")
+    result = read_nmea(path)
+    assert len(result.gnss) == 20
+    np.testing.assert_allclose(_east_m(result), 0.0, atol=0.05)
+    messages = [w for w in result.warnings if "two positions for one time" in w]
+    assert len(messages) == 1, result.warnings
+    assert re.search(r"talker GP gives two positions 111 m apart .* in 2 epoch.*first", messages[0])
+
+
+def test_two_logs_of_one_talker_with_the_same_times_are_an_error(tmp_path: Path) -> None:
+    first = [line for s in range(10) for line in _fix_lines("GP", s, 0.0)]
+    second = [line for s in range(10) for line in _fix_lines("GP", s, 500.0)]
+    path = tmp_path / "concatenated.nmea"
+    path.write_text("\n".join(first + second) + "\n")
+    with pytest.raises(InputError, match=r"two receivers in one log: talker GP gives two "
+                       r"positions 50[01] m apart.*give each receiver's"):  # fmt: skip
         read_nmea(path)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import calendar
 import math
+import re
 
 import numpy as np
 import pymap3d
@@ -446,3 +447,45 @@ def test_epochs_without_a_valid_time_are_named_as_the_cause(tmp_path):
     result = read_ubx(_write(tmp_path, bytes(out)))
     with pytest.raises(InputError, match="no usable time: 4 navigation epochs, 4 without a valid time"):
         require_fix(result)
+
+
+def _repeat_warnings(result) -> list[str]:
+    return [w for w in result.warnings if "repeated time" in w]
+
+
+def test_a_restart_that_repeats_the_itow_is_counted_with_the_distance(tmp_path):
+    """A second session whose iTOW (and UTC) repeat the first's (a receiver restart or two
+    logs concatenated): its epochs used to vanish in silence (30 of 60 NAV-PVT)."""
+    first = [nav_pvt(T0 + k, LAT + 1e-4 * k, LON, H) + nav_dop(T0 + k, 0.9, 1.4, 1.7)
+             for k in range(10)]  # fmt: skip
+    second = [nav_pvt(T0 + k, LAT + 2e-3, LON, H) + nav_dop(T0 + k, 0.9, 1.4, 1.7)
+              for k in range(6)]  # fmt: skip
+    result = read_ubx(_write(tmp_path, b"".join(first + second)))
+    np.testing.assert_allclose(result.gnss.lla[:, 0], LAT + 1e-4 * np.arange(10), atol=1e-9)
+    (message,) = _repeat_warnings(result)
+    distances = (2e-3 - 1e-4 * np.arange(6)) * 111_230  # m per degree of latitude at 48 deg
+    assert message.startswith("dropped 6 navigation epoch(s) with repeated time")
+    assert "NAV-DOP/NAV-PVT" not in message  # DOPs equal: only NAV-PVT differs
+    median = re.search(r"6 of them with positions (\d+) m \(median, up to (\d+) m\)", message)
+    assert median, message
+    assert float(median[1]) == pytest.approx(np.median(distances), abs=2)
+    assert float(median[2]) == pytest.approx(distances.max(), abs=2)
+
+
+def test_a_duplicate_nav_pvt_far_away_is_named_with_its_distance(tmp_path):
+    frames = [nav_pvt(T0 + k, LAT, LON, H) for k in range(8)]
+    frames.insert(4, nav_pvt(T0 + 3, LAT + 0.001, LON, H))  # same iTOW as the fourth, 111 m N
+    result = read_ubx(_write(tmp_path, b"".join(frames)))
+    assert len(result.gnss) == 8
+    np.testing.assert_allclose(result.gnss.lla[:, 0], LAT, atol=1e-9)  # the first kept
+    (message,) = _repeat_warnings(result)
+    assert re.search(
+        r"dropped 1 navigation epoch.*NAV-PVT.*1 of them with a position 111 m", message
+    )
+
+
+def test_an_identical_copy_of_a_frame_is_not_a_repeated_epoch(tmp_path):
+    frames = [nav_pvt(T0 + k, LAT, LON, H) for k in range(5)]
+    frames.insert(2, frames[1])  # a logger writing one frame twice loses nothing
+    result = read_ubx(_write(tmp_path, b"".join(frames)))
+    assert len(result.gnss) == 5 and not _repeat_warnings(result)

@@ -841,14 +841,14 @@ def test_fixes_the_imu_does_not_cover_are_counted_outside_its_span_before_any_ga
 
     from fgins.config import config_for_dataset
     from fgins.datatypes import ImuData
-    from fgins.graph.problem import _gnss_selection
+    from fgins.factors.gnss import select_epochs
 
     dataset = urban.dataset
     imu = dataset.imu
     short = imu.t <= imu.t[0] + 20.0
     clipped = dc_replace(dataset, imu=ImuData(t=imu.t[short], gyro=imu.gyro[short],
                                               accel=imu.accel[short]))  # fmt: skip
-    usable, counts = _gnss_selection(clipped, config_for_dataset(clipped), None)
+    usable, counts = select_epochs(clipped, config_for_dataset(clipped).gnss, None)
     outside = (dataset.gnss.t < imu.t[0]) | (dataset.gnss.t > imu.t[short][-1])
     assert counts["outside_imu_span"] == int(outside.sum())
     assert not np.any(usable & outside)
