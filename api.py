@@ -596,15 +596,17 @@ def _check_output_place(
         )
         if same:
             raise OutputError(f"{path}: is an input of this run; refusing to overwrite it")
-        if (
-            source.is_dir()
-            and resolved.parent == source
-            and target.name.lower() in INPUT_FOLDER_FILES
-        ):
-            raise OutputError(
-                f"{path}: {target.name} is a file name the input folder {source} is read from; "
-                "write the output elsewhere or under another name"
-            )
+        if not source.is_dir():
+            continue
+        # The name in the folder, or, through a symlink, the name it points to there.
+        for place in (_resolved(target.parent) / target.name, resolved):
+            if place.parent == source and place.name.lower() in INPUT_FOLDER_FILES:
+                linked = place == resolved and target.is_symlink()
+                via = f" (a link to {resolved})" if linked else ""
+                raise OutputError(
+                    f"{path}{via}: {place.name} is a file name the input folder {source} is "
+                    "read from; write the output elsewhere or under another name"
+                )
 
 
 def write(

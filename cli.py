@@ -6,6 +6,7 @@ Every failure is one line on stderr and a non-zero exit; outputs are written ato
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 import threading
@@ -520,12 +521,33 @@ def main(argv: list[str] | None = None) -> int:
             signal.signal(signal.SIGTERM, previous)
 
 
+#: Exit status after the reader of stdout went away (``fgins inspect LOG | head -1``): that of
+#: a process ended by SIGPIPE, as ``cat`` or ``yes`` give in the same pipe.
+EXIT_STDOUT_CLOSED = 128 + 13
+
+
+def _stdout_closed() -> int:
+    """Quiet exit on a closed stdout: nothing more can be shown, and Python's final flush of
+    the buffered rest must not report the broken pipe either (stdout goes to /dev/null)."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError):  # no real file descriptor (stdout replaced in-process)
+        pass
+    return EXIT_STDOUT_CLOSED
+
+
 def _dispatch(args: argparse.Namespace) -> int:
     try:
         with warnings.catch_warnings():
             # The CLI prints every finding itself, as counted one-line `warning:`s.
             warnings.simplefilter("ignore", api.FginsWarning)
-            return COMMANDS[args.command](args)
+            code = COMMANDS[args.command](args)
+            sys.stdout.flush()  # a closed pipe shows here, not at the interpreter's exit
+            return code
+    except BrokenPipeError:
+        return _stdout_closed()
     except FginsError as exc:
         print(f"fgins: error: {exc}", file=sys.stderr)
         return 2

@@ -77,7 +77,8 @@ class Check:
     ``kind`` is "number", "int", "bool", "str", "vec3" (3 numbers; a scalar when
     ``scalar_ok``) or "table" (str -> number, keys from ``choices``). Numbers are finite;
     ``low`` bounds them from below (exclusive when ``strict``), ``abs_max`` in magnitude.
-    ``hint`` is appended to a range error: what to do instead.
+    ``hint`` is appended to a range error: what to do instead; ``high_hint``, when given,
+    replaces it for a value beyond ``abs_max`` (``hint`` then speaks of the low side only).
     """
 
     kind: str
@@ -88,6 +89,7 @@ class Check:
     choices: tuple[str, ...] = ()
     scalar_ok: bool = False
     hint: str = ""
+    high_hint: str = ""
 
 
 def _show(value: object) -> str:
@@ -144,7 +146,8 @@ def _number(where: str, name: str, value: object, check: Check, shown: object = 
         raise _fail(where, name, shown, problem + (f" ({check.hint})" if check.hint else ""))
     if check.abs_max is not None and abs(number) > check.abs_max:
         problem = f"must be within +-{check.abs_max:g}"
-        raise _fail(where, name, shown, problem + (f" ({check.hint})" if check.hint else ""))
+        hint = check.high_hint or check.hint
+        raise _fail(where, name, shown, problem + (f" ({hint})" if hint else ""))
     return number
 
 
@@ -264,6 +267,8 @@ BIAS_HINT = "0 means a constant bias; a negative density is meaningless"
 TURN_ON_HINT = (
     "it is the prior sigma of the initial bias; use a small value for a bias calibrated out"
 )
+# Past the upper bound the low side's hints (zero noise, negative densities) do not apply.
+IMU_HIGH_HINT = "far beyond any IMU that exists: a unit mix-up or a typo?"
 
 
 # Keys accepted in [imu] besides "preset". The *_si keys let data sources that already know
@@ -291,18 +296,38 @@ IMU_KEYS = {
 # (an ARW of 1e30 made every sigma meaningless with chi2/dof 0.04, and nothing said).
 IMU_SCHEMA: dict[str, Check] = {
     "preset": Check("str", choices=tuple(IMU_PRESETS)),
-    "gyro_arw_deg_per_sqrt_hr": replace(POSITIVE, abs_max=100.0, hint=WHITE_NOISE_HINT),
-    "accel_vrw_m_per_s_per_sqrt_hr": replace(POSITIVE, abs_max=100.0, hint=WHITE_NOISE_HINT),
-    "gyro_noise_rad_per_s_per_sqrt_hz": replace(POSITIVE, abs_max=1.0, hint=WHITE_NOISE_HINT),
-    "accel_noise_m_per_s2_per_sqrt_hz": replace(POSITIVE, abs_max=2.0, hint=WHITE_NOISE_HINT),
+    "gyro_arw_deg_per_sqrt_hr": replace(
+        POSITIVE, abs_max=100.0, hint=WHITE_NOISE_HINT, high_hint=IMU_HIGH_HINT
+    ),
+    "accel_vrw_m_per_s_per_sqrt_hr": replace(
+        POSITIVE, abs_max=100.0, hint=WHITE_NOISE_HINT, high_hint=IMU_HIGH_HINT
+    ),
+    "gyro_noise_rad_per_s_per_sqrt_hz": replace(
+        POSITIVE, abs_max=1.0, hint=WHITE_NOISE_HINT, high_hint=IMU_HIGH_HINT
+    ),
+    "accel_noise_m_per_s2_per_sqrt_hz": replace(
+        POSITIVE, abs_max=2.0, hint=WHITE_NOISE_HINT, high_hint=IMU_HIGH_HINT
+    ),
     # Zero bias instability / random walk is valid: a constant bias (the smoother models it).
-    "gyro_bias_instability_deg_per_hr": replace(NON_NEGATIVE, abs_max=1e4, hint=BIAS_HINT),
-    "accel_bias_instability_mg": replace(NON_NEGATIVE, abs_max=1e3, hint=BIAS_HINT),
-    "gyro_bias_rw_rad_per_s_per_sqrt_s": replace(NON_NEGATIVE, abs_max=1.0, hint=BIAS_HINT),
-    "accel_bias_rw_m_per_s2_per_sqrt_s": replace(NON_NEGATIVE, abs_max=0.5, hint=BIAS_HINT),
+    "gyro_bias_instability_deg_per_hr": replace(
+        NON_NEGATIVE, abs_max=1e4, hint=BIAS_HINT, high_hint=IMU_HIGH_HINT
+    ),
+    "accel_bias_instability_mg": replace(
+        NON_NEGATIVE, abs_max=1e3, hint=BIAS_HINT, high_hint=IMU_HIGH_HINT
+    ),
+    "gyro_bias_rw_rad_per_s_per_sqrt_s": replace(
+        NON_NEGATIVE, abs_max=1.0, hint=BIAS_HINT, high_hint=IMU_HIGH_HINT
+    ),
+    "accel_bias_rw_m_per_s2_per_sqrt_s": replace(
+        NON_NEGATIVE, abs_max=0.5, hint=BIAS_HINT, high_hint=IMU_HIGH_HINT
+    ),
     # The turn-on bias is the prior sigma of the initial bias: 0 would be a hard constraint.
-    "gyro_turn_on_bias_deg_per_s": replace(POSITIVE, abs_max=1000.0, hint=TURN_ON_HINT),
-    "accel_turn_on_bias_mg": replace(POSITIVE, abs_max=1e4, hint=TURN_ON_HINT),
+    "gyro_turn_on_bias_deg_per_s": replace(
+        POSITIVE, abs_max=1000.0, hint=TURN_ON_HINT, high_hint=IMU_HIGH_HINT
+    ),
+    "accel_turn_on_bias_mg": replace(
+        POSITIVE, abs_max=1e4, hint=TURN_ON_HINT, high_hint=IMU_HIGH_HINT
+    ),
     "bias_correlation_time_s": POSITIVE,
     "integration_sigma_m_per_s2_per_sqrt_hz": NON_NEGATIVE,
     "rate_hz": POSITIVE,
@@ -597,17 +622,24 @@ def load_config(
     imu_preset: str | None = None,
     dataset_name: str = "",
     dataset_smoother: dict[str, Any] | None = None,
+    dataset_imu_source: str = "",
 ) -> RunConfig:
     """Merge (lowest first) the dataset's own settings, a TOML file and a CLI preset.
 
     Every value of every source is checked (type, range, known key) before anything is
     merged, so an error names the source it came from; errors are :class:`ConfigError`.
+    The dataset's ``[imu]`` values the user replaces (a preset, or the same key) are not
+    used and not checked; an error about the others says how to replace them.
+    ``dataset_imu_source`` says where the dataset's ``[imu]`` values came from (e.g. "the
+    sensor_msgs/Imu covariances of /imu").
     """
     table: dict[str, Any] = {}
     file_where = f"config {path}: "
     if path is not None:
         try:
-            table = tomllib.loads(Path(path).read_text())
+            # utf-8-sig: a leading byte-order mark (Windows editors) is not TOML, but the
+            # CSV readers accept it, so the config reader does too.
+            table = tomllib.loads(Path(path).read_text(encoding="utf-8-sig"))
         except FileNotFoundError:
             raise ConfigError(f"config file {path} not found") from None
         except IsADirectoryError:
@@ -625,15 +657,16 @@ def load_config(
             "(valid: [imu], [gnss], [smoother])"
         )
     data_where = f"sensor settings of {dataset_name or 'the input'}: "
-    # Each source alone: its values must be valid, whatever the others say.
-    dataset_imu = check_table(data_where, "imu", dataset_imu, IMU_SCHEMA)
+    # Each source alone: its values must be valid, whatever the others say (the dataset's
+    # [imu] values where they are used: a preset or the same key of the user's replaces them).
     user_imu = check_table(file_where, "imu", table.get("imu"), IMU_SCHEMA)
     if imu_preset is not None:
         check_value("", "imu preset (--imu-preset)", imu_preset, IMU_SCHEMA["preset"])
-    imu = dict(dataset_imu)
     if "preset" in user_imu or imu_preset:
         # A preset chosen by the user replaces the dataset's own numbers entirely.
         imu = {}
+    else:
+        imu = _checked_dataset_imu(data_where, dataset_imu, user_imu, dataset_imu_source)
     imu.update(user_imu)
     if imu_preset:
         imu["preset"] = imu_preset
@@ -659,6 +692,24 @@ def load_config(
         smoother=_checked_smoother(file_where, {**data_smoother, **smoother_table}),
         explicit_smoother_keys=frozenset(smoother_table),
     )
+
+
+def _checked_dataset_imu(
+    where: str, dataset_imu: dict[str, Any] | None, user_imu: dict[str, Any], source: str
+) -> dict[str, Any]:
+    """The dataset's own ``[imu]`` values the user does not replace, checked; an error
+    names where they came from (the user never wrote them) and how to replace them."""
+    kept = {k: v for k, v in (dataset_imu or {}).items() if k not in user_imu}
+    if source:
+        where = f"{where}{source} give "
+    try:
+        return check_table(where, "imu", kept, IMU_SCHEMA)
+    except ConfigError as exc:
+        raise ConfigError(
+            f"{exc}; replace the data's values with --imu-preset NAME "
+            f"({', '.join(IMU_PRESETS)}) or --config FILE.toml with an [imu] table "
+            "(preset = NAME, or this key)"
+        ) from None
 
 
 def _checked_smoother(where: str, table: dict[str, Any]) -> SmootherConfig:
@@ -693,6 +744,7 @@ def config_for_dataset(
         imu_preset=imu_preset,
         dataset_name=dataset.name,
         dataset_smoother=dataset.smoother_config,
+        dataset_imu_source=str(dataset.metadata.get("imu_config_source") or ""),
     )
     if vehicle is not None:
         check_vehicle("", vehicle, name="vehicle (--vehicle)")

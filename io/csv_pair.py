@@ -11,7 +11,7 @@ import csv
 import tomllib
 from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
 
@@ -290,7 +290,34 @@ def read_imu_csv(path: str | Path, warnings: list[str] | None = None) -> ImuData
     columns = _read_required(path, warnings, "IMU", IMU_COLUMNS)
     gyro = np.column_stack([columns[f"gyro_{a}"] for a in "xyz"])
     accel = np.column_stack([columns[f"accel_{a}"] for a in "xyz"])
+    _check_time_resolution(path, columns["time"])
     return imu_from_samples(columns["time"], gyro, accel, source=path.name, warnings=warnings)
+
+
+def _check_time_resolution(path: Path, t: np.ndarray) -> None:
+    """An IMU whose times are coarser than its sample period (whole seconds at 100 Hz, or
+    POSIX times printed with one decimal): most rows repeat a time. Dropping them as repeated
+    samples ran at 1 Hz on 1 % of the data with warnings only; this is an error naming the
+    resolution. A few repeated rows (a logger hiccup) stay the reader's counted warning."""
+    t = np.sort(t[np.isfinite(t)])
+    if t.size < 3:
+        return
+    repeated = int(np.count_nonzero(np.diff(t) == 0))
+    if repeated <= 0.5 * (t.size - 1):
+        return
+    distinct = np.unique(t)
+    if distinct.size < 2:
+        raise InputError(
+            f"{path}: all {t.size} IMU rows have the same time ({t[0]:.6f}); give each sample "
+            "its own time, in seconds with fractional digits"
+        )
+    resolution = float(np.min(np.diff(distinct)))
+    raise InputError(
+        f"{path}: {repeated} of {t.size} IMU rows repeat the time of the row before (about "
+        f"{t.size / distinct.size:.0f} rows per time): the timestamps have {resolution:.3g} s "
+        "resolution, coarser than the IMU's sample period; write them with fractional seconds "
+        "(e.g. 12.345678), not rounded"
+    )
 
 
 def read_gnss_csv(path: str | Path, warnings: list[str] | None = None) -> GnssData:
@@ -443,9 +470,34 @@ def _read_sim_config(folder: Path) -> dict[str, Any]:
     if not path.exists():
         return {}
     try:
-        return tomllib.loads(path.read_text())
+        return tomllib.loads(path.read_text(encoding="utf-8-sig"))  # a BOM, as in the CSVs
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"{path}: {exc}") from None
+
+
+def _not_a_sim_folder(path: Path) -> NoReturn:
+    """The error for a folder given as input that ``fgins sim`` did not write: a ROS 2 bag
+    folder (metadata.yaml beside its .mcap or .db3 files) says which file to give."""
+    mcaps = sorted(p for p in path.glob("*") if p.suffix.lower() == ".mcap" and p.is_file())
+    db3 = sorted(p for p in path.glob("*.db3") if p.is_file())
+    bag = "a ROS 2 bag folder" if (path / "metadata.yaml").is_file() else "a folder"
+    if len(mcaps) == 1:
+        raise InputError(f"{path}: {bag} with one MCAP file; give the file itself: {mcaps[0]}")
+    if mcaps:
+        names = ", ".join(p.name for p in mcaps[:5]) + (" ..." if len(mcaps) > 5 else "")
+        raise InputError(
+            f"{path}: {bag} split into {len(mcaps)} MCAP files ({names}); fgins reads one "
+            "MCAP file: give one of them, or merge them first (mcap merge, or ros2 bag convert)"
+        )
+    if db3:
+        raise InputError(
+            f"{path}: {bag} in the SQLite format ({db3[0].name}); fgins reads MCAP: convert it "
+            "(ros2 bag convert with storage_id: mcap) and give the .mcap file"
+        )
+    raise InputError(
+        f"{path}: not a folder written by fgins sim (none of {', '.join(SIM_FOLDER_FILES)} in "
+        "it); give the CSV files themselves"
+    )
 
 
 def read_csv_dataset(paths: list[Path]) -> Dataset:
@@ -462,10 +514,7 @@ def read_csv_dataset(paths: list[Path]) -> Dataset:
             # a second GNSS export) must not make it unreadable; truth.csv is never an input.
             files.extend(path / f for f in SIM_FOLDER_FILES if (path / f).is_file())
             if not files:
-                raise InputError(
-                    f"{path}: not a folder written by fgins sim (none of "
-                    f"{', '.join(SIM_FOLDER_FILES)} in it); give the CSV files themselves"
-                )
+                _not_a_sim_folder(path)
         else:
             files.append(path)
     by_kind: dict[str, Path] = {}

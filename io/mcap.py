@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 from mcap.exceptions import InvalidMagic
 from mcap.reader import make_reader
-from mcap.records import Channel, Chunk, Footer, Message, MessageIndex, Schema
+from mcap.records import Channel, Chunk, DataEnd, Footer, Message, MessageIndex, Schema
 from mcap.stream_reader import StreamReader
 
 from fgins.datatypes import BaroData, Dataset, GnssData, ImuData, InputError, Origin
@@ -137,6 +137,9 @@ class _StreamOutcome:
     # A top-level record that does not parse in a file that ends with its magic: corrupt
     # bytes, not a cut; nothing after it can be framed (-1: none).
     damaged_record_at: int = -1
+    # The DataEnd record was read: every message is before it, damage after it is in the
+    # summary section (channels and counts repeated for indexed readers), not in the data.
+    data_end_seen: bool = False
 
 
 _CHUNK_OPCODE = 0x06
@@ -408,6 +411,8 @@ def _stream_records(
                         outcome.damaged[-1].indexed += len(record.records)
                 elif not isinstance(record, Chunk):
                     last_chunk_at = -1
+                if isinstance(record, DataEnd):
+                    outcome.data_end_seen = True
                 if isinstance(record, Footer):
                     outcome.has_footer = True
                     outcome.has_summary = record.summary_start != 0
@@ -886,8 +891,10 @@ def _choose(
     counts: dict[int, int],
     override: str | None,
     report: list[str],
+    warnings: list[str] | None = None,
 ) -> _Candidate | None:
-    """The channel to read for one role: the override, else the one with most messages."""
+    """The channel to read for one role: the override, else the one with most messages
+    (a tie for most, broken by topic name, is a warning naming the override)."""
     mine = [c for c in candidates if c.role == role]
     if override is not None:
         chosen = [c for c in mine if c.topic == override]
@@ -907,7 +914,22 @@ def _choose(
         why = "the only candidate"
     else:
         others = ", ".join(f"{c.topic} ({counts.get(c.channel_id, 0)})" for c in ranked[1:])
-        why = f"most messages of {len(ranked)} candidates; others: {others}"
+        best_count = counts.get(best.channel_id, 0)
+        tied = [c.topic for c in ranked[1:] if counts.get(c.channel_id, 0) == best_count]
+        tie = " (tied; first by name)" if tied else ""
+        why = f"most messages of {len(ranked)} candidates{tie}; others: {others}"
+        if tied and warnings is not None:
+            option = {ROLE_IMU: "--imu-topic", ROLE_GNSS: "--gnss-topic"}.get(role)
+            pick = (
+                f"give {option} {tied[0]} to read " + ("that one" if len(tied) == 1 else "another")
+                if option
+                else "fgins has no option to pick another"
+            )
+            warnings.append(
+                f"{role}: {len(tied) + 1} {role} topics have {best_count} messages each "
+                f"({', '.join([best.topic, *tied])}); read {best.topic} (first by name): "
+                f"{pick}"
+            )
     report.append(
         f"{role}: {best.topic} ({best.schema_name}, {counts.get(best.channel_id, 0)} messages), "
         f"{why}"
@@ -943,7 +965,12 @@ class _McapScan:
         self.chosen = {}
         for role in _ROLES:
             pick = _choose(
-                role, list(self.candidates.values()), counts, self.overrides.get(role), self.report
+                role,
+                list(self.candidates.values()),
+                counts,
+                self.overrides.get(role),
+                self.report,
+                self.warnings,
             )
             if pick is not None:
                 self.chosen[role] = pick
@@ -1050,7 +1077,14 @@ def _assemble(scan: _McapScan) -> McapResult:
             if outcome.last_log_time_ns is not None
             else "no complete message"
         )
-        if outcome.damaged_record_at >= 0:
+        if outcome.damaged_record_at >= 0 and outcome.data_end_seen:
+            warnings.append(
+                f"{path}: damaged summary section (a record at byte "
+                f"{outcome.damaged_record_at} of {outcome.cut_at} does not parse); the data "
+                f"section before it was read in full ({outcome.messages} messages); tools "
+                "that rely on the summary (indexed readers) may fail on this file"
+            )
+        elif outcome.damaged_record_at >= 0:
             warnings.append(
                 f"{path}: a damaged record at byte {outcome.damaged_record_at} of "
                 f"{outcome.cut_at} (corrupt bytes in a complete file): {outcome.messages} "
@@ -1058,6 +1092,8 @@ def _assemble(scan: _McapScan) -> McapResult:
             )
         else:
             torn = f"; torn chunk {outcome.torn_chunk}" if outcome.torn_chunk else ""
+            if outcome.data_end_seen:  # cut inside the summary: nothing of the data lost
+                torn += "; the cut is in the summary section: the data section was read in full"
             warnings.append(
                 f"{path}: file truncated at byte {outcome.cut_at}: {outcome.messages} messages "
                 f"read, {last}{torn}"
@@ -1140,6 +1176,16 @@ def _assemble(scan: _McapScan) -> McapResult:
             "time_base": "header stamp" if scan.use_header_stamp else "log time",
             "gnss_epochs_without_fix": getattr(gnss_acc, "no_fix", 0),
             "gnss_first_epoch_t": float(getattr(gnss_acc, "first_t", math.nan)),
+            # For messages: errors about the IMU name the topics --imu-topic could read
+            # instead, and errors about the noise the data set say where it came from.
+            "imu_topics_other": sorted(
+                {c.topic for c in scan.candidates.values() if c.role == ROLE_IMU} - {imu_acc.topic}
+            ),
+            "imu_config_source": (
+                f"the sensor_msgs/Imu covariances of {imu_acc.topic} (variances per sample)"
+                if imu_config
+                else ""
+            ),
         },
     )
     return McapResult(dataset=dataset, report=report, warnings=warnings)
@@ -1218,7 +1264,12 @@ def summarize_mcap(path: str | Path, *, progress: bool = False) -> str:
             channels.setdefault(record.id, record)
     size_mb = path.stat().st_size / 1e6
     lines = [f"{path} ({size_mb:.1f} MB)"]
-    if outcome.damaged_record_at >= 0:
+    if outcome.damaged_record_at >= 0 and outcome.data_end_seen:
+        lines.append(
+            f"DAMAGED SUMMARY: a record at byte {outcome.damaged_record_at} of the summary "
+            f"section does not parse ({outcome.error}); the data section was read in full"
+        )
+    elif outcome.damaged_record_at >= 0:
         lines.append(
             f"DAMAGED: a record at byte {outcome.damaged_record_at} does not parse ("
             f"{outcome.error}); everything before it is listed"
@@ -1228,10 +1279,10 @@ def summarize_mcap(path: str | Path, *, progress: bool = False) -> str:
     damage = _damage_warning(path, outcome)
     if damage:
         lines.append(f"DAMAGED: {damage}")
-    lines.append(
-        "summary section: "
-        + ("yes" if outcome.has_summary else "no (fgins streams the whole file to choose topics)")
-    )
+    has = "yes" if outcome.has_summary else "no (fgins streams the whole file to choose topics)"
+    if outcome.data_end_seen and outcome.truncated:
+        has = "damaged (fgins streams the whole file to choose topics)"
+    lines.append("summary section: " + has)
     all_times = [np.frombuffer(v, dtype=np.int64) for v in log_times.values() if len(v)]
     if all_times:
         start = min(int(a.min()) for a in all_times)

@@ -103,6 +103,22 @@ def validate_dataset(dataset: Dataset, vehicle: str | None = None) -> Dataset:
     """
     if dataset.metadata.get("input_checks") is not None:
         return dataset
+    try:
+        return _validated(dataset, vehicle)
+    except InputError as exc:
+        # An IMU that fails a check in a file with several IMU topics: another topic may be
+        # the right one (the reader picked the one with most messages, or the first by name).
+        others = dataset.metadata.get("imu_topics_other") or []
+        if not str(exc).startswith("imu:") or not others:
+            raise
+        raise InputError(
+            f"{exc} [the IMU read is topic {dataset.metadata.get('topics', {}).get('imu', '?')}; "
+            f"the file has {len(others)} other IMU topic(s): {', '.join(others)}; "
+            f"--imu-topic {others[0]} reads {'it' if len(others) == 1 else 'another'}]"
+        ) from None
+
+
+def _validated(dataset: Dataset, vehicle: str | None) -> Dataset:
     checks: list[str] = []
     _check_imu_time_unit(dataset.imu.t)
     imu = flag_suspect(repair_spikes(dataset.imu, checks), checks)
@@ -114,7 +130,7 @@ def validate_dataset(dataset: Dataset, vehicle: str | None = None) -> Dataset:
             "those seconds, its attitude barely more than the alignment's guess"
         )
     gnss, origin = _check_gnss(dataset.gnss, dataset.origin, checks)
-    _check_time_bases(imu.t, gnss.t, checks)
+    _check_time_bases(imu.t, gnss.t, checks, n_read=len(dataset.gnss))
     _check_units(
         imu, gnss, origin, checks, has_accel_array=dataset.accel_array is not None,
         body_follows_track=vehicle not in FREE_BODY_VEHICLES,
@@ -435,10 +451,25 @@ def _report_gnss_time_gaps(t: np.ndarray, checks: list[str]) -> None:
 GNSS_MAX_EPOCH_INTERVAL_S = 100.0
 
 
-def _check_time_bases(t_imu: np.ndarray, t_gnss: np.ndarray, checks: list[str]) -> None:
+def _check_time_bases(
+    t_imu: np.ndarray, t_gnss: np.ndarray, checks: list[str], n_read: int = 0
+) -> None:
+    """The GNSS epochs against the IMU's span; ``n_read``: the fixes the reader gave (before
+    the GNSS checks dropped any), to tell a log with one fix from two clocks."""
     a, b = float(t_imu[0]), float(t_imu[-1])
     c, d = float(t_gnss[0]), float(t_gnss[-1])
     inside = (t_gnss >= a) & (t_gnss <= b)
+    if t_gnss.size == 1 and inside.all():
+        # One fix in the whole input, inside the IMU span: nothing to do with the clocks.
+        dropped = n_read - 1
+        notes = [line.removeprefix("gnss: ") for line in checks if line.startswith("gnss:")]
+        why = f" ({dropped} of the {n_read} read were dropped as unusable" if dropped > 0 else ""
+        why += f": {notes[0]})" if why and notes else ")" if why else ""
+        raise InputError(
+            f"gnss: the input has only 1 usable GNSS fix (at t = {c:.3f} s){why}; at least 2 "
+            "are needed to anchor the trajectory (position and heading): give a GNSS log that "
+            "covers the drive"
+        )
     if not inside.any():
         raise InputError(
             f"the IMU ({a:.3f} .. {b:.3f} s) and the GNSS ({c:.3f} .. {d:.3f} s) time spans do "
