@@ -694,12 +694,26 @@ def load_config(
     )
 
 
+# Keys that set the same quantity in other units: a user's value of one replaces the data's
+# value of the other (an MCAP's covariances give gyro_noise_..., a user writes gyro_arw_...;
+# the data's used to win, silently).
+IMU_SYNONYMS = (
+    frozenset({"gyro_arw_deg_per_sqrt_hr", "gyro_noise_rad_per_s_per_sqrt_hz"}),
+    frozenset({"accel_vrw_m_per_s_per_sqrt_hr", "accel_noise_m_per_s2_per_sqrt_hz"}),
+    frozenset({"gyro_bias_instability_deg_per_hr", "gyro_bias_rw_rad_per_s_per_sqrt_s"}),
+    frozenset({"accel_bias_instability_mg", "accel_bias_rw_m_per_s2_per_sqrt_s"}),
+)
+
+
 def _checked_dataset_imu(
     where: str, dataset_imu: dict[str, Any] | None, user_imu: dict[str, Any], source: str
 ) -> dict[str, Any]:
     """The dataset's own ``[imu]`` values the user does not replace, checked; an error
     names where they came from (the user never wrote them) and how to replace them."""
-    kept = {k: v for k, v in (dataset_imu or {}).items() if k not in user_imu}
+    replaced = set(user_imu) | {
+        other for key in user_imu for group in IMU_SYNONYMS if key in group for other in group
+    }
+    kept = {k: v for k, v in (dataset_imu or {}).items() if k not in replaced}
     if source:
         where = f"{where}{source} give "
     try:

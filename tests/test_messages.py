@@ -133,6 +133,21 @@ def test_noise_from_imu_covariances_names_its_source_and_the_override(tmp_path: 
     assert config.imu == {"preset": "tactical"}
 
 
+def test_a_user_noise_key_replaces_the_datas_key_for_the_same_quantity(tmp_path: Path) -> None:
+    """An MCAP's Imu covariances give gyro_noise_rad_per_s_per_sqrt_hz; a user's
+    gyro_arw_deg_per_sqrt_hr (the same quantity in datasheet units) used to lose to it."""
+    from fgins.config import config_for_dataset
+    from fgins.io.mcap import read_mcap
+
+    dataset = read_mcap(_bag(tmp_path, imu_variances=(1e-6, 1e-4)), progress=False).dataset
+    assert "gyro_noise_rad_per_s_per_sqrt_hz" in dataset.imu_config
+    user = tmp_path / "user.toml"
+    user.write_text("[imu]\ngyro_arw_deg_per_sqrt_hr = 0.5\naccel_vrw_m_per_s_per_sqrt_hr = 0.2\n")
+    noise = config_for_dataset(dataset, user).imu_noise()
+    assert noise.gyro_noise == pytest.approx(0.5 * np.pi / 180 / 60)
+    assert noise.accel_noise == pytest.approx(0.2 / 60)
+
+
 # --- 5. cosmetic ----------------------------------------------------------------------------
 
 
