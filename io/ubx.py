@@ -703,7 +703,11 @@ def _nmea_rows(
     counts = {f"NMEA-{k}": v for k, v in reader.counts.items()}
     try:
         result = _assemble(scanner.path, reader, 0.0)
-    except InputError:
+    except InputError as exc:
+        # Sentences without a fix (GSV, GSA, TXT) are common beside UBX: nothing to say.
+        # Anything else (two receivers on one time base, ...) is said, not swallowed.
+        if "no usable GNSS fix" not in str(exc):
+            warnings.append(f"NMEA sentences in the log not used: {exc}")
         return [], counts
     t = result.gnss.t.copy()
     if not result.has_date:

@@ -300,6 +300,25 @@ def test_nmea_and_rtcm_mixed_in_comment_header(tmp_path):
     np.testing.assert_allclose(result.gnss.lla[4], [LAT + 1e-4, LON, 447.0], atol=1e-6)
 
 
+def test_nmea_in_a_ubx_log_that_cannot_be_used_is_said_not_swallowed(tmp_path):
+    """NMEA from two receivers 30 m apart on one time base is an error for the NMEA reader;
+    mixed into a UBX log it was dropped without a word (only a log without any fix in its
+    sentences stays silent)."""
+    stream = bytearray()
+    for k in range(6):
+        stream += nav_pvt(T0 + k, LAT, LON, H)
+        stream += _gga(T0 + 20 + k, LAT, LON, 400.0)
+        stream += _gga(T0 + 20 + k, LAT + 3e-4, LON, 400.0).replace(b"$GPGGA", b"$GNGGA")
+    fixed = bytearray()
+    for line in bytes(stream).split(b"\r\n"):  # re-checksum the GN lines
+        if line.startswith(b"$GNGGA"):
+            line = _nmea(line[1:].split(b"*")[0].decode()).rstrip(b"\r\n")
+        fixed += line + b"\r\n" if line else b""
+    result = read_ubx(_write(tmp_path, bytes(fixed)))
+    assert len(result.gnss) == 6
+    assert any(w.startswith("NMEA sentences in the log not used") for w in result.warnings)
+
+
 def test_detection_by_content(tmp_path):
     from fgins.io.inputs import _looks_like_nmea
 
