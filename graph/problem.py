@@ -27,6 +27,10 @@ from fgins.geodesy import earth_rate_enu, normal_gravity
 from fgins.graph.keyframes import Segments, build_segments, keyframe_times
 from fgins.mounting import mounting_rotation
 
+# Between two stopped keyframes: rotation and position walk per sqrt(second) of standstill
+# (rad, m), the Kalman baselines' zero-angular-rate sigma (baseline.vehicle_updates).
+NO_MOTION_RATE_SIGMA = float(np.radians(0.01))
+NO_MOTION_SPEED_SIGMA = 0.01
 
 @dataclass
 class Problem:
@@ -386,7 +390,14 @@ class Problem:
         if stopped:
             graph.add(vehicle_model.zero_velocity_factor(V(k), smoother.zupt_sigma_m_per_s))
             if k - 1 in self.zupt_keyframes:
-                graph.add(vehicle_model.no_motion_factor(X(k - 1), X(k), np.radians(0.01), 0.01))
+                # A random walk of NO_MOTION_RATE_SIGMA per sqrt(s): the same constraint per
+                # second of standstill whatever the keyframe rate (a fixed 0.01 deg per
+                # link made a 10 Hz receiver's stops 3x looser than a 1 Hz one's).
+                dt = float(self.segments.times[k] - self.segments.times[k - 1])
+                scale = np.sqrt(max(dt, 1e-3))
+                graph.add(vehicle_model.no_motion_factor(
+                    X(k - 1), X(k), NO_MOTION_RATE_SIGMA * scale, NO_MOTION_SPEED_SIGMA * scale
+                ))  # fmt: skip
             self.zupt_keyframes.add(k)
 
     def _add_baro(self, graph: gtsam.NonlinearFactorGraph, k: int) -> None:
