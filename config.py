@@ -287,6 +287,7 @@ IMU_KEYS = {
     "accel_bias_rw_m_per_s2_per_sqrt_s",
     "integration_sigma_m_per_s2_per_sqrt_hz",
     "rate_hz",
+    "sample_timing",
 }
 
 # Upper bounds far beyond any IMU that exists (the worst MEMS: ARW ~5 deg/sqrt(h), bias
@@ -294,6 +295,10 @@ IMU_KEYS = {
 # the rates an accelerometer array derives, whose bias ramps to 2 rad/s): a value past them
 # is a unit or a typo
 # (an ARW of 1e30 made every sigma meaningless with chi2/dof 0.04, and nothing said).
+IMU_SAMPLE_TIMINGS = ("instant", "held")  # fgins.factors.imu_samples.SAMPLE_TIMINGS
+# [imu] keys that describe the data, not the sensor's noise: kept under a user's preset.
+IMU_DATA_KEYS = ("sample_timing",)
+
 IMU_SCHEMA: dict[str, Check] = {
     "preset": Check("str", choices=tuple(IMU_PRESETS)),
     "gyro_arw_deg_per_sqrt_hr": replace(
@@ -331,6 +336,9 @@ IMU_SCHEMA: dict[str, Check] = {
     "bias_correlation_time_s": POSITIVE,
     "integration_sigma_m_per_s2_per_sqrt_hz": NON_NEGATIVE,
     "rate_hz": POSITIVE,
+    # What a sample stands for in time (fgins.factors.imu_samples): "instant" (a reading at
+    # its time stamp, the default) or "held" (the mean over the interval to the next one).
+    "sample_timing": Check("str", choices=IMU_SAMPLE_TIMINGS),
 }
 assert set(IMU_SCHEMA) == IMU_KEYS | {"preset"}
 
@@ -613,6 +621,11 @@ class RunConfig:
     def imu_noise(self) -> ImuNoise:
         return imu_noise_from_config(self.imu)
 
+    @property
+    def imu_sample_timing(self) -> str:
+        """"instant" or "held" (:mod:`fgins.factors.imu_samples`)."""
+        return str(self.imu.get("sample_timing", "instant"))
+
 
 def load_config(
     path: str | Path | None = None,
@@ -663,8 +676,11 @@ def load_config(
     if imu_preset is not None:
         check_value("", "imu preset (--imu-preset)", imu_preset, IMU_SCHEMA["preset"])
     if "preset" in user_imu or imu_preset:
-        # A preset chosen by the user replaces the dataset's own numbers entirely.
-        imu = {}
+        # A preset chosen by the user replaces the dataset's own numbers entirely; what the
+        # data say about their own sampling is not a noise number and stays.
+        imu = {
+            key: value for key, value in (dataset_imu or {}).items() if key in IMU_DATA_KEYS
+        }
     else:
         imu = _checked_dataset_imu(data_where, dataset_imu, user_imu, dataset_imu_source)
     imu.update(user_imu)

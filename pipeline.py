@@ -35,11 +35,27 @@ def run_method(
     progress: bool = True,
 ) -> Trajectory:
     check_imu_gaps(dataset, config, gnss_mask)
+    dataset = integration_samples(dataset, config)
     mounting_note = _check_mounting(dataset, config)
     trajectory = _run(dataset, config, method, gnss_mask, progress)
     if mounting_note:
         trajectory.info.setdefault("fit_warnings", []).append(mounting_note)
     return trajectory
+
+
+def integration_samples(dataset: Dataset, config: RunConfig) -> Dataset:
+    """``dataset`` with the IMU samples every estimator holds over their intervals: converted
+    from instantaneous readings unless ``[imu] sample_timing = "held"``
+    (:mod:`fgins.factors.imu_samples`). Not for a gyro-free IMU (its filter integrates the
+    raw accelerometer readings). The caller's dataset is not changed."""
+    from dataclasses import replace
+
+    from fgins.factors.imu_samples import for_integration
+
+    if dataset.accel_array is not None:
+        return dataset
+    imu = for_integration(dataset.imu, config.imu_sample_timing)
+    return dataset if imu is dataset.imu else replace(dataset, imu=imu)
 
 
 def check_imu_gaps(dataset: Dataset, config: RunConfig, gnss_mask: np.ndarray | None) -> None:

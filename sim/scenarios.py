@@ -288,7 +288,11 @@ def simulate_run(
     )  # fmt: skip
     baro = None
     config: dict[str, dict[str, Any]] = {
-        "imu": {**imu_table(imu_preset, noise, 1.0 / dt), **(imu_table_extra or {})},
+        # fgins's own samples are held over their intervals (fgins.sim.strapdown).
+        "imu": {
+            **imu_table(imu_preset, noise, 1.0 / dt), **(imu_table_extra or {}),
+            "sample_timing": "held",
+        },
         "gnss": gnss_table(gnss_model),
     }
     info: dict[str, Any] = {"gnss": gnss_info, "turns": profile.turns()}
