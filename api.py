@@ -283,7 +283,7 @@ def load(
     items = [os.fspath(item) for item in inputs]
     dataset = load_dataset(
         items, time_offset_s=float(time_offset), imu_topic=imu_topic, gnss_topic=gnss_topic,
-        progress=progress, vehicle=vehicle,
+        progress=progress, vehicle=vehicle or _configured_vehicle(config),
     )  # fmt: skip
     dataset.metadata["inputs"] = items
     dataset.metadata["run_config"] = configure(
@@ -292,6 +292,28 @@ def load(
     for message in dataset.warnings:
         warnings.warn(message, FginsWarning, stacklevel=2)
     return dataset
+
+
+def _configured_vehicle(config: str | os.PathLike[str] | RunConfig | None) -> str | None:
+    """The ``[smoother] vehicle`` of ``config`` (the input checks need it before the run
+    configuration is resolved: a multirotor need not yaw with its track), or None. A file
+    that cannot be read gives None here; :func:`configure` then reports it properly."""
+    import tomllib
+
+    from fgins.config import RunConfig
+
+    if config is None:
+        return None
+    if isinstance(config, RunConfig):
+        return config.smoother.vehicle
+
+    try:
+        with open(config, "rb") as file:
+            table = tomllib.loads(file.read().decode("utf-8-sig"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return None
+    vehicle = (table.get("smoother") or {}).get("vehicle") if isinstance(table, dict) else None
+    return vehicle if isinstance(vehicle, str) else None
 
 
 def _simulate(

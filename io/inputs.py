@@ -34,7 +34,8 @@ def validated(dataset: Dataset, vehicle: str | None = None) -> Dataset:
     """The one call of the input-validation layer (checks, repairs, counted warnings)."""
     from fgins.io.validate import validate_dataset
 
-    return validate_dataset(dataset, vehicle=vehicle)
+    # The vehicle the data carry (a sim folder's config.toml) when no other is given.
+    return validate_dataset(dataset, vehicle=vehicle or dataset.vehicle)
 
 
 #: Largest ``--time-offset`` magnitude taken (s, about 317 years; GNSS in seconds of the day

@@ -87,6 +87,12 @@ def test_a_circling_multirotor_with_its_nose_held_gets_no_gyro_note(tmp_path, fr
                           120.0, seed=5, frame=frame, vehicle="uav")  # fmt: skip
     dataset = fgins.load(folder, vehicle="uav")
     assert not any("gyro" in note for note in dataset.metadata["input_checks"])
+    # The vehicle from the config file alone counts as well (the input checks used to
+    # see only --vehicle: "[smoother] vehicle = 'uav'" was refused as a dead gyro).
+    (tmp_path / "run.toml").write_text('[smoother]\nvehicle = "uav"\n')
+    dataset = fgins.load(folder / "imu.csv", folder / "gnss.csv", config=tmp_path / "run.toml")
+    assert not any("gyro" in note for note in dataset.metadata["input_checks"])
+    assert dataset.metadata["run_config"].smoother.vehicle == "uav"
 
 
 def test_multirotor_heading_at_rest(multirotor):
