@@ -346,6 +346,27 @@ class Trajectory:
         """1-sigma ENU position error (N, 3), NaN where unknown."""
         return np.sqrt(np.clip(np.diagonal(self.position_cov, axis1=1, axis2=2), 0, None))
 
+    @property
+    def attitude_std_deg(self) -> np.ndarray:
+        """1-sigma roll, pitch and heading errors (N, 3) in deg, NaN where unknown: the
+        navigation-frame attitude covariance about the body's forward axis (roll), the
+        horizontal axis across it (pitch) and up (heading)."""
+        assert self.attitude_cov is not None  # filled with NaN by __post_init__
+        forward = self.rotation[:, :, 0]
+        across = np.stack([-forward[:, 1], forward[:, 0], np.zeros(len(forward))], axis=1)
+        norm = np.linalg.norm(across, axis=1, keepdims=True)
+        across = np.where(norm > 1e-9, across / np.maximum(norm, 1e-9), [1.0, 0.0, 0.0])
+        cov = self.attitude_cov
+        var = np.stack(
+            [
+                np.einsum("ni,nij,nj->n", forward, cov, forward),
+                np.einsum("ni,nij,nj->n", across, cov, across),
+                cov[:, 2, 2],
+            ],
+            axis=1,
+        )
+        return np.degrees(np.sqrt(np.clip(var, 0, None)))
+
     def roll_pitch_heading_deg(self) -> np.ndarray:
         """Roll, pitch (deg) and heading (deg from north, clockwise) of the body x axis (N, 3).
 

@@ -19,6 +19,7 @@ COLUMNS = [
 ]  # fmt: skip
 EXTRA_COLUMNS = [
     "gyro_bias_x", "gyro_bias_y", "gyro_bias_z", "accel_bias_x", "accel_bias_y", "accel_bias_z",
+    "std_roll_deg", "std_pitch_deg", "std_heading_deg",
 ]  # fmt: skip
 
 
@@ -30,22 +31,32 @@ def trajectory_table(trajectory: Trajectory) -> np.ndarray:
         [
             trajectory.t, lla, trajectory.position, trajectory.velocity, attitude,
             trajectory.position_std, trajectory.gyro_bias, trajectory.accel_bias,
+            trajectory.attitude_std_deg,
         ]
     )  # fmt: skip
 
 
 def trajectory_columns(trajectory: Trajectory) -> tuple[list[str], np.ndarray]:
     """The CSV's header and its values before formatting: (:data:`COLUMNS` +
-    :data:`EXTRA_COLUMNS`, (N, 22) float array). One place for the column computation, shared
+    :data:`EXTRA_COLUMNS`, (N, 25) float array). One place for the column computation, shared
     by the CSV writer and ``Trajectory.to_dataframe()``."""
     return COLUMNS + EXTRA_COLUMNS, trajectory_table(trajectory)
+
+
+def trajectory_formats() -> list[str]:
+    """%-formats of :data:`COLUMNS` + :data:`EXTRA_COLUMNS`: time to the microsecond,
+    degrees of latitude/longitude to 1e-9, metres and degrees to 0.1 mm / 1e-4, biases in
+    exponent form."""
+    formats = ["%.6f", "%.9f", "%.9f"] + ["%.4f"] * (len(COLUMNS) + len(EXTRA_COLUMNS) - 3)
+    bias = len(COLUMNS)
+    formats[bias : bias + 6] = ["%.4e"] * 6
+    return formats
 
 
 def write_trajectory_csv(trajectory: Trajectory, path: str | Path) -> None:
     """Write the DESIGN.md trajectory CSV (plus bias columns); NaN where unknown."""
     table = trajectory_table(trajectory)
-    formats = ["%.6f", "%.9f", "%.9f"] + ["%.4f"] * (table.shape[1] - 3)
-    formats[-6:] = ["%.4e"] * 6
+    formats = trajectory_formats()
     with atomic_path(path) as tmp:
         write_table(tmp, table, formats, ",".join(COLUMNS + EXTRA_COLUMNS))
 
@@ -263,6 +274,6 @@ def read_trajectory_csv(path: str | Path, origin: Origin | None = None) -> Traje
         origin=origin,
         method=path.stem,
         gyro_bias=optional(EXTRA_COLUMNS[:3]),
-        accel_bias=optional(EXTRA_COLUMNS[3:]),
+        accel_bias=optional(EXTRA_COLUMNS[3:6]),
         position_cov=cov,
     )

@@ -211,7 +211,7 @@ def test_trajectory_csv_bytes_equal_savetxt(tmp_path, seed):
     write_trajectory_csv(trajectory, out)
     table = trajectory_table(trajectory)
     formats = ["%.6f", "%.9f", "%.9f"] + ["%.4f"] * (table.shape[1] - 3)
-    formats[-6:] = ["%.4e"] * 6
+    formats[16:22] = ["%.4e"] * 6  # the biases; the attitude sigmas after them in %.4f
     reference = tmp_path / "ref.csv"
     np.savetxt(
         reference, table, delimiter=",", fmt=formats,
@@ -240,3 +240,26 @@ def test_reader_special_cells_on_the_fast_and_the_string_path(tmp_path, cells):
     assert_same_read(path)
     path.write_text("a,b,c,d\n" + ",".join(cells) + "\n1,2,3, 4\n")  # padded: string path
     assert_same_read(path)
+
+
+def test_attitude_sigmas_are_written_after_the_biases(tmp_path):
+    """std_roll_deg, std_pitch_deg, std_heading_deg: the navigation-frame attitude
+    covariance about the body's forward axis, the horizontal axis across it and up (a
+    user could not see how uncertain a hover's heading was). Body x east, then north."""
+    from fgins.datatypes import Origin, Trajectory
+    from fgins.geodesy import roll_pitch_heading_to_rotation
+
+    sigma = np.radians([0.5, 1.0, 3.0])  # about east, north, up
+    rotation = np.array([roll_pitch_heading_to_rotation(0.0, 0.0, h) for h in (90.0, 0.0)])
+    trajectory = Trajectory(
+        t=np.array([0.0, 1.0]), position=np.zeros((2, 3)), velocity=np.zeros((2, 3)),
+        rotation=rotation, origin=Origin(45.0, 10.0, 100.0),
+        attitude_cov=np.tile(np.diag(sigma**2), (2, 1, 1)),
+    )  # fmt: skip
+    out = tmp_path / "t.csv"
+    write_trajectory_csv(trajectory, out)
+    header = out.read_text().splitlines()[0].split(",")
+    assert header[-3:] == ["std_roll_deg", "std_pitch_deg", "std_heading_deg"]
+    values = np.loadtxt(out, delimiter=",", skiprows=1)[:, -3:]
+    np.testing.assert_allclose(values[0], [0.5, 1.0, 3.0], atol=1e-4)  # forward = east
+    np.testing.assert_allclose(values[1], [1.0, 0.5, 3.0], atol=1e-4)  # forward = north
