@@ -534,6 +534,9 @@ class SmootherConfig:
     nhc_misalignment_prior_deg: float = 0.0
     nhc_misalignment_walk_deg_per_sqrt_s: float = 0.0
     nhc_misalignment_vertical_walk_deg_per_sqrt_s: float = 0.0
+    # > 0: the misalignment is a first-order Gauss-Markov process with this correlation time
+    # (s) and nhc_misalignment_prior_deg as its stationary sigma (a slowly varying crab).
+    nhc_misalignment_correlation_s: float = 0.0
     # Where the constraint holds (a non-slip point: the rear axle's centre) relative to the
     # IMU, vehicle axes (forward, left, up), m: yaw rate x forward offset is lateral
     # velocity at the IMU. KITTI: 0 fits best (0.3 m either way is worse in the sweep).
@@ -595,6 +598,7 @@ SMOOTHER_SCHEMA = _schema_from_fields(
         "nhc_misalignment_prior_deg": Check("number", low=0.0, abs_max=30.0, hint="degrees"),
         "nhc_misalignment_walk_deg_per_sqrt_s": NON_NEGATIVE,
         "nhc_misalignment_vertical_walk_deg_per_sqrt_s": NON_NEGATIVE,
+        "nhc_misalignment_correlation_s": NON_NEGATIVE,
         "nhc_lever_arm_m": Check("vec3", abs_max=20.0, hint="metres, vehicle axes"),
         "imu_to_vehicle_rpy_deg": Check("vec3", abs_max=360.0, hint="degrees"),
         "zupt_sigma_m_per_s": replace(POSITIVE, hint=SIGMA_HINT),

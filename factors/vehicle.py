@@ -47,6 +47,25 @@ def misalignment_prior(key: int, sigma_rad: float) -> gtsam.PriorFactorVector:
     )
 
 
+def misalignment_gauss_markov_factor(
+    key_a: int, key_b: int, dt: float, correlation_s: float, sigma_rad: float
+) -> gtsam.LinearContainerFactor:
+    """First-order Gauss-Markov step of the NHC misalignment: ``m_b = exp(-dt/tau) m_a + w``
+    with ``w`` of variance ``sigma^2 (1 - exp(-2 dt/tau))`` (a process of stationary sigma
+    ``sigma``). Linear, so a JacobianFactor is exact; it is wrapped to live in the nonlinear
+    graphs."""
+    phi = float(np.exp(-max(dt, 0.0) / correlation_s))
+    noise = max(float(sigma_rad) * np.sqrt(max(1.0 - phi**2, 1e-12)), 1e-9)
+    linear = gtsam.JacobianFactor(
+        int(key_a), -phi * np.eye(2), int(key_b), np.eye(2), np.zeros(2),
+        gtsam.noiseModel.Isotropic.Sigma(2, noise),
+    )  # fmt: skip
+    point = gtsam.Values()
+    put_vector(point, int(key_a), np.zeros(2))
+    put_vector(point, int(key_b), np.zeros(2))
+    return gtsam.LinearContainerFactor(linear, point)
+
+
 def misalignment_walk_factor(
     key_a: int, key_b: int, dt: float, walk_rad_per_sqrt_s: float | np.ndarray
 ) -> gtsam.BetweenFactorVector:

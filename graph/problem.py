@@ -169,6 +169,7 @@ class Problem:
         return (
             smoother.nhc_misalignment_walk_deg_per_sqrt_s == 0.0
             and smoother.nhc_misalignment_vertical_walk_deg_per_sqrt_s == 0.0
+            and smoother.nhc_misalignment_correlation_s == 0.0
         )
 
     @property
@@ -198,6 +199,13 @@ class Problem:
             graph.add(vehicle_model.misalignment_prior(key(0), sigma))
             return
         if self.constant_misalignment:
+            return
+        if smoother.nhc_misalignment_correlation_s > 0.0:
+            dt = float(self.segments.times[k] - self.segments.times[k - 1])
+            graph.add(vehicle_model.misalignment_gauss_markov_factor(
+                key(k - 1), key(k), dt, smoother.nhc_misalignment_correlation_s,
+                float(np.radians(smoother.nhc_misalignment_prior_deg)),
+            ))  # fmt: skip
             return
         walk = np.radians([
             smoother.nhc_misalignment_walk_deg_per_sqrt_s,

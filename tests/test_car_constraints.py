@@ -102,6 +102,35 @@ def test_misalignment_state_enters_the_nhc_exactly():
     assert np.isclose(single.error(turned), factor.error(turned), rtol=1e-9)
 
 
+def test_gauss_markov_misalignment_step_is_exact_and_stationary():
+    """``m_b = phi m_a + w``, phi = exp(-dt/tau), var(w) = sigma^2 (1 - phi^2): the error at
+    any point is the closed form (a linear factor), and a chain of steps from the stationary
+    prior keeps the stationary sigma (the marginal of its last state)."""
+    import gtsam
+
+    dt, tau, sigma = 0.5, 20.0, np.radians(0.5)
+    phi = np.exp(-dt / tau)
+    a, b = vehicle.misalignment_key(0), vehicle.misalignment_key(1)
+    factor = vehicle.misalignment_gauss_markov_factor(a, b, dt, tau, sigma)
+    values = gtsam.Values()
+    values.insert(a, np.array([0.004, -0.002]))
+    values.insert(b, np.array([0.001, 0.003]))
+    residual = values.atVector(b) - phi * values.atVector(a)
+    q = sigma**2 * (1 - phi**2)
+    assert np.isclose(factor.error(values), 0.5 * np.sum(residual**2) / q, rtol=1e-9)
+    graph = gtsam.NonlinearFactorGraph()
+    graph.add(vehicle.misalignment_prior(vehicle.misalignment_key(0), sigma))
+    chain = gtsam.Values()
+    chain.insert(vehicle.misalignment_key(0), np.zeros(2))
+    for k in range(1, 200):
+        graph.add(vehicle.misalignment_gauss_markov_factor(
+            vehicle.misalignment_key(k - 1), vehicle.misalignment_key(k), dt, tau, sigma
+        ))  # fmt: skip
+        chain.insert(vehicle.misalignment_key(k), np.zeros(2))
+    last = gtsam.Marginals(graph, chain).marginalCovariance(vehicle.misalignment_key(199))
+    np.testing.assert_allclose(np.sqrt(np.diag(last)), sigma, rtol=1e-6)
+
+
 @pytest.mark.parametrize("rpy", [(0.0, 0.0, 3.0), (0.0, -1.5, -2.0)])
 def test_the_estimated_misalignment_is_the_unknown_mounting(drives, rpy):
     """The constant misalignment state is the mounting error nobody gave: an IMU turned by
