@@ -67,7 +67,7 @@ from fgins.baseline.mechanization import (
     segment_imu,
 )
 from fgins.baseline.vehicle_updates import VehicleAiding, vehicle_aiding
-from fgins.config import ImuNoise, RunConfig
+from fgins.config import ImuNoise, RunConfig, constant_bias_noise
 from fgins.datatypes import Dataset, FginsError, InputError, Trajectory
 from fgins.geodesy import so3_exp
 from fgins.initial_guess import KeyframeGuess
@@ -214,7 +214,8 @@ def prepare_filter(
     """Shared setup of the EKF and UKF forward passes (same inputs as the factor graph)."""
     imu = dataset.imu
     epochs = select_gnss(dataset, config, gnss_mask)
-    noise = config.imu_noise()
+    # A constant bias is the graph's: fgins.config.constant_bias_noise.
+    noise, _ = constant_bias_noise(config.imu_noise(), float(imu.t[-1] - imu.t[0]))
     frame = NavFrame.at(dataset.origin)
     align = initial_alignment(
         dataset, epochs.usable, smoother=config.smoother, gyro_bias_sigma=noise.gyro_bias_prior

@@ -2,12 +2,10 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import gtsam
 import numpy as np
 
-from fgins.config import ImuNoise
+from fgins.config import ImuNoise, constant_bias_noise
 from fgins.datatypes import Origin
 from fgins.geodesy import earth_rate_enu, normal_gravity
 
@@ -32,41 +30,10 @@ def preintegration_params(
     return params
 
 
-# A bias instability of zero means a constant bias. GTSAM's CombinedImuFactor carries the bias
-# random walk in its noise, which a zero walk makes singular (NaN error, LM stalls at its
-# start). A constant bias is modelled by a floor on the walk tied to the run: over the whole
-# run the bias may move by at most this fraction of its turn-on sigma, i.e. it is constant to
-# the estimator while every factor stays well-conditioned. At 1 % the batch was 5 % worse
-# than EKF+RTS (whose bias is exactly constant) inside the constant-bias aircraft's 60 s
-# outage (1.52 vs 1.45 m); at 0.1 % 1.7 % (1.47 m), with LM and the marginals still well
-# conditioned (QR).
-CONSTANT_BIAS_DRIFT_FRACTION = 1e-3
-
-
 def conditioned_noise(noise: ImuNoise, span_s: float) -> tuple[ImuNoise, list[str]]:
-    """``noise`` with zero (or vanishing) bias random walks floored for a constant bias.
-
-    Returns the noise model and one note per floored sensor, for the run summary.
-    """
-    span_s = max(float(span_s), 1.0)
-    notes: list[str] = []
-    changes: dict[str, float] = {}
-    for name, walk, prior, unit in (
-        ("gyro", noise.gyro_bias_rw, noise.gyro_bias_prior, "rad/s/sqrt(s)"),
-        ("accel", noise.accel_bias_rw, noise.accel_bias_prior, "m/s^2/sqrt(s)"),
-    ):
-        floor = CONSTANT_BIAS_DRIFT_FRACTION * max(prior, 1e-9) / np.sqrt(span_s)
-        # Only a zero (or numerically negligible) walk is a constant bias: a small real walk
-        # of a short run is kept as given, even when it is below the floor.
-        if walk < 1e-3 * floor:
-            changes[f"{name}_bias_rw"] = floor
-            notes.append(
-                f"{name} bias instability {walk:.3g} {unit}: modelled as a constant bias "
-                f"(random-walk floor {floor:.3g} {unit}: it moves < "
-                f"{100 * CONSTANT_BIAS_DRIFT_FRACTION:g} % of its {prior:.3g} prior sigma over "
-                f"the {span_s:.0f} s run)"
-            )
-    return (replace(noise, **changes) if changes else noise), notes
+    """``noise`` with a zero bias instability made a constant bias (the rule the Kalman
+    baselines share: :func:`fgins.config.constant_bias_noise`)."""
+    return constant_bias_noise(noise, span_s)
 
 
 def bias_prior_sigmas(noise: ImuNoise) -> np.ndarray:
