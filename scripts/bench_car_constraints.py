@@ -31,7 +31,10 @@ Full sweep, car / no-car ratio (issue 12 item 7): white-noise NHC median 0.52, m
 (320-380, 430-460, 300-350, 330-380, 130-160 s worst), but that walk costs 15-35 % on
 slip-free simulated cars; a constant angle is neutral here (16 worse, mean 0.60) and costs
 the simulated highway 22 %; so the state is off by default (``nhc_misalignment_prior_deg``).
-Not yet the acceptance line.
+Not yet the acceptance line. Session 20: 16 worse (max 1.95, mean 0.60) with the default; a
+Gauss-Markov crab (``--set nhc_misalignment_prior_deg=0.5 --set
+nhc_misalignment_correlation_s=60``) 10 worse (max 1.64, mean 0.57), but 5-16 % worse on
+slip-free simulated cars, so also off by default.
 
 Examples::
 
