@@ -298,21 +298,17 @@ def _configured_vehicle(config: str | os.PathLike[str] | RunConfig | None) -> st
     """The ``[smoother] vehicle`` of ``config`` (the input checks need it before the run
     configuration is resolved: a multirotor need not yaw with its track), or None. A file
     that cannot be read gives None here; :func:`configure` then reports it properly."""
-    import tomllib
-
-    from fgins.config import RunConfig
+    from fgins.config import RunConfig, read_config_table
 
     if config is None:
         return None
     if isinstance(config, RunConfig):
         return config.smoother.vehicle
-
     try:
-        with open(config, "rb") as file:
-            table = tomllib.loads(file.read().decode("utf-8-sig"))
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        table = read_config_table(config)
+    except ConfigError:
         return None
-    vehicle = (table.get("smoother") or {}).get("vehicle") if isinstance(table, dict) else None
+    vehicle = (table.get("smoother") or {}).get("vehicle")
     return vehicle if isinstance(vehicle, str) else None
 
 

@@ -290,49 +290,36 @@ IMU_KEYS = {
     "sample_timing",
 }
 
+IMU_SAMPLE_TIMINGS = ("instant", "held")  # fgins.factors.imu_samples.SAMPLE_TIMINGS
+# [imu] keys that describe the data, not the sensor's noise: kept under a user's preset.
+IMU_DATA_KEYS = ("sample_timing",)
+
+
+def _imu_bound(base: Check, abs_max: float, hint: str) -> Check:
+    """A noise or bias value of ``base`` (positive, non-negative) up to ``abs_max``: ``hint``
+    for the low side, :data:`IMU_HIGH_HINT` beyond the bound."""
+    return replace(base, abs_max=abs_max, hint=hint, high_hint=IMU_HIGH_HINT)
+
+
 # Upper bounds far beyond any IMU that exists (the worst MEMS: ARW ~5 deg/sqrt(h), bias
 # instability ~100 deg/h, turn-on ~5 deg/s, 100 mg; the SI densities and turn-on also cover
 # the rates an accelerometer array derives, whose bias ramps to 2 rad/s): a value past them
 # is a unit or a typo
 # (an ARW of 1e30 made every sigma meaningless with chi2/dof 0.04, and nothing said).
-IMU_SAMPLE_TIMINGS = ("instant", "held")  # fgins.factors.imu_samples.SAMPLE_TIMINGS
-# [imu] keys that describe the data, not the sensor's noise: kept under a user's preset.
-IMU_DATA_KEYS = ("sample_timing",)
-
 IMU_SCHEMA: dict[str, Check] = {
     "preset": Check("str", choices=tuple(IMU_PRESETS)),
-    "gyro_arw_deg_per_sqrt_hr": replace(
-        POSITIVE, abs_max=100.0, hint=WHITE_NOISE_HINT, high_hint=IMU_HIGH_HINT
-    ),
-    "accel_vrw_m_per_s_per_sqrt_hr": replace(
-        POSITIVE, abs_max=100.0, hint=WHITE_NOISE_HINT, high_hint=IMU_HIGH_HINT
-    ),
-    "gyro_noise_rad_per_s_per_sqrt_hz": replace(
-        POSITIVE, abs_max=1.0, hint=WHITE_NOISE_HINT, high_hint=IMU_HIGH_HINT
-    ),
-    "accel_noise_m_per_s2_per_sqrt_hz": replace(
-        POSITIVE, abs_max=2.0, hint=WHITE_NOISE_HINT, high_hint=IMU_HIGH_HINT
-    ),
+    "gyro_arw_deg_per_sqrt_hr": _imu_bound(POSITIVE, 100.0, WHITE_NOISE_HINT),
+    "accel_vrw_m_per_s_per_sqrt_hr": _imu_bound(POSITIVE, 100.0, WHITE_NOISE_HINT),
+    "gyro_noise_rad_per_s_per_sqrt_hz": _imu_bound(POSITIVE, 1.0, WHITE_NOISE_HINT),
+    "accel_noise_m_per_s2_per_sqrt_hz": _imu_bound(POSITIVE, 2.0, WHITE_NOISE_HINT),
     # Zero bias instability / random walk is valid: a constant bias (the smoother models it).
-    "gyro_bias_instability_deg_per_hr": replace(
-        NON_NEGATIVE, abs_max=1e4, hint=BIAS_HINT, high_hint=IMU_HIGH_HINT
-    ),
-    "accel_bias_instability_mg": replace(
-        NON_NEGATIVE, abs_max=1e3, hint=BIAS_HINT, high_hint=IMU_HIGH_HINT
-    ),
-    "gyro_bias_rw_rad_per_s_per_sqrt_s": replace(
-        NON_NEGATIVE, abs_max=1.0, hint=BIAS_HINT, high_hint=IMU_HIGH_HINT
-    ),
-    "accel_bias_rw_m_per_s2_per_sqrt_s": replace(
-        NON_NEGATIVE, abs_max=0.5, hint=BIAS_HINT, high_hint=IMU_HIGH_HINT
-    ),
+    "gyro_bias_instability_deg_per_hr": _imu_bound(NON_NEGATIVE, 1e4, BIAS_HINT),
+    "accel_bias_instability_mg": _imu_bound(NON_NEGATIVE, 1e3, BIAS_HINT),
+    "gyro_bias_rw_rad_per_s_per_sqrt_s": _imu_bound(NON_NEGATIVE, 1.0, BIAS_HINT),
+    "accel_bias_rw_m_per_s2_per_sqrt_s": _imu_bound(NON_NEGATIVE, 0.5, BIAS_HINT),
     # The turn-on bias is the prior sigma of the initial bias: 0 would be a hard constraint.
-    "gyro_turn_on_bias_deg_per_s": replace(
-        POSITIVE, abs_max=1000.0, hint=TURN_ON_HINT, high_hint=IMU_HIGH_HINT
-    ),
-    "accel_turn_on_bias_mg": replace(
-        POSITIVE, abs_max=1e4, hint=TURN_ON_HINT, high_hint=IMU_HIGH_HINT
-    ),
+    "gyro_turn_on_bias_deg_per_s": _imu_bound(POSITIVE, 1000.0, TURN_ON_HINT),
+    "accel_turn_on_bias_mg": _imu_bound(POSITIVE, 1e4, TURN_ON_HINT),
     "bias_correlation_time_s": POSITIVE,
     "integration_sigma_m_per_s2_per_sqrt_hz": NON_NEGATIVE,
     "rate_hz": POSITIVE,
@@ -674,6 +661,24 @@ class RunConfig:
         return str(self.imu.get("sample_timing", "instant"))
 
 
+def read_config_table(path: str | Path) -> dict[str, Any]:
+    """The TOML table of a config file; a file that cannot be read is a :class:`ConfigError`."""
+    try:
+        # utf-8-sig: a leading byte-order mark (Windows editors) is not TOML, but the CSV
+        # readers accept it, so the config reader does too.
+        return tomllib.loads(Path(path).read_text(encoding="utf-8-sig"))
+    except FileNotFoundError:
+        raise ConfigError(f"config file {path} not found") from None
+    except IsADirectoryError:
+        raise ConfigError(f"config file {path} is a folder; give a .toml file") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"config file {path}: not a text (TOML) file") from None
+    except OSError as exc:
+        raise ConfigError(f"config file {path}: cannot read it ({exc.strerror})") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"config file {path}: {exc}") from None
+
+
 def load_config(
     path: str | Path | None = None,
     *,
@@ -693,23 +698,8 @@ def load_config(
     ``dataset_imu_source`` says where the dataset's ``[imu]`` values came from (e.g. "the
     sensor_msgs/Imu covariances of /imu").
     """
-    table: dict[str, Any] = {}
+    table: dict[str, Any] = {} if path is None else read_config_table(path)
     file_where = f"config {path}: "
-    if path is not None:
-        try:
-            # utf-8-sig: a leading byte-order mark (Windows editors) is not TOML, but the
-            # CSV readers accept it, so the config reader does too.
-            table = tomllib.loads(Path(path).read_text(encoding="utf-8-sig"))
-        except FileNotFoundError:
-            raise ConfigError(f"config file {path} not found") from None
-        except IsADirectoryError:
-            raise ConfigError(f"config file {path} is a folder; give a .toml file") from None
-        except UnicodeDecodeError:
-            raise ConfigError(f"config file {path}: not a text (TOML) file") from None
-        except OSError as exc:
-            raise ConfigError(f"config file {path}: cannot read it ({exc.strerror})") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise ConfigError(f"config file {path}: {exc}") from None
     unknown = set(table) - {"imu", "gnss", "smoother"}
     if unknown:
         raise ConfigError(
