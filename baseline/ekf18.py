@@ -52,7 +52,6 @@ from fgins.baseline.mechanization import (
     segment_imu,
     skew_batch,
 )
-from fgins.baseline.vehicle_updates import FILTER_STOP_SIGMA_AIDED_S
 from fgins.config import RunConfig, SmootherConfig
 from fgins.datatypes import AccelArrayData, Dataset, InputError, Trajectory
 from fgins.factors import stationary
@@ -497,10 +496,7 @@ def _ekf18_pass(
             and quiet[k]
             and stationary.speed_confirms_stop(
                 float(np.linalg.norm(nav.velocity)),
-                # its sigma only while GNSS anchors it (see baseline.vehicle_updates)
-                stationary.speed_sigma(cov[VEL, VEL])
-                if times[k] - last_fix <= FILTER_STOP_SIGMA_AIDED_S
-                else None,
+                stationary.filter_stop_sigma(cov[VEL, VEL], float(times[k]) - last_fix),
                 zupt_max_speed,
             )
         ):

@@ -58,10 +58,7 @@ QUIET_WINDOW_S = 1.0  # the graph's +-0.5 s, looking back only
 BARO_WINDOW_S = 0.25
 # Half-window means of a stop differ by noise only: a difference beyond this many of its own
 # standard errors is a trend (starting or stopping), not rest.
-NO_MOTION_RATE_SIGMA = np.radians(0.01)
-# A quiet boundary this soon after a GNSS update needs its speed within 3 sigma of zero to be
-# a stop (fgins.factors.stationary.speed_confirms_stop); later only below the speed cap.
-FILTER_STOP_SIGMA_AIDED_S = 2.0  # the graph's no-motion rotation sigma per ~1 s keyframe
+NO_MOTION_RATE_SIGMA = np.radians(0.01)  # the graph's no-motion rotation sigma per sqrt(s)
 
 
 @dataclass
@@ -117,10 +114,6 @@ class VehicleAiding:
     ) -> tuple[NominalState, np.ndarray]:
         """Apply the pseudo-measurements due at boundary ``k`` (after any GNSS update)."""
         t = float(self.times[k])
-        # A stop is confirmed by the speed's sigma only while GNSS anchors the filter: dead
-        # reckoning in an outage, a filter can be far more sure of its speed than it should
-        # be (0.1 m/s sigma, 1 m/s off), and refusing real stops then lets it drift away.
-        aided = t - self._last_fix <= FILTER_STOP_SIGMA_AIDED_S
         if self.nhc and t >= self._last_nhc + self.nhc_min_interval_s - 1e-9:
             state, cov = kalman_update(state, cov, *self.nhc_measurement(state, len(cov)))
             self._last_nhc = t
@@ -130,7 +123,7 @@ class VehicleAiding:
             and self.quiet[k]
             and stationary.speed_confirms_stop(
                 float(np.linalg.norm(state.velocity)),
-                stationary.speed_sigma(cov[VEL, VEL]) if aided else None,
+                stationary.filter_stop_sigma(cov[VEL, VEL], t - self._last_fix),
                 self.zupt_max_speed,
             )
         ):

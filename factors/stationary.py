@@ -72,14 +72,27 @@ def gnss_moving(
     ok &= span >= GNSS_MOTION_MIN_SPAN_S
     with np.errstate(invalid="ignore", divide="ignore"):
         chord = np.linalg.norm(gnss_enu[last, :2] - gnss_enu[first, :2], axis=1) / span
-        sigma = np.sqrt(np.sum(gnss_sigma[first, :2] ** 2 + gnss_sigma[last, :2] ** 2, axis=1)
-                        / 2.0) * np.sqrt(2.0) / span  # fmt: skip
+        sigma = np.sqrt(np.sum(gnss_sigma[first, :2] ** 2 + gnss_sigma[last, :2] ** 2, axis=1)) / span
     out[ok] = chord[ok] > np.maximum(STOP_SPEED_FLOOR_M_PER_S, STOP_SPEED_SIGMAS * sigma[ok])
     if moving_before_fixes and np.any(ok):
         out[times < times[np.argmax(ok)]] = True
     elif moving_before_fixes:
         out[:] = True
     return out
+
+
+# A Kalman filter's speed sigma confirms stops only this soon after a GNSS update: dead
+# reckoning in an outage, a filter can be far more sure of its speed than it should be (0.1
+# m/s sigma, 1 m/s off), and refusing real stops then lets it drift away; later the speed
+# cap alone decides.
+FILTER_STOP_SIGMA_AIDED_S = 2.0
+
+
+def filter_stop_sigma(velocity_cov: np.ndarray, since_fix_s: float) -> float | None:
+    """The speed sigma a Kalman filter confirms a stop with (:func:`speed_confirms_stop`):
+    its covariance's while GNSS anchors it, None (the cap alone) after
+    ``FILTER_STOP_SIGMA_AIDED_S`` of dead reckoning."""
+    return speed_sigma(velocity_cov) if since_fix_s <= FILTER_STOP_SIGMA_AIDED_S else None
 
 
 def speed_sigma(velocity_cov: np.ndarray) -> float:

@@ -374,6 +374,12 @@ class Problem:
             np.asarray(gyro).reshape(shape),
         )
 
+    @cached_property
+    def stop_candidates(self) -> np.ndarray:
+        """(K,) keyframes that may be stops, once a speed confirms them: the IMU is quiet
+        and the last seconds of fixes do not move (:func:`stationary.gnss_moving`)."""
+        return self.quiet & ~self.gnss_moving
+
     def speed_confirms_stop(self, speed: float | None, sigma: float | None) -> bool:
         """Does a solution's speed (m/s, with its sigma when known) at a quiet keyframe
         confirm a stop? (:func:`fgins.factors.stationary.speed_confirms_stop`)"""
@@ -391,8 +397,7 @@ class Problem:
         smoother = self.config.smoother
         stopped = (
             smoother.zupt
-            and bool(self.quiet[k])
-            and not bool(self.gnss_moving[k])
+            and bool(self.stop_candidates[k])
             and self.speed_confirms_stop(predicted_speed, speed_sigma)
         )
         if stopped:

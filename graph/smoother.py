@@ -952,14 +952,14 @@ def _stop_speeds(
 ) -> np.ndarray:
     """The solved speed at each keyframe where it confirms a stop, inf elsewhere.
 
-    At the quiet keyframes slow enough to be stops, the speed's sigma (the largest of its
+    At the stop candidates (:attr:`Problem.stop_candidates`) slow enough to be stops, the speed's sigma (the largest of its
     velocity marginal's) decides too (:meth:`Problem.speed_confirms_stop`); one marginal
     factorisation, made only when there is such a keyframe.
     """
     speeds = np.array([np.linalg.norm(result.atVector(V(k))) for k in range(problem.n_keyframes)])
     out = np.full(problem.n_keyframes, np.inf)
     slow = [
-        int(k) for k in np.flatnonzero(problem.quiet)
+        int(k) for k in np.flatnonzero(problem.stop_candidates)
         if problem.speed_confirms_stop(float(speeds[k]), None)
     ]  # fmt: skip
     if not slow:
@@ -989,11 +989,10 @@ def smooth_batch(
     if _suspect(report):
         report, result, graph = _fall_back(problem, source, others, report, result, graph)
     report.start = source  # a restart says so in report.fallback
-    if problem.config.smoother.zupt and problem.quiet.any():
+    if problem.config.smoother.zupt and problem.stop_candidates.any():
         speeds = _stop_speeds(problem, graph, result)
         problem.zupt_keyframes.clear()
-        candidates = np.flatnonzero(problem.quiet & np.isfinite(speeds))
-        if len(candidates):
+        if np.isfinite(speeds).any():
             zupt_report = SolveReport(solver="batch LM", initial_error=report.initial_error)
             result, graph = _solve(problem, result, speeds, zupt_report)
             report.iterations += zupt_report.iterations
@@ -1154,7 +1153,7 @@ def _isam2_speed_sigma(
     speed = float(np.linalg.norm(predicted.velocity()))
     if not (
         problem.config.smoother.zupt
-        and problem.quiet[k]
+        and problem.stop_candidates[k]
         and speed >= stationary.STOP_SPEED_FLOOR_M_PER_S
         and problem.speed_confirms_stop(speed, None)
     ):
@@ -1373,7 +1372,7 @@ def _isam2_redecide_stops(
     estimate = _estimate(isam, factorization)
     free, free_estimate, _ = _isam2_solve_full(problem, None, estimate, params, factorization)
     speeds = _stop_speeds(problem, free, free_estimate)
-    confirmed = {int(k) for k in np.flatnonzero(problem.quiet & np.isfinite(speeds))}
+    confirmed = {int(k) for k in np.flatnonzero(np.isfinite(speeds))}
     if confirmed == online_stops:
         problem.zupt_keyframes = online_stops
         return isam
