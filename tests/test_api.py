@@ -17,21 +17,13 @@ import pytest
 
 import fgins
 from fgins.cli import main
+from fgins.tests.cli_checks import cli_error
 
 README = Path(__file__).resolve().parents[1] / "README.md"
 CONTRACT = (
     "time,lat,lon,alt,east,north,up,vel_east,vel_north,vel_up,roll_deg,pitch_deg,heading_deg,"
     "std_east,std_north,std_up"
 ).split(",")
-
-
-def _cli_error(capsys, argv: list[str]) -> str:
-    """The one-line message the CLI prints for ``argv`` (after ``fgins: error: ``)."""
-    capsys.readouterr()
-    assert main(argv) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("fgins: error: "), err
-    return err[0].removeprefix("fgins: error: ")
 
 
 @pytest.fixture(scope="module")
@@ -129,7 +121,7 @@ def test_errors_are_fgins_errors_with_the_cli_message(tmp_path, capsys, sim_driv
     missing = str(tmp_path / "missing.csv")
     with pytest.raises(fgins.InputError) as caught:
         fgins.load(missing)
-    assert str(caught.value) == _cli_error(
+    assert str(caught.value) == cli_error(
         capsys, ["smooth", missing, "-o", str(tmp_path / "o.csv")]
     )
 
@@ -138,7 +130,7 @@ def test_errors_are_fgins_errors_with_the_cli_message(tmp_path, capsys, sim_driv
     with pytest.raises(fgins.ConfigError) as caught:
         fgins.load(sim_drive, config=bad)
     assert isinstance(caught.value, fgins.FginsError)
-    assert str(caught.value) == _cli_error(
+    assert str(caught.value) == cli_error(
         capsys, ["smooth", str(sim_drive), "--config", str(bad), "-o", str(tmp_path / "o.csv")]
     )
 
@@ -147,7 +139,7 @@ def test_errors_are_fgins_errors_with_the_cli_message(tmp_path, capsys, sim_driv
     track = fgins.smooth(fgins.load(sim_drive), "ekf")
     with pytest.raises(fgins.OutputError) as caught:
         track.write(blocker / "out.csv")
-    assert str(caught.value) == _cli_error(
+    assert str(caught.value) == cli_error(
         capsys, ["smooth", str(sim_drive), "-o", str(blocker / "out.csv")]
     )
     assert (
@@ -163,7 +155,7 @@ def test_errors_are_fgins_errors_with_the_cli_message(tmp_path, capsys, sim_driv
         fgins.smooth(fgins.load(sim_drive), "ekf", online=True)
     with pytest.raises(fgins.ConfigError) as caught:
         fgins.bench(fgins.load(sim_drive), methods=["ekf", "magic"])
-    assert str(caught.value) == _cli_error(
+    assert str(caught.value) == cli_error(
         capsys, ["bench", str(sim_drive), "--methods", "ekf,magic"]
     )
 

@@ -16,6 +16,7 @@ from fgins.cli import main
 from fgins.datatypes import InputError
 from fgins.fleet import FleetOptions, expand_drives, run_fleet
 from fgins.io.atomic import atomic_path
+from fgins.tests.cli_checks import cli_error
 
 
 @pytest.fixture(scope="module")
@@ -33,15 +34,6 @@ def no_loading(monkeypatch):
     monkeypatch.setattr(api, "load", refuse)
 
 
-def _error(capsys, argv: list[str]) -> str:
-    """The one line ``fgins: error: ...`` that ``argv`` gives (exit 2), without the prefix."""
-    capsys.readouterr()
-    assert main(argv) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("fgins: error: "), err
-    return err[0].removeprefix("fgins: error: ")
-
-
 # --- --with-input needs an MCAP input (item 07) ----------------------------------------------
 
 
@@ -51,14 +43,14 @@ def test_with_input_needs_an_mcap_input(drive, tmp_path, capsys, no_loading, inp
         [str(drive)] if inputs == "folder" else [str(drive / "imu.csv"), str(drive / "gnss.csv")]
     )
     out = tmp_path / "wi.mcap"
-    message = _error(capsys, ["smooth", *given, "--method", "ekf", "--with-input", "-o", str(out)])
+    message = cli_error(capsys, ["smooth", *given, "--method", "ekf", "--with-input", "-o", str(out)])
     assert message.startswith("--with-input needs an MCAP input (got ")
     assert all(item in message for item in given)
     assert not out.exists()
 
 
 def test_with_input_needs_an_mcap_output(drive, tmp_path, capsys, no_loading):
-    message = _error(capsys, ["smooth", str(drive), "--with-input", "-o", str(tmp_path / "t.csv")])
+    message = cli_error(capsys, ["smooth", str(drive), "--with-input", "-o", str(tmp_path / "t.csv")])
     assert message.startswith("--with-input needs an MCAP output")
 
 
@@ -89,7 +81,7 @@ def test_api_write_with_input_needs_an_mcap_input(drive, tmp_path):
 @pytest.mark.parametrize("address", ["not a url", "tcp://host", "tcp://host:abc", "foo://h:1"])
 def test_fleet_scheduler_that_is_no_address_is_one_line(tmp_path, capsys, address):
     out = tmp_path / "fleet"
-    message = _error(capsys, ["fleet", str(tmp_path), "-o", str(out), "--scheduler", address])
+    message = cli_error(capsys, ["fleet", str(tmp_path), "-o", str(out), "--scheduler", address])
     assert message.startswith(f"--scheduler {address!r}: not a Dask scheduler address")
     assert "tcp://HOST:PORT" in message
     assert not out.exists()  # refused before the output folder is made
@@ -115,7 +107,7 @@ def test_output_name_too_long_is_refused_before_the_solve(
     drive, tmp_path, capsys, no_loading, name, message
 ):
     out = tmp_path / name
-    error = _error(capsys, ["smooth", str(drive), "--method", "ekf", "-o", str(out)])
+    error = cli_error(capsys, ["smooth", str(drive), "--method", "ekf", "-o", str(out)])
     assert message in error and len(error) < 300, error
     assert list(tmp_path.iterdir()) == []
     with pytest.raises(fgins.OutputError, match=r"too long|cannot write there"):
@@ -147,7 +139,7 @@ def test_bench_methods_and_baseline_checked_before_loading(
     drive, tmp_path, capsys, no_loading, options, message
 ):
     out = tmp_path / "bench"
-    error = _error(capsys, ["bench", str(drive), "--gnss-outage", "5:10", *options, "-o", str(out)])
+    error = cli_error(capsys, ["bench", str(drive), "--gnss-outage", "5:10", *options, "-o", str(out)])
     assert message in error, error
     assert not out.exists()
 
@@ -192,11 +184,11 @@ def test_demo_outage_outside_the_drive_warns_like_smooth(tmp_path, capsys):
 @pytest.mark.parametrize("offset", ["1e20", "-2e10", "1.5e19"])
 def test_absurd_time_offset_is_refused_naming_the_option(drive, tmp_path, capsys, offset):
     out = tmp_path / "x.csv"
-    error = _error(capsys, ["smooth", str(drive), f"--time-offset={offset}", "-o", str(out)])
+    error = cli_error(capsys, ["smooth", str(drive), f"--time-offset={offset}", "-o", str(out)])
     assert error.startswith(f"--time-offset {float(offset):g}: more than 1e+10 s")
     assert "strictly increasing" not in error
     assert list(tmp_path.iterdir()) == []
-    error = _error(capsys, ["convert", str(drive / "gnss.csv"), f"--time-offset={offset}",
+    error = cli_error(capsys, ["convert", str(drive / "gnss.csv"), f"--time-offset={offset}",
                             "-o", str(tmp_path / "g.geojson")])  # fmt: skip
     assert error.startswith("--time-offset")
     with pytest.raises(InputError, match="--time-offset"):

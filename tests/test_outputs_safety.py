@@ -17,6 +17,7 @@ import pytest
 import fgins
 from fgins import api
 from fgins.cli import main
+from fgins.tests.cli_checks import cli_error
 
 
 @pytest.fixture(scope="module")
@@ -43,11 +44,8 @@ def no_loading(monkeypatch):
 
 
 def _refused(capsys, argv: list[str], message: str) -> None:
-    capsys.readouterr()
-    assert main(argv) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("fgins: error: "), err
-    assert message in err[0], err[0]
+    error = cli_error(capsys, argv)
+    assert message in error, error
 
 
 def test_output_under_a_file_is_refused_before_loading(tmp_path, drive, capsys, no_loading):
