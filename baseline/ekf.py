@@ -195,6 +195,9 @@ class FilterSetup:
     gyro_at: np.ndarray  # (segments, 3) IMU sample held over each segment
     accel_at: np.ndarray
     counts: dict[str, int]
+    # Each GNSS update's normalised innovation squared per dimension (the filter's own
+    # consistency: ~1 for a filter whose covariance holds, see :func:`median_nis`).
+    gnss_nis: list[float] = field(default_factory=list)
 
     @property
     def times(self) -> np.ndarray:
@@ -385,6 +388,7 @@ class FilterRecorder:
             "gnss_epochs_used": len(setup.epochs.t),
             "gnss_epochs_outside_imu_span": setup.epochs.outside_imu_span,
             "augmented_states": setup.aiding.n_extra,
+            "gnss_nis_median": median_nis(setup.gnss_nis),
         }
 
     def finish(self, state: NominalState, rejected_times: list[float]) -> FilterRun:
@@ -572,6 +576,7 @@ class GnssUpdater:
     frame: NavFrame
     counts: dict[str, int]
     rejected_times: list[float] = field(default_factory=list)
+    nis: list[float] = field(default_factory=list)  # per update, over its dimension
 
     @classmethod
     def for_setup(
@@ -585,6 +590,7 @@ class GnssUpdater:
             gate_probability=gate_probability,
             frame=setup.frame,
             counts=setup.counts,
+            nis=setup.gnss_nis,
             **extra,
         )
 
@@ -598,6 +604,9 @@ class GnssUpdater:
     ) -> tuple[np.ndarray, np.ndarray] | None:
         """Measurement variances (Huber-inflated) and innovation covariance S of epoch ``g``
         given the predicted measurement covariance; None when the gate rejects the epoch."""
+        if np.all(np.isfinite(innovation)):  # before Huber and gate: the model's own S
+            plain = predicted + np.diag(variance)
+            self.nis.append(float(innovation @ np.linalg.solve(plain, innovation)) / len(innovation))
         if self.huber_k is not None:
             variance, n_down = huber_variances(
                 innovation, np.diag(predicted) + variance, variance, self.huber_k
@@ -776,6 +785,15 @@ def make_trajectory(
         attitude_cov=attitude_cov,
         info=info,
     )
+
+
+def median_nis(nis: list[float]) -> float:
+    """The median normalised innovation squared per dimension of a filter's GNSS updates:
+    about 0.8 (the median of chi2(n)/n) for a filter whose covariance describes its errors;
+    a median (robust to the outliers a Huber kernel or gate handles) far above that means
+    the filter's predictions are wrong by far more than it thinks: IMU and GNSS on different
+    clocks, wrong axes or units, noise set far too small. NaN without updates."""
+    return float(np.median(nis)) if nis else float("nan")
 
 
 def trajectory_info(run: FilterRun, epochs: GnssEpochs) -> dict[str, object]:

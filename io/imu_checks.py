@@ -55,6 +55,58 @@ def find_linear_fills(
     return fills
 
 
+# No IMU measures beyond these (the widest MEMS gyros read +-4000 deg/s = 70 rad/s, shock-
+# rated accelerometers +-400 g): a sample beyond them is a logger's corrupt record, not motion.
+IMU_GYRO_MAX_RAD_PER_S = 200.0
+IMU_ACCEL_MAX_M_PER_S2 = 1.0e4
+# More of them than this share of the samples is not corruption but a unit or scale mistake.
+IMU_OUT_OF_RANGE_MAX_SHARE = 0.01
+
+
+def drop_out_of_range(imu: ImuData, warnings: list[str], *, label: str = "imu") -> ImuData:
+    """``imu`` without samples no IMU can measure (|gyro| > 200 rad/s or |accel| > 1e4 m/s^2
+    on any axis), counted in one warning line; the hole they leave is a gap like any other
+    (bridged with inflated noise, refused when too long). Raises :class:`InputError` when
+    they are more than 1 % of the samples (a unit mistake, not a glitch).
+
+    Before, eleven accelerometer samples of 1e300 overflowed every estimator: the Kalman
+    filters ended in "internal error: SVD did not converge", the batch in a non-finite error."""
+    with np.errstate(invalid="ignore"):
+        bad_gyro = np.abs(imu.gyro) > IMU_GYRO_MAX_RAD_PER_S
+        bad_accel = np.abs(imu.accel) > IMU_ACCEL_MAX_M_PER_S2
+    bad = bad_gyro.any(axis=1) | bad_accel.any(axis=1)
+    n_bad = int(bad.sum())
+    if n_bad == 0:
+        return imu
+    worst_gyro = float(np.abs(imu.gyro).max())
+    worst_accel = float(np.abs(imu.accel).max())
+    what = ", ".join(
+        text
+        for text, present in (
+            (f"|gyro| up to {worst_gyro:.3g} rad/s", bad_gyro.any()),
+            (f"|accel| up to {worst_accel:.3g} m/s^2", bad_accel.any()),
+        )
+        if present
+    )
+    first = float(imu.t[np.argmax(bad)] - imu.t[0])
+    if n_bad > IMU_OUT_OF_RANGE_MAX_SHARE * len(imu.t) or len(imu.t) - n_bad < 2:
+        raise InputError(
+            f"{label}: {n_bad} of {len(imu.t)} samples hold values no IMU measures ({what}; "
+            f"limits {IMU_GYRO_MAX_RAD_PER_S:g} rad/s, {IMU_ACCEL_MAX_M_PER_S2:g} m/s^2), the "
+            f"first at t-t_imu0 = {first:.2f} s: a unit or scale mistake; give gyro_x..z in "
+            "rad/s and accel_x..z in m/s^2"
+        )
+    keep = ~bad
+    warnings.append(
+        f"{label}: {n_bad} sample(s) with values no IMU measures ({what}), the first at "
+        f"t-t_imu0 = {first:.2f} s, dropped as corrupt; the hole is bridged like a gap"
+    )
+    return ImuData(
+        t=imu.t[keep], gyro=imu.gyro[keep], accel=imu.accel[keep], suspect=imu.suspect,
+        frame=imu.frame,
+    )  # fmt: skip
+
+
 # A sample is a spike when it departs from the line through its neighbours by more than a
 # vehicle can turn or change speed within one sample: 0.1 rad (5.7 deg) of rotation or 0.5
 # m/s of velocity (a 1.5 m/s jump in 10 ms is 15 g; a pothole's 3 g for 3 ms is 0.09 m/s),

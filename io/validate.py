@@ -3,6 +3,9 @@
 Readers parse; this module checks, whatever the source (CSV pair, sim folder, NMEA + IMU CSV,
 MCAP, KITTI, UBX), so the same drive read from different formats gets the same findings:
 
+* IMU samples no IMU can measure (|gyro| > 200 rad/s, |accel| > 1e4 m/s^2: a corrupt record)
+  -> dropped and counted, the hole bridged like a gap (more than 1 % of them: a unit mistake,
+  :class:`InputError`);
 * isolated IMU spike samples (more rotation or speed change within one sample than a vehicle
   can make) -> replaced by the line through their neighbours, counted;
 * IMU gaps and linearly interpolated stretches -> ``ImuData.suspect`` (bridged with inflated
@@ -39,7 +42,7 @@ from dataclasses import replace
 import numpy as np
 
 from fgins.datatypes import Dataset, GnssData, InputError, Origin
-from fgins.io.imu_checks import flag_suspect, repair_spikes
+from fgins.io.imu_checks import drop_out_of_range, flag_suspect, repair_spikes
 
 # Geodetic ranges for the supported vehicles (cars, UAVs, aircraft): below the Dead Sea shore
 # (-430 m) and deep mines with margin; above any aircraft (1e5 m is the Karman line).
@@ -121,7 +124,7 @@ def validate_dataset(dataset: Dataset, vehicle: str | None = None) -> Dataset:
 def _validated(dataset: Dataset, vehicle: str | None) -> Dataset:
     checks: list[str] = []
     _check_imu_time_unit(dataset.imu.t)
-    imu = flag_suspect(repair_spikes(dataset.imu, checks), checks)
+    imu = flag_suspect(repair_spikes(drop_out_of_range(dataset.imu, checks), checks), checks)
     span = float(imu.t[-1] - imu.t[0])
     if span < SHORT_IMU_S:
         checks.append(

@@ -62,6 +62,13 @@ def _set_fix(column: str, value: float, row: int = 7):
     return edit
 
 
+def _set_rows(column: str, value: float, rows: range):
+    def edit(header, table):
+        table[list(rows), _column(header, column)] = value
+
+    return edit
+
+
 def _scale_imu(columns: tuple[str, ...], factor: float):
     def edit(header, rows):
         for name in columns:
@@ -378,6 +385,25 @@ DATA_CASES = [
             edit_imu=_scale_imu(("accel_x", "accel_y", "accel_z"), 1.0 / 9.80665),
         ),
         id="accel-in-g",
+    ),
+    pytest.param(
+        Case(
+            "accel-1e300-records",
+            SMOOTH,
+            r"11 sample\(s\) with values no IMU measures \(\|accel\| up to 1e\+300",
+            edit_imu=_set_rows("accel_x", 1e300, range(1000, 1011)),
+            warning_ok=True,
+        ),
+        id="accel-1e300-records",
+    ),
+    pytest.param(
+        Case(
+            "gyro-in-mrad-per-s",
+            SMOOTH,
+            r"samples hold values no IMU measures .* unit or scale mistake",
+            edit_imu=_scale_imu(("gyro_x", "gyro_y", "gyro_z"), 1e5),
+        ),
+        id="gyro-scaled-1e5",
     ),
     pytest.param(
         Case(

@@ -277,3 +277,40 @@ def test_a_kalman_baseline_that_diverged_says_so(method):
     track = run_method(gapped, config, method, progress=False)
     notes = [w for w in track.info.get("fit_warnings", []) if "does not fit the GNSS fixes" in w]
     assert notes and notes[0].startswith(f"{method}: ")
+
+
+@pytest.mark.parametrize("method", ["ekf", "ekf-rts", "ukf"])
+def test_a_kalman_baseline_on_gnss_from_another_clock_says_so(method, tmp_path):
+    """GNSS 18 s late against the IMU (GPS time against UTC) left the forward EKF 218 m off
+    at exit 0 without a word (outside tester): a filter follows the fixes it is given, so
+    its residuals at them stay small. Its own innovations do not: their median normalised
+    square is checked. On the independent simulator's drive (not fgins's own), the same
+    files on one clock pass and GNSS 2 s or 18 s late is said; shifting the clock only
+    drops the epochs beyond the IMU span, so the check cannot pass by luck of data."""
+    import sys
+    from pathlib import Path
+
+    import pandas as pd
+
+    import fgins
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from independent_sim import INDUSTRIAL, hilly_drive, write_drive
+
+    write_drive(tmp_path, hilly_drive(), 120.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
+                gnss_rate=1.0, seed=3, sigma_h=0.5, sigma_u=1.0)  # fmt: skip
+    fixes = pd.read_csv(tmp_path / "gnss.csv")
+    medians = {}
+    for late_s in (0.0, 2.0, 4.0):
+        shifted = fixes.assign(time=fixes["time"] + late_s)
+        path = tmp_path / f"gnss_{late_s:g}.csv"
+        shifted.to_csv(path, index=False, float_format="%.10f")
+        dataset = fgins.load(tmp_path / "imu.csv", path, config=tmp_path / "cfg.toml",
+                             vehicle="car")  # fmt: skip
+        track = run_method(dataset, load_config(tmp_path / "cfg.toml"), method, progress=False)
+        notes = [w for w in track.info.get("fit_warnings", []) if "--time-offset" in w]
+        medians[late_s] = track.info["gnss_nis_median"]
+        assert bool(notes) == (late_s > 0), (late_s, medians, notes)
+        if notes:
+            assert notes[0].startswith(f"{method}: ")
+    assert 0.3 < medians[0.0] < 2.0, medians
