@@ -830,6 +830,7 @@ FACTOR_KINDS = {
     "PriorFactorVector": "velocity (GNSS velocity, stops)",
     "LinearContainerFactor": "vehicle constraint / antenna velocity / odometer",
     "BarometricFactor": "barometer",
+    "BetweenFactorDouble": "barometer bias walk",
 }
 KIND_ADVICE = {
     "GNSS position": "the fixes' sigmas (std_* columns, [gnss] settings) are too small for "
@@ -840,7 +841,12 @@ KIND_ADVICE = {
     "offset, lever arm) or their sigmas are too small, or a detected stop was not one",
     "vehicle constraint / antenna velocity / odometer": "the vehicle constraints do not hold: "
     "check [smoother] imu_to_vehicle_rpy_deg and --vehicle",
+    "barometer": "the pressure heights disagree with the GNSS and IMU heights by more than "
+    "baro_sigma_m and the bias walk allow: over a large climb on a day far from the standard "
+    "atmosphere's temperature its height scale is off by several %; raise [smoother] "
+    "baro_bias_walk_m_per_sqrt_s or leave the barometer out",
 }
+KIND_ADVICE["barometer bias walk"] = KIND_ADVICE["barometer"]
 
 
 def _error_blame(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> str:

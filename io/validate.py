@@ -27,6 +27,7 @@ MCAP, KITTI, UBX), so the same drive read from different formats gets the same f
 * GNSS jumps no vehicle can make (> 1000 m/s between fixes beyond their own sigmas) -> fix
   dropped and counted; a jump that persists (two sources in one log) -> :class:`InputError`;
 * GNSS time gaps (outages or a clock jump) -> reported;
+* barometric pressure outside what air has (hPa, kPa, psi, bar given as Pa) -> :class:`InputError`;
 * time bases: IMU and GNSS spans that do not overlap -> :class:`InputError` naming both spans
   and ``--time-offset``; GNSS epochs outside the IMU span -> counted.
 
@@ -139,6 +140,7 @@ def _validated(dataset: Dataset, vehicle: str | None) -> Dataset:
         body_follows_track=vehicle not in FREE_BODY_VEHICLES,
     )  # fmt: skip
     _check_gnss_velocity(gnss, origin)
+    _check_pressure_unit(dataset.baro)
     _report_gnss_time_gaps(gnss.t, checks)
     metadata = {**dataset.metadata, "input_checks": list(checks)}
     return replace(
@@ -148,6 +150,44 @@ def _validated(dataset: Dataset, vehicle: str | None) -> Dataset:
         origin=origin,
         warnings=[*dataset.warnings, *checks],
         metadata=metadata,
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# Barometer
+# --------------------------------------------------------------------------------------------
+
+# Air pressure from the Dead Sea shore (~107 kPa) to 20 km (~5.5 kPa), with margin: outside
+# it the numbers are in another unit (hPa/mbar ~1000, kPa ~100, psi ~15, bar/atm ~1).
+PRESSURE_PLAUSIBLE_PA = (3.0e3, 1.2e5)
+PRESSURE_UNITS = (  # (median range, unit, factor to Pa)
+    ((250.0, 1200.0), "hPa (mbar)", 100.0),
+    ((25.0, 120.0), "kPa", 1000.0),
+    ((3.0, 17.5), "psi", 6894.757),
+    ((0.25, 1.2), "bar or atm", 1.0e5),
+)
+
+
+def _check_pressure_unit(baro) -> None:
+    """A pressure no air has is a unit mistake (outside testers: hPa given as Pa, 955 "Pa"
+    or ~30 km of standard atmosphere, moved the height by metres at exit 0)."""
+    if baro is None or baro.pressure is None:
+        return
+    pressure = baro.pressure[np.isfinite(baro.pressure) & (baro.pressure > 0.0)]
+    if not len(pressure):
+        return
+    median = float(np.median(pressure))
+    low, high = PRESSURE_PLAUSIBLE_PA
+    if low <= median <= high:
+        return
+    guess = next(
+        (f"; it looks like {unit}: multiply by {factor:g}" for (a, b), unit, factor in
+         PRESSURE_UNITS if a <= median <= b),
+        "",
+    )  # fmt: skip
+    raise InputError(
+        f"baro: the median pressure is {median:.4g} Pa, which no air between the Dead Sea and "
+        f"20 km has ({low:g}-{high:g} Pa){guess}; give pressure_pa in pascals"
     )
 
 

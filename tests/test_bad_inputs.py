@@ -62,6 +62,12 @@ def _set_fix(column: str, value: float, row: int = 7):
     return edit
 
 
+def _baro_csv(pressure: float) -> bytes:
+    """20 s of a barometer at 10 Hz reading ``pressure`` (a unit mistake if not pascals)."""
+    rows = "".join(f"{k / 10:.1f},{pressure!r}\n" for k in range(200))
+    return ("time,pressure_pa\n" + rows).encode()
+
+
 def _set_rows(column: str, value: float, rows: range):
     def edit(header, table):
         table[list(rows), _column(header, column)] = value
@@ -404,6 +410,24 @@ DATA_CASES = [
             edit_imu=_scale_imu(("gyro_x", "gyro_y", "gyro_z"), 1e5),
         ),
         id="gyro-scaled-1e5",
+    ),
+    pytest.param(
+        Case(
+            "baro-in-hpa",
+            ["smooth", "{imu}", "{gnss}", "{tmp}/baro.csv", "--method", "ekf", "-o", "{out}"],
+            r"median pressure is 955 Pa.*hPa \(mbar\): multiply by 100",
+            extra_files={"baro.csv": _baro_csv(955.0)},
+        ),
+        id="baro-in-hpa",
+    ),
+    pytest.param(
+        Case(
+            "baro-in-kpa",
+            ["smooth", "{imu}", "{gnss}", "{tmp}/baro.csv", "--method", "ekf", "-o", "{out}"],
+            r"median pressure is 95\.5 Pa.*kPa: multiply by 1000",
+            extra_files={"baro.csv": _baro_csv(95.5)},
+        ),
+        id="baro-in-kpa",
     ),
     pytest.param(
         Case(
