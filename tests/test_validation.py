@@ -904,3 +904,25 @@ def test_a_single_fix_in_the_imu_span_names_the_cause(tmp_path, urban, scale, ex
     gnss_path.write_text("\n".join([lines[0], *(",".join(c) for c in rows)]) + "\n")
     with pytest.raises(InputError, match=f"only 1 of {len(rows)} GNSS fixes lie within the IMU time span.*{expect}"):
         load_dataset(paths)
+
+
+@pytest.mark.parametrize("scale, warned", [(1.0, False), (30.0, True)])
+def test_fixes_far_from_the_origin_say_the_flat_frame_is_a_model_error(urban, scale, warned):
+    """The navigation frame's constant gravity is off by ~1.5 mg 10 km from the origin: a
+    track stretched (about the origin, closed form) beyond that is said, with the distance
+    and the lean of real gravity there; the urban drive itself (a few km) is not."""
+    from dataclasses import replace
+
+    from fgins.geodesy import enu_to_lla, lla_to_enu
+    from fgins.io.validate import validate_dataset
+
+    enu = lla_to_enu(urban.dataset.gnss.lla, urban.dataset.origin)
+    reach = float(np.hypot(*(scale * enu[:, :2]).T).max())
+    lla = enu_to_lla(np.column_stack([scale * enu[:, :2], enu[:, 2]]), urban.dataset.origin)
+    dataset = replace(urban.dataset, gnss=replace(urban.dataset.gnss, lla=lla, velocity=None))
+    checked = validate_dataset(dataset, vehicle="other")
+    notes = [w for w in checked.warnings if w.startswith("frame:")]
+    assert bool(notes) == warned, (reach, notes)
+    if warned:
+        assert f"reach {reach / 1000:.0f} km" in notes[0]
+        assert f"leans {math.degrees(reach / 6.371e6):.2f} deg" in notes[0]
