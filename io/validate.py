@@ -677,7 +677,9 @@ def _check_units(
             "expected; 0.017 if rad/s were converted to rad/s again, 0 for a dead gyro), or "
             "the IMU and GNSS clocks are offset (give --time-offset SECONDS)"
         )
-    if turns >= TURN_SIGN_MIN_WINDOWS and turn_sign < TURN_SIGN_MIN_RATIO:
+    # A multirotor or a walker may yaw against its track (outside tester: every valid
+    # multirotor flight got this note): only a body that follows its track is judged.
+    if body_follows_track and turns >= TURN_SIGN_MIN_WINDOWS and turn_sign < TURN_SIGN_MIN_RATIO:
         problems.append(
             f"imu: the gyro turns against the GNSS track: over {turns} turns its rotation about "
             "up (the direction of the accelerometer's mean reading) is "

@@ -95,6 +95,24 @@ def test_a_circling_multirotor_with_its_nose_held_gets_no_gyro_note(tmp_path, fr
     assert dataset.metadata["run_config"].smoother.vehicle == "uav"
 
 
+def test_a_multirotor_yawing_against_its_track_gets_no_gyro_note(tmp_path):
+    """Circles counter-clockwise while the nose yaws clockwise (a camera drone panning):
+    the gyro turns against the track, as a multirotor may. With --vehicle uav that was a
+    note blaming the accelerometer's sign, the axes or swapped latitude and longitude on
+    every such valid flight (outside tester); a car or an aircraft is still judged."""
+    moves = [(5 + 4 * i, 8, 40 * np.array([np.cos(i * np.pi / 4), np.sin(i * np.pi / 4), 0]))
+             for i in range(25)]  # fmt: skip
+    yaws = [(5 + 10 * i, 8, -np.pi / 2) for i in range(11)]
+    folder = write_flight(tmp_path / "mr", Multirotor(heading0_deg=30, moves=moves, yaws=yaws),
+                          120.0, seed=6, frame="frd", vehicle="uav")  # fmt: skip
+    dataset = fgins.load(folder, vehicle="uav")
+    assert not any("gyro" in note for note in dataset.metadata["input_checks"]), dataset.metadata[
+        "input_checks"
+    ]
+    with pytest.raises(fgins.InputError, match="gyro turns against the GNSS track"):
+        fgins.load(folder, vehicle="aircraft")
+
+
 def test_multirotor_heading_at_rest(multirotor):
     """The nose's heading, not the course of the (sideways) first motion."""
     dataset = fgins.load(multirotor, vehicle="uav")
