@@ -421,6 +421,12 @@ def _rest_attitude(
             forward_axis=forward_axis if travel == AHEAD_OR_BACK else None,
             rest_force=specific_force if static else None,
         )  # fmt: skip
+        if travel == ANY_DIRECTION:
+            # A multirotor or walker moves in any direction: the course of its first motion
+            # says nothing of its heading (outside tester: after a 60 s hover, 89 +- 2 deg
+            # where the nose pointed at 30, and a backward flight 180 deg off; the batch bent
+            # the gyro bias to meet it). Unknown, but for what the fit finds later.
+            heading_sigma_deg = UNKNOWN_HEADING_SIGMA_DEG
     level = triad(up_body, forward_axis, np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0]))
     return _with_heading(level, heading_deg, forward_axis), heading_sigma_deg
 
@@ -714,6 +720,7 @@ ACCEL_HEADING_DISTANCE_M = 20.0  # the fixes must move this far from the start t
 ACCEL_HEADING_EXTRA_S = 10.0  # and the fit runs this much longer
 MAX_ACCEL_HEADING_S = 60.0
 MIN_ACCEL_HEADING_SIGMA_DEG = 3.0
+UNKNOWN_HEADING_SIGMA_DEG = 90.0  # a heading prior that says only "somewhere"
 ACCEL_HEADING_BIAS_PRIOR = 0.5  # m/s^2 (50 mg): beyond any MEMS turn-on bias
 ACCEL_HEADING_FIX_SIGMA_M = 1.0
 
