@@ -1,7 +1,8 @@
 """Barometer: height from pressure with a slowly varying bias state (GTSAM BarometricFactor).
 
-GTSAM's factor takes pressure in kPa and its error is ``z + bias - h(p)`` with the
-standard-atmosphere height ``h``; the bias absorbs the origin's height and the weather, and
+GTSAM's factor takes pressure in kPa and its error is ``z + bias - h(p)`` with its own
+standard-atmosphere height ``h``, fed the pressure that gives the ISA height
+(:func:`fgins.factors.stationary.gtsam_equivalent_kpa`); the bias absorbs the origin's height and the weather, and
 follows a random walk between keyframes.
 """
 
@@ -21,7 +22,10 @@ def pressure_factor(
     pose_key: int, bias_key: int, pressure_pa: float, sigma_m: float
 ) -> gtsam.BarometricFactor:
     return gtsam.BarometricFactor(
-        pose_key, bias_key, pressure_pa / 1000.0, gtsam.noiseModel.Isotropic.Sigma(1, sigma_m)
+        pose_key,
+        bias_key,
+        float(stationary.gtsam_equivalent_kpa(pressure_pa)),
+        gtsam.noiseModel.Isotropic.Sigma(1, sigma_m),
     )
 
 
@@ -38,5 +42,5 @@ def initial_bias(height_enu_m: float, pressure_pa: float) -> float:
 
 
 def standard_atmosphere_height(pressure_pa: float | np.ndarray) -> float | np.ndarray:
-    """GTSAM's own conversion (BarometricFactor::heightOut); one copy, in factors/stationary."""
+    """ISA height of a pressure; one copy, in factors/stationary (GTSAM-free)."""
     return stationary.standard_atmosphere_height(pressure_pa)

@@ -266,11 +266,28 @@ def pressure_at(
     return out
 
 
-def standard_atmosphere_height(pressure_pa: float | np.ndarray) -> np.ndarray:
-    """Height (m) of a pressure in GTSAM's standard atmosphere (BarometricFactor::heightOut).
+# International Standard Atmosphere, troposphere (ICAO; below 11 km): the model a real
+# barometer's pressure follows on a standard day, and the one fgins's simulator writes.
+ISA_SEA_LEVEL_PA = 101325.0
+ISA_LAPSE_COEFFICIENT_PER_M = 2.25577e-5  # lapse rate / sea-level temperature
+ISA_EXPONENT = 5.25588
 
-    The same NASA Glenn troposphere model as :func:`fgins.factors.baro.standard_atmosphere_height`,
-    here without importing GTSAM so that the Kalman baselines can use it.
+
+def standard_atmosphere_height(pressure_pa: float | np.ndarray) -> np.ndarray:
+    """Height (m above mean sea level) of a pressure in the ISA troposphere.
+
+    GTSAM's BarometricFactor has its own constants (288.08 K, 101.29 kPa, 5.256, 6.49 K/km),
+    whose height scale is 0.13 % off the ISA's: 1.3 m per km of climb, which a flight's
+    barometer turned into a vertical error of 3 sigma (outside tester). The graph feeds it
+    :func:`gtsam_equivalent_kpa` instead, so every estimator uses this height.
     """
-    kpa = np.asarray(pressure_pa, dtype=float) / 1000.0
-    return (np.power(kpa / 101.29, 1.0 / 5.256) * 288.08 - 273.1 - 15.04) / -0.00649
+    ratio = np.asarray(pressure_pa, dtype=float) / ISA_SEA_LEVEL_PA
+    return (1.0 - np.power(ratio, 1.0 / ISA_EXPONENT)) / ISA_LAPSE_COEFFICIENT_PER_M
+
+
+def gtsam_equivalent_kpa(pressure_pa: float | np.ndarray) -> np.ndarray:
+    """The pressure (kPa) whose height in GTSAM's BarometricFactor (``heightOut``) is the ISA
+    height of ``pressure_pa``: the inverse of ``(pow(p / 101.29, 1 / 5.256) * 288.08 -
+    288.14) / -0.00649`` at :func:`standard_atmosphere_height`."""
+    height = standard_atmosphere_height(pressure_pa)
+    return 101.29 * np.power((288.14 - 0.00649 * height) / 288.08, 5.256)
