@@ -835,8 +835,9 @@ FACTOR_KINDS = {
 KIND_ADVICE = {
     "GNSS position": "the fixes' sigmas (std_* columns, [gnss] settings) are too small for "
     "these fixes, or IMU and GNSS disagree (clock offset, lever arm)",
-    "IMU": "the IMU noise (--imu-preset, [imu]) is too small for this IMU, or its axes or "
-    "units are wrong",
+    "IMU": "the IMU noise (--imu-preset, [imu]) is too small for this IMU, its biases are "
+    "larger than their turn-on sigmas ([imu] gyro_turn_on_bias_deg_per_s, "
+    "accel_turn_on_bias_mg), or its axes or units are wrong",
     "velocity (GNSS velocity, stops)": "the GNSS velocities disagree with the IMU (clock "
     "offset, lever arm) or their sigmas are too small, or a detected stop was not one",
     "vehicle constraint / antenna velocity / odometer": "the vehicle constraints do not hold: "
