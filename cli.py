@@ -12,6 +12,7 @@ import sys
 import threading
 import warnings
 from pathlib import Path
+from typing import NoReturn
 
 import numpy as np
 
@@ -43,8 +44,22 @@ def _add_sensor_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
 
 
+class _OneLineParser(argparse.ArgumentParser):
+    """argparse, but a mistake on the command line is one ``fgins: error:`` line (exit 2, as
+    argparse's), not the usage block before it (outside tester: a wrong --method printed 11
+    lines). ``--help`` is unchanged."""
+
+    def error(self, message: str) -> NoReturn:
+        command = self.prog.removeprefix("fgins").strip()
+        where = f"{command}: " if command else ""
+        self.exit(
+            2,
+            f"fgins: error: {where}{message} (see {self.prog} --help)\n",
+        )
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _OneLineParser(
         prog="fgins", description="GNSS/INS factor-graph smoothing (GTSAM) with Kalman baselines."
     )
     parser.add_argument("--version", action="version", version=f"fgins {__version__}")
@@ -563,6 +578,13 @@ def _dispatch(args: argparse.Namespace) -> int:
     except Exception as exc:  # the promise is one line, not a traceback
         if args.debug:
             raise
+        if isinstance(exc, OSError) and exc.errno is not None:
+            # The machine's refusal (disk full, no permission, a read-only or missing
+            # folder), not a bug: the file and the reason (outside tester: "internal error:
+            # OSError: [Errno 28] No space left on device ... please report it").
+            where = f"{exc.filename}: " if exc.filename else ""
+            print(f"fgins: error: {where}{exc.strerror or exc}", file=sys.stderr)
+            return 1
         print(
             f"fgins: internal error: {type(exc).__name__}: {str(exc).strip().splitlines()[0] if str(exc).strip() else ''}"
             " (rerun with --debug for the traceback; please report it)",

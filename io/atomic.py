@@ -8,13 +8,20 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
+from fgins.datatypes import OutputError
+
 
 @contextlib.contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; move it into place only if the block succeeds."""
     target = Path(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".part", dir=target.parent)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp_name = tempfile.mkstemp(
+            prefix=f".{target.name}.", suffix=".part", dir=target.parent
+        )
+    except OSError as exc:
+        raise _cannot_write(target, exc) from None
     os.close(fd)
     tmp = Path(tmp_name)
     try:
@@ -24,6 +31,18 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)
         os.replace(tmp, target)
+    except OSError as exc:
+        if exc.errno is None:
+            raise
+        raise _cannot_write(target, exc) from None
     finally:
         if tmp.exists():
             tmp.unlink()
+
+
+def _cannot_write(target: Path, exc: OSError) -> OutputError:
+    """The machine refused the output (disk full, no permission, a read-only or virtual
+    folder): one line naming the user's path, not the temporary one (outside tester: disk
+    full was an "internal error", and the API raised a bare OSError)."""
+    reason = exc.strerror or str(exc)
+    return OutputError(f"cannot write {target}: {reason}")

@@ -317,7 +317,7 @@ CONFIG_CASES = [
         r'sensor settings of drive: vehicle = "boat": expected one of car',
         edit_sim_config=lambda text: text.replace('vehicle = "car"', 'vehicle = "boat"'),
     ),
-    # CLI choices: argparse refuses them (exit 2, one "error:" line after the usage).
+    # CLI choices: argparse refuses them (exit 2, one "error:" line, no usage block).
     Case("vehicle-boat-cli", [*SMOOTH, "--vehicle", "boat"], r"--vehicle: invalid choice: 'boat'"),
     Case("preset-cli", [*SMOOTH, "--imu-preset", "potato"], r"--imu-preset: invalid choice"),
     Case(
@@ -520,6 +520,7 @@ def _check_case(case: Case, sim_dir: Path, tmp_path: Path, capsys, monkeypatch) 
         return
     assert code == 2, f"exit code {code}; stderr:\n{stderr}"
     assert len(error_lines) == 1, stderr
+    assert "usage:" not in stderr, stderr  # one line, not argparse's usage block before it
     assert re.search(case.expect, error_lines[0]), error_lines[0]
     assert not out.exists() or (out_key in before), f"{out} was written"
     new_files = sorted(set(after) - set(before))
@@ -645,3 +646,28 @@ def test_no_fix_epochs_before_the_first_fix_do_not_move_the_outage_windows(sim_d
     assert dataset.t0 == pytest.approx(reference.t0, abs=0.01)
     withheld = dataset.gnss.t[~outage_mask(dataset, [(10.0, 20.0)])] - reference.t0
     assert len(withheld) and withheld.min() >= 10.0 - 0.01 and withheld.max() < 20.0
+
+
+@pytest.mark.parametrize("errno_code", [28, 13, 30])  # ENOSPC, EACCES, EROFS
+def test_the_machine_refusing_an_output_is_one_line(errno_code, sim_dir, tmp_path, capsys,
+                                                     monkeypatch):  # fmt: skip
+    """Disk full, no permission, a read-only file system while the output is written: one
+    ``fgins: error:`` line naming the user's path and the reason, exit 2, no temporary file
+    left (outside tester: "internal error: OSError: [Errno 28] No space left on device ...
+    please report it", and the API raised a bare OSError)."""
+    import errno
+    import os
+
+    from fgins.io import trajectory_csv
+
+    def refuse(*_args, **_kwargs):
+        raise OSError(errno_code, os.strerror(errno_code))
+
+    monkeypatch.setattr(trajectory_csv, "write_table", refuse)
+    out = tmp_path / "out.csv"
+    code, _, stderr = _run(["smooth", str(sim_dir), "--method", "ekf", "-o", str(out)], capsys)
+    lines = [line for line in stderr.splitlines() if "error" in line]
+    assert code == 2 and len(lines) == 1, stderr
+    assert lines[0] == f"fgins: error: cannot write {out}: {os.strerror(errno_code)}"
+    assert "internal error" not in stderr and errno.errorcode[errno_code]
+    assert sorted(p.name for p in tmp_path.iterdir()) == []

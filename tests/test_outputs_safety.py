@@ -174,7 +174,8 @@ def test_failed_write_leaves_no_file(tmp_path, drive, monkeypatch):
     ):
         saved = getattr(module, attr)
         monkeypatch.setattr(module, attr, half_then_fail)
-        with pytest.raises(OSError, match="No space"):
+        # The API's own error, naming the user's path (it was a bare OSError).
+        with pytest.raises(fgins.OutputError, match=f"cannot write .*{name}: No space"):
             track.write(tmp_path / name)
         monkeypatch.setattr(module, attr, saved)
         assert sorted(p.name for p in tmp_path.iterdir()) == []
@@ -182,7 +183,7 @@ def test_failed_write_leaves_no_file(tmp_path, drive, monkeypatch):
     track.write(tmp_path / "track.csv")
     good = (tmp_path / "track.csv").read_bytes()
     monkeypatch.setattr(trajectory_csv, "write_table", half_then_fail)
-    with pytest.raises(OSError):
+    with pytest.raises(fgins.OutputError):
         track.write(tmp_path / "track.csv")
     assert (tmp_path / "track.csv").read_bytes() == good
     assert sorted(p.name for p in tmp_path.iterdir()) == ["track.csv"]
