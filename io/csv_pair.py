@@ -96,11 +96,25 @@ def _read_columns(path: Path, warnings: list[str]) -> dict[str, np.ndarray]:
     ~18 s on a 1 h, 200 Hz drive); the numbers are the bits Python's ``float`` gives.
     """
     header = read_header(path)
+    repeated = sorted({name for name in header if header.count(name) > 1})
+    if repeated:  # which copy is meant cannot be told; the last one silently won
+        raise InputError(
+            f"{path}: column(s) {', '.join(repeated)} appear more than once in the header; "
+            "keep one of each"
+        )
     textable = [name not in KNOWN_NUMERIC_COLUMNS for name in header]
     try:
         table, bad, ignored, text = _parse_table(path, len(header), textable)
     except _Fallback:
         table, bad, ignored, text = _parse_table_python(path, len(header), textable)
+    if bad > len(table) and not (len(table) == 0 and text):  # text columns: named below
+        # Most rows unusable: what is left would be blamed on something else (time spans
+        # that do not overlap, too few samples; outside tester).
+        raise InputError(
+            f"{path}: {bad} of {bad + len(table)} data rows are malformed (a field count "
+            "other than the header's, or a cell that is not a number such as 'n/a'); fix "
+            "or drop those rows"
+        )
     if bad:
         warnings.append(f"{path.name}: dropped {bad} malformed row(s)")
     if len(table) == 0:

@@ -671,3 +671,40 @@ def test_the_machine_refusing_an_output_is_one_line(errno_code, sim_dir, tmp_pat
     assert lines[0] == f"fgins: error: cannot write {out}: {os.strerror(errno_code)}"
     assert "internal error" not in stderr and errno.errorcode[errno_code]
     assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    "edit, expect",
+    [
+        # A second gyro_x column of zeros: the last copy silently won (gyro x all zeros).
+        (lambda h, rows: (h + ",gyro_x", [r + ",0.0" for r in rows]),
+         r"imu\.csv: column\(s\) gyro_x appear more than once in the header"),
+        # 'n/a' in accel_x on all but 10 rows: blamed on time spans, the drop never said.
+        (lambda h, rows: (h, [_cell(r, 4, "n/a") for r in rows[:-10]] + rows[-10:]),
+         r"imu\.csv: \d+ of \d+ data rows are malformed .*'n/a'"),
+        # A trailing comma on every row: "no data rows".
+        (lambda h, rows: (h, [r + "," for r in rows]),
+         r"imu\.csv: (\d+) of \1 data rows are malformed \(a field count other than"),
+    ],
+    ids=["duplicate-column", "most-rows-not-numbers", "trailing-comma"],
+)
+def test_csv_rows_and_columns_that_cannot_be_read_are_named(edit, expect, sim_dir, tmp_path,
+                                                            capsys):  # fmt: skip
+    """Outside tester: each of these ran (the first at exit 0 with a zero gyro axis) or was
+    refused for another cause; each is now its own one-line error."""
+    lines = (sim_dir / "imu.csv").read_text().splitlines()
+    header, rows = edit(lines[0], lines[1:])
+    (tmp_path / "imu.csv").write_text("\n".join([header, *rows]) + "\n")
+    out = tmp_path / "out.csv"
+    args = ["smooth", str(tmp_path / "imu.csv"), str(sim_dir / "gnss.csv"), "-o", str(out)]
+    code, _, stderr = _run(args, capsys)
+    errors = [line for line in stderr.splitlines() if line.startswith("fgins: error: ")]
+    assert code == 2 and len(errors) == 1, stderr
+    assert re.search(expect, errors[0]), errors[0]
+    assert not out.exists()
+
+
+def _cell(row: str, column: int, value: str) -> str:
+    cells = row.split(",")
+    cells[column] = value
+    return ",".join(cells)
