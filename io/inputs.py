@@ -132,12 +132,28 @@ def _parse(
 
 def _nmea_with_imu(nmea: list[Path], others: list[Path], time_offset_s: float) -> Dataset:
     from fgins.datatypes import Origin
-    from fgins.io.csv_pair import csv_kind, read_imu_csv
+    from fgins.io.csv_pair import csv_kind, read_baro_csv, read_imu_csv, read_odometer_csv
     from fgins.io.nmea import read_nmea
 
     if len(nmea) > 1:
         raise InputError(f"give one NMEA file, got {len(nmea)}")
-    imu_files = [p for p in others if p.is_file() and csv_kind(p) == "imu"]
+    kinds = {p: (csv_kind(p) if p.is_file() else None) for p in others}
+    # Every other input is used or refused, never dropped (outside tester: a gnss.csv given
+    # beside the NMEA log was ignored without a word).
+    for path, kind in kinds.items():
+        if kind == "gnss":
+            raise InputError(
+                f"two GNSS sources: {nmea[0].name} and {path.name}; give one of them"
+            )
+        if kind not in ("imu", "baro", "odometer"):
+            raise InputError(
+                f"{path}: not an input fgins reads beside an NMEA log (one IMU CSV, and "
+                "optionally baro.csv and wheel.csv)"
+            )
+    for kind in ("baro", "odometer"):
+        if sum(1 for k in kinds.values() if k == kind) > 1:
+            raise InputError(f"more than one {kind} CSV among the inputs; give one")
+    imu_files = [p for p, kind in kinds.items() if kind == "imu"]
     if len(imu_files) != 1:
         raise InputError(
             f"{nmea[0]}: an NMEA file needs exactly one IMU CSV beside it "
@@ -148,9 +164,13 @@ def _nmea_with_imu(nmea: list[Path], others: list[Path], time_offset_s: float) -
     warnings.extend(f"{nmea[0].name}: {warning}" for warning in result.warnings)
     imu = read_imu_csv(imu_files[0], warnings)
     gnss = result.gnss
+    baro_files = [p for p, kind in kinds.items() if kind == "baro"]
+    odometer_files = [p for p, kind in kinds.items() if kind == "odometer"]
     return Dataset(
         imu=imu,
         gnss=gnss,
+        baro=read_baro_csv(baro_files[0], warnings) if baro_files else None,
+        odometer=read_odometer_csv(odometer_files[0], warnings) if odometer_files else None,
         origin=Origin(*map(float, gnss.lla[0])),
         name=nmea[0].stem,
         warnings=warnings,

@@ -431,6 +431,15 @@ DATA_CASES = [
     ),
     pytest.param(
         Case(
+            "nmea-and-gnss-csv",
+            ["smooth", "{gnss}", "{nmea}", "{imu}", "--method", "ekf", "-o", "{out}"],
+            r"two GNSS sources: log\.nmea and gnss\.csv; give one of them",
+            nmea="good",
+        ),
+        id="nmea-and-gnss-csv",
+    ),
+    pytest.param(
+        Case(
             "corrupt-nmea-with-imu-csv",
             ["smooth", "{nmea}", "{imu}", "--method", "ekf", "-o", "{out}"],
             r"altitude|height|jump|implausible|impossible|range|outside",
@@ -708,3 +717,16 @@ def _cell(row: str, column: int, value: str) -> str:
     cells = row.split(",")
     cells[column] = value
     return ",".join(cells)
+
+
+def test_a_barometer_beside_an_nmea_log_is_read(sim_dir, tmp_path):
+    """baro.csv (and wheel.csv) given with an NMEA log and its IMU CSV were dropped without
+    a word, like a second GNSS source; the barometer is now read (the low-cost study's UAV
+    flies NMEA with a barometer)."""
+    import fgins
+
+    nmea = tmp_path / "log.nmea"
+    nmea.write_text(_nmea_from_gnss_csv(sim_dir / "gnss.csv", corrupt=False))
+    (tmp_path / "baro.csv").write_bytes(_baro_csv(95500.0))
+    dataset = fgins.load(nmea, sim_dir / "imu.csv", tmp_path / "baro.csv")
+    assert dataset.baro is not None and len(dataset.baro.t) == 200
