@@ -51,15 +51,19 @@ def select_gnss(dataset: Dataset, config: RunConfig, gnss_mask: np.ndarray | Non
                 f"gnss_mask has shape {gnss_mask.shape} for {len(gnss)} GNSS epochs; "
                 "build it with fgins.outages.outage_mask(dataset, windows)"
             )
-    gate = gnss_model.gate_epochs(gnss, config.gnss)
-    usable = gate.usable if gnss_mask is None else gate.usable & gnss_mask
     imu_t = dataset.imu.t
-    in_span = (gnss.t >= imu_t[0]) & (gnss.t <= imu_t[-1])
-    if not np.any(usable & in_span):
+    # The graph's count (factors.gnss.select_epochs): withheld, outside the IMU span, gated,
+    # each epoch once; the summary line said "60 pass the gates" right after a warning that
+    # 20 of the 60 lie outside the IMU span (outside tester).
+    gate = gnss_model.gate_epochs(
+        gnss, config.gnss, withheld=None if gnss_mask is None else ~gnss_mask,
+        imu_span=(float(imu_t[0]), float(imu_t[-1])),
+    )  # fmt: skip
+    usable = gate.used
+    if not np.any(usable):
         _, counts = gnss_model.select_epochs(dataset, config.gnss, gnss_mask)
         raise gnss_model.no_usable_gnss_error(dataset, config.gnss, counts)
-    outside = int((usable & ~in_span).sum())
-    usable = usable & in_span
+    outside = gate.outside_span
     subset = gnss.subset(usable)
     velocity_sigma = gnss_model.velocity_sigmas(subset, config.gnss)
     if not config.gnss.use_velocity:

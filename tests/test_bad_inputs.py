@@ -730,3 +730,24 @@ def test_a_barometer_beside_an_nmea_log_is_read(sim_dir, tmp_path):
     (tmp_path / "baro.csv").write_bytes(_baro_csv(95500.0))
     dataset = fgins.load(nmea, sim_dir / "imu.csv", tmp_path / "baro.csv")
     assert dataset.baro is not None and len(dataset.baro.t) == 200
+
+
+@pytest.mark.parametrize("method", ["ekf", "batch"])
+def test_gnss_count_line_adds_up_for_every_method(method, sim_dir, tmp_path, capsys):
+    """GNSS 5 s late: the epochs past the IMU's end are counted as such, and the line's
+    counts add up, for the Kalman baselines as for the graph (the EKF said "20 pass the
+    gates" after a warning that 5 of them lie outside the IMU span; outside tester)."""
+    lines = (sim_dir / "gnss.csv").read_text().splitlines()
+    shifted = [lines[0]] + [f"{float(r.split(',', 1)[0]) + 5.0!r},{r.split(',', 1)[1]}"
+                            for r in lines[1:]]  # fmt: skip
+    (tmp_path / "gnss.csv").write_text("\n".join(shifted) + "\n")
+    out = tmp_path / "out.csv"
+    args = ["smooth", str(sim_dir / "imu.csv"), str(tmp_path / "gnss.csv"), "--method", method,
+            "--gnss-outage", "2:4", "-o", str(out)]  # fmt: skip
+    code, _, stderr = _run(args, capsys)
+    line = next(x for x in stderr.splitlines() if x.startswith("GNSS: "))
+    total = int(re.match(r"GNSS: (\d+) epochs", line).group(1))
+    counts = [int(n) for n in re.findall(r"(\d+) (?:used|withheld|outside|gated|by)", line)]
+    assert code == 0 and sum(counts) == total, line
+    assert re.search(r"[1-9]\d* outside the IMU time span", line), line
+    assert re.search(r" 2 withheld by outage", line), line
