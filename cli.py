@@ -382,7 +382,8 @@ def cmd_convert(args: argparse.Namespace) -> int:
     gnss, warnings = _read_gnss_only(args.input, check_time_offset(args.time_offset))
     from fgins.io.validate import check_gnss_records
 
-    # DOP placeholders (u-blox 99.99, NMEA 0.00) written as missing, counted.
+    # DOP placeholders (u-blox 99.99, NMEA 0.00) written as missing; fixes that are no
+    # measurement (quality 6-8) written with their fix_quality, and said.
     checks: list[str] = []
     gnss = check_gnss_records(gnss, checks)
     warnings = [*warnings, *checks]

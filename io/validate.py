@@ -25,6 +25,8 @@ MCAP, KITTI, UBX), so the same drive read from different formats gets the same f
   and counted (an error when no fix is left);
 * GNSS sigmas and DOPs that are not positive finite numbers, and DOPs that are a receiver's
   "not available" placeholder (0, 99.99) -> missing, counted;
+* fixes that are no measurement by their quality (6 dead reckoning, 7 manual, 8 simulator)
+  -> noted (the GNSS gate of :mod:`fgins.factors.gnss` leaves them out);
 * GNSS jumps no vehicle can make (> 1000 m/s between fixes beyond their own sigmas) -> fix
   dropped and counted; a jump that persists (two sources in one log) -> :class:`InputError`;
 * GNSS time gaps (outages or a clock jump) -> reported;
@@ -499,12 +501,44 @@ def _clean_sigmas(gnss: GnssData, checks: list[str]) -> GnssData:
     return replace(gnss, **replaced) if replaced else gnss
 
 
+def _note_not_measured(gnss: GnssData, checks: list[str]) -> None:
+    """A note for fixes whose quality says they are no measurement (6 dead reckoning, 7 manual
+    input, 8 simulator): the smoother's gate leaves them out, the user should know why; a log
+    that is all simulator (Garmin GPSmap-76S, Geko 201 in demo mode) is said as such."""
+    from fgins.factors.gnss import NOT_MEASURED_QUALITIES
+
+    quality = np.asarray(gnss.fix_quality)
+    counts = {q: int((quality == q).sum()) for q in NOT_MEASURED_QUALITIES}
+    total = sum(counts.values())
+    if not total:
+        return
+    gate = "the smoother's fix-quality gate leaves them out (\"by fix quality\")"
+    if total == len(quality) and len({q for q, n in counts.items() if n}) == 1:
+        q = next(q for q, n in counts.items() if n)
+        what = (
+            "the receiver was in simulator mode, its positions are not GNSS measurements"
+            if q == 8
+            else f"{NOT_MEASURED_QUALITIES[q]}, not GNSS measurements"
+        )
+        checks.append(f"gnss: every fix ({total}) has fix quality {q}: {what}; {gate}")
+        return
+    kinds = ", ".join(
+        f"{n} with {q} ({NOT_MEASURED_QUALITIES[q]})" for q, n in counts.items() if n
+    )
+    checks.append(
+        f"gnss: {total} of {len(quality)} fix(es) are not GNSS measurements by their fix "
+        f"quality ({kinds}); {gate}"
+    )
+
+
 def check_gnss_records(gnss: GnssData, checks: list[str]) -> GnssData:
     """The checks a GNSS record needs without an IMU: sigmas and DOPs that are not positive
-    finite numbers or are "not available" placeholders become missing (counted).
-    :func:`validate_dataset` applies it to every dataset, ``fgins convert`` to the fixes it
-    writes."""
-    return _clean_sigmas(gnss, checks)
+    finite numbers or are "not available" placeholders become missing (counted), and fixes
+    that are no measurement by their quality are noted. :func:`validate_dataset` applies it
+    to every dataset, ``fgins convert`` to the fixes it writes (fix_quality kept)."""
+    gnss = _clean_sigmas(gnss, checks)
+    _note_not_measured(gnss, checks)
+    return gnss
 
 
 def _reject_persistent_jumps(gnss: GnssData) -> None:

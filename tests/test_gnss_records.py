@@ -87,6 +87,20 @@ def test_dop_placeholders_are_written_as_missing(tmp_path, capsys, log):
         assert gate.rejected_pdop == 0 and gate.n_used == fixes
 
 
+@needs_logs
+@pytest.mark.parametrize(("log", "fixes"), [("GPSmap-76S.log", 12), ("garmin-geko201.log", 18)])
+def test_a_simulator_mode_log_is_converted_with_its_quality_and_said(tmp_path, capsys, log, fixes):
+    """Garmin receivers in demo mode send GGA quality 8: `fgins convert` writes the fixes
+    (fix_quality 8 kept, so a reader can tell) and says the log is simulated."""
+    gnss, err = _convert(tmp_path, f"nmea/gpsd/{log}", capsys)
+    assert len(gnss) == fixes and np.all(gnss.fix_quality == 8)
+    assert (
+        f"warning: gnss: every fix ({fixes}) has fix quality 8: the receiver was in simulator "
+        "mode, its positions are not GNSS measurements" in err
+    )
+    assert gate_epochs(gnss, GnssConfig()).rejected_quality == fixes
+
+
 # --- end to end: fgins smooth on a simulator drive ------------------------------------------
 
 
@@ -118,3 +132,27 @@ def test_a_pdop_of_99_99_is_not_an_outage(tmp_path, capsys, drive):
     assert rc == 0, err
     assert f"{2 * n} DOP value(s) in {n} fix(es) are the receiver's 'not available'" in err
     assert re.search(r"\b0 gated by PDOP > 5\b", _gnss_line(err)), err
+
+
+def test_simulator_and_manual_fixes_are_gated_and_counted(tmp_path, capsys, drive):
+    """Fix quality 7 (manual input) and 8 (simulator) went in as real fixes ("0 by fix
+    quality"); 9 (SBAS) is a measurement and stays."""
+    quality = np.ones(len(drive.gnss), dtype=int)
+    quality[10:20] = 8
+    quality[30:35] = 7
+    quality[40:45] = 9
+    rc, err = _smooth(tmp_path, drive, replace(drive.gnss, fix_quality=quality), capsys)
+    assert rc == 0, err
+    assert re.search(r"\b15 by fix quality\b", _gnss_line(err)), err
+    assert (
+        f"gnss: 15 of {len(quality)} fix(es) are not GNSS measurements by their fix quality "
+        "(5 with 7 (manual input), 10 with 8 (simulator))" in err
+    )
+
+
+def test_a_whole_simulator_log_is_refused_naming_the_quality(tmp_path, capsys, drive):
+    n = len(drive.gnss)
+    rc, err = _smooth(tmp_path, drive, replace(drive.gnss, fix_quality=np.full(n, 8)), capsys)
+    assert rc == 2 and len(err.splitlines()) == 1
+    assert f"no usable GNSS epoch of {n}: {n} by fix quality" in err
+    assert f"simulator: not measurements: {n} with 8 (simulator))" in err
