@@ -15,8 +15,12 @@ from fgins.config import GnssConfig
 from fgins.datatypes import Dataset, GnssData, InputError
 from fgins.geodesy import skew, skew_batch
 
-# NMEA GGA fix-quality codes -> UERE table key.
+# NMEA GGA fix-quality codes -> UERE table key (9: SBAS-corrected, NovAtel's WAAS code).
 QUALITY_UERE_KEY = {1: "autonomous", 2: "dgps", 9: "dgps", 4: "rtk_fixed", 5: "rtk_float"}
+# GGA codes that are no GNSS measurement: 6 dead reckoning (the receiver's own extrapolation),
+# 7 manual input, 8 simulator mode. Gated whatever min_fix_quality says, counted "by fix
+# quality" (an outside tester's quality-8 logs went in as 60 real fixes).
+NOT_MEASURED_QUALITIES = {6: "dead reckoning", 7: "manual input", 8: "simulator"}
 
 
 def _positive(values: np.ndarray) -> np.ndarray:
@@ -100,7 +104,8 @@ class GateResult:
 
     Every epoch is counted exactly once, in this priority order (the first reason that
     applies): withheld by the caller's outage mask, no finite position, outside the IMU time
-    span (when given), fix quality below the minimum (or dead reckoning), PDOP above
+    span (when given), fix quality below the minimum (or 6 dead reckoning, 7 manual input,
+    8 simulator: :data:`NOT_MEASURED_QUALITIES`), PDOP above
     ``pdop_max``. So ``total == n_used + withheld + rejected_position + outside_span +
     rejected_quality + rejected_pdop``; an epoch in an outage is never "gated by PDOP".
 
@@ -199,7 +204,9 @@ def gate_epochs(
     span_ok = np.ones(n, dtype=bool)
     if imu_span is not None:
         span_ok = (gnss.t >= imu_span[0]) & (gnss.t <= imu_span[1])
-    quality_ok = (gnss.fix_quality >= config.min_fix_quality) & (gnss.fix_quality != 6)
+    quality_ok = (gnss.fix_quality >= config.min_fix_quality) & ~np.isin(
+        gnss.fix_quality, list(NOT_MEASURED_QUALITIES)
+    )
     pdop_ok = np.ones(n, dtype=bool)
     if config.pdop_max is not None:
         pdop_ok = ~(np.isfinite(gnss.pdop) & (gnss.pdop > config.pdop_max))
@@ -448,9 +455,16 @@ def no_usable_gnss_error(
             f"{counts['gated_pdop']} gated by PDOP > {config.pdop_max} ([gnss] pdop_max)"
         )
     if counts["gated_quality"]:
+        quality = dataset.gnss.fix_quality
+        named = ", ".join(
+            f"{n} with {q} ({what})"
+            for q, what in NOT_MEASURED_QUALITIES.items()
+            if (n := int(np.sum(quality == q)))
+        )
         parts.append(
             f"{counts['gated_quality']} by fix quality < {config.min_fix_quality} (0 = no fix; "
-            "[gnss] min_fix_quality)"
+            "[gnss] min_fix_quality) or 6-8 (dead reckoning, manual input, simulator: not "
+            f"measurements{': ' + named if named else ''})"
         )
     if outside:
         parts.append(f"{outside} outside the IMU time span")

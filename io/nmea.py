@@ -7,7 +7,13 @@ time (GSA, VTG) belong to the epoch of the latest timed sentence, as in gpsd.
 
 Time (the ``gnss.csv`` convention of DESIGN.md): POSIX UTC seconds when the log carries a
 date (RMC/ZDA), else seconds since the UTC midnight of the first epoch; monotonic across
-midnight either way. Dates are used as logged (old week-rollover dates are not "fixed").
+midnight either way. Dates are used as logged (old week-rollover dates are not "fixed"), but
+only from an RMC with status A or a ZDA: an RMC with status V carries the receiver's start-up
+default before it knows the time (1980-01-05, 2008-01-01...), so its date is ignored (counted
+where it disagrees); epochs before the first valid date get it by the midnight rule.
+
+A GGA with a fix quality but 0 satellites used is no fix (a receiver coasting on its last
+position; gpsd reports such epochs as mode 1): its position is not used, counted.
 
 Heights are ellipsoidal: MSL altitude + geoid separation; where the receiver leaves the
 separation empty the EGM2008 grid of :mod:`fgins.io.geoid` supplies it (counted).
@@ -93,6 +99,7 @@ class _Epoch:
         "date",
         "dops",
         "gga_hdop",
+        "gga_no_satellites",
         "gsa_sats",
         "motion_by_talker",
         "num_sats",
@@ -102,6 +109,7 @@ class _Epoch:
         "speed",
         "std",
         "tod",
+        "untrusted_date",
     )
 
     def __init__(self, tod: float) -> None:
@@ -116,6 +124,9 @@ class _Epoch:
         self.repeat_distance = 0.0
         self.repeat_talker = ""
         self.date: tuple[int, int, int] | None = None
+        # the date of an RMC with status V: the receiver's guess (its start-up default)
+        self.untrusted_date: tuple[int, int, int] | None = None
+        self.gga_no_satellites = False  # GGA: quality > 0 with 0 satellites used
         self.dops: tuple[float, float, float] | None = None  # pdop, hdop, vdop from GSA
         self.gga_hdop = math.nan
         self.num_sats = -1
@@ -354,6 +365,11 @@ class _Reader:
         alt = _num(_field(f, 8))
         sep = _num(_field(f, 10))
         valid = quality > 0 and math.isfinite(lat) and math.isfinite(lon)
+        # A quality with 0 satellites used (an empty field is unknown, not 0) is a receiver
+        # coasting on its last position: no fix, as gpsd reads it (hemi: 15 such epochs).
+        if valid and sats.isdigit() and int(sats) == 0:
+            valid = False
+            epoch.gga_no_satellites = True
         self._set_position(epoch, "GGA", (lat, lon, alt, sep, quality, valid))
 
     def _on_gns(self, f: list[str]) -> None:
@@ -380,7 +396,12 @@ class _Reader:
             day, month, year = int(date[:2]), int(date[2:4]), int(date[4:])
             year += 1900 if year >= 80 else 2000
             if 1 <= month <= 12 and 1 <= day <= 31:
-                epoch.date = (year, month, day)
+                # Status V: the receiver does not know the time yet either; its date is the
+                # firmware's start-up default (MTK-3301: 1980-01-05), not the day.
+                if f[1] == "A":
+                    epoch.date = (year, month, day)
+                else:
+                    epoch.untrusted_date = (year, month, day)
         lat, lon = _lat_lon(f, 2)
         mode = _mode_quality(_field(f, 11))
         valid = f[1] == "A" and mode != 0 and math.isfinite(lat) and math.isfinite(lon)
@@ -592,16 +613,36 @@ def _assemble(path: Path, reader: _Reader, time_offset_s: float) -> NmeaResult:
         )
         if inconsistent:
             warnings.append(f"{inconsistent} epochs whose date disagrees with the first date")
+        ignored = sum(
+            1
+            for s, e in zip(seconds, epochs, strict=True)
+            if e.date is None
+            and e.untrusted_date is not None
+            and calendar.timegm((*e.untrusted_date, 0, 0, 0))
+            != base + math.floor(s / 86400.0) * 86400
+        )
+        if ignored:
+            warnings.append(
+                f"{ignored} RMC sentence(s) with status V (not valid) carry another date "
+                "(the receiver's start-up default): ignored, the date of the valid ones used"
+            )
         seconds = seconds + base
+    elif any(e.untrusted_date is not None for e in epochs):
+        warnings.append(
+            "the log's only dates are in RMC sentences with status V (not valid: the "
+            "receiver's start-up default): not used; times are seconds since UTC midnight"
+        )
 
     rows: list[tuple[float, ...]] = []
     quality_histogram: Counter[int] = Counter()
     without_fix = 0
+    no_satellites = 0
     conflicts = _Conflicts(kept=_kept_talker(epochs))
     for t, epoch in zip(seconds, epochs, strict=True):
         position, speed, course = _resolve(epoch, conflicts)
         if position is None:
             without_fix += 1
+            no_satellites += epoch.gga_no_satellites
             gga = epoch.positions.get("GGA")
             quality_histogram[gga[4] if gga else 0] += 1
             continue
@@ -655,7 +696,13 @@ def _assemble(path: Path, reader: _Reader, time_offset_s: float) -> NmeaResult:
         [speed * np.sin(course_rad), speed * np.cos(course_rad), np.full(len(table), np.nan)]
     )
     if without_fix:
-        warnings.append(f"{without_fix} epochs without a usable position were skipped")
+        why = (
+            f" ({no_satellites} of them GGA with a fix quality but 0 satellites used: no fix, "
+            "as gpsd reads them)"
+            if no_satellites
+            else ""
+        )
+        warnings.append(f"{without_fix} epochs without a usable position were skipped{why}")
     if reader.corrupt or reader.checksum_failures:
         warnings.append(
             f"skipped {reader.corrupt} corrupt or truncated line(s) and "

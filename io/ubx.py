@@ -204,6 +204,9 @@ class _Epoch:
         # again (a receiver restart, two logs concatenated, a second receiver). The first of
         # each type is used; these are counted (see _repeat_warning), never merged.
         self.repeats: dict[str, object] = {}
+        # Byte-identical copies of messages the epoch already had (a log concatenated with
+        # itself, a replayed stretch): nothing is lost by dropping them, but they are counted.
+        self.identical_repeats = 0
 
 
 @dataclass
@@ -403,8 +406,11 @@ class _Scanner:
             epoch = self._by_key[key] = _Epoch(itow, self.index)
             self.epochs.append(epoch)
         first = epoch.msgs.setdefault(name, msg)
-        if first is not msg and getattr(first, "payload", None) != getattr(msg, "payload", 0):
-            epoch.repeats.setdefault(name, msg)  # an identical copy of a frame loses nothing
+        if first is not msg:
+            if getattr(first, "payload", None) != getattr(msg, "payload", 0):
+                epoch.repeats.setdefault(name, msg)
+            else:
+                epoch.identical_repeats += 1  # an identical copy loses nothing: counted
 
     # The ESF messages are the high-rate stream (one a sample or ten samples a message): their
     # fixed u-blox layout is decoded here, vectorised later, because pyubx2 takes about 1 ms a
@@ -946,7 +952,7 @@ def read_ubx(path: str | Path) -> UbxResult:
         kept.append(row)
     if duplicates:
         warnings.append(f"{duplicates} navigation epochs repeat an earlier time: dropped")
-    repeat_warning = _repeat_warning(scanner.epochs)
+    repeat_warning = _repeat_warning(scanner.epochs)  # also counts identical copies
     if repeat_warning:
         warnings.append(repeat_warning)
     ubx_times = np.array([r[0] for r in kept])
@@ -1005,8 +1011,17 @@ def _repeat_warning(epochs: list[_Epoch]) -> str:
     from fgins.geodesy import lla_to_enu
 
     repeated = [e for e in epochs if e.repeats]
+    # Epochs that came again only as identical copies (no differing message): dropped too.
+    identical = sum(1 for e in epochs if e.identical_repeats and not e.repeats)
+    copies = (
+        f"{identical} repeated navigation epoch(s) identical to earlier ones dropped (the same "
+        "iTOW with byte-identical messages: the log concatenated with itself, or a stretch "
+        "logged twice)"
+        if identical
+        else ""
+    )
     if not repeated:
-        return ""
+        return copies
     distances = []
     for epoch in repeated:
         kept = _EpochBuilder._position(epoch)
@@ -1034,7 +1049,7 @@ def _repeat_warning(epochs: list[_Epoch]) -> str:
         )
     elif distances:
         message += f" (positions within {REPEAT_SAME_POSITION_M:g} m of the kept ones)"
-    return message
+    return f"{message}; {copies}" if copies else message
 
 
 def _attach_imu(result: UbxResult, scanner: _Scanner, anchors: list[tuple[int, float]]) -> None:

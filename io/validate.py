@@ -23,7 +23,10 @@ MCAP, KITTI, UBX), so the same drive read from different formats gets the same f
   apart) likewise;
 * geodetic ranges: |lat| > 90, |lon| > 180, altitude outside [-1000, 1e5] m -> fix dropped
   and counted (an error when no fix is left);
-* GNSS sigmas and DOPs that are not positive finite numbers -> ignored, counted;
+* GNSS sigmas and DOPs that are not positive finite numbers, and DOPs that are a receiver's
+  "not available" placeholder (0, 99.99) -> missing, counted;
+* fixes that are no measurement by their quality (6 dead reckoning, 7 manual, 8 simulator)
+  -> noted (the GNSS gate of :mod:`fgins.factors.gnss` leaves them out);
 * GNSS jumps no vehicle can make (> 1000 m/s between fixes beyond their own sigmas) -> fix
   dropped and counted; a jump that persists (two sources in one log) -> :class:`InputError`;
 * GNSS time gaps (outages or a clock jump) -> reported;
@@ -344,7 +347,7 @@ def _check_gnss(gnss: GnssData, origin: Origin, checks: list[str]) -> tuple[Gnss
             f"({_describe_bad_lla(gnss.lla[~keep])}) as implausible"
         )
         gnss = gnss.subset(keep)
-    gnss = _clean_sigmas(gnss, checks)
+    gnss = check_gnss_records(gnss, checks)
     gnss = _drop_no_fix(gnss, checks)
     bad = _implausible_jumps(gnss.t, _ecef(gnss.lla), _fix_sigma(gnss))
     if bad.all() or (~bad).sum() < 1:
@@ -451,8 +454,17 @@ def _drop_no_fix(gnss: GnssData, checks: list[str]) -> GnssData:
 NO_FIX_SIGMA_M = 1000.0
 
 
+# A DOP the receiver could not compute is sent as a placeholder, not left empty: u-blox caps
+# its U2 DOP fields at 99.99 (NAV-DOP, NAV-PVT pDOP: ublox-glo gives hDOP 99.99 next to vDOP
+# 1.0), NMEA receivers print 99.9/99.99 in GSA or 99.0 in GGA, or 0.00. Taken as DOPs they gate
+# every epoch (pdop_max) or scale a sigma to 500 m or to 0: they are missing (NaN) instead, and
+# the sigma falls back as for a log without DOPs. Geometry that bad has no usable fix anyway.
+DOP_NOT_AVAILABLE_MIN = 99.0
+
+
 def _clean_sigmas(gnss: GnssData, checks: list[str]) -> GnssData:
-    """Sigmas and DOPs must be positive and finite where given; others are ignored (counted)."""
+    """Sigmas and DOPs must be positive and finite where given; others are ignored (counted).
+    DOP placeholders (0, >= ``DOP_NOT_AVAILABLE_MIN``) become missing, counted."""
     std = gnss.std
     given = ~np.isnan(std)
     bad_std = given & ~(np.isfinite(std) & (std > 0))
@@ -465,15 +477,68 @@ def _clean_sigmas(gnss: GnssData, checks: list[str]) -> GnssData:
             "sigma; those sigmas ignored (DOP or the [gnss] config used instead)"
         )
     bad_dops = 0
+    placeholders = np.zeros(len(gnss), dtype=bool)
+    placeholder_values = 0
     for name in ("hdop", "vdop", "pdop"):
         value = getattr(gnss, name)
-        bad = ~np.isnan(value) & ~(np.isfinite(value) & (value > 0))
-        if bad.any():
+        with np.errstate(invalid="ignore"):
+            absent = (value == 0.0) | ((value >= DOP_NOT_AVAILABLE_MIN) & np.isfinite(value))
+        bad = ~np.isnan(value) & ~(np.isfinite(value) & (value > 0)) & ~absent
+        if bad.any() or absent.any():
             bad_dops += int(bad.sum())
-            replaced[name] = np.where(bad, np.nan, value)
+            placeholder_values += int(absent.sum())
+            placeholders |= absent
+            replaced[name] = np.where(bad | absent, np.nan, value)
+    if placeholder_values:
+        checks.append(
+            f"gnss: {placeholder_values} DOP value(s) in {int(placeholders.sum())} fix(es) are "
+            f"the receiver's 'not available' (0, or >= {DOP_NOT_AVAILABLE_MIN:g}: u-blox 99.99, "
+            "NMEA 99.99/0.00): treated as missing (sigmas from the fixes' own accuracy, else "
+            "UERE x another DOP or [gnss] default_sigma_m; no PDOP gate on them)"
+        )
     if bad_dops:
-        checks.append(f"gnss: {bad_dops} zero, negative or infinite DOP value(s) ignored")
+        checks.append(f"gnss: {bad_dops} negative or infinite DOP value(s) ignored")
     return replace(gnss, **replaced) if replaced else gnss
+
+
+def _note_not_measured(gnss: GnssData, checks: list[str]) -> None:
+    """A note for fixes whose quality says they are no measurement (6 dead reckoning, 7 manual
+    input, 8 simulator): the smoother's gate leaves them out, the user should know why; a log
+    that is all simulator (Garmin GPSmap-76S, Geko 201 in demo mode) is said as such."""
+    from fgins.factors.gnss import NOT_MEASURED_QUALITIES
+
+    quality = np.asarray(gnss.fix_quality)
+    counts = {q: int((quality == q).sum()) for q in NOT_MEASURED_QUALITIES}
+    total = sum(counts.values())
+    if not total:
+        return
+    gate = "the smoother's fix-quality gate leaves them out (\"by fix quality\")"
+    if total == len(quality) and len({q for q, n in counts.items() if n}) == 1:
+        q = next(q for q, n in counts.items() if n)
+        what = (
+            "the receiver was in simulator mode, its positions are not GNSS measurements"
+            if q == 8
+            else f"{NOT_MEASURED_QUALITIES[q]}, not GNSS measurements"
+        )
+        checks.append(f"gnss: every fix ({total}) has fix quality {q}: {what}; {gate}")
+        return
+    kinds = ", ".join(
+        f"{n} with {q} ({NOT_MEASURED_QUALITIES[q]})" for q, n in counts.items() if n
+    )
+    checks.append(
+        f"gnss: {total} of {len(quality)} fix(es) are not GNSS measurements by their fix "
+        f"quality ({kinds}); {gate}"
+    )
+
+
+def check_gnss_records(gnss: GnssData, checks: list[str]) -> GnssData:
+    """The checks a GNSS record needs without an IMU: sigmas and DOPs that are not positive
+    finite numbers or are "not available" placeholders become missing (counted), and fixes
+    that are no measurement by their quality are noted. :func:`validate_dataset` applies it
+    to every dataset, ``fgins convert`` to the fixes it writes (fix_quality kept)."""
+    gnss = _clean_sigmas(gnss, checks)
+    _note_not_measured(gnss, checks)
+    return gnss
 
 
 def _reject_persistent_jumps(gnss: GnssData) -> None:

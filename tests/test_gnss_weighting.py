@@ -42,6 +42,15 @@ def test_pdop_and_quality_gates_count_what_they_reject():
     assert (gate.rejected_pdop, gate.rejected_quality) == (1, 2)
 
 
+def test_dead_reckoning_manual_and_simulator_fixes_are_gated_whatever_the_minimum():
+    """GGA 6 (dead reckoning), 7 (manual input) and 8 (simulator) are no GNSS measurement,
+    even with min_fix_quality = 0; 9 (SBAS) is one (outside tester F7: 8 went in as fixes)."""
+    gnss = _gnss(pdop=np.full(6, 1.0), fix_quality=np.array([0, 1, 6, 7, 8, 9]))
+    gate = gate_epochs(gnss, GnssConfig(min_fix_quality=0))
+    assert gate.usable.tolist() == [True, True, False, False, False, True]
+    assert gate.rejected_quality == 3 and gate.summary().endswith("3 by fix quality")
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_gate_counts_add_up_and_an_outage_comes_first(seed):
     """Every epoch is counted once, in the documented order (outage, no position, outside the
@@ -57,7 +66,7 @@ def test_gate_counts_add_up_and_an_outage_comes_first(seed):
         t=np.arange(n, dtype=float),
         lla=lla,
         pdop=np.where(rng.random(n) < 0.1, np.nan, rng.uniform(0.8, 9.0, n)),
-        fix_quality=rng.choice([0, 1, 2, 4, 5, 6], n),
+        fix_quality=rng.choice([0, 1, 2, 4, 5, 6, 7, 8, 9], n),
     )
     withheld = rng.random(n) < 0.3
     span = (20.0, 180.0)
@@ -71,7 +80,7 @@ def test_gate_counts_add_up_and_an_outage_comes_first(seed):
             gated = "position"
         elif not span[0] <= gnss.t[i] <= span[1]:
             gated = "span"
-        elif q < 1 or q == 6:
+        elif q < 1 or q in (6, 7, 8):
             gated = "quality"
         elif np.isfinite(p) and p > config.pdop_max:
             gated = "pdop"

@@ -272,3 +272,51 @@ def test_two_logs_of_one_talker_with_the_same_times_are_an_error(tmp_path: Path)
     with pytest.raises(InputError, match=r"two receivers in one log: talker GP gives two "
                        r"positions 50[01] m apart.*give each receiver's"):  # fmt: skip
         read_nmea(path)
+
+
+def test_date_of_an_rmc_with_status_v_is_not_used(tmp_path: Path) -> None:
+    """A receiver starting up sends RMC status V with its firmware's default date (MTK-3301:
+    050180); the valid RMCs later give the day. Every fix, and the no-fix epochs before the
+    first valid date, are on the valid date (rolled over midnight by the usual rule)."""
+    start_up = _with_checksum("GPRMC,235958.00,V,,,,,,,050180,,,N")
+    valid = _with_checksum("GPRMC,000001.00,A,4807.03800,N,01131.00000,E,0.0,,230808,,,A")
+    lines = [start_up, _gga("235958.00", quality=0), _gga("000000.00"), valid, _gga("000001.00")]
+    path = tmp_path / "start_up.nmea"
+    path.write_text("\n".join(lines) + "\n")
+    result = read_nmea(path)
+    midnight = 1219449600.0  # 2008-08-23T00:00:00Z
+    assert result.has_date
+    assert result.gnss.t.tolist() == [midnight, midnight + 1.0]
+    assert result.first_epoch_t == midnight - 2.0  # the quality-0 epoch, on 2008-08-22
+    assert any("1 RMC sentence(s) with status V" in w for w in result.warnings)
+
+
+def test_a_log_dated_only_by_invalid_rmc_is_undated(tmp_path: Path) -> None:
+    start_up = _with_checksum("GPRMC,120000.00,V,4807.03800,N,01131.00000,E,0.0,,010108,,,N")
+    path = tmp_path / "undated.nmea"
+    path.write_text("\n".join([start_up, _gga("120000.00"), _gga("120001.00")]) + "\n")
+    result = read_nmea(path)
+    assert not result.has_date
+    assert result.gnss.t.tolist() == [43200.0, 43201.0]
+    assert any("only dates are in RMC sentences with status V" in w for w in result.warnings)
+
+
+def test_gga_quality_with_zero_satellites_is_dropped_and_counted(tmp_path: Path) -> None:
+    def gga(time: str, sats: str) -> str:
+        return _with_checksum(
+            f"GPGGA,{time},4807.03800,N,01131.00000,E,1,{sats},3.3,545.4,M,46.9,M,,"
+        )
+
+    lines = [gga("120000.00", "00"), gga("120001.00", "0"), gga("120002.00", ""),
+             gga("120003.00", "05")]  # fmt: skip
+    path = tmp_path / "zero_sats.nmea"
+    path.write_text("\n".join(lines) + "\n")
+    result = read_nmea(path)
+    # An empty satellite field is unknown, not 0: that fix stays.
+    assert np.mod(result.gnss.t, 86400).tolist() == [43202.0, 43203.0]
+    assert result.epochs_without_fix == 2
+    assert any(
+        "2 epochs without a usable position were skipped (2 of them GGA with a fix quality "
+        "but 0 satellites used" in w
+        for w in result.warnings
+    )

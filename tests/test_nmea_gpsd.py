@@ -227,3 +227,85 @@ def test_geoid_known_values_and_api() -> None:
     assert geoid_undulation(10.0, -0.25) == pytest.approx(geoid_undulation(10.0, 359.75))
     assert math.isnan(geoid_undulation(math.nan, 0.0))
     assert isinstance(geoid_undulation(45.0, 7.0), float)
+
+
+# --- dates (outside tester F11) and zero-satellite "fixes" (F17) ---------------------------
+
+# The time of day matches gpsd, the date does not: gpsd moves the receiver's date by its GPS
+# week-rollover heuristic (rst39: 2014 -> 2033, tcp-torture: 2007 -> 2027, 1024 weeks);
+# this reader uses dates as logged.
+_GPSD_DATE_HEURISTIC = {"rst39.log", "tcp-torture.log"}
+
+
+def _gpsd_dated_fixes(chk: Path) -> dict[int, float]:
+    """Time of day (ms) -> gpsd's POSIX time, for every TPV fix gpsd dates."""
+    import calendar
+
+    out: dict[int, float] = {}
+    for line in chk.read_text(encoding="latin-1").splitlines():
+        if not line.startswith('{"class":"TPV"'):
+            continue
+        report = json.loads(line)
+        if report.get("mode", 0) < 2 or "lat" not in report or "time" not in report:
+            continue
+        iso = report["time"]
+        day = calendar.timegm((int(iso[:4]), int(iso[5:7]), int(iso[8:10]), 0, 0, 0))
+        tod = _iso_tod(iso)
+        out[round(tod * 1000)] = day + tod
+    return out
+
+
+@pytest.mark.parametrize("log", LOGS, ids=[log.name for log in LOGS])
+def test_dates_match_gpsd(log: Path) -> None:
+    """Every fix gpsd dates has the same POSIX time here (not only the same time of day). The
+    MTK-3301 and GEOS-1M logs start with RMC status V carrying the receivers' start-up
+    default dates (1980-01-05, 2008-01-01): they used to date every fix 28 and 2.5 years off."""
+    if log.name in _GPSD_DATE_HEURISTIC:
+        pytest.skip("gpsd's week-rollover heuristic redates this log")
+    reference = _gpsd_dated_fixes(log.with_suffix(".log.chk"))
+    try:
+        result = read_nmea(log)
+    except InputError:
+        assert not reference
+        return
+    if not reference:
+        return
+    assert result.has_date, f"{log.name}: gpsd dates {len(reference)} fixes, the reader none"
+    t = result.gnss.t
+    ours = {round(np.mod(v, 86400.0) * 1000): v for v in t}
+    compared = [(ours[k], v) for k, v in reference.items() if k in ours]
+    assert compared, log.name
+    for mine, gpsd in compared:
+        assert abs(mine - gpsd) < 1e-3, f"{log.name}: {mine} vs gpsd {gpsd}"
+
+
+@pytest.mark.parametrize(
+    ("name", "first_fix"),
+    [("mtk-3301.log", "2008-08-23T08:14:36"), ("geos-1m.log", "2010-07-09T07:37:01")],
+)
+def test_start_up_dates_of_invalid_rmc_are_not_used(name: str, first_fix: str) -> None:
+    import datetime
+
+    if not LOGS:
+        pytest.skip("gpsd logs absent")
+    result = read_nmea(GPSD_DIR / name)
+    start = datetime.datetime.fromtimestamp(result.gnss.t[0], datetime.UTC)
+    assert start.strftime("%Y-%m-%dT%H:%M:%S") == first_fix
+    assert not any("disagrees with the first date" in w for w in result.warnings)
+    assert any("status V" in w and "ignored" in w for w in result.warnings)
+
+
+def test_gga_with_zero_satellites_is_no_fix_as_in_gpsd() -> None:
+    """hemi.log: 15 GGAs (19:40:50-19:40:57) say quality 1 with 00 satellites used; gpsd
+    reports them as mode 1 (no fix), and so do we: 6 fixes as gpsd, not 21."""
+    if not LOGS:
+        pytest.skip("gpsd logs absent")
+    log = GPSD_DIR / "hemi.log"
+    fixes, _ = _gpsd_reference(log.with_suffix(".log.chk"))
+    result = read_nmea(log)
+    gpsd_times = sorted({round(f.tod * 1000) for f in fixes})
+    ours = sorted(round(np.mod(t, 86400.0) * 1000) for t in result.gnss.t)
+    assert ours == gpsd_times and len(ours) == 6
+    assert np.all(result.gnss.num_sats > 0)
+    (note,) = [w for w in result.warnings if "0 satellites used" in w]
+    assert "15 of them" in note

@@ -508,3 +508,18 @@ def test_an_identical_copy_of_a_frame_is_not_a_repeated_epoch(tmp_path):
     frames.insert(2, frames[1])  # a logger writing one frame twice loses nothing
     result = read_ubx(_write(tmp_path, b"".join(frames)))
     assert len(result.gnss) == 5 and not _repeat_warnings(result)
+
+
+def test_a_log_concatenated_with_itself_counts_the_identical_epochs(tmp_path):
+    """`cat log log`: every epoch comes again byte for byte. The copies are dropped (nothing
+    is lost), and now counted; they used to vanish without a word (outside tester)."""
+    frames = b"".join(nav_pvt(T0 + k, LAT, LON, H) + nav_dop(T0 + k, 0.9, 1.4, 1.7)
+                      for k in range(10))  # fmt: skip
+    single = read_ubx(_write(tmp_path, frames, "once.ubx"))
+    result = read_ubx(_write(tmp_path, frames + frames, "twice.ubx"))
+    np.testing.assert_array_equal(result.gnss.t, single.gnss.t)
+    np.testing.assert_array_equal(result.gnss.lla, single.gnss.lla)
+    (message,) = [w for w in result.warnings if "identical" in w]
+    assert message.startswith("10 repeated navigation epoch(s) identical to earlier ones dropped")
+    assert not _repeat_warnings(result)  # no differing copy: no "repeated time" distances
+    assert not [w for w in single.warnings if "identical" in w]

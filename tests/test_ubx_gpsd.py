@@ -289,3 +289,24 @@ def test_every_log_inspects(capsys):
         assert "u-blox UBX log" in out and "corrupt frames" in out
         if path.name == NO_FIX_LOG:
             assert "no fix" in out
+
+
+def test_a_real_log_concatenated_with_itself_counts_its_repeated_epochs(tmp_path):
+    """Outside tester F15: `cat ublox-zed-f9p-rtk.log ublox-zed-f9p-rtk.log` gave the same 10
+    fixes without the count the README promises for repeated iTOWs."""
+    path = GPSD_DIR / "ublox-zed-f9p-rtk.log"
+    single = read_ubx(path)
+    twice = tmp_path / "twice.ubx"
+    twice.write_bytes(path.read_bytes() * 2)
+    result = read_ubx(twice)
+    assert len(result.gnss) == len(single.gnss) == 10
+    np.testing.assert_array_equal(result.gnss.t, single.gnss.t)
+    (message,) = [w for w in result.warnings if "identical to earlier ones" in w]
+    assert message.startswith(f"{single.epochs} repeated navigation epoch(s) identical")
+    assert not any("identical to earlier ones" in w for w in single.warnings)
+
+
+def test_no_real_log_reports_identical_repeats():
+    """The count is about copies: none of the 14 real logs (gpsd's) has one."""
+    for path in LOGS:
+        assert not any("identical to earlier ones" in w for w in read_ubx(path).warnings), path
