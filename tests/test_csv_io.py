@@ -79,7 +79,7 @@ def assert_same_read(path: Path) -> None:
     warnings: list[str] = []
     good = len(next(iter(expected.values()))) if expected else 0
     if bad and good == 0:  # nothing left: either error names the cause (text columns first)
-        with pytest.raises(InputError, match="no data rows|data rows are malformed"):
+        with pytest.raises(InputError, match=r"no data rows|data rows are malformed"):
             _read_columns(path, warnings)
         return
     if bad > good:
