@@ -46,6 +46,7 @@ MOTION_MAX_FIX_GAP_S = 1.5  # speed interpolated only this close to a fix
 MOTION_MIN_SPEED_M_S = 3.0
 CENTRIPETAL_MIN_M_S2 = 0.5  # a time "in a turn" has v * w above this
 MOTION_MIN_TURN_S = 12.0  # seconds of turning needed to tell (9 s: up to 20 deg off)
+MOTION_MAX_SIGMA_DEG = 2.0  # the fitted nose direction's standard error: above, cannot tell
 GRAVITY_M_S2 = 9.81
 MOTION_SCALE_RANGE = (0.7, 1.3)  # |specific force per v w| in the turns: ~1
 CHORD_S = 4.0  # speed from positions over this (when the GNSS has no velocity)
@@ -101,17 +102,76 @@ def forward_axis_from_motion(dataset) -> tuple[np.ndarray, int] | None:
     n = int(turning.sum())
     if n * MOTION_STEP_S < MOTION_MIN_TURN_S:
         return None
-    horizontal = accel[turning] - np.outer(accel[turning] @ up, up)
-    # Braking into a turn, or a grade through it, correlates the forward specific force
-    # with v w: a regressor too.
-    design = np.column_stack([centripetal[turning], along[turning], np.ones(n)])
+    motion = np.column_stack([centripetal[turning], along[turning]])
+    forward = _free_fit(accel[turning], motion, up)
+    if forward is None:
+        forward = _rigid_fit(accel[turning], motion, up)
+    if forward is None:
+        return None  # the turns do not show the nose well enough: cannot tell
+    return forward / np.linalg.norm(forward), round(n * MOTION_STEP_S)
+
+
+def _free_fit(accel: np.ndarray, motion: np.ndarray, up: np.ndarray) -> np.ndarray | None:
+    """Forward axis from a free regression of the horizontal specific force on v w (the
+    left axis), the forward acceleration (braking into a turn, or a grade through it,
+    correlates it with v w) and a constant; None when the left axis's scale is not ~1 or its
+    direction is uncertain by more than MOTION_MAX_SIGMA_DEG."""
+    horizontal = accel - np.outer(accel @ up, up)
+    design = np.column_stack([motion, np.ones(len(motion))])
     coefficients, *_ = np.linalg.lstsq(design, horizontal, rcond=None)
     left = coefficients[0]  # (3,): specific force per unit of v w, IMU axes (~unit length)
     scale = float(np.linalg.norm(left))
     if not MOTION_SCALE_RANGE[0] <= scale <= MOTION_SCALE_RANGE[1]:
-        return None  # the turns do not show as centripetal acceleration: cannot tell
+        return None
+    residual = horizontal - design @ coefficients
+    p = design.shape[1]
+    try:
+        unscaled = float(np.linalg.inv(design.T @ design)[0, 0])
+    except np.linalg.LinAlgError:
+        return None
+    variance = _residual_variance(residual, p)
+    if not np.degrees(np.sqrt(max(variance * unscaled, 0.0)) / scale) <= MOTION_MAX_SIGMA_DEG:
+        return None
     forward = np.cross(left / scale, up)
-    return forward / np.linalg.norm(forward), round(n * MOTION_STEP_S)
+    return forward / np.linalg.norm(forward)
+
+
+def _rigid_fit(accel: np.ndarray, motion: np.ndarray, up: np.ndarray) -> np.ndarray | None:
+    """Forward axis as one angle: in the horizontal plane (basis e1, e2, e1 x e2 = up) a
+    nose at angle a has forward (cos a, sin a) and left (-sin a, cos a), so the specific
+    force is the rotation R(a) of (forward acceleration, v w) times ~1, plus a constant (a
+    2-D Procrustes fit). Used when the free fit cannot tell: on a highway whose only turns
+    are an accelerating on-ramp and one curve, v w, the forward acceleration and the
+    constant are nearly collinear (the free fit put the nose 15 deg off); one angle is
+    still determined. None when the scale is not ~1 or the angle uncertain."""
+    e1 = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(up, e1)
+    measured = accel @ np.column_stack([e1, e2])
+    measured -= measured.mean(axis=0)
+    planar = motion[:, ::-1] - motion[:, ::-1].mean(axis=0)  # (forward acceleration, v w)
+    cross = float(np.sum(planar[:, 0] * measured[:, 1] - planar[:, 1] * measured[:, 0]))
+    angle = float(np.arctan2(cross, float(np.sum(planar * measured))))
+    c, s = np.cos(angle), np.sin(angle)
+    rotated = planar @ np.array([[c, s], [-s, c]])  # rows: R(angle) @ planar[i]
+    spread = float(np.sum(planar**2))
+    scale = float(np.sum(rotated * measured)) / spread if spread > 0 else 0.0
+    if not MOTION_SCALE_RANGE[0] <= scale <= MOTION_SCALE_RANGE[1]:
+        return None
+    variance = _residual_variance(measured - scale * rotated, 4)
+    if not np.degrees(np.sqrt(variance / (spread * scale**2))) <= MOTION_MAX_SIGMA_DEG:
+        return None
+    return c * e1 + s * e2
+
+
+def _residual_variance(residual: np.ndarray, parameters: int) -> float:
+    """Per-axis residual variance, counted once per averaging window (grid points inside
+    one window share their IMU samples, so they are not independent)."""
+    n, axes = residual.shape
+    if n <= parameters:
+        return np.inf
+    dof = axes * n - parameters * axes
+    return float(np.sum(residual**2)) / dof * (MOTION_WINDOW_S / MOTION_STEP_S)
 
 
 def _up_axis(imu) -> np.ndarray:
