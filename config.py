@@ -710,6 +710,13 @@ def load_config(
     # Each source alone: its values must be valid, whatever the others say (the dataset's
     # [imu] values where they are used: a preset or the same key of the user's replaces them).
     user_imu = check_table(file_where, "imu", table.get("imu"), IMU_SCHEMA)
+    for pair in IMU_SYNONYMS:
+        if pair <= set(user_imu):
+            first, second = sorted(pair)
+            raise ConfigError(
+                f"{file_where}[imu]: {first} and {second} both given; they set the same noise "
+                "in other units (one would be ignored): keep one"
+            )
     if imu_preset is not None:
         check_value("", "imu preset (--imu-preset)", imu_preset, IMU_SCHEMA["preset"])
     if "preset" in user_imu or imu_preset:

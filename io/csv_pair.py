@@ -15,9 +15,11 @@ from typing import Any, NoReturn
 
 import numpy as np
 
+from fgins.config import Check, check_table
 from fgins.datatypes import (
     AccelArrayData,
     BaroData,
+    ConfigError,
     Dataset,
     GnssData,
     ImuData,
@@ -479,6 +481,24 @@ def write_baro_csv(baro: BaroData, path: str | Path) -> None:
     _write_table(path, BARO_COLUMNS, table, ["%.6f", "%.3f"])
 
 
+ORIGIN_SCHEMA = {
+    "lat": Check("number", abs_max=90.0, hint="degrees"),
+    "lon": Check("number", abs_max=180.0, hint="degrees"),
+    "alt": Check("number", abs_max=1e5, hint="metres above the ellipsoid"),
+}
+
+
+def _checked_origin(table: object, config_path: Path | None) -> Origin:
+    """The local frame's origin of a sim folder's ``[origin]`` table: lat, lon, alt, each a
+    finite number in range, no other key (a hand-edited table raised KeyError/TypeError)."""
+    where = f"{config_path}: " if config_path else ""
+    checked = check_table(where, "origin", table, ORIGIN_SCHEMA)
+    missing = [key for key in ORIGIN_SCHEMA if key not in checked]
+    if missing:
+        raise ConfigError(f"{where}[origin]: missing {', '.join(missing)} (needs lat, lon, alt)")
+    return Origin(checked["lat"], checked["lon"], checked["alt"])
+
+
 def _read_sim_config(folder: Path) -> dict[str, Any]:
     path = folder / "config.toml"
     if not path.exists():
@@ -518,11 +538,13 @@ def read_csv_dataset(paths: list[Path]) -> Dataset:
     """Build a :class:`Dataset` from CSV files (recognised by header) or one ``fgins sim`` folder."""
     warnings: list[str] = []
     config: dict[str, Any] = {}
+    config_path: Path | None = None
     files: list[Path] = []
     name = ""
     for path in paths:
         if path.is_dir():
             config = _read_sim_config(path)
+            config_path = path / "config.toml"
             name = path.name
             # A sim folder's own file names only: an output written into it later (out.csv,
             # a second GNSS export) must not make it unreadable; truth.csv is never an input.
@@ -562,6 +584,7 @@ def read_csv_dataset(paths: list[Path]) -> Dataset:
     if "accel_array" in by_kind:
         if not config:  # a file given on its own: its geometry sits beside it
             config = _read_sim_config(by_kind["accel_array"].parent)
+            config_path = by_kind["accel_array"].parent / "config.toml"
         accel_array = _read_accel_array(by_kind["accel_array"], config, warnings)
         imu, derived_noise = derive_imu(accel_array)
         if not config.get("imu"):
@@ -575,9 +598,7 @@ def read_csv_dataset(paths: list[Path]) -> Dataset:
         raise InputError(f"{by_kind['gnss']}: no GNSS fix with a position")
     origin_table = config.get("origin")
     if origin_table:
-        origin = Origin(
-            float(origin_table["lat"]), float(origin_table["lon"]), float(origin_table["alt"])
-        )
+        origin = _checked_origin(origin_table, config_path)
     else:
         origin = Origin(*map(float, gnss.lla[0]))
     return Dataset(

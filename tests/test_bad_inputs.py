@@ -62,9 +62,10 @@ def _set_fix(column: str, value: float, row: int = 7):
     return edit
 
 
-def _baro_csv(pressure: float) -> bytes:
-    """20 s of a barometer at 10 Hz reading ``pressure`` (a unit mistake if not pascals)."""
-    rows = "".join(f"{k / 10:.1f},{pressure!r}\n" for k in range(200))
+def _baro_csv(pressure: float, start: float = 0.0) -> bytes:
+    """20 s of a barometer at 10 Hz from ``start`` reading ``pressure`` (a unit mistake if not
+    pascals)."""
+    rows = "".join(f"{start + k / 10:.1f},{pressure!r}\n" for k in range(200))
     return ("time,pressure_pa\n" + rows).encode()
 
 
@@ -317,6 +318,45 @@ CONFIG_CASES = [
         r'sensor settings of drive: vehicle = "boat": expected one of car',
         edit_sim_config=lambda text: text.replace('vehicle = "car"', 'vehicle = "boat"'),
     ),
+    # A sim folder's [origin] (hand-edited): every key checked like the rest (an outside
+    # tester: a missing alt was "internal error: KeyError", a list a TypeError, a quoted
+    # number or an unknown key passed; an origin 3,900 km off the fixes gave 43 m errors).
+    Case(
+        "origin-missing-alt",
+        SMOOTH,
+        r"config\.toml: \[origin\]: missing alt",
+        edit_sim_config=lambda text: re.sub(r"(\[origin\][^\[]*?)alt = \S+\n", r"\1", text),
+    ),
+    Case(
+        "origin-list",
+        SMOOTH,
+        r"\[origin\]\.lat = \[48\.0\]: expected a number",
+        edit_sim_config=lambda text: re.sub(r"(\[origin\]\n)lat = \S+", r"\1lat = [48.0]", text),
+    ),
+    Case(
+        "origin-quoted",
+        SMOOTH,
+        r'\[origin\]\.lat = "48\.1": expected a number',
+        edit_sim_config=lambda text: re.sub(r"(\[origin\]\n)lat = \S+", r'\1lat = "48.1"', text),
+    ),
+    Case(
+        "origin-unknown-key",
+        SMOOTH,
+        r"\[origin\]: unknown key\(s\) foo",
+        edit_sim_config=lambda text: text.replace("[origin]\n", "[origin]\nfoo = 1\n"),
+    ),
+    Case(
+        "origin-far-from-the-fixes",
+        SMOOTH,
+        r"frame: the origin .* lies [\d,]+ km from the nearest fix",
+        edit_sim_config=lambda text: re.sub(r"(\[origin\]\n)lat = \S+", r"\1lat = 10.0", text),
+    ),
+    # Two keys for one quantity in one table: one would be ignored.
+    _toml_case(
+        "arw-and-density",
+        "[imu]\ngyro_arw_deg_per_sqrt_hr = 0.3\ngyro_noise_rad_per_s_per_sqrt_hz = 1e-2\n",
+        r"gyro_arw_deg_per_sqrt_hr and gyro_noise_rad_per_s_per_sqrt_hz both given",
+    ),
     # CLI choices: argparse refuses them (exit 2, one "error:" line, no usage block).
     Case("vehicle-boat-cli", [*SMOOTH, "--vehicle", "boat"], r"--vehicle: invalid choice: 'boat'"),
     Case("preset-cli", [*SMOOTH, "--imu-preset", "potato"], r"--imu-preset: invalid choice"),
@@ -428,6 +468,25 @@ DATA_CASES = [
             extra_files={"baro.csv": _baro_csv(95.5)},
         ),
         id="baro-in-kpa",
+    ),
+    pytest.param(
+        Case(
+            "baro-negative",
+            ["smooth", "{imu}", "{gnss}", "{tmp}/baro.csv", "--method", "ekf", "-o", "{out}"],
+            r"baro: 200 of 200 samples have a pressure no barometer gives \(e\.g\. -95500 Pa\)",
+            extra_files={"baro.csv": _baro_csv(-95500.0)},
+        ),
+        id="baro-negative",
+    ),
+    pytest.param(
+        Case(
+            "baro-off-the-imu-clock",
+            ["smooth", "{imu}", "{gnss}", "{tmp}/baro.csv", "--method", "ekf", "-o", "{out}"],
+            r"baro: none of its 200 samples .* lies within the IMU's span",
+            extra_files={"baro.csv": _baro_csv(95500.0, start=5000.0)},
+            warning_ok=True,
+        ),
+        id="baro-off-the-imu-clock",
     ),
     pytest.param(
         Case(
