@@ -426,6 +426,9 @@ def _write_gnss_tum(gnss, path: Path) -> None:
 def _read_gnss_only(path: Path, time_offset: float):
     if not path.exists():
         raise FginsError(f"{path}: no such file")
+    from fgins.io.inputs import check_not_empty
+
+    check_not_empty(path)
     if path.suffix.lower() == ".mcap":
         from fgins.io.mcap import read_mcap
 
@@ -436,10 +439,17 @@ def _read_gnss_only(path: Path, time_offset: float):
     if looks_like_ubx(path):
         return read_ubx_gnss(path, time_offset)
     from fgins.io.csv_pair import csv_kind, read_gnss_csv
+    from fgins.io.inputs import looks_like_nmea
 
-    if path.suffix.lower() == ".csv" and csv_kind(path) == "gnss":
+    kind = None if looks_like_nmea(path) else csv_kind(path)
+    if kind == "gnss":
         warnings: list[str] = []
         return read_gnss_csv(path, warnings), warnings
+    if kind is not None:
+        raise FginsError(
+            f"{path}: an {kind} CSV; convert takes a GNSS log (NMEA, u-blox UBX, MCAP or a "
+            "gnss.csv)"
+        )
     from fgins.io.nmea import read_nmea
 
     result = read_nmea(path, time_offset_s=time_offset)
@@ -450,18 +460,22 @@ def cmd_inspect(args: argparse.Namespace) -> int:
     path: Path = args.input
     if not path.exists():
         raise FginsError(f"{path}: no such file")
+    from fgins.io.inputs import check_not_empty, looks_like_nmea
+
+    check_not_empty(path)
     if path.suffix.lower() == ".mcap":
         from fgins.io.mcap import summarize_mcap
 
         print(summarize_mcap(path))
         return 0
-    if path.suffix.lower() == ".csv":
-        print(_summarize_csv(path))
-        return 0
     from fgins.io.ubx import looks_like_ubx, summarize_ubx
 
+    # By content, as smooth and convert read it (a UBX or NMEA log saved as .csv).
     if looks_like_ubx(path):
         print(summarize_ubx(path))
+        return 0
+    if path.suffix.lower() == ".csv" and not looks_like_nmea(path):
+        print(_summarize_csv(path))
         return 0
     from fgins.io.nmea import summarize_nmea
 

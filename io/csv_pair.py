@@ -61,7 +61,10 @@ def read_header(path: Path) -> list[str]:
     except OSError as exc:
         raise InputError(f"{path}: cannot read ({exc.strerror})") from None
     except UnicodeDecodeError:
-        raise InputError(f"{path}: not a text CSV file") from None
+        raise InputError(
+            f"{path}: binary content that is none of the formats fgins reads (CSV, NMEA 0183, "
+            "u-blox UBX, MCAP)"
+        ) from None
     if "," not in first:
         for separator, name in ((";", "semicolons"), ("\t", "tabs")):
             if separator in first:

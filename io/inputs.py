@@ -17,7 +17,7 @@ from fgins.datatypes import Dataset, InputError
 NMEA_SUFFIXES = {".nmea", ".log", ".txt", ".gps", ".ubx_nmea"}
 
 
-def _looks_like_nmea(path: Path) -> bool:
+def looks_like_nmea(path: Path) -> bool:
     from fgins.io.ubx import looks_like_ubx
 
     if looks_like_ubx(path):  # UBX logs often carry NMEA sentences too: never read as NMEA
@@ -28,6 +28,28 @@ def _looks_like_nmea(path: Path) -> bool:
     except OSError:
         return False
     return b"$GP" in head or b"$GN" in head or b"$GL" in head or b"$GB" in head or b"$BD" in head
+
+
+def check_not_empty(path: Path) -> None:
+    """An empty file, or one of only zero bytes (a log whose writer never flushed), is named
+    as such instead of failing a format's header test ("unrecognised CSV header")."""
+    if not path.is_file():
+        return
+    size = path.stat().st_size
+    if size == 0:
+        raise InputError(f"{path}: empty file (0 bytes)")
+    with path.open("rb") as handle:
+        head = handle.read(1 << 16)
+    if not head.strip(b"\x00") and (size <= len(head) or _only_zeros(path)):
+        raise InputError(f"{path}: holds only zero bytes ({size:,} of them): no data was written")
+
+
+def _only_zeros(path: Path) -> bool:
+    with path.open("rb") as handle:
+        while chunk := handle.read(1 << 20):
+            if chunk.strip(b"\x00"):
+                return False
+    return True
 
 
 def validated(dataset: Dataset, vehicle: str | None = None) -> Dataset:
@@ -102,12 +124,18 @@ def _parse(
         from fgins.io.kitti import parse_kitti
 
         return parse_kitti()
+    if "demo:kitti" in inputs:
+        raise InputError(
+            "demo:kitti is a whole drive on its own (IMU and GNSS); give it alone, not with "
+            f"{', '.join(item for item in inputs if item != 'demo:kitti')}"
+        )
     if any(item.startswith("demo:") for item in inputs):
         raise InputError(f"unknown built-in input among {inputs}; the demo input is demo:kitti")
     paths = [Path(item) for item in inputs]
     for path in paths:
         if not path.exists():
             raise InputError(f"{path}: no such file or folder")
+        check_not_empty(path)
     if len(paths) == 1 and paths[0].suffix.lower() == ".mcap":
         from fgins.io.mcap import read_mcap
 
@@ -122,7 +150,7 @@ def _parse(
 
         others = [p for p in paths if p not in ubx]
         return load_ubx_dataset(ubx, others, imu_topic=imu_topic, progress=progress)
-    nmea = [p for p in paths if p.is_file() and _looks_like_nmea(p)]
+    nmea = [p for p in paths if p.is_file() and looks_like_nmea(p)]
     if nmea:
         return _nmea_with_imu(nmea, [p for p in paths if p not in nmea], time_offset_s)
     from fgins.io.csv_pair import read_csv_dataset

@@ -810,3 +810,61 @@ def test_gnss_count_line_adds_up_for_every_method(method, sim_dir, tmp_path, cap
     assert code == 0 and sum(counts) == total, line
     assert re.search(r"[1-9]\d* outside the IMU time span", line), line
     assert re.search(r" 2 withheld by outage", line), line
+
+
+@pytest.mark.parametrize(
+    ("make", "command", "expect"),
+    [
+        (lambda d: (d / "imu.csv").write_bytes(b""), "smooth", r"imu\.csv: empty file \(0 bytes\)"),
+        (lambda d: (d / "log.ubx").write_bytes(b""), "convert", r"log\.ubx: empty file"),
+        (lambda d: (d / "log.ubx").write_bytes(b""), "inspect", r"log\.ubx: empty file"),
+        (
+            lambda d: (d / "log.ubx").write_bytes(bytes(30000)),
+            "smooth",
+            r"log\.ubx: holds only zero bytes \(30,000 of them\)",
+        ),
+        (
+            lambda d: (d / "log.ubx").write_bytes(bytes(range(128, 256)) * 50),
+            "smooth",
+            r"log\.ubx: binary content that is none of the formats fgins reads",
+        ),
+        (lambda d: None, "convert-imu", r"imu\.csv: an imu CSV; convert takes a GNSS log"),
+        (lambda d: None, "kitti-and-more", r"demo:kitti is a whole drive on its own"),
+    ],
+    ids=["empty-csv", "empty-ubx-convert", "empty-ubx-inspect", "zero-bytes", "binary-garbage",
+         "convert-an-imu-csv", "demo-kitti-with-a-file"],
+)  # fmt: skip
+def test_a_file_that_holds_nothing_usable_is_named_for_what_it_is(
+    make, command, expect, sim_dir, tmp_path, capsys
+):
+    """An outside tester: empty files and zero bytes were "unrecognised CSV header", binary
+    garbage "not a text CSV file", an IMU CSV given to convert got advice about SiRF and
+    RTCM, demo:kitti with a file was an "unknown built-in input"."""
+    drive = tmp_path / "drive"
+    shutil.copytree(sim_dir, drive)
+    make(drive)
+    target = next((p for p in drive.iterdir() if p.suffix == ".ubx"), drive / "imu.csv")
+    out = str(tmp_path / "out.csv")
+    args = {
+        "smooth": ["smooth", str(target), str(drive / "gnss.csv"), "-o", out],
+        "convert": ["convert", str(target), "-o", out],
+        "inspect": ["inspect", str(target)],
+        "convert-imu": ["convert", str(drive / "imu.csv"), "-o", out],
+        "kitti-and-more": ["smooth", "demo:kitti", str(drive / "imu.csv"), "-o", out],
+    }[command]
+    code, _, stderr = _run(args, capsys)
+    assert code == 2, stderr
+    lines = [line for line in stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and re.search(expect, lines[0]), stderr
+    assert not Path(out).exists()
+
+
+def test_inspect_reads_a_ubx_log_saved_as_csv_by_its_content(shared, tmp_path, capsys):
+    """smooth and convert sniff the content; inspect went by the suffix and called a UBX log
+    named .csv "not a text CSV file"."""
+    source = sorted((shared / "data" / "ubx" / "gpsd").glob("*.log"))[0]
+    renamed = tmp_path / "log.csv"
+    renamed.write_bytes(source.read_bytes())
+    code, stdout, stderr = _run(["inspect", str(renamed)], capsys)
+    assert code == 0, stderr
+    assert stdout.startswith(f"u-blox UBX log {renamed}")

@@ -320,12 +320,12 @@ def test_nmea_in_a_ubx_log_that_cannot_be_used_is_said_not_swallowed(tmp_path):
 
 
 def test_detection_by_content(tmp_path):
-    from fgins.io.inputs import _looks_like_nmea
+    from fgins.io.inputs import looks_like_nmea
 
     nmea_only = _write(tmp_path, b"".join(_gga(T0 + k, LAT, LON, 400.0) for k in range(3)), "a.ubx")
-    assert not looks_like_ubx(nmea_only) and _looks_like_nmea(nmea_only)
+    assert not looks_like_ubx(nmea_only) and looks_like_nmea(nmea_only)
     mixed = _write(tmp_path, _gga(T0, LAT, LON, 400.0) + _pvt_log(2), "b.nmea")
-    assert looks_like_ubx(mixed) and not _looks_like_nmea(mixed)
+    assert looks_like_ubx(mixed) and not looks_like_nmea(mixed)
     junk = bytearray(_pvt_log(1))
     junk[-2] ^= 1
     assert not looks_like_ubx(_write(tmp_path, bytes(junk), "c.ubx"))
