@@ -1,3 +1,3 @@
-from fgins.cli import main
+from fgins.entry import main
 
 raise SystemExit(main())

@@ -242,8 +242,17 @@ def cmd_smooth(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     if args.plot:
-        api.plot(trajectory, dataset, gnss_outage=windows, path=args.plot,
-                 title=f"{dataset.name}: {trajectory.method}")  # fmt: skip
+        try:
+            api.plot(trajectory, dataset, gnss_outage=windows, path=args.plot,
+                     title=f"{dataset.name}: {trajectory.method}")  # fmt: skip
+        except KeyboardInterrupt:
+            # The trajectory is complete and in place; only the plot is missing.
+            print(
+                f"fgins: interrupted while plotting: {args.output} is complete, {args.plot} "
+                "was not written",
+                file=sys.stderr,
+            )
+            return 130
     return 0
 
 

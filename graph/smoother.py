@@ -834,14 +834,19 @@ FACTOR_KINDS = {
 }
 KIND_ADVICE = {
     "GNSS position": "the fixes' sigmas (std_* columns, [gnss] settings) are too small for "
-    "these fixes, or IMU and GNSS disagree (clock offset, lever arm)",
+    "these fixes, or IMU and GNSS disagree (a clock offset: --time-offset; the antenna lever "
+    "arm: [gnss] lever_arm_m)",
     "IMU": "the IMU noise (--imu-preset, [imu]) is too small for this IMU, its biases are "
     "larger than their turn-on sigmas ([imu] gyro_turn_on_bias_deg_per_s, "
-    "accel_turn_on_bias_mg), or its axes or units are wrong",
-    "velocity (GNSS velocity, stops)": "the GNSS velocities disagree with the IMU (clock "
-    "offset, lever arm) or their sigmas are too small, or a detected stop was not one",
-    "vehicle constraint / antenna velocity / odometer": "the vehicle constraints do not hold: "
-    "check [smoother] imu_to_vehicle_rpy_deg and --vehicle",
+    "accel_turn_on_bias_mg), its axes or units are wrong, or the GNSS times are offset from "
+    "the IMU's (--time-offset)",
+    "velocity (GNSS velocity, stops)": "the GNSS velocities disagree with the IMU: its noise "
+    "preset is too optimistic for it (--imu-preset, [imu]), the clocks are offset "
+    "(--time-offset), the antenna lever arm is wrong ([gnss] lever_arm_m), the velocity sigmas "
+    "are too small, or a detected stop was not one",
+    "vehicle constraint / antenna velocity / odometer": "the vehicle constraints or the "
+    "antenna's velocity do not hold: check [smoother] imu_to_vehicle_rpy_deg, --vehicle and "
+    "[gnss] lever_arm_m",
     "barometer": "the pressure heights disagree with the GNSS and IMU heights by more than "
     "baro_sigma_m and the bias walk allow: over a large climb on a day far from the standard "
     "atmosphere's temperature its height scale is off by several %; raise [smoother] "

@@ -34,7 +34,7 @@ from fgins.io.accel_array_csv import (
     read_accel_array_csv,
 )
 from fgins.io.atomic import atomic_path
-from fgins.io.imu_checks import imu_from_samples
+from fgins.io.imu_checks import MAX_REORDER_PERIODS, imu_from_samples
 
 IMU_COLUMNS = ["time", "gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z"]
 GNSS_REQUIRED = ["time", "lat", "lon", "alt"]
@@ -317,7 +317,14 @@ def _check_time_resolution(path: Path, t: np.ndarray) -> None:
     """An IMU whose times are coarser than its sample period (whole seconds at 100 Hz, or
     POSIX times printed with one decimal): most rows repeat a time. Dropping them as repeated
     samples ran at 1 Hz on 1 % of the data with warnings only; this is an error naming the
-    resolution. A few repeated rows (a logger hiccup) stay the reader's counted warning."""
+    resolution. A few repeated rows (a logger hiccup) stay the reader's counted warning.
+    Time that jumps back (a log written twice into one file) is left to
+    :func:`imu_from_samples`, which names it: sorted, it looked like coarse timestamps."""
+    step = np.diff(t[np.isfinite(t)])
+    if step.size and np.any(step < 0):
+        positive = step[step > 0]
+        if not positive.size or -step.min() > MAX_REORDER_PERIODS * float(np.median(positive)):
+            return
     t = np.sort(t[np.isfinite(t)])
     if t.size < 3:
         return
@@ -347,9 +354,12 @@ def read_gnss_csv(path: str | Path, warnings: list[str] | None = None) -> GnssDa
     lla = np.column_stack([columns["lat"], columns["lon"], columns["alt"]])
     # Latitude and longitude without a height (a 2-D fix, an empty alt cell) is kept: the
     # validation layer gives it a held height with a large vertical sigma.
-    keep = np.isfinite(t) & np.all(np.isfinite(lla[:, :2]), axis=1)
-    if not keep.all():
-        warnings.append(f"{path.name}: dropped {int((~keep).sum())} fix(es) without a position")
+    no_time = ~np.isfinite(t)
+    no_position = ~np.all(np.isfinite(lla[:, :2]), axis=1) & ~no_time
+    keep = ~no_time & ~no_position
+    for count, what in ((no_time.sum(), "time"), (no_position.sum(), "position")):
+        if count:
+            warnings.append(f"{path.name}: dropped {int(count)} fix(es) without a {what}")
     order = np.argsort(t[keep], kind="stable")
     if np.any(np.diff(t[keep]) < 0):
         warnings.append(f"{path.name}: fixes were out of time order; sorted")
@@ -565,8 +575,9 @@ def read_csv_dataset(paths: list[Path]) -> Dataset:
             if path.name == "truth.csv":
                 continue
             raise InputError(
-                f"{path}: unrecognised CSV header; expected imu.csv ({','.join(IMU_COLUMNS)}) "
-                f"or gnss.csv ({','.join(GNSS_REQUIRED)},...)"
+                f"{path}: unrecognised CSV header; expected imu.csv ({','.join(IMU_COLUMNS)}), "
+                f"gnss.csv ({','.join(GNSS_REQUIRED)},...), baro.csv (time,pressure_pa or "
+                "time,baro_height) or wheel.csv (time,wheel_speed)"
             )
         if kind in by_kind:
             raise InputError(f"two {kind} files given: {by_kind[kind]} and {path}")

@@ -180,7 +180,10 @@ def imu_from_samples(
     dt = np.diff(t)
     backwards = np.flatnonzero(dt < 0)
     if backwards.size:
-        positive = dt[dt > 0]
+        # The period from the sorted times: a file's shuffled rows have huge forward steps
+        # too, and their median passed a 119 s step back as a reordering.
+        sorted_dt = np.diff(np.sort(t))
+        positive = sorted_dt[sorted_dt > 0]
         nominal = float(np.median(positive)) if positive.size else 0.0
         worst = int(backwards[np.argmin(dt[backwards])])
         if -dt[worst] > MAX_REORDER_PERIODS * nominal:

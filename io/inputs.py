@@ -30,6 +30,13 @@ def looks_like_nmea(path: Path) -> bool:
     return b"$GP" in head or b"$GN" in head or b"$GL" in head or b"$GB" in head or b"$BD" in head
 
 
+def _is_ubx(item: str) -> bool:
+    from fgins.io.ubx import looks_like_ubx
+
+    path = Path(item)
+    return path.is_file() and looks_like_ubx(path)
+
+
 def check_not_empty(path: Path) -> None:
     """An empty file, or one of only zero bytes (a log whose writer never flushed), is named
     as such instead of failing a format's header test ("unrecognised CSV header")."""
@@ -120,6 +127,15 @@ def _parse(
 ) -> Dataset:
     if not inputs:
         raise InputError("no input given")
+    topics = [f"--{name}-topic" for name, topic in (("imu", imu_topic), ("gnss", gnss_topic))
+              if topic is not None]  # fmt: skip
+    if topics and not any(item.lower().endswith((".mcap", ".ubx")) or _is_ubx(item)
+                          for item in inputs):  # fmt: skip
+        raise InputError(
+            f"{' and '.join(topics)} {'choose' if len(topics) > 1 else 'chooses'} channels of an "
+            "MCAP file (or the MCAP IMU beside a "
+            "UBX log); these inputs have no topics: leave the option out"
+        )
     if inputs == ["demo:kitti"]:
         from fgins.io.kitti import parse_kitti
 

@@ -137,6 +137,9 @@ def _validated(dataset: Dataset, vehicle: str | None) -> Dataset:
             "those seconds, its attitude barely more than the alignment's guess"
         )
     gnss, origin = _check_gnss(dataset.gnss, dataset.origin, checks)
+    from fgins.geodesy import lla_to_enu
+
+    _check_frozen_position(gnss, lla_to_enu(gnss.lla, origin), imu)
     _check_time_bases(imu.t, gnss.t, checks, n_read=len(dataset.gnss))
     _check_units(
         imu, gnss, origin, checks, has_accel_array=dataset.accel_array is not None,
@@ -524,8 +527,8 @@ DOP_NOT_AVAILABLE_MIN = 99.0
 
 
 def _clean_sigmas(gnss: GnssData, checks: list[str]) -> GnssData:
-    """Sigmas and DOPs must be positive and finite where given; others are ignored (counted).
-    DOP placeholders (0, >= ``DOP_NOT_AVAILABLE_MIN``) become missing, counted."""
+    """Sigmas and DOPs must be positive and finite where given, velocities finite and below
+    any vehicle's; others are ignored (counted). DOP placeholders (0, >= ``DOP_NOT_AVAILABLE_MIN``) become missing, counted."""
     std = gnss.std
     given = ~np.isnan(std)
     bad_std = given & ~(np.isfinite(std) & (std > 0))
@@ -537,6 +540,21 @@ def _clean_sigmas(gnss: GnssData, checks: list[str]) -> GnssData:
             f"gnss: {int(bad_std.any(axis=1).sum())} fix(es) with a zero, negative or infinite "
             "sigma; those sigmas ignored (DOP or the [gnss] config used instead)"
         )
+    if gnss.velocity is not None:
+        velocity = np.asarray(gnss.velocity, dtype=float)
+        with np.errstate(invalid="ignore", over="ignore"):
+            bad_velocity = np.any(~np.isnan(velocity) & ~np.isfinite(velocity), axis=1) | (
+                np.nan_to_num(np.linalg.norm(np.nan_to_num(velocity, posinf=0, neginf=0), axis=1))
+                > MAX_SPEED_M_PER_S
+            )
+        if bad_velocity.any():
+            velocity = velocity.copy()
+            velocity[bad_velocity] = np.nan
+            replaced["velocity"] = velocity
+            checks.append(
+                f"gnss: {int(bad_velocity.sum())} fix(es) with an infinite velocity or one "
+                f"above {MAX_SPEED_M_PER_S:g} m/s; those velocities ignored (positions kept)"
+            )
     bad_dops = 0
     placeholders = np.zeros(len(gnss), dtype=bool)
     placeholder_values = 0
@@ -681,13 +699,23 @@ def _check_time_bases(
         # One fix cannot anchor a trajectory; say why there is only one, not "alignment
         # needs 2 fixes" (GNSS times in milliseconds overlap the IMU at t = 0 only).
         spacing = float(np.median(np.diff(t_gnss))) if t_gnss.size > 1 else float("nan")
-        hint = (
-            f"the GNSS times look like milliseconds (fixes {spacing:.4g} units apart): give "
-            "them in seconds"
-            if spacing >= GNSS_MAX_EPOCH_INTERVAL_S
-            else "the files use different time bases? give --time-offset SECONDS or convert "
-            "one clock"
-        )
+        if spacing >= GNSS_MAX_EPOCH_INTERVAL_S:
+            hint = (
+                f"the GNSS times look like milliseconds (fixes {spacing:.4g} units apart): give "
+                "them in seconds"
+            )
+        elif c >= a - max(2 * spacing, 2.0) and d <= b + max(2 * spacing, 2.0):
+            # The fixes lie where the IMU is (one clock), there are just too few of them (a
+            # log cut short), not an offset.
+            hint = (
+                f"the recording is too short (IMU {b - a:.1f} s, {t_gnss.size} fixes): at least "
+                "2 fixes within the IMU's span are needed; give a longer log"
+            )
+        else:
+            hint = (
+                "the files use different time bases? give --time-offset SECONDS or convert "
+                "one clock"
+            )
         raise InputError(
             f"only {int(inside.sum())} of {t_gnss.size} GNSS fixes lie within the IMU time "
             f"span ({a:.3f} .. {b:.3f} s; GNSS {c:.3f} .. {d:.3f} s): {hint}"
@@ -915,6 +943,60 @@ def _check_gnss_velocity(gnss: GnssData, origin: Origin) -> None:
             )
 
 
+# Fixes that move this many times less than the velocity says do not move at all (lat/lon in
+# radians gives 1/57): a frozen output, not a unit.
+FROZEN_RATIO = 1e-3
+FROZEN_SPREAD_M = 0.01  # all fixes within this: one position repeated
+FROZEN_MIN_FIXES = 10
+TURNING_RATE_RAD_S = 0.1  # 1-s mean yaw rates this far from their median: the IMU turns
+MOVING_ACCEL_M_S2 = 1.0  # 1-s mean horizontal specific force this far: it speeds up or brakes
+
+
+def _frozen_note(gnss: GnssData) -> str:
+    return f"{len(gnss.t)} fixes over {gnss.t[-1] - gnss.t[0]:.0f} s"
+
+
+def _check_frozen_position(gnss: GnssData, enu: np.ndarray, imu) -> None:
+    """Every fix at one position (to 1 cm) while the IMU turns or accelerates (1-s means, so
+    not vibration; a tilt of 6 deg would be needed at rest): a frozen receiver output or a
+    constant column. Without velocity columns an outside tester's frozen fixes passed at
+    exit 0 with advice to set the lever arm. A vehicle at rest does not turn, so a static
+    recording (or a receiver's static hold at a stop) is not caught."""
+    finite = np.all(np.isfinite(enu[:, :2]), axis=1)
+    if finite.sum() < FROZEN_MIN_FIXES:
+        return
+    xy = enu[finite, :2]
+    if float(np.max(np.ptp(xy, axis=0))) > FROZEN_SPREAD_M:
+        return
+    rate = 1.0 / float(np.median(np.diff(imu.t)))
+    n = max(round(rate), 5)
+    blocks = len(imu.t) // n
+    if blocks < 3:
+        return
+    gyro = imu.gyro[: blocks * n].reshape(blocks, n, 3).mean(axis=1)
+    accel = imu.accel[: blocks * n].reshape(blocks, n, 3).mean(axis=1)
+    up = np.mean(imu.accel, axis=0)
+    up = up / max(float(np.linalg.norm(up)), 1e-9)
+    yaw_rate = gyro @ up
+    turning = float(np.percentile(np.abs(yaw_rate - np.median(yaw_rate)), 95))
+    horizontal = accel - np.outer(accel @ up, up)
+    speeding = float(
+        np.percentile(np.linalg.norm(horizontal - np.median(horizontal, axis=0), axis=1), 95)
+    )
+    if turning > TURNING_RATE_RAD_S or speeding > MOVING_ACCEL_M_S2:
+        motion = (
+            f"turns (yaw rates of {np.degrees(turning):.0f} deg/s)"
+            if turning > TURNING_RATE_RAD_S
+            else f"accelerates ({speeding:.1f} m/s^2 sustained over 1 s)"
+        )
+        raise InputError(
+            f"gnss: the position never changes ({_frozen_note(gnss)}, all within "
+            f"{FROZEN_SPREAD_M * 100:g} cm) while the IMU {motion}: a frozen position output "
+            "(a receiver repeating its last fix, or a constant column); give the fixes' real "
+            "positions"
+        )
+
+
 def _check_shrunk_track(gnss: GnssData, enu: np.ndarray, sigma: np.ndarray) -> None:
     """Fixes that move far less than the receiver's own velocity says, over the shortest
     stretch (at most 5 s) whose path length is well above the fixes' noise: positions shrunk
@@ -938,6 +1020,12 @@ def _check_shrunk_track(gnss: GnssData, enu: np.ndarray, sigma: np.ndarray) -> N
     start = np.flatnonzero(usable)
     chord = np.hypot(*(xy[end[start]] - xy[start]).T)
     ratio = float(np.median(chord / (path[end[start]] - path[start])))
+    if ratio < FROZEN_RATIO:
+        raise InputError(
+            f"gnss: the position stays the same ({_frozen_note(gnss)}) while the velocity "
+            f"columns say {np.median(speed):.3g} m/s: a frozen position output (a receiver "
+            "repeating its last fix, or a constant column); give the fixes' real positions"
+        )
     if ratio < 0.1:
         raise InputError(
             f"gnss: the fixes move {1 / max(ratio, 1e-12):.3g} times less than the velocity "

@@ -45,7 +45,8 @@ def _edit_csv(path: Path, edit) -> None:
     lines = path.read_text().splitlines()
     header = lines[0].split(",")
     rows = np.array([[float(v) if v else math.nan for v in line.split(",")] for line in lines[1:]])
-    edit(header, rows)
+    edited = edit(header, rows)  # in place, or a new table returned
+    rows = rows if edited is None else edited
     text = [",".join(header)]
     text += [",".join("" if math.isnan(v) else repr(float(v)) for v in row) for row in rows]
     path.write_text("\n".join(text) + "\n")
@@ -82,6 +83,25 @@ def _scale_imu(columns: tuple[str, ...], factor: float):
             rows[:, _column(header, name)] *= factor
 
     return edit
+
+
+def _freeze_position(header, rows):
+    for name in ("lat", "lon", "alt"):
+        rows[:, _column(header, name)] = rows[0, _column(header, name)]
+
+
+def _without_velocity(header, rows):
+    keep = [i for i, name in enumerate(header) if not name.startswith("vel_")]
+    header[:] = [header[i] for i in keep]
+    return rows[:, keep]
+
+
+def _logged_twice(header, rows):
+    return np.vstack([rows, rows])
+
+
+def _shuffled(header, rows):
+    return rows[np.random.default_rng(0).permutation(len(rows))]
 
 
 def _with_checksum(body: str) -> str:
@@ -468,6 +488,53 @@ DATA_CASES = [
             extra_files={"baro.csv": _baro_csv(95.5)},
         ),
         id="baro-in-kpa",
+    ),
+    pytest.param(
+        Case(
+            "frozen-position",
+            SMOOTH,
+            r"gnss: the position never changes .* while the IMU (turns|accelerates)",
+            edit_gnss=_freeze_position,
+        ),
+        id="frozen-position",
+    ),
+    pytest.param(
+        Case(
+            "frozen-position-without-velocity",
+            SMOOTH,
+            r"gnss: the position never changes .* while the IMU (turns|accelerates)",
+            edit_gnss=lambda header, rows: _without_velocity(header, rows)
+            if _freeze_position(header, rows) is None else None,
+        ),
+        id="frozen-position-without-velocity",
+    ),
+    pytest.param(
+        Case(
+            "fix-without-time",
+            SMOOTH,
+            r"dropped 1 fix\(es\) without a time",
+            edit_gnss=_set_fix("time", math.nan),
+            warning_ok=True,
+        ),
+        id="fix-without-time",
+    ),
+    pytest.param(
+        Case(
+            "imu-logged-twice",
+            SMOOTH,
+            r"IMU time goes backwards at sample \d+ .* the log mixes clocks or files",
+            edit_imu=_logged_twice,
+        ),
+        id="imu-logged-twice",
+    ),
+    pytest.param(
+        Case(
+            "imu-rows-shuffled",
+            SMOOTH,
+            r"IMU time goes backwards at sample \d+ .* the log mixes clocks or files",
+            edit_imu=_shuffled,
+        ),
+        id="imu-rows-shuffled",
     ),
     pytest.param(
         Case(
@@ -868,3 +935,15 @@ def test_inspect_reads_a_ubx_log_saved_as_csv_by_its_content(shared, tmp_path, c
     code, stdout, stderr = _run(["inspect", str(renamed)], capsys)
     assert code == 0, stderr
     assert stdout.startswith(f"u-blox UBX log {renamed}")
+
+
+def test_a_ubx_log_cut_short_is_called_short_not_two_clocks(shared, tmp_path, capsys):
+    """One UBX log (IMU and fixes on one clock) cut at half: the error blamed different time
+    bases and advised --time-offset (outside tester); it is a recording too short."""
+    source = shared / "data" / "ubx" / "gpsd" / "ublox-neo-m8u.log"
+    data = source.read_bytes()
+    cut = tmp_path / "cut.ubx"
+    cut.write_bytes(data[: len(data) // 2])
+    code, _, stderr = _run(["smooth", str(cut), "-o", str(tmp_path / "out.csv")], capsys)
+    assert code == 2, stderr
+    assert "recording is too short" in stderr and "time-offset" not in stderr, stderr

@@ -224,3 +224,39 @@ def test_sigterm_mid_write_leaves_no_file_and_exits_143(tmp_path, monkeypatch, c
     assert capsys.readouterr().err.strip() == "fgins: terminated (SIGTERM)"
     assert sorted(p.name for p in tmp_path.iterdir()) == []
     assert signal.getsignal(signal.SIGTERM) is before
+
+
+def test_ctrl_c_while_plotting_says_the_trajectory_is_complete(tmp_path, drive, capsys,
+                                                               monkeypatch):
+    """Ctrl-C while the plot is drawn: the CSV is already complete and in place, so the
+    message says so and names the missing plot (outside tester: a bare 'interrupted' left
+    the user guessing whether out.csv could be trusted)."""
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(api, "plot", interrupted)
+    out, png = tmp_path / "out.csv", tmp_path / "out.png"
+    code = main(["smooth", str(drive), "--method", "ekf", "-o", str(out), "--plot", str(png)])
+    stderr = capsys.readouterr().err
+    assert code == 130
+    assert f"interrupted while plotting: {out} is complete, {png} was not written" in stderr
+    assert out.exists() and not png.exists()
+    assert len(out.read_text().splitlines()) > 100
+
+
+def test_ctrl_c_while_the_cli_is_imported_is_one_line(monkeypatch, capsys):
+    """The console entry point catches Ctrl-C during the CLI's imports (numpy, GTSAM: the
+    first half second), which used to print a KeyboardInterrupt traceback."""
+    import sys
+    import types
+
+    from fgins import entry
+
+    class Importing(types.ModuleType):
+        def __getattr__(self, name):
+            raise KeyboardInterrupt
+
+    monkeypatch.setitem(sys.modules, "fgins.cli", Importing("fgins.cli"))
+    assert entry.main() == 130
+    assert capsys.readouterr().err == "fgins: interrupted\n"
