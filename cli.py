@@ -439,10 +439,9 @@ def _read_gnss_only(path: Path, time_offset: float):
 
     check_not_empty(path)
     if path.suffix.lower() == ".mcap":
-        from fgins.io.mcap import read_mcap
+        from fgins.io.mcap import read_mcap_gnss
 
-        result = read_mcap(path, progress=False)
-        return result.dataset.gnss, result.warnings
+        return read_mcap_gnss(path)  # a receiver's log needs no IMU
     from fgins.io.ubx import looks_like_ubx, read_ubx_gnss
 
     if looks_like_ubx(path):

@@ -1069,6 +1069,27 @@ def _accumulator_for(scan: _McapScan, role: str) -> _Accumulator | None:
 
 
 def _assemble(scan: _McapScan) -> McapResult:
+    """The dataset of a finished scan: IMU and GNSS required."""
+    gnss, imu_acc = _assemble_gnss(scan, need_imu=True)
+    assert imu_acc is not None
+    return _assemble_dataset(scan, gnss, imu_acc)
+
+
+def _fgins_output_only(scan: _McapScan) -> str:
+    """' (it holds only fgins output channels ...)' for a file fgins wrote, else ''."""
+    ours = sorted(c.topic for c in scan.channels.values()
+                  if c.metadata.get(PRODUCER_KEY) == PRODUCER_FGINS)  # fmt: skip
+    if ours and len(ours) == len(scan.channels):
+        return (
+            f"; it holds only fgins output channels ({', '.join(ours[:4])}"
+            f"{' ...' if len(ours) > 4 else ''}): a trajectory fgins wrote, not sensor data"
+        )
+    return ""
+
+
+def _assemble_gnss(scan: _McapScan, need_imu: bool) -> tuple[GnssData, Any]:
+    """The GNSS fixes (with velocity) of a finished scan and the IMU accumulator (None when
+    there is none and ``need_imu`` is false); truncation and damage reported."""
     path, report, warnings = scan.path, scan.report, scan.warnings
     if scan.outcome.truncated:
         outcome = scan.outcome
@@ -1106,15 +1127,16 @@ def _assemble(scan: _McapScan) -> McapResult:
         report.append(f"skipped {topic}: {why} ({scan.counts.get(cid, 0)} messages)")
     imu_acc = _accumulator_for(scan, ROLE_IMU)
     gnss_acc = _accumulator_for(scan, ROLE_GNSS)
-    if imu_acc is None:
+    if imu_acc is None and need_imu:
         raise InputError(
             f"{path}: no IMU channel (sensor_msgs/msg/Imu) found; record the IMU topic "
-            "or give an IMU CSV"
+            f"or give an IMU CSV{_fgins_output_only(scan)}"
         )
     if gnss_acc is None:
         raise InputError(
             f"{path}: no GNSS channel (NavSatFix, GPSFix, foxglove.LocationFix, "
-            "nmea_msgs/Sentence) found; record a GNSS topic or give an NMEA/GNSS CSV"
+            f"nmea_msgs/Sentence) found; record a GNSS topic or give an NMEA/GNSS CSV"
+            f"{_fgins_output_only(scan)}"
         )
     for acc in scan.accumulators.values():
         if acc.decode_errors:
@@ -1124,15 +1146,6 @@ def _assemble(scan: _McapScan) -> McapResult:
                 f"{acc.topic}: {acc.stamp_fallbacks} messages with a zero header stamp; "
                 "their log time was used"
             )
-    imu = _build_imu(imu_acc, warnings)  # type: ignore[arg-type]
-    imu_config = imu_acc.noise_config(imu.rate_hz)  # type: ignore[attr-defined]
-    if imu_config:
-        report.append(
-            f"imu noise from the sensor_msgs/Imu covariances of {imu_acc.topic}: "
-            + ", ".join(f"{k} = {v:.3g}" for k, v in imu_config.items())
-            + " (at "
-            + f"{imu.rate_hz:.1f} Hz); other [imu] terms from the preset"
-        )
     if isinstance(gnss_acc, _NmeaAccumulator):
         gnss = _build_nmea(gnss_acc, path, warnings)
     else:
@@ -1148,6 +1161,21 @@ def _assemble(scan: _McapScan) -> McapResult:
     velocity_acc = _accumulator_for(scan, ROLE_VELOCITY)
     if velocity_acc is not None:
         _attach_velocity(gnss, velocity_acc, warnings, report)  # type: ignore[arg-type]
+    return gnss, imu_acc
+
+
+def _assemble_dataset(scan: _McapScan, gnss: GnssData, imu_acc: Any) -> McapResult:
+    path, report, warnings = scan.path, scan.report, scan.warnings
+    gnss_acc = _accumulator_for(scan, ROLE_GNSS)
+    imu = _build_imu(imu_acc, warnings)
+    imu_config = imu_acc.noise_config(imu.rate_hz)
+    if imu_config:
+        report.append(
+            f"imu noise from the sensor_msgs/Imu covariances of {imu_acc.topic}: "
+            + ", ".join(f"{k} = {v:.3g}" for k, v in imu_config.items())
+            + " (at "
+            + f"{imu.rate_hz:.1f} Hz); other [imu] terms from the preset"
+        )
     baro = None
     baro_acc = _accumulator_for(scan, ROLE_BARO)
     if isinstance(baro_acc, _BaroAccumulator) and len(baro_acc):
@@ -1189,6 +1217,25 @@ def _assemble(scan: _McapScan) -> McapResult:
         },
     )
     return McapResult(dataset=dataset, report=report, warnings=warnings)
+
+
+def read_mcap_gnss(
+    path: str | Path, *, gnss_topic: str | None = None, progress: bool = False
+) -> tuple[GnssData, list[str]]:
+    """The GNSS fixes (with velocity) of an MCAP file and the reader's warnings; no IMU
+    needed (``fgins convert``: a log of a receiver alone)."""
+    path = Path(path)
+    _check_magic(path)
+    scan = _McapScan(path, True, {ROLE_IMU: None, ROLE_GNSS: gnss_topic})
+    try:
+        summary = _read_summary(path)
+        if summary is not None:
+            scan.preselect_from_summary(summary)
+        scan.run(progress)
+        gnss, _ = _assemble_gnss(scan, need_imu=False)
+        return gnss, scan.warnings
+    finally:
+        scan.close()
 
 
 def read_mcap(

@@ -106,6 +106,36 @@ def test_missing_imu_is_an_input_error(drive: Drive, tmp_path: Path) -> None:
         read_mcap(path, progress=False)
 
 
+def test_a_receiver_log_without_imu_converts(drive: Drive, tmp_path: Path, capsys) -> None:
+    """``fgins convert`` needs only the fixes: a ROS 2 bag (rosbags writer) with a
+    NavSatFix topic and no IMU was refused with "no IMU channel"."""
+    from fgins.cli import main
+    from fgins.io.mcap import read_mcap_gnss
+
+    path = write_ros2_bag(tmp_path / "bag", drive, with_imu=False)
+    gnss, _ = read_mcap_gnss(path)
+    np.testing.assert_array_equal(gnss.lla, drive.lla[drive.valid])
+    out = tmp_path / "fixes.csv"
+    assert main(["convert", str(path), "-o", str(out)]) == 0, capsys.readouterr().err
+    assert len(out.read_text().splitlines()) == 1 + int(drive.valid.sum())
+
+
+def test_an_mcap_fgins_wrote_is_called_fgins_output(tmp_path: Path, capsys) -> None:
+    """fgins's own trajectory MCAP given back as an input: "no IMU channel" (smooth) and "no
+    GNSS channel" (convert) now say it holds only fgins output, not sensor data."""
+    import fgins
+    from fgins.cli import main
+
+    folder = fgins.simulate("car-urban", tmp_path / "drive", duration=20, seed=1)
+    out = tmp_path / "track.mcap"
+    assert main(["smooth", str(folder), "--method", "ekf", "-o", str(out)]) == 0
+    capsys.readouterr()
+    for args in (["smooth", str(out), "-o", str(tmp_path / "x.csv")],
+                 ["convert", str(out), "-o", str(tmp_path / "y.csv")]):  # fmt: skip
+        assert main(args) == 2
+        assert "holds only fgins output channels" in capsys.readouterr().err
+
+
 def test_not_an_mcap_is_an_input_error(tmp_path: Path) -> None:
     path = tmp_path / "drive.mcap"
     path.write_text("time,lat,lon\n1,2,3\n")
