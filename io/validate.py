@@ -145,6 +145,8 @@ def _validated(dataset: Dataset, vehicle: str | None) -> Dataset:
         imu, gnss, origin, checks, has_accel_array=dataset.accel_array is not None,
         body_follows_track=vehicle not in FREE_BODY_VEHICLES,
     )  # fmt: skip
+    if vehicle not in FREE_BODY_VEHICLES and dataset.accel_array is None:
+        _check_clock_offset(imu, gnss, origin, checks, dataset.metadata.get("gnss_time_offset_s"))
     _check_gnss_velocity(gnss, origin)
     baro = _checked_baro(dataset.baro, imu.t, checks)
     _check_pressure_unit(baro)
@@ -850,6 +852,31 @@ def _check_units(
         )
     checks.extend(f"{problem} (a {'/'.join(FREE_BODY_VEHICLES)} need not yaw with its track: "
                   "checked, not refused)" for problem in problems)  # fmt: skip
+
+
+def _check_clock_offset(
+    imu, gnss: GnssData, origin: Origin, checks: list[str], given_offset_s: object
+) -> None:
+    """The GNSS clock against the IMU's from the drive's turns (:mod:`fgins.io.clock_offset`):
+    an offset of seconds is an error naming the --time-offset that aligns them (KITTI with 3 s
+    added ran 29 s to a fit blamed on the lever arm and the mounting), a fraction of a second
+    a warning. Only for a body that yaws with its track (not a multirotor or a walker)."""
+    from fgins.geodesy import lla_to_enu
+    from fgins.io.clock_offset import estimate_clock_offset, judge
+
+    up = np.mean(imu.accel, axis=0)
+    up = up / max(float(np.linalg.norm(up)), 1e-9)
+    offset = estimate_clock_offset(
+        imu.t, imu.gyro @ up, gnss.t, lla_to_enu(gnss.lla, origin)[:, :2]
+    )
+    given = float(given_offset_s) if isinstance(given_offset_s, (int, float)) else 0.0
+    verdict = judge(offset, given)
+    if verdict is None:
+        return
+    kind, message = verdict
+    if kind == "error":
+        raise InputError(message)
+    checks.append(message)
 
 
 def _velocity_from_speed_course(gnss: GnssData) -> bool:
