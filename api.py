@@ -902,10 +902,24 @@ def bench(
     if not windows:
         span = float(dataset.gnss.t[-1] - dataset.t0)
         windows = periodic_windows(outage_duration, outage_period, outage_start, span)
+    from fgins.outages import empty_windows
+
+    empty = empty_windows(dataset, windows)
+    if empty or not windows:
+        # A benchmark of outages with no outage in it measures nothing (outside tester:
+        # exit 0 and a table of NaN).
+        raise ConfigError(
+            (empty[0] + f" ({len(empty)} of {len(windows)} windows)") if empty
+            else "no outage window fits in the GNSS span: give outages inside the drive"
+        )
     reference = _truth_for(dataset, truth)
     name = dataset.name.replace(":", "-") or "input"
     case = BenchCase(name, dataset, run_config, windows, truth=reference)
     run_case(case, methods, progress=progress)
+    if not case.results:
+        raise FginsError(
+            f"bench: no method produced a result ({'; '.join(case.failures)}); nothing written"
+        )
     frame = results_frame([case], baseline=baseline)
     frame.attrs.update(
         {
@@ -936,6 +950,11 @@ def plot(
     """
     from fgins.bench.plots import plot_track_and_errors
 
+    if isinstance(trajectories, (str, bytes, dict)):  # iterating it would judge its parts
+        raise ConfigError(
+            f"plot(): trajectories must be a Trajectory (from fgins.smooth) or a list of them, "
+            f"not {type(trajectories).__name__}"
+        )
     items = (
         [trajectories]
         if isinstance(trajectories, Trajectory) or not isinstance(trajectories, Iterable)
@@ -949,6 +968,17 @@ def plot(
     _check_arguments(
         "plot", dataset=(dataset, "dataset"), path=(path, "path?"), title=(title, "text")
     )
+    for i, item in enumerate(items):
+        # A trajectory drawn against another drive's fixes is a plot of nonsense, silently.
+        run = item.info.get("run", {})
+        if isinstance(run, dict) and run and (
+            run.get("dataset") != dataset.name or run.get("imu_samples") != len(dataset.imu)
+        ):
+            raise ConfigError(
+                f"plot(): trajectories[{i}] was smoothed from {run.get('dataset')!r} "
+                f"({run.get('imu_samples')} IMU samples), not from this dataset "
+                f"{dataset.name!r} ({len(dataset.imu)}): give the dataset it came from"
+            )
     if path is not None:
         run = items[0].info.get("run", {})
         inputs = run.get("inputs", []) if isinstance(run, dict) else []

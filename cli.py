@@ -327,7 +327,13 @@ def cmd_sim(args: argparse.Namespace) -> int:
         key, _, value = item.partition("=")
         if not _:
             raise FginsError(f"--set {item!r}: expected KEY=VALUE")
+        if not key.strip():
+            raise FginsError(f"--set {item!r}: the option name before '=' is missing")
         options[key.strip()] = _parse_value(value.strip())
+    if args.duration is not None and "duration_s" in options:
+        raise FginsError(
+            "--duration and --set duration_s both given; they set the same length: keep one"
+        )
     _, run = api._simulate(args.scenario, args.output_dir, args.seed, args.duration, options)
     print(
         f"{args.scenario}: wrote {args.output_dir} ({len(run.dataset.imu)} IMU samples, "
@@ -378,7 +384,21 @@ def cmd_fleet(args: argparse.Namespace) -> int:
 
     if args.workers is not None and args.workers < 1:
         raise FginsError(f"--workers {args.workers}: need at least 1 worker")
+    cpus = os.cpu_count() or 1
+    if args.workers is not None and args.scheduler is None and args.workers > 4 * cpus:
+        # Each worker is a process holding a drive: 64 on 2 CPUs hung at start-up (and
+        # 100,000 took 2 GB and never started); a remote cluster sizes itself.
+        raise FginsError(
+            f"--workers {args.workers}: more than 4 per CPU on this machine ({cpus} CPUs); "
+            f"use at most {4 * cpus} (each drive's solve keeps about one CPU busy)"
+        )
     parse_windows(args.gnss_outage)  # a bad window is one error now, not one per drive
+    if args.config is not None:
+        # Settings every drive shares: checked once here, before a cluster starts, not
+        # reported as a failure of every drive.
+        from fgins.config import load_config
+
+        load_config(args.config)
     drives = expand_drives(args.inputs)
     options = FleetOptions(
         method=args.method, output_format=args.format, config=args.config,

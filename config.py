@@ -702,9 +702,15 @@ def load_config(
     file_where = f"config {path}: "
     unknown = set(table) - {"imu", "gnss", "smoother"}
     if unknown:
+        sim_folder = (
+            "; it is the config.toml of a folder fgins sim wrote, which is read with the "
+            "folder: give the folder as the input instead"
+            if {"origin", "scenario"} & unknown
+            else ""
+        )
         raise ConfigError(
             f"config {path}: unknown section(s) {', '.join(sorted(unknown))} "
-            "(valid: [imu], [gnss], [smoother])"
+            f"(valid: [imu], [gnss], [smoother]){sim_folder}"
         )
     data_where = f"sensor settings of {dataset_name or 'the input'}: "
     # Each source alone: its values must be valid, whatever the others say (the dataset's

@@ -41,6 +41,7 @@ class BenchCase:
     windows: list[tuple[float, float]]
     truth: Trajectory | None = None
     results: list[MethodResult] = field(default_factory=list)
+    failures: list[str] = field(default_factory=list)  # "method: why", one per failed method
 
 
 def _truth_errors(
@@ -80,6 +81,7 @@ def run_case(case: BenchCase, methods: list[str], progress: bool = False) -> Ben
             )
         except FginsError as exc:
             print(f"  {case.name}: {method} unavailable: {exc}")
+            case.failures.append(f"{method}: {exc}")
             continue
         wall = time.perf_counter() - started
         variants = [(method, trajectory)]

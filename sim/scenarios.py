@@ -129,12 +129,18 @@ def _option_choice(name: str, value: Any, choices: tuple[str, ...]) -> str:
     return text
 
 
+# Shorter runs hold fewer than the two GNSS epochs any estimator needs (1 Hz GNSS).
+MIN_DURATION_S = 5.0
+
+
 def _option_float(name: str, value: Any, low: float, high: float) -> float:
+    if isinstance(value, bool):  # True would be 1.0: a typo for a number
+        raise InputError(f"option {name}: expected a number, got {value!r}")
     try:
         number = float(value)
     except (TypeError, ValueError):
         raise InputError(f"option {name}: expected a number, got {value!r}") from None
-    if not low <= number <= high:
+    if not low <= number <= high:  # NaN fails too
         raise InputError(f"option {name}: {number:g} is outside [{low:g}, {high:g}]")
     return number
 
@@ -378,7 +384,7 @@ def _preset_run(
         gnss_model=gnss_model,
         baro_model=baro_model,
         description=description,
-        start_time_s=float(options.get("start_time_s", 0.0)),
+        start_time_s=_option_float("start_time_s", options.get("start_time_s", 0.0), -1e10, 1e10),
         imu_table_extra=extra,
         setup=setup,
     )
@@ -406,7 +412,8 @@ def aircraft_ekf(seed: int = 0, **options: Any) -> SimRun:
     """Aircraft at ~100 m/s, tactical IMU with large constant biases, 60 s outage at 500 s."""
     _check_options("aircraft-ekf", options, IMU_OPTIONS | {"outage_start_s"})
     duration = _option_float("duration_s", options.get("duration_s", 720.0), 1.0, 86400.0)
-    outage_start = float(options.get("outage_start_s", 500.0))
+    # At or beyond the run's end: no outage (the scenario matrix flies without one).
+    outage_start = _option_float("outage_start_s", options.get("outage_start_s", 500.0), 0.0, 1e9)
     grade = _grade("aircraft-ekf", options, default="tactical")
     # Default bias model: constant biases in the truth while the table keeps the preset's
     # small random walk as estimator tuning; bias_model=constant states 0 instead.
@@ -450,10 +457,13 @@ def aircraft_ekf(seed: int = 0, **options: Any) -> SimRun:
         description=(
             "Aircraft: take-off roll, climb, coordinated turns and cruise at ~100 m/s. "
             f"{grade} IMU at {setup.rate_hz:g} Hz with {biases}; GNSS 1 Hz, sigma (5,5,8) m, "
-            "velocity 0.1 m/s; 60 s GNSS outage from 500 s. " + _setup_description(setup)
+            "velocity 0.1 m/s; "
+            + (f"60 s GNSS outage from {outage_start:g} s. " if outage_start < duration
+               else "no GNSS outage. ")
+            + _setup_description(setup)
         ),
         initial_errors={"position_m": 50.0, "velocity_m_per_s": 0.1, "attitude_deg": 1.0},
-        start_time_s=float(options.get("start_time_s", 0.0)),
+        start_time_s=_option_float("start_time_s", options.get("start_time_s", 0.0), -1e10, 1e10),
         imu_table_extra=extra,
         setup=setup,
     )
@@ -463,12 +473,9 @@ def mems_car_pdop(seed: int = 0, **options: Any) -> SimRun:
     """Consumer MEMS car, IMU 20 Hz, GNSS 2 Hz, a 30 s stretch of PDOP > 5 with biased fixes."""
     allowed = {"duration_s", "start_time_s", "bias_start_s", "bias_offset_m"}
     _check_options("mems-car-pdop", options, allowed)
-    duration = float(options.get("duration_s", 300.0))
-    start = float(options.get("bias_start_s", 120.0))
-    offset_values = [float(v) for v in options.get("bias_offset_m", (9.0, -7.0, 5.0))]
-    if len(offset_values) != 3:
-        raise InputError("mems-car-pdop: bias_offset_m needs 3 values (east, north, up) in m")
-    offset = (offset_values[0], offset_values[1], offset_values[2])
+    duration = _option_float("duration_s", options.get("duration_s", 300.0), MIN_DURATION_S, 86400.0)
+    start = _option_float("bias_start_s", options.get("bias_start_s", 120.0), 0.0, 1e9)
+    offset = _option_vector("bias_offset_m", options.get("bias_offset_m", (9.0, -7.0, 5.0)))
     gnss_model = GnssModel(
         rate_hz=2.0,
         uere_m=3.0,
@@ -494,8 +501,8 @@ def mems_car_pdop(seed: int = 0, **options: Any) -> SimRun:
 def uav_loop_baro(seed: int = 0, **options: Any) -> SimRun:
     """Car on a 25 m loop at 11 km/h, consumer IMU and barometer at 20 Hz, GNSS 1 or 0.5 Hz."""
     _check_options("uav-loop-baro", options, {"duration_s", "start_time_s", "gnss_rate_hz"})
-    duration = float(options.get("duration_s", 240.0))
-    gnss_rate = float(options.get("gnss_rate_hz", 1.0))
+    duration = _option_float("duration_s", options.get("duration_s", 240.0), MIN_DURATION_S, 86400.0)
+    gnss_rate = _option_float("gnss_rate_hz", options.get("gnss_rate_hz", 1.0), 0.0, 1e3)
     if gnss_rate not in (1.0, 0.5):
         raise InputError(f"uav-loop-baro: gnss_rate_hz must be 1 or 0.5, got {gnss_rate}")
     gnss_model = GnssModel(
@@ -617,15 +624,15 @@ def gyrofree_cube(seed: int = 0, **options: Any) -> SimRun:
             f"got {grade_name!r}"
         )
     grade = resolve_grade(grade_name)
-    gnss_rate = float(options.get("gnss_rate_hz", 1.0))
+    gnss_rate = _option_float("gnss_rate_hz", options.get("gnss_rate_hz", 1.0), 0.0, 1e3)
     if gnss_rate not in GYROFREE_GNSS_RATES:
         raise InputError(f"scenario gyrofree-cube: gnss_rate_hz must be 1 or 0.2, got {gnss_rate}")
-    duration = float(options.get("duration_s", 300.0))
-    rate_hz = float(options.get("rate_hz", 100.0))
+    duration = _option_float("duration_s", options.get("duration_s", 300.0), MIN_DURATION_S, 86400.0)
+    rate_hz = _option_float("rate_hz", options.get("rate_hz", 100.0), 1.0, 2000.0)
     if rate_hz not in (50.0, 100.0, 200.0):
         raise InputError(f"scenario gyrofree-cube: rate_hz must be 50, 100 or 200, got {rate_hz}")
-    start_time = float(options.get("start_time_s", 0.0))
-    array = AccelArray.cube(float(options.get("half_edge_m", 0.1)))
+    start_time = _option_float("start_time_s", options.get("start_time_s", 0.0), -1e10, 1e10)
+    array = AccelArray.cube(_option_float("half_edge_m", options.get("half_edge_m", 0.1), 0.01, 10.0))
 
     rng = np.random.default_rng(seed)
     origin = Origin(48.1372, 11.5755, 520.0)

@@ -8,6 +8,9 @@ atomically. tomllib only reads TOML, so config.toml comes from the small emitter
 from __future__ import annotations
 
 import math
+import os
+import shutil
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -90,8 +93,15 @@ def _check_out_dir(folder: Path) -> None:
     if not entries:
         return
     foreign = [name for name in entries if name not in SIM_FILES]
+    shown = ", ".join((foreign or entries)[:4]) + (" ..." if len(foreign or entries) > 4 else "")
+    if foreign and _is_sim_folder(folder):
+        # An output the user wrote beside a simulated drive (a track.csv): never removed.
+        raise InputError(
+            f"{folder}: a folder fgins sim wrote that now also holds other files ({shown}); "
+            "rewriting it would leave them beside a different drive: move them, or give a new "
+            "or empty folder (nothing was written)"
+        )
     if foreign or not _is_sim_folder(folder):
-        shown = ", ".join((foreign or entries)[:4]) + (" ..." if len(foreign or entries) > 4 else "")
         raise InputError(
             f"{folder}: the folder is not empty ({shown}) and was not written by fgins sim; "
             "give a new or empty folder (nothing was written)"
@@ -99,17 +109,34 @@ def _check_out_dir(folder: Path) -> None:
 
 
 def write_sim_dir(run: SimRun, out_dir: str | Path) -> None:
-    """Write ``run`` into ``out_dir``: a new or empty folder, or one an earlier run wrote."""
+    """Write ``run`` into ``out_dir``: a new or empty folder, or one an earlier run wrote.
+
+    All files are written into a hidden folder beside it first and moved in only when every
+    one is complete: an interrupted run (Ctrl-C, SIGTERM, a full disk) leaves the folder as it
+    was, never a drive without its truth.csv that would still load as a normal input.
+    """
     folder = Path(out_dir)
     _check_out_dir(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    # Files of an earlier scenario this one does not write (its barometer, its array).
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{folder.name}.part-", dir=folder.parent))
+    try:
+        written = _write_files(run, staging)
+        folder.mkdir(parents=True, exist_ok=True)
+        # Files of an earlier scenario this one does not write (its barometer, its array).
+        for name in set(SIM_FILES) - written:
+            (folder / name).unlink(missing_ok=True)
+        for name in sorted(written):
+            os.replace(staging / name, folder / name)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
+
+def _write_files(run: SimRun, folder: Path) -> set[str]:
+    """Every file of ``run`` in ``folder``; their names."""
     written = {"gnss.csv", "config.toml", "truth.csv"}
     written.add(ACCEL_ARRAY_FILE if run.dataset.accel_array is not None else "imu.csv")
     if run.dataset.baro is not None:
         written.add("baro.csv")
-    for name in set(SIM_FILES) - written:
-        (folder / name).unlink(missing_ok=True)
     dataset = run.dataset
     if dataset.accel_array is not None:
         # Gyro-free IMU: the raw readings are the data; the IMU is derived when reading.
@@ -149,3 +176,4 @@ def write_sim_dir(run: SimRun, out_dir: str | Path) -> None:
     with atomic_path(folder / "config.toml") as tmp:
         tmp.write_text(dumps_toml(tables))
     write_trajectory_csv(run.truth, folder / "truth.csv")
+    return written

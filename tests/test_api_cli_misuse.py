@@ -1,0 +1,132 @@
+"""Misuse of the simulator options, fleet, bench and the plotting API (an outside tester's
+findings): each is one clear error before any work, never an internal error, a hang, a
+half-written folder or a result of nothing at exit 0."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+import fgins
+from fgins import cli
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory) -> Path:
+    return fgins.simulate("car-urban", tmp_path_factory.mktemp("misuse") / "drive", duration=20)
+
+
+def _error(args: list[str], capsys) -> str:
+    code = cli.main(args)
+    err = capsys.readouterr().err
+    assert code == 2, err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("fgins: error: "), err
+    return lines[0]
+
+
+@pytest.mark.parametrize(
+    ("scenario", "option", "expect"),
+    [
+        ("mems-car-pdop", "bias_start_s=abc", "option bias_start_s: expected a number"),
+        ("mems-car-pdop", "bias_offset_m=nan", "option bias_offset_m: expected three numbers"),
+        ("aircraft-ekf", "outage_start_s=abc", "option outage_start_s: expected a number"),
+        ("aircraft-ekf", "outage_start_s=-1", "option outage_start_s: -1 is outside"),
+        ("gyrofree-cube", "half_edge_m=abc", "option half_edge_m: expected a number"),
+        ("uav-loop-baro", "gnss_rate_hz=abc", "option gnss_rate_hz: expected a number"),
+        ("car-urban", "start_time_s=-1e20", "option start_time_s: -1e\\+20 is outside"),
+        ("car-urban", "start_time_s=nan", "option start_time_s: nan is outside"),
+        ("uav-loop-baro", "duration_s=0.3", "option duration_s: 0.3 is outside"),
+        ("car-urban", "imu_rate_hz=True", "option imu_rate_hz: expected a number, got True"),
+        ("car-urban", "=5", "the option name before '=' is missing"),
+    ],
+)
+def test_bad_simulator_options_are_one_line(scenario, option, expect, tmp_path, capsys):
+    """Bare float() parses were 'internal error: ValueError / ZeroDivisionError'."""
+    import re
+
+    line = _error(["sim", scenario, "-o", str(tmp_path / "out"), "--set", option], capsys)
+    assert re.search(expect, line), line
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_mems_car_bias_offset_is_given_as_three_numbers(tmp_path):
+    run_dir = fgins.simulate("mems-car-pdop", tmp_path / "m", duration=30, bias_offset_m="[1,2,3]")
+    assert "(1.0, 2.0, 3.0)" in (run_dir / "config.toml").read_text()
+
+
+def test_duration_given_twice_is_an_error(tmp_path, capsys):
+    line = _error(["sim", "car-urban", "-o", str(tmp_path / "x"), "--duration", "5",
+                   "--set", "duration_s=10"], capsys)  # fmt: skip
+    assert "--duration and --set duration_s both given" in line
+
+
+def test_an_interrupted_simulation_leaves_no_folder(tmp_path, monkeypatch):
+    """SIGTERM mid-write left a folder without truth.csv that loaded as a normal drive."""
+    from fgins.sim import writer
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(writer, "write_trajectory_csv", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        fgins.simulate("car-urban", tmp_path / "new", duration=10)
+    assert not (tmp_path / "new").exists()
+    assert not [p for p in tmp_path.iterdir() if ".part-" in p.name]
+
+
+def test_a_sim_folder_with_a_users_output_is_not_rewritten(drive, tmp_path, capsys):
+    import shutil
+
+    folder = tmp_path / "drive"
+    shutil.copytree(drive, folder)
+    (folder / "track.csv").write_text("time\n")
+    line = _error(["sim", "car-urban", "-o", str(folder), "--duration", "5"], capsys)
+    assert "a folder fgins sim wrote that now also holds other files (track.csv)" in line
+
+
+def test_fleet_refuses_absurd_worker_counts_and_a_missing_config_before_starting(
+    drive, tmp_path, capsys
+):
+    """--workers 64 on 2 CPUs hung (and ignored SIGTERM); a missing --config failed every
+    drive separately after a cluster had started."""
+    import os
+
+    too_many = 4 * (os.cpu_count() or 1) + 1
+    line = _error(["fleet", str(drive), "-o", str(tmp_path / "f"), "--workers", str(too_many)],
+                  capsys)  # fmt: skip
+    assert "more than 4 per CPU" in line
+    line = _error(["fleet", str(drive), "-o", str(tmp_path / "f"), "--config",
+                   str(tmp_path / "nope.toml")], capsys)  # fmt: skip
+    assert "nope.toml not found" in line
+    assert not (tmp_path / "f").exists()
+
+
+def test_bench_with_no_outage_or_no_result_is_an_error(drive, tmp_path, capsys):
+    """Both exited 0 with a table of NaN (and an empty JSON)."""
+    line = _error(["bench", str(drive), "--methods", "ekf", "--gnss-outage", "100:120",
+                   "-o", str(tmp_path / "b1")], capsys)  # fmt: skip
+    assert "withholds no GNSS epoch" in line
+    code = cli.main(["bench", str(drive), "--methods", "ekf", "--gnss-outage", "0:19.5",
+                     "-o", str(tmp_path / "b2")])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2 and "bench: no method produced a result (ekf: " in err, err
+    assert not (tmp_path / "b1").exists() and not (tmp_path / "b2").exists()
+
+
+def test_plot_refuses_strings_dicts_and_another_drives_dataset(drive, tmp_path):
+    dataset = fgins.load(drive)
+    other = fgins.load(fgins.simulate("highway", tmp_path / "hw", duration=20))
+    track = fgins.smooth(dataset, "ekf")
+    for bad in ("car", {"a": track}):
+        with pytest.raises(fgins.ConfigError, match="must be a Trajectory"):
+            fgins.plot(bad, dataset)
+    with pytest.raises(fgins.ConfigError, match="was smoothed from"):
+        fgins.plot(track, other)
+    fgins.plot(track, dataset)  # the right pair draws
+
+
+def test_a_sim_folders_own_config_given_as_config_says_what_it_is(drive):
+    with pytest.raises(fgins.ConfigError, match=r"config\.toml of a folder fgins sim wrote"):
+        fgins.load(drive, config=drive / "config.toml")
