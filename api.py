@@ -393,7 +393,10 @@ def _windows(gnss_outage: str | Iterable[Sequence[float]] | None) -> list[Window
     if gnss_outage is None:
         return []
     if isinstance(gnss_outage, str):
-        return parse_windows(gnss_outage)
+        try:
+            return parse_windows(gnss_outage)
+        except FginsError as exc:  # the CLI's wording names its flag; here the argument
+            raise ConfigError(str(exc).replace("--gnss-outage", "gnss_outage")) from None
     if not isinstance(gnss_outage, Iterable):
         raise ConfigError(
             "gnss_outage: must be a list of (start, end) pairs of seconds, e.g. [(60, 90)], or "

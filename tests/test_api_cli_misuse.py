@@ -130,3 +130,13 @@ def test_plot_refuses_strings_dicts_and_another_drives_dataset(drive, tmp_path):
 def test_a_sim_folders_own_config_given_as_config_says_what_it_is(drive):
     with pytest.raises(fgins.ConfigError, match=r"config\.toml of a folder fgins sim wrote"):
         fgins.load(drive, config=drive / "config.toml")
+
+
+def test_outage_windows_are_a_config_error_in_either_form(drive):
+    """The string form raised the base FginsError naming the CLI's --gnss-outage flag; the
+    list form a ConfigError: both are the same mistake."""
+    dataset = fgins.load(drive)
+    with pytest.raises(fgins.ConfigError, match=r"^gnss_outage: 'abc' is not START:END"):
+        fgins.smooth(dataset, "ekf", gnss_outage="abc")
+    with pytest.raises(fgins.ConfigError, match=r"^gnss_outage: window"):
+        fgins.smooth(dataset, "ekf", gnss_outage=[(30, 10)])
