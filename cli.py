@@ -6,6 +6,7 @@ Every failure is one line on stderr and a non-zero exit; outputs are written ato
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import signal
 import sys
@@ -322,6 +323,10 @@ def cmd_sim(args: argparse.Namespace) -> int:
         return 0
     if args.output_dir is None:
         raise FginsError("fgins sim: -o DIR is required")
+    if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
+        raise FginsError(f"--duration {args.duration:g}: must be a positive number of seconds")
+    if args.seed < 0:
+        raise FginsError(f"--seed {args.seed}: must be 0 or more")
     options: dict[str, object] = {}
     for item in args.set:
         key, _, value = item.partition("=")
@@ -359,6 +364,11 @@ def cmd_bench(args: argparse.Namespace) -> int:
     from fgins.bench.outages import frame_to_markdown
 
     methods = api.check_methods(args.methods, args.baseline)  # before any work
+    for flag, value in (("--outage-duration", args.outage_duration),
+                        ("--outage-period", args.outage_period),
+                        ("--outage-start", args.outage_start)):  # fmt: skip
+        if not math.isfinite(value):
+            raise FginsError(f"{flag} {value:g}: must be a finite number of seconds")
     api.check_output(args.output_dir / "outages.json", args.inputs, suffixes=(".json",))
     windows = parse_windows(args.gnss_outage)
     started = time.perf_counter()

@@ -19,5 +19,13 @@ class _CallablePackage(types.ModuleType):
 
         return bench(*args, **kwargs)
 
+    @property
+    def __signature__(self):  # inspect.signature / IDEs: the function's parameters
+        import inspect
+
+        from fgins.api import bench
+
+        return inspect.signature(bench)
+
 
 sys.modules[__name__].__class__ = _CallablePackage

@@ -140,3 +140,23 @@ def test_outage_windows_are_a_config_error_in_either_form(drive):
         fgins.smooth(dataset, "ekf", gnss_outage="abc")
     with pytest.raises(fgins.ConfigError, match=r"^gnss_outage: window"):
         fgins.smooth(dataset, "ekf", gnss_outage=[(30, 10)])
+
+
+def test_cli_numbers_are_named_by_their_flags_and_bench_shows_its_signature(
+    drive, tmp_path, capsys
+):
+    """The CLI said 'simulate(): duration must be ...' (the API's wording) for --duration nan;
+    inspect.signature(fgins.bench) showed (*args, **kwargs)."""
+    import inspect
+
+    import fgins.bench.metrics  # the package then stands for the function
+
+    assert _error(["sim", "car-urban", "-o", str(tmp_path / "s"), "--duration", "nan"],
+                  capsys).endswith("--duration nan: must be a positive number of seconds")  # fmt: skip
+    assert "--seed -1: must be 0 or more" in _error(
+        ["sim", "car-urban", "-o", str(tmp_path / "s"), "--seed", "-1"], capsys
+    )
+    assert "--outage-duration nan" in _error(
+        ["bench", str(drive), "--outage-duration", "nan", "-o", str(tmp_path / "b")], capsys
+    )
+    assert list(inspect.signature(fgins.bench).parameters)[:3] == ["dataset", "methods", "outages"]
