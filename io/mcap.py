@@ -1224,18 +1224,29 @@ def read_mcap_gnss(
 ) -> tuple[GnssData, list[str]]:
     """The GNSS fixes (with velocity) of an MCAP file and the reader's warnings; no IMU
     needed (``fgins convert``: a log of a receiver alone)."""
-    path = Path(path)
+    scan = _scan(Path(path), True, {ROLE_IMU: None, ROLE_GNSS: gnss_topic}, progress)
+    try:
+        gnss, _ = _assemble_gnss(scan, need_imu=False)
+        return gnss, scan.warnings
+    finally:
+        scan.close()
+
+
+def _scan(
+    path: Path, use_header_stamp: bool, topics: dict[str, str | None], progress: bool
+) -> _McapScan:
+    """A finished scan of ``path`` (the caller closes it)."""
     _check_magic(path)
-    scan = _McapScan(path, True, {ROLE_IMU: None, ROLE_GNSS: gnss_topic})
+    scan = _McapScan(path, use_header_stamp, topics)
     try:
         summary = _read_summary(path)
         if summary is not None:
             scan.preselect_from_summary(summary)
         scan.run(progress)
-        gnss, _ = _assemble_gnss(scan, need_imu=False)
-        return gnss, scan.warnings
-    finally:
+    except BaseException:
         scan.close()
+        raise
+    return scan
 
 
 def read_mcap(
@@ -1253,14 +1264,10 @@ def read_mcap(
     header stamps (``use_header_stamp``; log time where a stamp is zero), else of the log
     times. Raises :class:`InputError` for a file that is not an MCAP or lacks IMU or GNSS.
     """
-    path = Path(path)
-    _check_magic(path)
-    scan = _McapScan(path, use_header_stamp, {ROLE_IMU: imu_topic, ROLE_GNSS: gnss_topic})
+    scan = _scan(
+        Path(path), use_header_stamp, {ROLE_IMU: imu_topic, ROLE_GNSS: gnss_topic}, progress
+    )
     try:
-        summary = _read_summary(path)
-        if summary is not None:
-            scan.preselect_from_summary(summary)
-        scan.run(progress)
         return _assemble(scan)
     finally:
         scan.close()

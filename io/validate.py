@@ -139,14 +139,16 @@ def _validated(dataset: Dataset, vehicle: str | None) -> Dataset:
     gnss, origin = _check_gnss(dataset.gnss, dataset.origin, checks)
     from fgins.geodesy import lla_to_enu
 
-    _check_frozen_position(gnss, lla_to_enu(gnss.lla, origin), imu)
+    enu = lla_to_enu(gnss.lla, origin)  # the checks below share the fixes' local positions
+    up = _mean_up(imu)
+    _check_frozen_position(gnss, enu, imu, up)
     _check_time_bases(imu.t, gnss.t, checks, n_read=len(dataset.gnss))
     _check_units(
         imu, gnss, origin, checks, has_accel_array=dataset.accel_array is not None,
         body_follows_track=vehicle not in FREE_BODY_VEHICLES,
     )  # fmt: skip
     if vehicle not in FREE_BODY_VEHICLES and dataset.accel_array is None:
-        _check_clock_offset(imu, gnss, origin, checks, dataset.metadata.get("gnss_time_offset_s"))
+        _check_clock_offset(imu, gnss, enu, up, checks, dataset.metadata.get("gnss_time_offset_s"))
     _check_gnss_velocity(gnss, origin)
     baro = _checked_baro(dataset.baro, imu.t, checks)
     _check_pressure_unit(baro)
@@ -855,20 +857,16 @@ def _check_units(
 
 
 def _check_clock_offset(
-    imu, gnss: GnssData, origin: Origin, checks: list[str], given_offset_s: object
+    imu, gnss: GnssData, enu: np.ndarray, up: np.ndarray, checks: list[str],
+    given_offset_s: object,
 ) -> None:
     """The GNSS clock against the IMU's from the drive's turns (:mod:`fgins.io.clock_offset`):
     an offset of seconds is an error naming the --time-offset that aligns them (KITTI with 3 s
     added ran 29 s to a fit blamed on the lever arm and the mounting), a fraction of a second
     a warning. Only for a body that yaws with its track (not a multirotor or a walker)."""
-    from fgins.geodesy import lla_to_enu
     from fgins.io.clock_offset import estimate_clock_offset, judge
 
-    up = np.mean(imu.accel, axis=0)
-    up = up / max(float(np.linalg.norm(up)), 1e-9)
-    offset = estimate_clock_offset(
-        imu.t, imu.gyro @ up, gnss.t, lla_to_enu(gnss.lla, origin)[:, :2]
-    )
+    offset = estimate_clock_offset(imu.t, imu.gyro @ up, gnss.t, enu[:, :2])
     given = float(given_offset_s) if isinstance(given_offset_s, (int, float)) else 0.0
     verdict = judge(offset, given)
     if verdict is None:
@@ -983,7 +981,13 @@ def _frozen_note(gnss: GnssData) -> str:
     return f"{len(gnss.t)} fixes over {gnss.t[-1] - gnss.t[0]:.0f} s"
 
 
-def _check_frozen_position(gnss: GnssData, enu: np.ndarray, imu) -> None:
+def _mean_up(imu) -> np.ndarray:
+    """Up in IMU axes: the mean accelerometer reading (gravity's reaction)."""
+    up = np.mean(imu.accel, axis=0)
+    return up / max(float(np.linalg.norm(up)), 1e-9)
+
+
+def _check_frozen_position(gnss: GnssData, enu: np.ndarray, imu, up: np.ndarray) -> None:
     """Every fix at one position (to 1 cm) while the IMU turns or accelerates (1-s means, so
     not vibration; a tilt of 6 deg would be needed at rest): a frozen receiver output or a
     constant column. Without velocity columns an outside tester's frozen fixes passed at
@@ -1002,8 +1006,6 @@ def _check_frozen_position(gnss: GnssData, enu: np.ndarray, imu) -> None:
         return
     gyro = imu.gyro[: blocks * n].reshape(blocks, n, 3).mean(axis=1)
     accel = imu.accel[: blocks * n].reshape(blocks, n, 3).mean(axis=1)
-    up = np.mean(imu.accel, axis=0)
-    up = up / max(float(np.linalg.norm(up)), 1e-9)
     yaw_rate = gyro @ up
     turning = float(np.percentile(np.abs(yaw_rate - np.median(yaw_rate)), 95))
     horizontal = accel - np.outer(accel @ up, up)
