@@ -45,13 +45,12 @@ def check_not_empty(path: Path) -> None:
     size = path.stat().st_size
     if size == 0:
         raise InputError(f"{path}: empty file (0 bytes)")
-    with path.open("rb") as handle:
-        head = handle.read(1 << 16)
-    if not head.strip(b"\x00") and (size <= len(head) or _only_zeros(path)):
+    if _only_zeros(path):
         raise InputError(f"{path}: holds only zero bytes ({size:,} of them): no data was written")
 
 
 def _only_zeros(path: Path) -> bool:
+    """Whether every byte is zero (stops at the first chunk that is not)."""
     with path.open("rb") as handle:
         while chunk := handle.read(1 << 20):
             if chunk.strip(b"\x00"):
@@ -133,8 +132,8 @@ def _parse(
                           for item in inputs):  # fmt: skip
         raise InputError(
             f"{' and '.join(topics)} {'choose' if len(topics) > 1 else 'chooses'} channels of an "
-            "MCAP file (or the MCAP IMU beside a "
-            "UBX log); these inputs have no topics: leave the option out"
+            "MCAP file (or the MCAP IMU beside a UBX log); these inputs have no topics: leave "
+            "the option out"
         )
     if inputs == ["demo:kitti"]:
         from fgins.io.kitti import parse_kitti

@@ -145,6 +145,11 @@ def _option_float(name: str, value: Any, low: float, high: float) -> float:
     return number
 
 
+def _start_time(options: dict[str, Any]) -> float:
+    """The ``start_time_s`` option: the run's first time stamp (s; POSIX times fit)."""
+    return _option_float("start_time_s", options.get("start_time_s", 0.0), -1e10, 1e10)
+
+
 @dataclass(frozen=True)
 class ImuSetup:
     """How the simulated IMU is sampled, oriented and corrupted.
@@ -384,7 +389,7 @@ def _preset_run(
         gnss_model=gnss_model,
         baro_model=baro_model,
         description=description,
-        start_time_s=_option_float("start_time_s", options.get("start_time_s", 0.0), -1e10, 1e10),
+        start_time_s=_start_time(options),
         imu_table_extra=extra,
         setup=setup,
     )
@@ -463,7 +468,7 @@ def aircraft_ekf(seed: int = 0, **options: Any) -> SimRun:
             + _setup_description(setup)
         ),
         initial_errors={"position_m": 50.0, "velocity_m_per_s": 0.1, "attitude_deg": 1.0},
-        start_time_s=_option_float("start_time_s", options.get("start_time_s", 0.0), -1e10, 1e10),
+        start_time_s=_start_time(options),
         imu_table_extra=extra,
         setup=setup,
     )
@@ -631,7 +636,7 @@ def gyrofree_cube(seed: int = 0, **options: Any) -> SimRun:
     rate_hz = _option_float("rate_hz", options.get("rate_hz", 100.0), 1.0, 2000.0)
     if rate_hz not in (50.0, 100.0, 200.0):
         raise InputError(f"scenario gyrofree-cube: rate_hz must be 50, 100 or 200, got {rate_hz}")
-    start_time = _option_float("start_time_s", options.get("start_time_s", 0.0), -1e10, 1e10)
+    start_time = _start_time(options)
     array = AccelArray.cube(_option_float("half_edge_m", options.get("half_edge_m", 0.1), 0.01, 10.0))
 
     rng = np.random.default_rng(seed)
