@@ -18,7 +18,9 @@ Navigation messages are grouped by their GPS time of week ``iTOW`` (a new group 
 back by more than half a week). Per epoch the position comes from, best first, NAV-HPPOSLLH,
 NAV-PVT, NAV-PVAT, NAV-POSLLH, NAV-SOL (ECEF), NAV-POSECEF; velocity from NAV-PVT/PVAT,
 NAV-VELNED, NAV-SOL, NAV-VELECEF (ENU = east, north, -down); DOPs from NAV-DOP; fix type,
-carrier solution and satellites from NAV-PVT/PVAT, NAV-SOL or NAV-STATUS.
+carrier solution and satellites from NAV-PVT/PVAT, NAV-SOL or NAV-STATUS. HNR-PVT (the
+high-rate output of a sensor-fusion receiver: its IMU is already in it, and its errors are
+correlated from one message to the next) is counted, said, and not used as fixes.
 
 Time is POSIX UTC seconds: from NAV-PVT/PVAT (or NAV-TIMEUTC) date and time when the receiver
 flags both valid; otherwise GPS week + iTOW (+fTOW) from NAV-SOL/NAV-TIMEGPS minus the leap
@@ -57,8 +59,9 @@ up to an epoch before the solution of that epoch). With at least ``MIN_FIT_ANCHO
 over ``MIN_FIT_SPAN_S`` the scale and offset are fitted by least squares, else the nominal
 scale is kept and the offset is the median. The anchors' residuals are the check of the mapping
 against the fixes: their spread is reported (one NAV output latency, tens of ms, is the
-uncertainty of this mapping on real receivers), and a spread above ``ANCHOR_SPREAD_WARN_S``
-or a fitted scale far from nominal is reported as a warning. Tags that go back by more than
+uncertainty of this mapping on real receivers; an anchor is quantised to one sample interval),
+and a spread above ``ANCHOR_SPREAD_WARN_S`` and above two sample intervals (a NEO-M8L's ~11 Hz
+ESF-MEAS: 155 ms is normal) or a fitted scale far from nominal is reported as a warning. Tags that go back by more than
 ``RESTART_BACKWARDS_S`` (a receiver restart, not a wrap) leave the IMU unused, with a warning:
 sorting would interleave two runs of the sensor clock.
 """
@@ -981,6 +984,12 @@ def read_ubx(path: str | Path) -> UbxResult:
         warnings.append(f"{builder.without_time} navigation epoch(s) without a valid time skipped")
     if builder.without_fix:
         warnings.append(f"{builder.without_fix} navigation epoch(s) without a position fix skipped")
+    if counts.get("HNR-PVT"):
+        warnings.append(
+            f"{counts['HNR-PVT']} HNR-PVT message(s) not used as fixes: the receiver's own "
+            "high-rate sensor-fused output (it already holds the IMU and its errors run on "
+            "from one message to the next); the fixes come from the NAV messages"
+        )
     if builder.table_leaps:
         warnings.append(
             f"{builder.table_leaps} epoch(s) in GPS time without valid leap seconds in the log: "
@@ -1052,6 +1061,12 @@ def _repeat_warning(epochs: list[_Epoch]) -> str:
     return f"{message}; {copies}" if copies else message
 
 
+def _median_interval(tags: np.ndarray) -> float:
+    """Median step between consecutive distinct time tags (in ticks); 0 if fewer than two."""
+    steps = np.diff(np.unique(tags))
+    return float(np.median(steps)) if steps.size else 0.0
+
+
 def _attach_imu(result: UbxResult, scanner: _Scanner, anchors: list[tuple[int, float]]) -> None:
     from fgins.io.imu_checks import imu_from_samples
 
@@ -1101,8 +1116,11 @@ def _attach_imu(result: UbxResult, scanner: _Scanner, anchors: list[tuple[int, f
         )
         return
     result.time_maps.append(mapping)
-    if mapping.spread_s > ANCHOR_SPREAD_WARN_S:
-        result.warnings.append(f"{mapping.describe()}: above {ANCHOR_SPREAD_WARN_S:g} s, the "
+    # An anchor is the last tag before the epoch: quantised to one sample interval, so a
+    # spread of up to two intervals (an ~11 Hz ESF-MEAS stream: 90 ms) is expected.
+    spread_limit = max(ANCHOR_SPREAD_WARN_S, 2.0 * _median_interval(rows.tags) * nominal)
+    if mapping.spread_s > spread_limit:
+        result.warnings.append(f"{mapping.describe()}: above {spread_limit:.3g} s, the "
                                "IMU clock may have jumped; check the IMU time")  # fmt: skip
     if mapping.fitted and abs(mapping.scale / nominal - 1) > SCALE_WARN:
         result.warnings.append(f"{mapping.describe()}: tick scale far from nominal")
@@ -1140,12 +1158,45 @@ def require_fix(result: UbxResult) -> GnssData:
                 "validTime clear, no GPS week from NAV-SOL/NAV-TIMEGPS): a fix cannot be put "
                 "on a clock; log NAV-PVT after the receiver has a time, or NAV-TIMEGPS"
             )
+        if not any(result.counts.get(name) for name in _POSITION_MESSAGES):
+            raise InputError(
+                f"{result.path}: no fix: none of its {messages} messages is a navigation "
+                "solution (NAV-PVT/SOL/POSLLH/HPPOSLLH/PVAT/POSECEF or NMEA GGA/RMC/GNS/GLL); "
+                f"it holds {_holdings(result.counts)}: "
+                "nothing to smooth; log NAV-PVT"
+            )
         raise InputError(
             f"{result.path}: no fix: {messages} messages, {result.epochs} navigation epochs, "
-            f"{result.epochs_without_fix} without a position fix; the receiver had no fix "
-            "(or the log lacks NAV-PVT/NAV-SOL/NAV-POSLLH): nothing to smooth"
+            f"{result.epochs_without_fix} without a position fix; the receiver had no fix: "
+            "nothing to smooth"
         )
     return result.gnss
+
+
+# The messages an epoch's position can come from (the order of the module docstring).
+_POSITION_MESSAGES = (
+    "NAV-HPPOSLLH", "NAV-PVT", "NAV-PVAT", "NAV-POSLLH", "NAV-SOL", "NAV-POSECEF", "NMEA-GGA",
+    "NMEA-RMC", "NMEA-GNS", "NMEA-GLL",
+)  # fmt: skip
+# What a log without a navigation solution may hold instead, and what that means to a user.
+_NOT_A_SOLUTION = {
+    "RXM-SFRBX": "raw navigation data subframes",
+    "RXM-RAWX": "raw measurements (solve them first, e.g. with RTKLIB)",
+    "RXM-RAW": "raw measurements (solve them first, e.g. with RTKLIB)",
+    "HNR-PVT": "the high-rate sensor-fused output, not read as fixes",
+    "LOG-RETRIEVEPOS": "positions retrieved from the receiver's flash log, not read",
+    "LOG-BATCH": "batched fixes from the receiver's memory, not read",
+    "NAV-SAT": "satellite status only",
+}
+
+
+def _holdings(counts: dict[str, int]) -> str:
+    """The log's three most frequent messages, each with its meaning where known."""
+    top = sorted(counts.items(), key=lambda item: -item[1])[:3]
+    return ", ".join(
+        f"{name} x{n}" + (f" ({_NOT_A_SOLUTION[name]})" if name in _NOT_A_SOLUTION else "")
+        for name, n in top
+    ) or "no decodable message"
 
 
 def write_ubx_imu_csv(result: UbxResult, path: str | Path) -> int:
