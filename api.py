@@ -230,7 +230,8 @@ def load(
     ----------
     *inputs : str or path
         What ``fgins smooth`` accepts: ``"demo:kitti"`` (the KITTI drive in the gtsam wheel);
-        an MCAP file (ROS 2 or Foxglove); an NMEA file plus an IMU CSV; ``imu.csv`` and
+        an MCAP file (ROS 2, ROS 1 or Foxglove); a ROS 1 ``.bag`` or a ROS 2 bag folder; a
+        u-blox UBX log; an NMEA file plus an IMU CSV; ``imu.csv`` and
         ``gnss.csv`` (plus ``baro.csv``/``wheel.csv``, any order, recognised by header); or a
         folder written by ``fgins sim``.
     config, imu_preset, vehicle, robust

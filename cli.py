@@ -70,7 +70,8 @@ def build_parser() -> argparse.ArgumentParser:
     smooth = sub.add_parser("smooth", help="estimate the trajectory of a recorded drive")
     smooth.add_argument(
         "inputs", nargs="+", metavar="INPUT",
-        help="demo:kitti | FILE.mcap | UBX log | NMEA + imu.csv | imu.csv gnss.csv | 'fgins sim' folder",
+        help="demo:kitti | FILE.mcap | ROS bag (.bag, ROS 2 bag folder) | UBX log | NMEA + "
+        "imu.csv | imu.csv gnss.csv | 'fgins sim' folder",
     )  # fmt: skip
     smooth.add_argument("--method", choices=METHODS, default="batch")
     smooth.add_argument(
@@ -472,6 +473,10 @@ def _read_gnss_only(path: Path, time_offset: float):
         from fgins.io.mcap import read_mcap_gnss
 
         return read_mcap_gnss(path)  # a receiver's log needs no IMU
+    from fgins.io.rosbag import is_rosbag, read_rosbag_gnss
+
+    if is_rosbag(path) or path.suffix.lower() == ".db3":
+        return read_rosbag_gnss(path)
     from fgins.io.ubx import looks_like_ubx, read_ubx_gnss
 
     if looks_like_ubx(path):
@@ -505,6 +510,11 @@ def cmd_inspect(args: argparse.Namespace) -> int:
         from fgins.io.mcap import summarize_mcap
 
         print(summarize_mcap(path))
+        return 0
+    from fgins.io.rosbag import is_rosbag, summarize_rosbag
+
+    if is_rosbag(path) or path.suffix.lower() == ".db3":
+        print(summarize_rosbag(path))
         return 0
     from fgins.io.ubx import looks_like_ubx, summarize_ubx
 

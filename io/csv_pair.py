@@ -538,8 +538,8 @@ def _not_a_sim_folder(path: Path) -> NoReturn:
         )
     if db3:
         raise InputError(
-            f"{path}: {bag} in the SQLite format ({db3[0].name}); fgins reads MCAP: convert it "
-            "(ros2 bag convert with storage_id: mcap) and give the .mcap file"
+            f"{path}: {bag} of ROS 2 SQLite bag files ({db3[0].name}) without the bag's "
+            "metadata.yaml; give the bag folder that holds both"
         )
     raise InputError(
         f"{path}: not a folder written by fgins sim (none of {', '.join(SIM_FOLDER_FILES)} in "

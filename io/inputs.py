@@ -1,6 +1,6 @@
 """Open whatever the user gave as INPUT... and return one checked :class:`Dataset`.
 
-``demo:kitti``; an MCAP file; a u-blox UBX log (alone, or with an imu.csv / MCAP IMU); an NMEA
+``demo:kitti``; an MCAP file; a ROS 1 ``.bag`` or ROS 2 bag folder; a u-blox UBX log (alone, or with an imu.csv / MCAP IMU); an NMEA
 file plus an IMU CSV; the CSV pair ``imu.csv gnss.csv`` (any order, recognised by header); or
 a folder written by ``fgins sim``. Readers only parse; every dataset then passes through the
 one input-validation layer (:func:`fgins.io.validate.validate_dataset`), here and nowhere else.
@@ -35,6 +35,26 @@ def _is_ubx(item: str) -> bool:
 
     path = Path(item)
     return path.is_file() and looks_like_ubx(path)
+
+
+def _is_bag(item: str) -> bool:
+    """A ROS 1 .bag, a ROS 2 bag folder or one of its .db3 files (io/rosbag reads them)."""
+    from fgins.io.rosbag import is_rosbag
+
+    path = Path(item)
+    return is_rosbag(path) or (path.suffix.lower() == ".db3" and path.is_file())
+
+
+def _bag_storage(path: Path) -> Path:
+    """What to read for a bag: a ROS 2 bag folder of one MCAP file is that file (the MCAP
+    reader streams it and reads a cut-off recording up to the cut); anything else as given."""
+    from fgins.io.rosbag import is_ros2_bag_folder, ros2_bag_files
+
+    if is_ros2_bag_folder(path):
+        files = ros2_bag_files(path)
+        if len(files) == 1 and files[0].suffix.lower() == ".mcap":
+            return files[0]
+    return path
 
 
 def check_not_empty(path: Path) -> None:
@@ -129,7 +149,7 @@ def _parse(
     topics = [f"--{name}-topic" for name, topic in (("imu", imu_topic), ("gnss", gnss_topic))
               if topic is not None]  # fmt: skip
     if topics and not any(item.lower().endswith((".mcap", ".ubx")) or _is_ubx(item)
-                          for item in inputs):  # fmt: skip
+                          or _is_bag(item) for item in inputs):  # fmt: skip
         raise InputError(
             f"{' and '.join(topics)} {'choose' if len(topics) > 1 else 'chooses'} channels of an "
             "MCAP file (or the MCAP IMU beside a UBX log); these inputs have no topics: leave "
@@ -151,10 +171,25 @@ def _parse(
         if not path.exists():
             raise InputError(f"{path}: no such file or folder")
         check_not_empty(path)
-    if len(paths) == 1 and paths[0].suffix.lower() == ".mcap":
+    bags = [p for p in paths if _is_bag(str(p))]
+    if bags:
+        if len(paths) > 1:
+            raise InputError(
+                f"{bags[0]}: a ROS bag is a whole recording on its own; give it alone, not "
+                f"with {', '.join(str(p) for p in paths if p != bags[0])}"
+            )
+        paths = [_bag_storage(bags[0])]
+    if len(paths) == 1 and paths[0].suffix.lower() == ".mcap" and paths[0].is_file():
         from fgins.io.mcap import read_mcap
 
         result = read_mcap(paths[0], imu_topic=imu_topic, gnss_topic=gnss_topic, progress=progress)
+        result.dataset.metadata["mcap_report"] = result.report
+        return result.dataset
+    if bags:
+        from fgins.io.rosbag import read_rosbag
+
+        result = read_rosbag(paths[0], imu_topic=imu_topic, gnss_topic=gnss_topic,
+                             progress=progress)  # fmt: skip
         result.dataset.metadata["mcap_report"] = result.report
         return result.dataset
     from fgins.io.ubx import looks_like_ubx

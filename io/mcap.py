@@ -1,4 +1,5 @@
-"""Read MCAP logs (ROS 2 bags with the mcap storage plugin, Foxglove recordings).
+"""Read MCAP logs (ROS 2 bags with the mcap storage plugin, ROS 1 bags converted to MCAP,
+Foxglove recordings).
 
 Topics are chosen by *schema*, never by name. The file is streamed record by record (constant
 memory in the file size: only floats of the chosen channels are kept), so a recording cut off
@@ -11,6 +12,13 @@ Supported schemas and the role they fill:
   or JSON), ``nmea_msgs/msg/Sentence`` (parsed by :mod:`fgins.io.nmea`) -> GNSS fixes
 * ``geometry_msgs/msg/TwistWithCovarianceStamped`` / ``TwistStamped`` -> GNSS ENU velocity
 * ``sensor_msgs/msg/FluidPressure`` -> barometer (Pa)
+
+ROS 1 messages (``ros1`` encoding, ``ros1msg`` schemas named ``sensor_msgs/Imu`` etc., what
+``mcap convert`` makes of a ``.bag``) fill the same roles: their names are read as the ROS 2
+ones (``pkg/Type`` -> ``pkg/msg/Type``; ROS 1's ``gps_common/GPSFix`` is ``gps_msgs/msg/GPSFix``
+with the same fields), the IMU through a fast ROS 1 path, the rest through rosbags' ROS 1
+deserializer. :mod:`fgins.io.rosbag` feeds ROS 1 ``.bag`` files and ROS 2 SQLite bags
+through the same scan.
 """
 
 from __future__ import annotations
@@ -70,8 +78,25 @@ class McapResult:
     warnings: list[str] = field(default_factory=list)
 
 
+# ROS 1 packages whose messages are the ROS 2 ones under another package name.
+_ROS1_PACKAGE_ALIASES = {"gps_common": "gps_msgs"}
+
+
+def ros2_type_name(name: str) -> str:
+    """A message type name as ROS 2 spells it: ROS 1's ``sensor_msgs/Imu`` (and rosbags'
+    ``sensor_msgs/msg/Imu``) -> ``sensor_msgs/msg/Imu``; other names unchanged."""
+    parts = name.split("/")
+    if len(parts) == 2 and all(parts):
+        package = _ROS1_PACKAGE_ALIASES.get(parts[0], parts[0])
+        return f"{package}/msg/{parts[1]}"
+    if len(parts) == 3 and parts[1] == "msg" and parts[0] in _ROS1_PACKAGE_ALIASES:
+        return f"{_ROS1_PACKAGE_ALIASES[parts[0]]}/msg/{parts[2]}"
+    return name
+
+
 def role_of_schema(schema_name: str) -> str | None:
     """The sensor role a schema fills, or None when fgins does not use it."""
+    schema_name = ros2_type_name(schema_name)
     if schema_name in IMU_SCHEMAS:
         return ROLE_IMU
     if schema_name in FIX_SCHEMAS:
@@ -498,6 +523,8 @@ def _make_decoder(schema: Schema | None, channel: Channel) -> Callable[[bytes], 
         from mcap_ros2.decoder import DecoderFactory as Ros2DecoderFactory
 
         return Ros2DecoderFactory().decoder_for(encoding, schema)
+    if encoding == "ros1" and schema.encoding == "ros1msg":
+        return _ros1_decoder(schema.name, schema.data.decode("utf-8", errors="replace"))
     if encoding == "protobuf" and schema.encoding == "protobuf":
         try:
             from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoderFactory
@@ -505,6 +532,37 @@ def _make_decoder(schema: Schema | None, channel: Channel) -> Callable[[bytes], 
             return None
         return ProtobufDecoderFactory().decoder_for(encoding, schema)
     return None
+
+
+def _ros1_decoder(type_name: str, definition: str) -> Callable[[bytes], Any]:
+    """bytes -> message for a ROS 1 type from its definition (the concatenated ``gendeps``
+    text a bag or MCAP carries), by rosbags' ROS 1 deserializer; header stamps come out as
+    ROS 2's ``sec``/``nanosec``."""
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    store = get_typestore(Stores.EMPTY)
+    name = type_name if "/msg/" in type_name else type_name.replace("/", "/msg/", 1)
+    store.register(get_types_from_msg(definition, name))
+    return lambda data: store.deserialize_ros1(data, name)
+
+
+def _imu_ros1_reader(data: bytes) -> tuple[int, tuple[float, ...]]:
+    """sensor_msgs/Imu from ROS 1 serialization (little endian, packed): header (seq,
+    stamp secs/nsecs, frame_id), orientation (4 doubles) and its covariance (9), then
+    angular velocity (3), its covariance (9), linear acceleration (3)."""
+    sec, nanosec, frame_len = struct.unpack_from("<IIII", data, 0)[1:]
+    gyro_at = 16 + frame_len + 13 * 8
+    values = struct.unpack_from("<3d9d3d", data, gyro_at)
+    return sec * 1_000_000_000 + nanosec, values[:3] + values[12:15]
+
+
+def _imu_ros1_covariance_diagonals(data: bytes) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """Diagonals of angular_velocity_covariance and linear_acceleration_covariance (ROS 1)."""
+    frame_len = struct.unpack_from("<I", data, 12)[0]
+    gyro_cov_at = 16 + frame_len + 13 * 8 + 3 * 8
+    gyro_cov = struct.unpack_from("<9d", data, gyro_cov_at)
+    accel_cov = struct.unpack_from("<9d", data, gyro_cov_at + 12 * 8)
+    return gyro_cov[0::4], accel_cov[0::4]
 
 
 def _imu_cdr_reader(data: bytes) -> tuple[int, tuple[float, ...]]:
@@ -603,13 +661,20 @@ class _ImuAccumulator(_Accumulator):
         self.values = array("d")  # gx gy gz ax ay az per sample
         self.gyro_var: list[float] = []  # mean diagonal variance per sampled message
         self.accel_var: list[float] = []
+        self.read_values = _imu_cdr_reader  # ROS 2 CDR, or ROS 1 (set_encoding)
+        self.read_covariances = _imu_cdr_covariance_diagonals
+
+    def set_encoding(self, message_encoding: str) -> None:
+        if message_encoding == "ros1":
+            self.read_values = _imu_ros1_reader
+            self.read_covariances = _imu_ros1_covariance_diagonals
 
     def add_raw(self, data: bytes, log_time: int, use_header_stamp: bool) -> None:
-        stamp, values = _imu_cdr_reader(data)
+        stamp, values = self.read_values(data)
         self.t.append(self.time(stamp, log_time, use_header_stamp))
         self.values.extend(values)
         if len(self.t) <= self.COVARIANCE_SAMPLES:
-            gyro_diag, accel_diag = _imu_cdr_covariance_diagonals(data)
+            gyro_diag, accel_diag = self.read_covariances(data)
             self.gyro_var.append(_known_variance(gyro_diag))
             self.accel_var.append(_known_variance(accel_diag))
 
@@ -940,7 +1005,7 @@ def _choose(
 _ROLES = (ROLE_IMU, ROLE_GNSS, ROLE_VELOCITY, ROLE_BARO)
 
 
-class _McapScan:
+class TopicScan:
     """One streaming pass: routes the messages of candidate channels into accumulators."""
 
     def __init__(self, path: Path, use_header_stamp: bool, overrides: dict[str, str | None]):
@@ -956,8 +1021,10 @@ class _McapScan:
         self.counts: dict[int, int] = {}
         self.accumulators: dict[int, _Accumulator] = {}
         self.decoders: dict[int, Callable[[bytes], Any] | None] = {}
+        self.encodings: dict[int, str] = {}  # channel id -> message encoding
         self.outcome = _StreamOutcome()
         self.chosen: dict[str, _Candidate] | None = None
+        self.format = "mcap"  # the dataset's metadata["format"]
 
     # -- choosing ---------------------------------------------------------------------------
 
@@ -993,7 +1060,7 @@ class _McapScan:
             return
         self.channels[channel.id] = channel
         schema = self.schemas.get(channel.schema_id)
-        name = schema.name if schema is not None else ""
+        name = ros2_type_name(schema.name) if schema is not None else ""
         role = role_of_schema(name)
         if role is None:
             self.skipped[channel.id] = f"unknown schema {name or '(none)'}"
@@ -1003,12 +1070,12 @@ class _McapScan:
             self.skipped[channel.id] = f"{name} written by fgins, not a sensor"
             return
         if role == ROLE_IMU:
-            if channel.message_encoding != "cdr":
+            if channel.message_encoding not in ("cdr", "ros1"):
                 self.skipped[channel.id] = f"{name} in {channel.message_encoding} not supported"
                 return
         else:
             try:
-                decoder = _make_decoder(schema, channel)
+                decoder = self.make_decoder(schema, channel)
             except Exception as exc:  # a schema text the decoder cannot parse
                 decoder = None
                 self.warnings.append(f"{channel.topic}: cannot build a decoder for {name}: {exc}")
@@ -1019,21 +1086,35 @@ class _McapScan:
                 return
             self.decoders[channel.id] = decoder
         self.candidates[channel.id] = _Candidate(channel.id, channel.topic, name, role)
+        self.encodings[channel.id] = channel.message_encoding
         if self.chosen is None or channel.id in {c.channel_id for c in self.chosen.values()}:
-            self.accumulators[channel.id] = _new_accumulator(role, channel.topic, name)
+            self.accumulators[channel.id] = self.new_accumulator(channel.id)
+
+    def new_accumulator(self, channel_id: int) -> _Accumulator:
+        candidate = self.candidates[channel_id]
+        accumulator = _new_accumulator(candidate.role, candidate.topic, candidate.schema_name)
+        if isinstance(accumulator, _ImuAccumulator):
+            accumulator.set_encoding(self.encodings[channel_id])
+        return accumulator
+
+    def make_decoder(self, schema: Schema | None, channel: Channel) -> Callable[[bytes], Any] | None:
+        """bytes -> message for a non-IMU channel (None: not decodable here)."""
+        return _make_decoder(schema, channel)
 
     def on_message(self, record: Message) -> None:
-        cid = record.channel_id
+        self.on_data(record.channel_id, record.log_time, record.data)
+
+    def on_data(self, cid: int, log_time: int, data: bytes) -> None:
         self.counts[cid] = self.counts.get(cid, 0) + 1
         acc = self.accumulators.get(cid)
         if acc is None:
             return
         try:
             if isinstance(acc, _ImuAccumulator):
-                acc.add_raw(record.data, record.log_time, self.use_header_stamp)
+                acc.add_raw(data, log_time, self.use_header_stamp)
             else:
-                message = self.decoders[cid](record.data)  # type: ignore[misc]
-                acc.add(message, record.log_time, self.use_header_stamp)  # type: ignore[attr-defined]
+                message = self.decoders[cid](data)  # type: ignore[misc]
+                acc.add(message, log_time, self.use_header_stamp)  # type: ignore[attr-defined]
         except Exception:  # one corrupt message must not end the read: counted, reported
             acc.decode_errors += 1
 
@@ -1063,19 +1144,19 @@ class _McapScan:
             self.discard(cid)
 
 
-def _accumulator_for(scan: _McapScan, role: str) -> _Accumulator | None:
+def _accumulator_for(scan: TopicScan, role: str) -> _Accumulator | None:
     chosen = (scan.chosen or {}).get(role)
     return None if chosen is None else scan.accumulators.get(chosen.channel_id)
 
 
-def _assemble(scan: _McapScan) -> McapResult:
+def assemble(scan: TopicScan) -> McapResult:
     """The dataset of a finished scan: IMU and GNSS required."""
-    gnss, imu_acc = _assemble_gnss(scan, need_imu=True)
+    gnss, imu_acc = assemble_gnss(scan, need_imu=True)
     assert imu_acc is not None
-    return _assemble_dataset(scan, gnss, imu_acc)
+    return assemble_dataset(scan, gnss, imu_acc)
 
 
-def _fgins_output_only(scan: _McapScan) -> str:
+def _fgins_output_only(scan: TopicScan) -> str:
     """' (it holds only fgins output channels ...)' for a file fgins wrote, else ''."""
     ours = sorted(c.topic for c in scan.channels.values()
                   if c.metadata.get(PRODUCER_KEY) == PRODUCER_FGINS)  # fmt: skip
@@ -1087,7 +1168,7 @@ def _fgins_output_only(scan: _McapScan) -> str:
     return ""
 
 
-def _assemble_gnss(scan: _McapScan, need_imu: bool) -> tuple[GnssData, Any]:
+def assemble_gnss(scan: TopicScan, need_imu: bool) -> tuple[GnssData, Any]:
     """The GNSS fixes (with velocity) of a finished scan and the IMU accumulator (None when
     there is none and ``need_imu`` is false); truncation and damage reported."""
     path, report, warnings = scan.path, scan.report, scan.warnings
@@ -1164,7 +1245,7 @@ def _assemble_gnss(scan: _McapScan, need_imu: bool) -> tuple[GnssData, Any]:
     return gnss, imu_acc
 
 
-def _assemble_dataset(scan: _McapScan, gnss: GnssData, imu_acc: Any) -> McapResult:
+def assemble_dataset(scan: TopicScan, gnss: GnssData, imu_acc: Any) -> McapResult:
     path, report, warnings = scan.path, scan.report, scan.warnings
     gnss_acc = _accumulator_for(scan, ROLE_GNSS)
     imu = _build_imu(imu_acc, warnings)
@@ -1199,7 +1280,7 @@ def _assemble_dataset(scan: _McapScan, gnss: GnssData, imu_acc: Any) -> McapResu
         warnings=list(warnings),
         metadata={
             "source": str(path),
-            "format": "mcap",
+            "format": scan.format,
             "topics": {role: c.topic for role, c in (scan.chosen or {}).items()},
             "time_base": "header stamp" if scan.use_header_stamp else "log time",
             "gnss_epochs_without_fix": getattr(gnss_acc, "no_fix", 0),
@@ -1226,7 +1307,7 @@ def read_mcap_gnss(
     needed (``fgins convert``: a log of a receiver alone)."""
     scan = _scan(Path(path), True, {ROLE_IMU: None, ROLE_GNSS: gnss_topic}, progress)
     try:
-        gnss, _ = _assemble_gnss(scan, need_imu=False)
+        gnss, _ = assemble_gnss(scan, need_imu=False)
         return gnss, scan.warnings
     finally:
         scan.close()
@@ -1234,10 +1315,10 @@ def read_mcap_gnss(
 
 def _scan(
     path: Path, use_header_stamp: bool, topics: dict[str, str | None], progress: bool
-) -> _McapScan:
+) -> TopicScan:
     """A finished scan of ``path`` (the caller closes it)."""
     _check_magic(path)
-    scan = _McapScan(path, use_header_stamp, topics)
+    scan = TopicScan(path, use_header_stamp, topics)
     try:
         summary = _read_summary(path)
         if summary is not None:
@@ -1268,7 +1349,7 @@ def read_mcap(
         Path(path), use_header_stamp, {ROLE_IMU: imu_topic, ROLE_GNSS: gnss_topic}, progress
     )
     try:
-        return _assemble(scan)
+        return assemble(scan)
     finally:
         scan.close()
 

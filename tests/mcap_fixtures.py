@@ -101,23 +101,29 @@ GPS_FIX_MSG = (
 )
 
 
-def _typestore():
+def _typestore(ros1: bool = False):
+    """rosbags' ROS 2 Humble (or ROS 1 Noetic) types plus the GNSS ones they lack; ROS 1
+    spells GPSFix's package gps_common."""
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-    store = get_typestore(Stores.ROS2_HUMBLE)
+    store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+    gps = "gps_common" if ros1 else "gps_msgs"
     store.register(get_types_from_msg(NMEA_SENTENCE_MSG, "nmea_msgs/msg/Sentence"))
     store.register(get_types_from_msg(UNKNOWN_MSG, "acme_msgs/msg/Mystery"))
-    store.register(get_types_from_msg(GPS_STATUS_MSG, "gps_msgs/msg/GPSStatus"))
-    store.register(get_types_from_msg(GPS_FIX_MSG, "gps_msgs/msg/GPSFix"))
+    store.register(get_types_from_msg(
+        GPS_STATUS_MSG, f"{gps}/msg/GPSStatus"))  # fmt: skip
+    store.register(get_types_from_msg(
+        GPS_FIX_MSG.replace("gps_msgs/", f"{gps}/"), f"{gps}/msg/GPSFix"))  # fmt: skip
     return store
 
 
 def _header(store, ns: int, frame: str):
     Header = store.types["std_msgs/msg/Header"]
     Time = store.types["builtin_interfaces/msg/Time"]
-    return Header(
-        stamp=Time(sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000)), frame_id=frame
-    )
+    stamp = Time(sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000))
+    if "seq" in Header.__dataclass_fields__:  # ROS 1
+        return Header(seq=0, stamp=stamp, frame_id=frame)
+    return Header(stamp=stamp, frame_id=frame)
 
 
 def write_ros2_bag(
@@ -135,6 +141,8 @@ def write_ros2_bag(
     imu_variances: tuple[float, float] | None = None,
 ) -> Path:
     """Write a rosbag2 in mcap storage; returns the .mcap file inside the bag folder.
+    (:func:`write_bag` writes the same drive as a ROS 1 bag, a ROS 2 SQLite bag or a ROS 1
+    MCAP.)
 
     ``imu_variances`` (gyro (rad/s)^2, accel (m/s^2)^2) fills the diagonals of the Imu
     messages' angular_velocity / linear_acceleration covariances (zeros, "unknown", otherwise).
@@ -142,17 +150,46 @@ def write_ros2_bag(
     ``second_imu_every`` > 0 adds ``/imu/raw`` carrying every n-th IMU sample (a second,
     sparser IMU candidate).
     """
-    from rosbags.rosbag2 import StoragePlugin, Writer
+    write_bag(
+        directory, drive, "ros2-mcap", imu_topic=imu_topic, second_imu_every=second_imu_every,
+        with_baro=with_baro, with_velocity=with_velocity, with_imu=with_imu,
+        with_unknown=with_unknown, nmea_sentences=nmea_sentences, gpsfix=gpsfix,
+        imu_variances=imu_variances,
+    )  # fmt: skip
+    (mcap_file,) = Path(directory).glob("*.mcap")
+    return mcap_file
 
-    store = _typestore()
+
+def write_bag(
+    path: Path,
+    drive: Drive,
+    kind: str,
+    *,
+    imu_topic: str = "/imu/data",
+    second_imu_every: int = 0,
+    with_baro: bool = True,
+    with_velocity: bool = True,
+    with_imu: bool = True,
+    with_unknown: bool = True,
+    nmea_sentences: list[tuple[int, str]] | None = None,
+    gpsfix: bool = False,
+    imu_variances: tuple[float, float] | None = None,
+) -> Path:
+    """The drive through rosbags' serializers: ``kind`` "ros2-mcap" / "ros2-sqlite" (a bag
+    folder ``path``), "ros1-bag" (a ``.bag`` file ``path``) or "ros1-mcap" (an MCAP file of
+    ROS 1 messages, ros1msg schemas named ``sensor_msgs/Imu`` etc., as ``mcap convert`` makes
+    of a .bag, written with the plain mcap writer). Returns ``path``."""
+    ros1 = kind.startswith("ros1")
+    store = _typestore(ros1)
     t = store.types
     vec3 = t["geometry_msgs/msg/Vector3"]
     quat = t["geometry_msgs/msg/Quaternion"]
+    gps = "gps_common" if ros1 else "gps_msgs"
     records: list[tuple[int, object, object, str]] = []  # (stamp, connection, msg, type)
-    with Writer(directory, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+    with _BagWriter(path, kind, store) as writer:
 
         def add(topic: str, msgtype: str):
-            return writer.add_connection(topic, msgtype, typestore=store)
+            return writer.add_connection(topic, msgtype)
 
         gyro_cov, accel_cov = np.zeros(9), np.zeros(9)
         if imu_variances is not None:
@@ -177,7 +214,7 @@ def write_ros2_bag(
                     )
                     records.append((ns, conn, msg, "sensor_msgs/msg/Imu"))
         if gpsfix:
-            gpsfix_conn = add("/gps/gpsfix", "gps_msgs/msg/GPSFix")
+            gpsfix_conn = add("/gps/gpsfix", f"{gps}/msg/GPSFix")
             for i, ns in enumerate(map(int, drive.gnss_ns)):
                 ve, vn, vu = drive.velocity[i]
                 values = dict.fromkeys(GPS_FIX_FLOATS, 0.0)
@@ -192,7 +229,7 @@ def write_ros2_bag(
                     vdop=1.4,
                     pdop=1.7,
                 )
-                status = t["gps_msgs/msg/GPSStatus"](
+                status = t[f"{gps}/msg/GPSStatus"](
                     header=_header(store, ns, "gps"),
                     satellites_used=9,
                     satellite_used_prn=np.zeros(0, np.int32),
@@ -206,14 +243,14 @@ def write_ros2_bag(
                     orientation_source=0,
                     position_source=0,
                 )
-                msg = t["gps_msgs/msg/GPSFix"](
+                msg = t[f"{gps}/msg/GPSFix"](
                     header=_header(store, ns, "gps"),
                     status=status,
                     position_covariance=np.zeros(9),
                     position_covariance_type=0,
                     **values,
                 )
-                records.append((ns, gpsfix_conn, msg, "gps_msgs/msg/GPSFix"))
+                records.append((ns, gpsfix_conn, msg, f"{gps}/msg/GPSFix"))
         elif nmea_sentences is None:
             fix_conn = add("/gps/fix", "sensor_msgs/msg/NavSatFix")
             for i, ns in enumerate(map(int, drive.gnss_ns)):
@@ -273,9 +310,60 @@ def write_ros2_bag(
                 )
         records.sort(key=lambda r: r[0])
         for ns, conn, msg, msgtype in records:
-            writer.write(conn, ns + LOG_LATENCY_NS, store.serialize_cdr(msg, msgtype))
-    (mcap_file,) = Path(directory).glob("*.mcap")
-    return mcap_file
+            writer.write(conn, ns + LOG_LATENCY_NS, msg, msgtype)
+    return path
+
+
+class _BagWriter:
+    """One interface over rosbags' ROS 1 and ROS 2 bag writers and a plain-mcap ROS 1 MCAP."""
+
+    def __init__(self, path: Path, kind: str, store) -> None:
+        self.path, self.kind, self.store = Path(path), kind, store
+        self.channels: dict[str, int] = {}
+
+    def __enter__(self) -> _BagWriter:
+        if self.kind == "ros1-bag":
+            from rosbags.rosbag1 import Writer
+
+            self.writer = Writer(self.path)
+            self.writer.open()
+        elif self.kind.startswith("ros2"):
+            from rosbags.rosbag2 import StoragePlugin, Writer
+
+            plugin = StoragePlugin.MCAP if self.kind == "ros2-mcap" else StoragePlugin.SQLITE3
+            self.writer = Writer(self.path, version=9, storage_plugin=plugin)
+            self.writer.open()
+        else:
+            from mcap.writer import Writer
+
+            self.stream = self.path.open("wb")
+            self.writer = Writer(self.stream)
+            self.writer.start(profile="ros1", library="fgins tests")
+        return self
+
+    def add_connection(self, topic: str, msgtype: str):
+        if self.kind != "ros1-mcap":
+            return self.writer.add_connection(topic, msgtype, typestore=self.store)
+        text, _md5 = self.store.generate_msgdef(msgtype)
+        ros1_name = msgtype.replace("/msg/", "/")
+        schema = self.writer.register_schema(ros1_name, "ros1msg", text.encode())
+        return self.writer.register_channel(topic, "ros1", schema)
+
+    def write(self, connection, ns: int, msg, msgtype: str) -> None:
+        if self.kind == "ros1-mcap":
+            data = self.store.serialize_ros1(msg, msgtype)
+            self.writer.add_message(connection, log_time=ns, data=data, publish_time=ns)
+        elif self.kind == "ros1-bag":
+            self.writer.write(connection, ns, self.store.serialize_ros1(msg, msgtype))
+        else:
+            self.writer.write(connection, ns, self.store.serialize_cdr(msg, msgtype))
+
+    def __exit__(self, *exc) -> None:
+        if self.kind == "ros1-mcap":
+            self.writer.finish()
+            self.stream.close()
+        else:
+            self.writer.close()
 
 
 def imu_cdr_bytes(drive: Drive) -> list[tuple[int, bytes, str]]:
