@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -126,36 +127,11 @@ def _header(store, ns: int, frame: str):
     return Header(stamp=stamp, frame_id=frame)
 
 
-def write_ros2_bag(
-    directory: Path,
-    drive: Drive,
-    *,
-    imu_topic: str = "/imu/data",
-    second_imu_every: int = 0,
-    with_baro: bool = True,
-    with_velocity: bool = True,
-    with_imu: bool = True,
-    with_unknown: bool = True,
-    nmea_sentences: list[tuple[int, str]] | None = None,
-    gpsfix: bool = False,
-    imu_variances: tuple[float, float] | None = None,
-) -> Path:
-    """Write a rosbag2 in mcap storage; returns the .mcap file inside the bag folder.
-    (:func:`write_bag` writes the same drive as a ROS 1 bag, a ROS 2 SQLite bag or a ROS 1
-    MCAP.)
-
-    ``imu_variances`` (gyro (rad/s)^2, accel (m/s^2)^2) fills the diagonals of the Imu
-    messages' angular_velocity / linear_acceleration covariances (zeros, "unknown", otherwise).
-
-    ``second_imu_every`` > 0 adds ``/imu/raw`` carrying every n-th IMU sample (a second,
-    sparser IMU candidate).
-    """
-    write_bag(
-        directory, drive, "ros2-mcap", imu_topic=imu_topic, second_imu_every=second_imu_every,
-        with_baro=with_baro, with_velocity=with_velocity, with_imu=with_imu,
-        with_unknown=with_unknown, nmea_sentences=nmea_sentences, gpsfix=gpsfix,
-        imu_variances=imu_variances,
-    )  # fmt: skip
+def write_ros2_bag(directory: Path, drive: Drive, **options: Any) -> Path:
+    """Write a rosbag2 in mcap storage; returns the .mcap file inside the bag folder. The
+    options are :func:`write_bag`'s (which also writes the same drive as a ROS 1 bag, a ROS 2
+    SQLite bag or a ROS 1 MCAP)."""
+    write_bag(directory, drive, "ros2-mcap", **options)
     (mcap_file,) = Path(directory).glob("*.mcap")
     return mcap_file
 
@@ -178,7 +154,14 @@ def write_bag(
     """The drive through rosbags' serializers: ``kind`` "ros2-mcap" / "ros2-sqlite" (a bag
     folder ``path``), "ros1-bag" (a ``.bag`` file ``path``) or "ros1-mcap" (an MCAP file of
     ROS 1 messages, ros1msg schemas named ``sensor_msgs/Imu`` etc., as ``mcap convert`` makes
-    of a .bag, written with the plain mcap writer). Returns ``path``."""
+    of a .bag, written with the plain mcap writer). Returns ``path``.
+
+    ``imu_variances`` (gyro (rad/s)^2, accel (m/s^2)^2) fills the diagonals of the Imu
+    messages' angular_velocity / linear_acceleration covariances (zeros, "unknown", otherwise).
+
+    ``second_imu_every`` > 0 adds ``/imu/raw`` carrying every n-th IMU sample (a second,
+    sparser IMU candidate).
+    """
     ros1 = kind.startswith("ros1")
     store = _typestore(ros1)
     t = store.types
