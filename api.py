@@ -618,6 +618,12 @@ def _check_output_place(
         )
         if same:
             raise OutputError(f"{path}: is an input of this run; refusing to overwrite it")
+        bag = source if source.is_dir() else source.parent  # a bag folder, or its .db3/.mcap
+        if (bag / "metadata.yaml").is_file() and bag in (_resolved(target.parent), resolved.parent):
+            raise OutputError(
+                f"{path}: inside the input ROS 2 bag folder {bag}; writing there would "
+                "change the recording: write the output elsewhere"
+            )
         if not source.is_dir():
             continue
         # The name in the folder, or, through a symlink, the name it points to there.

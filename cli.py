@@ -469,14 +469,17 @@ def _read_gnss_only(path: Path, time_offset: float):
     from fgins.io.inputs import check_not_empty
 
     check_not_empty(path)
-    if path.suffix.lower() == ".mcap":
-        from fgins.io.mcap import read_mcap_gnss
-
-        return read_mcap_gnss(path)  # a receiver's log needs no IMU
     from fgins.io.rosbag import is_rosbag, read_rosbag_gnss
 
-    if is_rosbag(path) or path.suffix.lower() == ".db3":
-        return read_rosbag_gnss(path)
+    if path.suffix.lower() == ".mcap" or is_rosbag(path):
+        from dataclasses import replace
+
+        from fgins.io.mcap import read_mcap_gnss
+
+        # A receiver's log needs no IMU; --time-offset shifts its fixes as smooth does.
+        reader = read_mcap_gnss if path.suffix.lower() == ".mcap" else read_rosbag_gnss
+        gnss, warnings = reader(path)
+        return (replace(gnss, t=gnss.t + time_offset) if time_offset else gnss), warnings
     from fgins.io.ubx import looks_like_ubx, read_ubx_gnss
 
     if looks_like_ubx(path):
@@ -513,7 +516,7 @@ def cmd_inspect(args: argparse.Namespace) -> int:
         return 0
     from fgins.io.rosbag import is_rosbag, summarize_rosbag
 
-    if is_rosbag(path) or path.suffix.lower() == ".db3":
+    if is_rosbag(path):
         print(summarize_rosbag(path))
         return 0
     from fgins.io.ubx import looks_like_ubx, summarize_ubx

@@ -38,22 +38,21 @@ def _is_ubx(item: str) -> bool:
 
 
 def _is_bag(item: str) -> bool:
-    """A ROS 1 .bag, a ROS 2 bag folder or one of its .db3 files (io/rosbag reads them)."""
+    """A ROS 1 bag, a ROS 2 bag folder, or a .db3 / metadata.yaml of one (io/rosbag)."""
     from fgins.io.rosbag import is_rosbag
 
-    path = Path(item)
-    return is_rosbag(path) or (path.suffix.lower() == ".db3" and path.is_file())
+    return is_rosbag(Path(item))
 
 
 def _bag_storage(path: Path) -> Path:
-    """What to read for a bag: a ROS 2 bag folder of one MCAP file is that file (the MCAP
-    reader streams it and reads a cut-off recording up to the cut); anything else as given."""
-    from fgins.io.rosbag import is_ros2_bag_folder, ros2_bag_files
+    """What to read for a bag: a ROS 2 bag of one uncompressed MCAP file, as its metadata
+    lists it, is that file (the MCAP reader streams it and reads a cut-off recording up to
+    the cut); anything else the bag path (io/rosbag reads it), or a clear error."""
+    from fgins.io.rosbag import bag_path, is_ros2_bag_folder, single_mcap_file
 
+    path = bag_path(path)
     if is_ros2_bag_folder(path):
-        files = ros2_bag_files(path)
-        if len(files) == 1 and files[0].suffix.lower() == ".mcap":
-            return files[0]
+        return single_mcap_file(path) or path
     return path
 
 
@@ -174,9 +173,10 @@ def _parse(
     bags = [p for p in paths if _is_bag(str(p))]
     if bags:
         if len(paths) > 1:
+            others = [str(p) for p in paths if p != bags[0]] or [f"{bags[0]} again"]
             raise InputError(
                 f"{bags[0]}: a ROS bag is a whole recording on its own; give it alone, not "
-                f"with {', '.join(str(p) for p in paths if p != bags[0])}"
+                f"with {', '.join(others)}"
             )
         paths = [_bag_storage(bags[0])]
     if len(paths) == 1 and paths[0].suffix.lower() == ".mcap" and paths[0].is_file():
@@ -184,6 +184,10 @@ def _parse(
 
         result = read_mcap(paths[0], imu_topic=imu_topic, gnss_topic=gnss_topic, progress=progress)
         result.dataset.metadata["mcap_report"] = result.report
+        if bags:  # a bag folder read as its one MCAP file: what else it holds is said
+            from fgins.io.rosbag import unlisted_warning
+
+            result.dataset.warnings.extend(unlisted_warning(paths[0].parent))
         return result.dataset
     if bags:
         from fgins.io.rosbag import read_rosbag

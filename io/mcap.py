@@ -534,6 +534,46 @@ def _make_decoder(schema: Schema | None, channel: Channel) -> Callable[[bytes], 
     return None
 
 
+# sensor_msgs/Imu as every ROS distribution defines it: the fixed layout the fast IMU
+# readers assume (field name, type), after the header.
+_STANDARD_IMU_FIELDS = (
+    ("orientation", "geometry_msgs/msg/Quaternion"), ("orientation_covariance", "float64[9]"),
+    ("angular_velocity", "geometry_msgs/msg/Vector3"), ("angular_velocity_covariance", "float64[9]"),
+    ("linear_acceleration", "geometry_msgs/msg/Vector3"),
+    ("linear_acceleration_covariance", "float64[9]"),
+)  # fmt: skip
+
+
+def _nonstandard_imu(schema: Schema | None) -> str | None:
+    """Why an Imu-named channel cannot be read by the fixed-layout IMU readers (its schema
+    text defines other fields), or None (standard, or no definition to check)."""
+    text = schema.data.decode("utf-8", errors="replace") if schema is not None else ""
+    if not text.strip():
+        return None
+    fields = []
+    for line in text.splitlines():
+        line = line.split("#", 1)[0].strip()
+        if line.startswith("=") or line.startswith("MSG:"):
+            break  # the dependencies' definitions follow
+        parts = line.split()
+        if len(parts) >= 2 and "=" not in line:
+            fields.append((parts[1], parts[0]))
+    if not fields:
+        return None
+    names = [name for name, _ in fields]
+    expected = [name for name, _ in _STANDARD_IMU_FIELDS]
+    types_ok = all(  # ROS 1 and ROS 2 texts spell the packages differently: last part only
+        kind.split("/")[-1] == want.split("/")[-1]
+        for (_, kind), (_, want) in zip(fields[1:], _STANDARD_IMU_FIELDS, strict=False)
+    )
+    if names[1:] == expected and names[0] == "header" and types_ok:
+        return None
+    return (
+        f"{schema.name} with a definition other than the standard one (fields "  # type: ignore[union-attr]
+        f"{', '.join(names[:8])}{' ...' if len(names) > 8 else ''}): not read as an IMU"
+    )
+
+
 def _ros1_decoder(type_name: str, definition: str) -> Callable[[bytes], Any]:
     """bytes -> message for a ROS 1 type from its definition (the concatenated ``gendeps``
     text a bag or MCAP carries), by rosbags' ROS 1 deserializer; header stamps come out as
@@ -1008,10 +1048,20 @@ _ROLES = (ROLE_IMU, ROLE_GNSS, ROLE_VELOCITY, ROLE_BARO)
 class TopicScan:
     """One streaming pass: routes the messages of candidate channels into accumulators."""
 
-    def __init__(self, path: Path, use_header_stamp: bool, overrides: dict[str, str | None]):
+    def __init__(
+        self,
+        path: Path,
+        use_header_stamp: bool,
+        overrides: dict[str, str | None],
+        roles: tuple[str, ...] = (),
+    ) -> None:
         self.path = path
         self.use_header_stamp = use_header_stamp
         self.overrides = overrides
+        self.roles = roles or _ROLES  # the roles to read (convert needs no IMU)
+        # Channels of one topic and type (a ROS 1 topic has one connection per publisher:
+        # a driver restart, two nodes) are one stream: every channel id -> the first one's.
+        self.merged_into: dict[int, int] = {}
         self.report: list[str] = []
         self.warnings: list[str] = []
         self.schemas: dict[int, Schema] = {}
@@ -1028,8 +1078,17 @@ class TopicScan:
 
     # -- choosing ---------------------------------------------------------------------------
 
+    def merged_counts(self, counts: dict[int, int]) -> dict[int, int]:
+        """Message counts per stream (channels merged into the first of their topic)."""
+        merged: dict[int, int] = {}
+        for cid, n in counts.items():
+            key = self.merged_into.get(cid, cid)
+            merged[key] = merged.get(key, 0) + n
+        return merged
+
     def choose(self, counts: dict[int, int]) -> None:
         self.chosen = {}
+        counts = self.merged_counts(counts)
         for role in _ROLES:
             pick = _choose(
                 role,
@@ -1069,9 +1128,22 @@ class TopicScan:
             # fgins's own output (smoothed fixes, copied GNSS) is not a sensor: never read back
             self.skipped[channel.id] = f"{name} written by fgins, not a sensor"
             return
+        if role not in self.roles:
+            self.skipped[channel.id] = f"{name}: no {role} needed here"
+            return
+        for cid, candidate in self.candidates.items():
+            if (candidate.topic, candidate.schema_name, self.encodings[cid]) == (
+                channel.topic, name, channel.message_encoding,
+            ):  # fmt: skip
+                self.merged_into[channel.id] = cid
+                return
         if role == ROLE_IMU:
             if channel.message_encoding not in ("cdr", "ros1"):
                 self.skipped[channel.id] = f"{name} in {channel.message_encoding} not supported"
+                return
+            unlike = _nonstandard_imu(schema)
+            if unlike:
+                self.skipped[channel.id] = unlike
                 return
         else:
             try:
@@ -1080,8 +1152,10 @@ class TopicScan:
                 decoder = None
                 self.warnings.append(f"{channel.topic}: cannot build a decoder for {name}: {exc}")
             if decoder is None:
+                schema_encoding = schema.encoding if schema is not None else "no schema"
                 self.skipped[channel.id] = (
-                    f"{name} in {channel.message_encoding} cannot be decoded here"
+                    f"{name} in {channel.message_encoding} with a {schema_encoding or 'blank'} "
+                    "schema cannot be decoded here"
                 )
                 return
             self.decoders[channel.id] = decoder
@@ -1105,6 +1179,7 @@ class TopicScan:
         self.on_data(record.channel_id, record.log_time, record.data)
 
     def on_data(self, cid: int, log_time: int, data: bytes) -> None:
+        cid = self.merged_into.get(cid, cid)
         self.counts[cid] = self.counts.get(cid, 0) + 1
         acc = self.accumulators.get(cid)
         if acc is None:
@@ -1154,6 +1229,17 @@ def assemble(scan: TopicScan) -> McapResult:
     gnss, imu_acc = assemble_gnss(scan, need_imu=True)
     assert imu_acc is not None
     return assemble_dataset(scan, gnss, imu_acc)
+
+
+def _unreadable(scan: TopicScan, role: str) -> str:
+    """'; /topic (why) cannot be read' for channels of ``role`` that exist but were skipped
+    (an encoding or definition fgins cannot decode), else ''."""
+    unreadable = []
+    for cid, why in sorted(scan.skipped.items()):
+        schema = scan.schemas.get(scan.channels[cid].schema_id)
+        if schema is not None and role_of_schema(schema.name) == role and "fgins" not in why:
+            unreadable.append(f"{scan.channels[cid].topic} ({why})")
+    return f"; {', '.join(unreadable)} cannot be read" if unreadable else ""
 
 
 def _fgins_output_only(scan: TopicScan) -> str:
@@ -1211,13 +1297,13 @@ def assemble_gnss(scan: TopicScan, need_imu: bool) -> tuple[GnssData, Any]:
     if imu_acc is None and need_imu:
         raise InputError(
             f"{path}: no IMU channel (sensor_msgs/msg/Imu) found; record the IMU topic "
-            f"or give an IMU CSV{_fgins_output_only(scan)}"
+            f"or give an IMU CSV{_fgins_output_only(scan)}{_unreadable(scan, ROLE_IMU)}"
         )
     if gnss_acc is None:
         raise InputError(
             f"{path}: no GNSS channel (NavSatFix, GPSFix, foxglove.LocationFix, "
             f"nmea_msgs/Sentence) found; record a GNSS topic or give an NMEA/GNSS CSV"
-            f"{_fgins_output_only(scan)}"
+            f"{_fgins_output_only(scan)}{_unreadable(scan, ROLE_GNSS)}"
         )
     for acc in scan.accumulators.values():
         if acc.decode_errors:
@@ -1235,9 +1321,16 @@ def assemble_gnss(scan: TopicScan, need_imu: bool) -> tuple[GnssData, Any]:
             warnings.append(f"gnss {gnss_acc.topic}: {gnss_acc.no_fix} no-fix messages dropped")
         gnss = _build_fixes(gnss_acc, warnings)
     if len(gnss) == 0:
+        no_fix = getattr(gnss_acc, "no_fix", 0)
+        why = (
+            f"all {no_fix} of its fix messages report no fix (NavSatFix status -1) or no "
+            "position"
+            if no_fix and not gnss_acc.decode_errors
+            else f"{gnss_acc.decode_errors} undecodable messages, {no_fix} without a fix"
+        )
         raise InputError(
-            f"{path}: GNSS topic {gnss_acc.topic} has no valid fix ({gnss_acc.decode_errors} "
-            "undecodable messages); nothing to anchor the trajectory"
+            f"{path}: GNSS topic {gnss_acc.topic} has no valid fix ({why}); nothing to anchor "
+            "the trajectory"
         )
     velocity_acc = _accumulator_for(scan, ROLE_VELOCITY)
     if velocity_acc is not None:
@@ -1305,7 +1398,8 @@ def read_mcap_gnss(
 ) -> tuple[GnssData, list[str]]:
     """The GNSS fixes (with velocity) of an MCAP file and the reader's warnings; no IMU
     needed (``fgins convert``: a log of a receiver alone)."""
-    scan = _scan(Path(path), True, {ROLE_IMU: None, ROLE_GNSS: gnss_topic}, progress)
+    scan = _scan(Path(path), True, {ROLE_IMU: None, ROLE_GNSS: gnss_topic}, progress,
+                 roles=(ROLE_GNSS, ROLE_VELOCITY))  # fmt: skip
     try:
         gnss, _ = assemble_gnss(scan, need_imu=False)
         return gnss, scan.warnings
@@ -1314,11 +1408,15 @@ def read_mcap_gnss(
 
 
 def _scan(
-    path: Path, use_header_stamp: bool, topics: dict[str, str | None], progress: bool
+    path: Path,
+    use_header_stamp: bool,
+    topics: dict[str, str | None],
+    progress: bool,
+    roles: tuple[str, ...] = (),
 ) -> TopicScan:
     """A finished scan of ``path`` (the caller closes it)."""
     _check_magic(path)
-    scan = TopicScan(path, use_header_stamp, topics)
+    scan = TopicScan(path, use_header_stamp, topics, roles)
     try:
         summary = _read_summary(path)
         if summary is not None:

@@ -150,6 +150,8 @@ def write_bag(
     nmea_sentences: list[tuple[int, str]] | None = None,
     gpsfix: bool = False,
     imu_variances: tuple[float, float] | None = None,
+    publishers: int = 1,
+    compression: str = "",
 ) -> Path:
     """The drive through rosbags' serializers: ``kind`` "ros2-mcap" / "ros2-sqlite" (a bag
     folder ``path``), "ros1-bag" (a ``.bag`` file ``path``) or "ros1-mcap" (an MCAP file of
@@ -161,6 +163,11 @@ def write_bag(
 
     ``second_imu_every`` > 0 adds ``/imu/raw`` carrying every n-th IMU sample (a second,
     sparser IMU candidate).
+
+    ``publishers`` > 1 (ROS 1 kinds): each topic gets that many connections (callers
+    ``/node_0``...), its messages dealt to them in turn, as when a driver restarts or two
+    nodes publish one topic. ``compression``: "bz2"/"lz4" chunks (ROS 1 bag), "file" /
+    "message" zstd (ROS 2 bag).
     """
     ros1 = kind.startswith("ros1")
     store = _typestore(ros1)
@@ -169,9 +176,12 @@ def write_bag(
     quat = t["geometry_msgs/msg/Quaternion"]
     gps = "gps_common" if ros1 else "gps_msgs"
     records: list[tuple[int, object, object, str]] = []  # (stamp, connection, msg, type)
-    with _BagWriter(path, kind, store) as writer:
+    with _BagWriter(path, kind, store, compression) as writer:
 
         def add(topic: str, msgtype: str):
+            if publishers > 1:
+                return _Dealer([writer.add_connection(topic, msgtype, f"/node_{k}")
+                                for k in range(publishers)])  # fmt: skip
             return writer.add_connection(topic, msgtype)
 
         gyro_cov, accel_cov = np.zeros(9), np.zeros(9)
@@ -297,24 +307,41 @@ def write_bag(
     return path
 
 
+class _Dealer:
+    """Several connections of one topic: each write goes to the next one in turn."""
+
+    def __init__(self, connections: list) -> None:
+        self.connections, self.count = connections, 0
+
+    def next(self):
+        self.count += 1
+        return self.connections[(self.count - 1) % len(self.connections)]
+
+
 class _BagWriter:
     """One interface over rosbags' ROS 1 and ROS 2 bag writers and a plain-mcap ROS 1 MCAP."""
 
-    def __init__(self, path: Path, kind: str, store) -> None:
+    def __init__(self, path: Path, kind: str, store, compression: str = "") -> None:
         self.path, self.kind, self.store = Path(path), kind, store
-        self.channels: dict[str, int] = {}
+        self.compression = compression
 
     def __enter__(self) -> _BagWriter:
         if self.kind == "ros1-bag":
             from rosbags.rosbag1 import Writer
 
             self.writer = Writer(self.path)
+            if self.compression:
+                self.writer.set_compression(Writer.CompressionFormat[self.compression.upper()])
             self.writer.open()
         elif self.kind.startswith("ros2"):
-            from rosbags.rosbag2 import StoragePlugin, Writer
+            from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 
             plugin = StoragePlugin.MCAP if self.kind == "ros2-mcap" else StoragePlugin.SQLITE3
             self.writer = Writer(self.path, version=9, storage_plugin=plugin)
+            if self.compression:
+                self.writer.set_compression(
+                    CompressionMode[self.compression.upper()], CompressionFormat.ZSTD
+                )
             self.writer.open()
         else:
             from mcap.writer import Writer
@@ -324,15 +351,21 @@ class _BagWriter:
             self.writer.start(profile="ros1", library="fgins tests")
         return self
 
-    def add_connection(self, topic: str, msgtype: str):
+    def add_connection(self, topic: str, msgtype: str, caller: str | None = None):
+        if self.kind == "ros1-bag":
+            return self.writer.add_connection(topic, msgtype, typestore=self.store,
+                                              callerid=caller)  # fmt: skip
         if self.kind != "ros1-mcap":
             return self.writer.add_connection(topic, msgtype, typestore=self.store)
         text, _md5 = self.store.generate_msgdef(msgtype)
         ros1_name = msgtype.replace("/msg/", "/")
         schema = self.writer.register_schema(ros1_name, "ros1msg", text.encode())
-        return self.writer.register_channel(topic, "ros1", schema)
+        metadata = {"callerid": caller} if caller else {}
+        return self.writer.register_channel(topic, "ros1", schema, metadata=metadata)
 
     def write(self, connection, ns: int, msg, msgtype: str) -> None:
+        if isinstance(connection, _Dealer):
+            connection = connection.next()
         if self.kind == "ros1-mcap":
             data = self.store.serialize_ros1(msg, msgtype)
             self.writer.add_message(connection, log_time=ns, data=data, publish_time=ns)

@@ -9,6 +9,9 @@ simulated drive smoothed from a ROS 1 bag must equal the same drive from its CSV
 
 from __future__ import annotations
 
+import re
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -189,3 +192,203 @@ def test_a_file_named_bag_that_is_not_one_is_named_by_its_content(tmp_path, caps
     assert main(["smooth", str(fake), "-o", str(tmp_path / "out.csv")]) == 2
     err = capsys.readouterr().err
     assert "Traceback" not in err and "fgins: error:" in err
+
+
+# --- outside tester's findings on the first version (each failed before its fix) -------------
+
+
+@pytest.mark.parametrize("kind", ["ros1-bag", "ros1-mcap"])
+def test_a_topic_published_by_several_nodes_is_read_whole(tmp_path, kind):
+    """A ROS 1 topic has one connection per publisher (a driver restart, two nodes): exit 0
+    with half the IMU samples and 57 of 94 fixes, and a tie warning naming one topic twice."""
+    drive = make_drive()
+    path = write_bag(tmp_path / KINDS[kind], drive, kind, publishers=2)
+    dataset = load_dataset([str(path)], progress=False)
+    np.testing.assert_array_equal(dataset.imu.t, drive.imu_ns / 1e9)
+    np.testing.assert_array_equal(dataset.gnss.lla, drive.lla[drive.valid])
+    assert not any("messages each" in w for w in dataset.warnings)
+    assert any(line.startswith("imu: /imu/data (sensor_msgs/msg/Imu, 2000 messages)")
+               for line in dataset.metadata["mcap_report"])  # fmt: skip
+    if kind == "ros1-bag":
+        assert "/imu/data: sensor_msgs/msg/Imu -> imu; 2000 messages" in summarize_rosbag(path)
+        assert "from 2 connections" in summarize_rosbag(path)
+
+
+def _edit_metadata(folder: Path, old: str, new: str) -> None:
+    meta = folder / "metadata.yaml"
+    text = meta.read_text()
+    assert old in text
+    meta.write_text(text.replace(old, new))
+
+
+def test_a_bag_folder_is_read_as_its_metadata_says(tmp_path, capsys):
+    """A split bag with a file missing, a listed file renamed, a message-compressed MCAP:
+    each was read from the one .mcap in the folder, partly or undecodably, at exit 0."""
+    drive = make_drive()
+    missing = write_bag(tmp_path / "missing", drive, "ros2-mcap")
+    _edit_metadata(missing, "relative_file_paths:\n  - missing.mcap",
+                   "relative_file_paths:\n  - missing.mcap\n  - missing_1.mcap")  # fmt: skip
+    renamed = write_bag(tmp_path / "renamed", drive, "ros2-mcap")
+    (renamed / "renamed.mcap").rename(renamed / "other.mcap")
+    for folder in (missing, renamed):
+        assert main(["smooth", str(folder), "-o", str(tmp_path / "out.csv")]) == 2
+        err = capsys.readouterr().err
+        assert "cannot read this ROS 2 bag folder" in err and "Traceback" not in err
+    compressed = write_bag(tmp_path / "zmsg", drive, "ros2-mcap", compression="message")
+    _same(load_dataset([str(compressed)], progress=False),
+          load_dataset([str(write_ros2_bag(tmp_path / "ref", drive))], progress=False))  # fmt: skip
+
+
+def test_no_output_inside_an_input_bag_folder(tmp_path, capsys):
+    drive = make_drive()
+    folder = write_bag(tmp_path / "bag", drive, "ros2-mcap")
+    before = {p.name: p.read_bytes() for p in folder.iterdir()}
+    for given in (folder, folder / "bag.mcap"):
+        for out in (folder / "bag.mcap", folder / "track.csv"):
+            assert main(["smooth", str(given), "-o", str(out)]) == 2
+            err = capsys.readouterr().err
+            assert "inside the input ROS 2 bag folder" in err or "is an input of this run" in err
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
+
+
+def _damage(path: Path, at: float, data: bytes) -> Path:
+    raw = bytearray(path.read_bytes())
+    start = int(len(raw) * at)
+    raw[start : start + len(data)] = bytes(b ^ 0xFF for b in raw[start : start + len(data)])
+    damaged = path.with_name("damaged_" + path.name)
+    damaged.write_bytes(bytes(raw))
+    return damaged
+
+
+@pytest.mark.parametrize("compression", ["bz2", "lz4", ""])
+def test_a_damaged_ros1_bag_is_a_one_line_error(tmp_path, capsys, compression):
+    """Corrupt bytes inside a chunk: internal errors (OSError, RuntimeError, ReaderError,
+    an empty AssertionError) at exit 1 before."""
+    drive = make_drive()
+    good = write_bag(tmp_path / "drive.bag", drive, "ros1-bag", compression=compression)
+    if compression:
+        damaged = _damage(good, 0.5, bytes(64))  # the chunk no longer decompresses
+    else:  # a plain bag has no checksum: a record header that no longer parses
+        raw = bytearray(good.read_bytes())
+        fields = [m.start() for m in re.finditer(b"op=\x02", bytes(raw))]
+        at = fields[len(fields) // 2] - 4  # that field's length
+        raw[at : at + 4] = b"\xff\xff\xff\x7f"
+        damaged = tmp_path / "damaged.bag"
+        damaged.write_bytes(bytes(raw))
+    assert main(["smooth", str(damaged), "-o", str(tmp_path / "o.csv")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("fgins: error:") and "Traceback" not in err, err
+    assert "damaged bag" in err or "cannot read this ROS 1 bag" in err
+    assert not (tmp_path / "o.csv").exists()
+    # convert reads only the GNSS records: an error, or the fixes intact
+    fixes = tmp_path / "f.csv"
+    if main(["convert", str(damaged), "-o", str(fixes)]) == 0:
+        rows = np.genfromtxt(fixes, delimiter=",", names=True)
+        np.testing.assert_array_equal(rows["lat"], drive.lla[drive.valid, 0])
+    else:
+        assert "Traceback" not in capsys.readouterr().err and not fixes.exists()
+
+
+def test_a_ros1_bag_is_known_by_content_and_an_impostor_by_its_lack(tmp_path, capsys):
+    drive = make_drive()
+    good = write_bag(tmp_path / "drive.bag", drive, "ros1-bag")
+    reference = load_dataset([str(good)], progress=False)
+    for name in ("drive.BAG", "drive.rosbag", "recording"):
+        other = tmp_path / name
+        other.write_bytes(good.read_bytes())
+        _same(load_dataset([str(other)], progress=False), reference)
+    active = tmp_path / "drive.bag.active"
+    active.write_bytes(good.read_bytes()[:4096])
+    text = tmp_path / "text.bag"
+    text.write_text("hello\n")
+    for path, message in ((active, "rosbag reindex"), (text, "not a ROS 1 bag")):
+        for command in (["smooth", str(path), "-o", str(tmp_path / "o.csv")],
+                        ["inspect", str(path)]):  # fmt: skip
+            assert main(command) == 2
+            assert message in capsys.readouterr().err
+
+
+def test_a_db3_must_belong_to_its_bag_and_metadata_yaml_means_the_folder(tmp_path):
+    drive = make_drive()
+    folder = write_bag(tmp_path / "bag", drive, "ros2-sqlite")
+    other = write_bag(tmp_path / "other", make_drive(duration_s=8.0), "ros2-sqlite")
+    stray = folder / "stray.db3"
+    stray.write_bytes(next(other.glob("*.db3")).read_bytes())
+    with pytest.raises(InputError, match=r"stray\.db3: not listed in .*metadata\.yaml"):
+        load_dataset([str(stray)], progress=False)
+    from_meta = load_dataset([str(folder / "metadata.yaml")], progress=False)
+    assert len(from_meta.imu.t) == drive.imu_ns.size
+    assert any("stray.db3 not listed" in w for w in from_meta.warnings)
+
+
+def test_an_imu_type_of_another_definition_is_named_not_misread(tmp_path):
+    """A custom type named sensor_msgs/Imu (other fields) was read by the fixed layout: a
+    misleading 'fewer than 2 usable samples' or a units error."""
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    store = get_typestore(Stores.ROS1_NOETIC)
+    custom = "std_msgs/Header header\nfloat32[3] gyro\nfloat32[3] accel\nfloat32 temperature\n"
+    store.register(get_types_from_msg(custom, "custom_msgs/msg/Imu"))
+    text, md5 = store.generate_msgdef("custom_msgs/msg/Imu")
+    real = write_bag(tmp_path / "fix.bag", make_drive(), "ros1-bag", with_imu=False)
+    path = tmp_path / "custom.bag"
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([real]) as reader, Writer(path) as writer:
+        imu = writer.add_connection("/imu/data", "sensor_msgs/msg/Imu", msgdef=text,
+                                    md5sum=md5)  # fmt: skip
+        kinds = {}
+        for connection, ns, data in reader.messages():
+            if connection.topic not in kinds:
+                kinds[connection.topic] = writer.add_connection(
+                    connection.topic, connection.msgtype, typestore=reader.typestore)
+            writer.write(kinds[connection.topic], ns, data)
+        Imu = store.types["custom_msgs/msg/Imu"]
+        for k in range(50):
+            msg = Imu(header=store.types["std_msgs/msg/Header"](
+                seq=k, stamp=store.types["builtin_interfaces/msg/Time"](sec=1_700_000_000,
+                nanosec=k * 10_000_000), frame_id="imu"),
+                gyro=np.zeros(3, np.float32), accel=np.zeros(3, np.float32), temperature=20.0)
+            writer.write(imu, 1_700_000_000 * 10**9 + k * 10**7,
+                         store.serialize_ros1(msg, "custom_msgs/msg/Imu"))  # fmt: skip
+    with pytest.raises(InputError, match="definition other than the standard one") as error:
+        load_dataset([str(path)], progress=False)
+    assert "gyro, accel, temperature" in str(error.value)
+
+
+def test_messages_that_point_the_right_way(tmp_path, capsys):
+    drive = make_drive()
+    drive.status[:] = -1
+    nofix = write_bag(tmp_path / "nofix.bag", drive, "ros1-bag")
+    with pytest.raises(InputError, match="all 100 of its fix messages report no fix"):
+        load_dataset([str(nofix)], progress=False)
+    good = write_bag(tmp_path / "good.bag", make_drive(), "ros1-bag")
+    assert main(["smooth", str(good), str(good), "-o", str(tmp_path / "o.csv")]) == 2
+    assert f"not with {good} again" in capsys.readouterr().err
+
+
+def test_convert_applies_the_time_offset_and_reads_no_imu(tmp_path, capsys):
+    drive = make_drive()
+    for kind, name in (("ros1-bag", "drive.bag"), ("ros2-mcap", "bag")):
+        path = write_bag(tmp_path / name, drive, kind, second_imu_every=1)
+        if kind == "ros2-mcap":
+            path = next(path.glob("*.mcap"))
+        out = tmp_path / f"{kind}.csv"
+        assert main(["convert", str(path), "--time-offset", "-18", "-o", str(out)]) == 0
+        err = capsys.readouterr().err
+        assert "imu" not in err.lower(), err  # no IMU tie warning: the IMU is not read
+        rows = np.genfromtxt(out, delimiter=",", names=True)
+        np.testing.assert_allclose(rows["time"], drive.gnss_ns[drive.valid] / 1e9 - 18.0)
+
+
+def test_ros2_counts_reported_are_the_messages_read(tmp_path):
+    """A metadata.yaml whose counts are stale (0) was reported as '0 messages'."""
+    folder = write_bag(tmp_path / "bag", make_drive(), "ros2-sqlite")
+    meta = folder / "metadata.yaml"
+    meta.write_text(re.sub(r"message_count: \d+", "message_count: 0", meta.read_text()))
+    dataset = load_dataset([str(folder)], progress=False)
+    assert "imu: /imu/data: 2000 messages read (the bag's index said 0)" in dataset.metadata[
+        "mcap_report"
+    ]
+    assert len(dataset.imu.t) == 2000
