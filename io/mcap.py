@@ -547,7 +547,9 @@ _STANDARD_IMU_FIELDS = (
 def _nonstandard_imu(schema: Schema | None) -> str | None:
     """Why an Imu-named channel cannot be read by the fixed-layout IMU readers (its schema
     text defines other fields), or None (standard, or no definition to check)."""
-    text = schema.data.decode("utf-8", errors="replace") if schema is not None else ""
+    if schema is None or schema.encoding not in ("ros1msg", "ros2msg"):
+        return None  # no .msg text to check (an IDL schema, none)
+    text = schema.data.decode("utf-8", errors="replace")
     if not text.strip():
         return None
     fields = []

@@ -200,7 +200,9 @@ class _BagScan(TopicScan):
         ros1 = not self.reader.is2
         for cid, connection in enumerate(self.reader.connections):
             self.connections[cid] = connection
-            definition = getattr(getattr(connection, "msgdef", None), "data", "") or ""
+            msgdef = getattr(connection, "msgdef", None)  # .msg text, IDL or none
+            is_msg = getattr(getattr(msgdef, "format", None), "name", "") == "MSG"
+            definition = (getattr(msgdef, "data", "") or "") if is_msg else ""
             self.schemas[cid] = Schema(
                 id=cid,
                 name=ros2_type_name(connection.msgtype),
