@@ -12,6 +12,9 @@ only from an RMC with status A or a ZDA: an RMC with status V carries the receiv
 default before it knows the time (1980-01-05, 2008-01-01...), so its date is ignored (counted
 where it disagrees); epochs before the first valid date get it by the midnight rule.
 
+Where the receiver's clock jumps back and new positions reuse times already seen, the first
+position of each time is kept and the others counted (as for two receivers in one log).
+
 A GGA with a fix quality but 0 satellites used is no fix (a receiver coasting on its last
 position; gpsd reports such epochs as mode 1): its position is not used, counted.
 
@@ -235,6 +238,9 @@ class _Reader:
         self.untimed_before_first = 0
         self.backward_jumps = 0
         self.talker = ""  # the talker of the sentence being handled
+        # the sentence being handled is stamped with an earlier time than the log already
+        # reached, of an epoch that exists: the receiver's clock jumped back (see _set_position)
+        self.stamped_back = False
 
     # -- line level -------------------------------------------------------------------------
     def feed_line(self, line: str) -> None:
@@ -302,6 +308,7 @@ class _Reader:
     def _epoch_at(self, tod_text: str) -> _Epoch:
         tod = _time_of_day(tod_text)
         day = self.day
+        self.stamped_back = False
         if self.last_tod is None:
             self.last_tod = tod
         elif tod < self.last_tod - 43200.0:  # passed midnight
@@ -311,23 +318,33 @@ class _Reader:
         elif tod > self.last_tod + 43200.0 and self.day > 0:  # a late sentence of yesterday
             day = self.day - 1
         else:
-            if tod < self.last_tod - 1.5:
-                self.backward_jumps += 1
+            self.stamped_back = tod < self.last_tod - 1.5
+            self.backward_jumps += self.stamped_back
             self.last_tod = max(self.last_tod, tod)
         key = day * 86_400_000 + round(tod * 1000)
         epoch = self.epochs.get(key)
+        self.stamped_back = self.stamped_back and epoch is not None
         if epoch is None:
             epoch = self.epochs[key] = _Epoch(day * 86400.0 + tod)
         self.current = epoch
         return epoch
 
     def _set_position(self, epoch: _Epoch, source: str, position: _Position) -> None:
-        """Store one sentence's position, per talker too; a talker repeating a sentence type
-        at one time with a position far from its first is a second receiver: first kept."""
+        """Store one sentence's position, per talker too. A talker repeating a sentence type
+        at one time with a position far from its first is a second receiver: first kept.
+
+        After the receiver's clock jumped back (Humminbird M37: 19:41:24 -> 19:41:11, then
+        new positions under the old times), any sentence type counts: the epoch's GLL came
+        from the first pass, its GGA from the second, and preferring GGA made a zigzag of
+        both passes. Otherwise types are not compared with each other: some receivers stamp
+        RMC a second late (CH-4701), GGA's position is the one of its time."""
         own = epoch.by_talker.setdefault(self.talker, {})
-        first = own.get(source)
-        if first is not None and first[5] and position[5]:
-            distance = _distance_m(first, position)
+        earlier = own.values() if self.stamped_back else [own.get(source)]
+        if position[5]:
+            distance = max(
+                (_distance_m(first, position) for first in earlier if first and first[5]),
+                default=0.0,
+            )
             if distance > CONFLICT_DISTANCE_M:
                 epoch.repeat_distance = max(epoch.repeat_distance, distance)
                 epoch.repeat_talker = self.talker
@@ -559,7 +576,7 @@ def _conflict_messages(path: Path, conflicts: _Conflicts, n_fixes: int) -> list[
     if conflicts.talker_distances:
         kept.append(f"kept talker {conflicts.kept}'s positions there")
     if conflicts.repeat_distances:
-        kept.append("kept the first of each repeated sentence")
+        kept.append("kept the first position given for each such time")
     return [f"two positions for one time: {'; '.join(parts)}; {' and '.join(kept)}"]
 
 
