@@ -571,7 +571,7 @@ def _nonstandard_imu(schema: Schema | None) -> str | None:
     if names[1:] == expected and names[0] == "header" and types_ok:
         return None
     return (
-        f"{schema.name} with a definition other than the standard one (fields "  # type: ignore[union-attr]
+        f"{schema.name} with a definition other than the standard one (fields "
         f"{', '.join(names[:8])}{' ...' if len(names) > 8 else ''}): not read as an IMU"
     )
 

@@ -90,16 +90,18 @@ def ros2_metadata(folder: Path) -> dict[str, Any]:
     return info
 
 
-def listed_files(folder: Path) -> list[str]:
-    """The storage files a ROS 2 bag folder's metadata lists (relative names)."""
-    return [str(name) for name in ros2_metadata(folder).get("relative_file_paths") or []]
+def listed_files(folder: Path, info: dict[str, Any] | None = None) -> list[str]:
+    """The storage files a ROS 2 bag folder's metadata lists (relative names); ``info``: its
+    metadata when already read."""
+    info = ros2_metadata(folder) if info is None else info
+    return [str(name) for name in info.get("relative_file_paths") or []]
 
 
 def single_mcap_file(folder: Path) -> Path | None:
     """The bag's one MCAP file when the plain MCAP reader can read the bag as that file:
     the metadata lists exactly that file, it is there, and nothing is compressed."""
     info = ros2_metadata(folder)
-    names = listed_files(folder)
+    names = listed_files(folder, info)
     if len(names) != 1 or not names[0].lower().endswith(".mcap"):
         return None
     if info.get("compression_mode") or info.get("compression_format"):
@@ -123,11 +125,12 @@ def bag_path(path: Path) -> Path:
                 f"{path}: a ROS 2 SQLite bag file without its {ROS2_METADATA}; give the bag "
                 "folder that holds both"
             )
-        if path.name not in listed_files(folder):
+        listed = listed_files(folder)
+        if path.name not in listed:
             raise InputError(
                 f"{path}: not listed in {folder / ROS2_METADATA}, so not part of that bag "
-                f"(it lists {', '.join(listed_files(folder)) or 'no file'}); a .db3 is read "
-                "as part of its bag folder"
+                f"(it lists {', '.join(listed) or 'no file'}); a .db3 is read as part of its "
+                "bag folder"
             )
         return folder
     if suffix == ".active" or path.name.lower().endswith(".bag.active"):
