@@ -28,6 +28,7 @@ import numpy as np
 from fgins.config import SmootherConfig
 from fgins.datatypes import Dataset, InputError
 from fgins.geodesy import normal_gravity, so3_exp, triad
+from fgins.io.imu_checks import GAP_FACTOR
 from fgins.mounting import mounting_rotation
 
 
@@ -749,13 +750,23 @@ def _travels_backward(
     against ~0.1). ``rest_force``: the specific force read at rest before (its horizontal
     part is the accelerometer's bias and is taken off).
     """
-    if len(gnss_t) < 5:
-        return False
     axis = np.asarray(forward_axis, dtype=float)
     axis = axis - (axis @ up_body) * up_body
     if np.linalg.norm(axis) < 0.5:  # the forward axis is (nearly) vertical: no test
         return False
     axis = axis / np.linalg.norm(axis)
+    # The double integral holds only where the IMU has no gap: the fixes are taken over the
+    # IMU's longest gap-free run (the KITTI drive's first sample stands 1.92 s before the
+    # next; integrated across that gap, or with fixes outside the run clamped to its ends,
+    # a 20 ms clock offset turned the start round by 180 deg at exit 0).
+    inside = (imu.t >= gnss_t[0]) & (imu.t <= gnss_t[-1])
+    if inside.sum() < 10:
+        return False
+    start, end = _longest_gap_free_run(imu.t[inside])
+    covered = (gnss_t >= start) & (gnss_t <= end)
+    gnss_t, gnss_enu = gnss_t[covered], gnss_enu[covered]
+    if len(gnss_t) < 5:
+        return False
     inside = (imu.t >= gnss_t[0]) & (imu.t <= gnss_t[-1])
     if inside.sum() < 10:
         return False
@@ -779,6 +790,17 @@ def _travels_backward(
         return False
     c_sigma = scatter * float(np.sqrt(np.linalg.inv(normal)[2, 2]))
     return bool(coef[2] < -0.5 and coef[2] + 3.0 * c_sigma < 0.0)
+
+
+def _longest_gap_free_run(t: np.ndarray) -> tuple[float, float]:
+    """First and last time of the longest stretch of ``t`` without a gap (an interval over
+    :data:`fgins.io.imu_checks.GAP_FACTOR` nominal periods)."""
+    step = np.diff(t)
+    breaks = np.flatnonzero(step > GAP_FACTOR * float(np.median(step)))
+    first = np.concatenate([[0], breaks + 1])
+    last = np.concatenate([breaks, [len(t) - 1]])
+    longest = int(np.argmax(t[last] - t[first]))
+    return float(t[first[longest]]), float(t[last[longest]])
 
 
 def _straight_direction(points: np.ndarray) -> tuple[np.ndarray, float]:
