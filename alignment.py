@@ -138,10 +138,17 @@ def initial_alignment(
     t_start = float(imu.t[0])
     lead = float(gnss_t[0]) - t_start
     if lead <= MAX_LEAD_S:
-        return _align_at(
+        at_start = _align_at(
             dataset, t_start, gnss_t, gnss_enu, heading_deg, moving_speed, fit_window_s, forward,
             gyro_bias_sigma, travel,
         )  # fmt: skip
+        if not at_start.moving:
+            return at_start
+        in_turn = _align_after_turn(
+            dataset, t_start, gnss_t, gnss_enu, heading_deg, moving_speed, fit_window_s, forward,
+            gyro_bias_sigma, travel,
+        )  # fmt: skip
+        return at_start if in_turn is None else in_turn
     rest = _rest_before_first_fix(
         dataset, gnss_t, gnss_enu, heading_deg, moving_speed, fit_window_s, forward,
         gyro_bias_sigma, travel,
@@ -238,6 +245,142 @@ def _rest_before_first_fix(
 DEAD_RECKONING_ACCEL = 0.15  # m/s^2: unknown acceleration of a dead reckoning from rest
 
 
+def _yaw_turned(imu, up_body: np.ndarray, t0: float, t1: np.ndarray) -> np.ndarray:
+    """Rotation about ``up_body`` (rad, counter-clockwise) from ``t0`` to each of ``t1``."""
+    rate = imu.gyro @ up_body
+    yaw = np.concatenate([[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(imu.t))])
+    return np.interp(t1, imu.t, yaw) - float(np.interp(t0, imu.t, yaw))
+
+
+def _align_after_turn(
+    dataset: Dataset,
+    t_start: float,
+    gnss_t: np.ndarray,
+    gnss_enu: np.ndarray,
+    heading_deg: float | None,
+    moving_speed: float,
+    fit_window_s: float,
+    forward_axis: np.ndarray,
+    gyro_bias_sigma: float,
+    travel: str,
+) -> Alignment | None:
+    """A log that starts while its vehicle turns: aligned where it first goes straight, the
+    attitude carried back to the start by the gyro; None when the start does not turn (or
+    the vehicle may move sideways, or it never goes straight in the first minutes).
+
+    The in-motion alignment fits a quadratic to the first seconds of fixes: through a turn
+    (1 Hz fixes, 30-90 deg in the fit window) its velocity came out 30-130 deg off its true
+    direction and the reversing test, which projects the way onto one direction, called a
+    car that drove ahead reversing (the KITTI drive started at 22 places along it: 7 of them
+    were turned by 37-174 deg, with a 10 deg sigma; 3 ended in chi2/dof 5-98 or an error).
+    On a straight, both hold; the gyro carries the attitude back with an error of its bias
+    times the way back."""
+    imu = dataset.imu
+    if travel == ANY_DIRECTION or heading_deg is not None:
+        return None
+    g = normal_gravity(dataset.origin.lat, dataset.origin.alt)
+    first = (imu.t >= t_start) & (imu.t <= t_start + 1.0)
+    if first.sum() < 10 or _imu_static(imu.gyro[first], imu.accel[first], g):
+        return None
+    # Up in IMU axes over the first minute (a turn's centripetal part averages out).
+    minute = (imu.t >= t_start) & (imu.t <= t_start + MAX_TURN_SEARCH_S)
+    up_body = imu.accel[minute].mean(axis=0)
+    up_body = up_body / np.linalg.norm(up_body)
+    candidates = gnss_t[(gnss_t >= t_start) & (gnss_t <= t_start + MAX_TURN_SEARCH_S)]
+    candidates = np.concatenate([[t_start], candidates])
+    turned = np.abs(
+        _yaw_turned(imu, up_body, 0.0, candidates + fit_window_s)
+        - _yaw_turned(imu, up_body, 0.0, candidates)
+    )
+    if turned[0] <= np.radians(STRAIGHT_ALIGN_TURN_DEG):
+        return None  # the start goes straight: the in-motion fit holds there
+    for straight_from in candidates[turned <= np.radians(STRAIGHT_ALIGN_TURN_DEG)]:
+        # The fit over the straight's fixes, read at its middle (at an end a quadratic's
+        # slope is least sure).
+        straight = (gnss_t >= straight_from - 1e-9) & (gnss_t <= straight_from + fit_window_s)
+        if straight.sum() < 3:
+            continue
+        t_align = float(straight_from + 0.5 * fit_window_s)
+        later = _align_at(
+            dataset, t_align, gnss_t[straight], gnss_enu[straight], None,
+            moving_speed, fit_window_s, forward_axis, gyro_bias_sigma, travel,
+        )  # fmt: skip
+        if not later.moving:
+            continue  # stopped there: the start's speed is not the straight's
+        rotation = _rotate_back(dataset, later.rotation, t_start, float(t_align))
+        # The vehicle's way at the start: along its forward axis (ahead or reversing, as
+        # found on the straight), at the speed of the first fixes' chord.
+        ahead = float(np.sign(later.velocity @ (later.rotation @ forward_axis))) or 1.0
+        nose = rotation @ forward_axis
+        nose[2] = 0.0
+        nose = nose / np.linalg.norm(nose)
+        speed = _speed_carried_back(dataset, later, t_start, forward_axis, ahead)
+        velocity = ahead * speed * nose
+        position = gnss_enu[0] - velocity * (float(gnss_t[0]) - t_start)
+        carried = gyro_bias_sigma * (float(t_align) - t_start)
+        return Alignment(
+            t=t_start,
+            rotation=rotation,
+            velocity=velocity,
+            position=position,
+            attitude_sigma_rad=later.attitude_sigma_rad + np.array([0.01, 0.01, carried + 0.02]),
+            velocity_sigma=max(1.0, 0.3 * speed),
+            position_sigma=3.0,
+            moving=True,
+        )
+    return None
+
+
+def _speed_carried_back(
+    dataset: Dataset, later: Alignment, t_start: float, forward_axis: np.ndarray, ahead: float
+) -> float:
+    """The speed at ``t_start``: the receiver's own velocity there if the data carry it,
+    else ``later``'s speed less the accelerometer's along-track gain since ``t_start`` (two
+    fixes' chord is metres off at 1 Hz in a town, and a quadratic's slope through a turn
+    cuts the arc)."""
+    gnss = dataset.gnss
+    if gnss.velocity is not None:
+        near = np.isfinite(gnss.velocity[:, 0]) & (np.abs(gnss.t - t_start) <= 1.0)
+        if near.any():
+            k = np.flatnonzero(near)[np.argmin(np.abs(gnss.t[near] - t_start))]
+            return float(np.hypot(*gnss.velocity[k, :2]))
+    imu = dataset.imu
+    span = (imu.t >= t_start) & (imu.t <= later.t)
+    speed = float(np.linalg.norm(later.velocity[:2]))
+    if span.sum() < 2:
+        return speed
+    long = (imu.t >= t_start) & (imu.t <= t_start + GRAVITY_MEAN_S)
+    up = imu.accel[long].mean(axis=0)  # gravity: the minute's accelerations average out
+    up = up / np.linalg.norm(up)
+    along = forward_axis - (forward_axis @ up) * up
+    along = ahead * along / np.linalg.norm(along)
+    force = imu.accel[span] @ along
+    gained = float(np.sum(0.5 * (force[1:] + force[:-1]) * np.diff(imu.t[span])))
+    return max(speed - gained, 0.0)
+
+
+# The in-motion fit is trusted over a window that turns less than this.
+STRAIGHT_ALIGN_TURN_DEG = 10.0
+MAX_TURN_SEARCH_S = 120.0  # how far into the log a straight is looked for
+GRAVITY_MEAN_S = 60.0  # a vehicle's accelerations average out of the specific force over this
+
+
+def _rotate_back(dataset: Dataset, rotation: np.ndarray, t_start: float, t_end: float) -> np.ndarray:
+    """The attitude at ``t_start`` of a body whose attitude at ``t_end`` is ``rotation``:
+    the gyro's rotations undone (no bias; the Earth's rate is far below a vehicle's)."""
+    imu = dataset.imu
+    end = int(np.searchsorted(imu.t, t_end, side="right")) - 1
+    t_next = t_end
+    for k in range(end, -1, -1):
+        if imu.t[k] < t_start - 1e-9:
+            break
+        dt = t_next - float(imu.t[k])
+        if dt > 0:
+            rotation = rotation @ so3_exp(-imu.gyro[k] * dt)
+        t_next = float(imu.t[k])
+    return rotation
+
+
 def _propagate_forward(
     dataset: Dataset, rotation: np.ndarray, t_start: float, t_end: float, gyro_bias: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -313,6 +456,9 @@ def _align_at(
         gnss_t[window], gnss_enu[window], t0,
         float(np.median(horizontal)) if len(horizontal) else None,
     )  # fmt: skip
+    receiver = _receiver_velocity(dataset, gnss_t[window], t0)
+    if receiver is not None:  # Doppler: centimetres per second where positions give m/s
+        velocity, acceleration, speed_sigma = receiver
     speed = float(np.linalg.norm(velocity[:2]))
     # Motion must stand out of the fit's own noise (metre-level fixes fake m/s at rest).
     moving_speed = max(moving_speed, 3.0 * speed_sigma)
@@ -329,16 +475,32 @@ def _align_at(
     # decides "at rest" only when the fixes move further than GNSS drift can fake, judged on
     # medians (one multipath outlier near the start fakes tens of m/s in a quadratic fit).
     static = _imu_static(imu.gyro[first], imu.accel[first], g)
-    cruise_velocity = _median_velocity(gnss_t[window], gnss_enu[window]) if static else None
+    cruise_velocity = None
+    if static:
+        cruise_velocity = (
+            velocity if receiver is not None else _median_velocity(gnss_t[window], gnss_enu[window])
+        )
     if cruise_velocity is not None and not np.linalg.norm(cruise_velocity[:2]) >= moving_speed:
         cruise_velocity = None
 
     if cruise_velocity is not None or (speed >= moving_speed and not static):
         if cruise_velocity is not None:  # no acceleration: the quiet IMU says so
             velocity, acceleration = cruise_velocity, np.zeros(3)
+        if travel == AHEAD_OR_BACK:
+            # A car's height changes slowly; 6 s of metre-level fix heights fake m/s and m/s^2
+            # (an urban car's fit: 9.8 m/s up, an acceleration that turned TRIAD upside down).
+            velocity, acceleration = velocity * [1.0, 1.0, 0.0], acceleration * [1.0, 1.0, 0.0]
+        elif abs(np.linalg.norm(acceleration - gravity) - np.linalg.norm(specific_force)) > 1.0:
+            acceleration = acceleration * [1.0, 1.0, 0.0]  # the fit's vertical is not the IMU's
         nav_force = acceleration - gravity
         forward = np.array([velocity[0], velocity[1], velocity[2]])
-        up_now = specific_force / np.linalg.norm(specific_force)
+        # Gravity's direction in IMU axes for the reversing test: the specific force averaged
+        # over a minute (a car pulling away at 1.8 m/s^2 tilts the first second's by 10 deg,
+        # and the gravity that tilt leaks into the forward axis outweighed the acceleration
+        # it tested: a car driving ahead was aligned reversing).
+        long = (imu.t >= t0) & (imu.t <= t0 + GRAVITY_MEAN_S)
+        up_now = imu.accel[long].mean(axis=0) if long.sum() >= 10 else specific_force
+        up_now = up_now / np.linalg.norm(up_now)
         if travel == AHEAD_OR_BACK and _travels_backward(
             imu, gnss_t[window], gnss_enu[window], velocity[:2], forward_axis, up_now
         ):
@@ -430,6 +592,38 @@ def _rest_attitude(
             heading_sigma_deg = UNKNOWN_HEADING_SIGMA_DEG
     level = triad(up_body, forward_axis, np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0]))
     return _with_heading(level, heading_deg, forward_axis), heading_sigma_deg
+
+
+def _receiver_velocity(
+    dataset: Dataset, times: np.ndarray, t0: float
+) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """(velocity at ``t0``, acceleration, horizontal speed sigma) from the receiver's own
+    velocities at the fixes of ``times`` (a straight line through them), or None when the
+    data carry fewer than two there. A 6-s quadratic through an urban receiver's fixes (3 m
+    sigma, multipath jumps) put a car cruising at 14 m/s at rest with a 0.5 m/s sigma."""
+    gnss = dataset.gnss
+    if gnss.velocity is None:
+        return None
+    rows = np.searchsorted(gnss.t, times)
+    rows = rows[(rows < len(gnss.t))]
+    rows = rows[np.isclose(gnss.t[rows], times[: len(rows)])] if len(rows) == len(times) else rows
+    rows = rows[np.all(np.isfinite(gnss.velocity[rows]), axis=1)]
+    if len(rows) < 2:
+        return None
+    # A line through the fixes nearest t0 (over the whole window it misses a car braking
+    # a few seconds later by m/s).
+    near = rows[np.argsort(np.abs(gnss.t[rows] - t0), kind="stable")[:RECEIVER_FIXES]]
+    rows = np.sort(near)
+    dt = gnss.t[rows] - t0
+    design = np.column_stack([np.ones(len(rows)), dt])
+    coef, *_ = np.linalg.lstsq(design, gnss.velocity[rows], rcond=None)
+    residual = gnss.velocity[rows] - design @ coef
+    scatter = float(np.sqrt(np.mean(residual[:, :2] ** 2))) if len(rows) > 2 else 0.3
+    return coef[0], coef[1], max(scatter, RECEIVER_SPEED_SIGMA_FLOOR)
+
+
+RECEIVER_SPEED_SIGMA_FLOOR = 0.1  # m/s: a receiver's Doppler velocity at its best
+RECEIVER_FIXES = 3  # the velocity at t0 from the receiver's this many nearest
 
 
 def _median_velocity(t: np.ndarray, enu: np.ndarray) -> np.ndarray | None:
@@ -774,6 +968,10 @@ def _travels_backward(
     step = np.diff(t)
     force = imu.accel[inside] @ axis - (0.0 if rest_force is None else float(rest_force @ axis))
     speed = np.concatenate([[0.0], np.cumsum(force[:-1] * step)])
+    if np.ptp(speed) < MIN_SPEED_CHANGE_M_S:
+        # No speed change the accelerometer's bias could not fake: nothing to tell ahead
+        # from back by (a car cruising at 12 m/s through 3 m urban fixes was fitted c = -14).
+        return False
     distance = np.concatenate([[0.0], np.cumsum(0.5 * (speed[:-1] + speed[1:]) * step)])
     along = (gnss_enu[:, :2] - gnss_enu[0, :2]) @ (direction / np.linalg.norm(direction))
     design = np.column_stack(
@@ -801,6 +999,9 @@ def _longest_gap_free_run(t: np.ndarray) -> tuple[float, float]:
     last = np.concatenate([breaks, [len(t) - 1]])
     longest = int(np.argmax(t[last] - t[first]))
     return float(t[first[longest]]), float(t[last[longest]])
+
+
+MIN_SPEED_CHANGE_M_S = 1.0  # 0.1 m/s^2 of bias and tilt over 6 s fake 0.6 m/s
 
 
 def _straight_direction(points: np.ndarray) -> tuple[np.ndarray, float]:
