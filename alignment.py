@@ -144,11 +144,13 @@ def initial_alignment(
         )  # fmt: skip
         if not at_start.moving:
             return at_start
-        in_turn = _align_after_turn(
+        straight = _straight_alignment(
             dataset, t_start, gnss_t, gnss_enu, heading_deg, moving_speed, fit_window_s, forward,
             gyro_bias_sigma, travel,
         )  # fmt: skip
-        return at_start if in_turn is None else in_turn
+        if straight is None:
+            return at_start
+        return _carry_back_along_nose(dataset, straight, t_start, gnss_t, forward, gyro_bias_sigma)
     rest = _rest_before_first_fix(
         dataset, gnss_t, gnss_enu, heading_deg, moving_speed, fit_window_s, forward,
         gyro_bias_sigma, travel,
@@ -159,16 +161,35 @@ def initial_alignment(
         dataset, float(gnss_t[0]), gnss_t, gnss_enu, heading_deg, moving_speed, fit_window_s,
         forward, gyro_bias_sigma, travel,
     )  # fmt: skip
+    if travel == AHEAD_OR_BACK and heading_deg is None:
+        # A car's velocity follows its nose: carried back by the gyro and the along-track
+        # accelerometer, where a strapdown turns every degree of tilt into 0.17 m/s^2 (a car
+        # whose first 15 s of fixes were withheld started 40 m/s off with a 2.6 m/s sigma,
+        # and the batch did not converge).
+        straight = None
+        if later.moving:
+            straight = _straight_alignment(
+                dataset, float(gnss_t[0]), gnss_t, gnss_enu, heading_deg, moving_speed,
+                fit_window_s, forward, gyro_bias_sigma, travel,
+            )  # fmt: skip
+        return _carry_back_along_nose(
+            dataset, later if straight is None else straight, t_start, gnss_t, forward,
+            gyro_bias_sigma,
+        )  # fmt: skip
     rotation, velocity, position = _propagate_back(dataset, later, t_start)
-    # Dead reckoning over `lead` seconds: ~0.1 m/s^2 of unknown acceleration (tilt, bias).
+    # Dead reckoning over `lead` seconds: the level's error tilts gravity into the velocity,
+    # plus ~0.1 m/s^2 of unknown acceleration (bias).
+    drift = 0.1 + normal_gravity(dataset.origin.lat, dataset.origin.alt) * float(
+        np.max(later.attitude_sigma_rad[:2])
+    )
     return Alignment(
         t=t_start,
         rotation=rotation,
         velocity=velocity,
         position=position,
         attitude_sigma_rad=later.attitude_sigma_rad + np.radians([1.0, 1.0, 5.0]),
-        velocity_sigma=later.velocity_sigma + 0.1 * lead,
-        position_sigma=later.position_sigma + 0.05 * lead**2 + later.velocity_sigma * lead,
+        velocity_sigma=later.velocity_sigma + drift * lead,
+        position_sigma=later.position_sigma + 0.5 * drift * lead**2 + later.velocity_sigma * lead,
         moving=later.moving,
         steady_motion_possible=later.steady_motion_possible,
     )
@@ -252,9 +273,9 @@ def _yaw_turned(imu, up_body: np.ndarray, t0: float, t1: np.ndarray) -> np.ndarr
     return np.interp(t1, imu.t, yaw) - float(np.interp(t0, imu.t, yaw))
 
 
-def _align_after_turn(
+def _straight_alignment(
     dataset: Dataset,
-    t_start: float,
+    t_from: float,
     gnss_t: np.ndarray,
     gnss_enu: np.ndarray,
     heading_deg: float | None,
@@ -264,9 +285,10 @@ def _align_after_turn(
     gyro_bias_sigma: float,
     travel: str,
 ) -> Alignment | None:
-    """A log that starts while its vehicle turns: aligned where it first goes straight, the
-    attitude carried back to the start by the gyro; None when the start does not turn (or
-    the vehicle may move sideways, or it never goes straight in the first minutes).
+    """For a log that starts (at ``t_from``) while its vehicle turns: the in-motion alignment
+    where it first goes straight, to be carried back (:func:`_carry_back_along_nose`); None
+    when the start does not turn, the vehicle may move sideways, or it does not go straight
+    in the first minutes.
 
     The in-motion alignment fits a quadratic to the first seconds of fixes: through a turn
     (1 Hz fixes, 30-90 deg in the fit window) its velocity came out 30-130 deg off its true
@@ -279,15 +301,15 @@ def _align_after_turn(
     if travel == ANY_DIRECTION or heading_deg is not None:
         return None
     g = normal_gravity(dataset.origin.lat, dataset.origin.alt)
-    first = (imu.t >= t_start) & (imu.t <= t_start + 1.0)
+    first = (imu.t >= t_from) & (imu.t <= t_from + 1.0)
     if first.sum() < 10 or _imu_static(imu.gyro[first], imu.accel[first], g):
         return None
-    # Up in IMU axes over the first minute (a turn's centripetal part averages out).
-    minute = (imu.t >= t_start) & (imu.t <= t_start + MAX_TURN_SEARCH_S)
-    up_body = imu.accel[minute].mean(axis=0)
+    # Up in IMU axes over the first minutes (a turn's centripetal part averages out).
+    minutes = (imu.t >= t_from) & (imu.t <= t_from + MAX_TURN_SEARCH_S)
+    up_body = imu.accel[minutes].mean(axis=0)
     up_body = up_body / np.linalg.norm(up_body)
-    candidates = gnss_t[(gnss_t >= t_start) & (gnss_t <= t_start + MAX_TURN_SEARCH_S)]
-    candidates = np.concatenate([[t_start], candidates])
+    candidates = gnss_t[(gnss_t >= t_from) & (gnss_t <= t_from + MAX_TURN_SEARCH_S)]
+    candidates = np.concatenate([[t_from], candidates])
     turned = np.abs(
         _yaw_turned(imu, up_body, 0.0, candidates + fit_window_s)
         - _yaw_turned(imu, up_body, 0.0, candidates)
@@ -300,59 +322,100 @@ def _align_after_turn(
         straight = (gnss_t >= straight_from - 1e-9) & (gnss_t <= straight_from + fit_window_s)
         if straight.sum() < 3:
             continue
-        t_align = float(straight_from + 0.5 * fit_window_s)
         later = _align_at(
-            dataset, t_align, gnss_t[straight], gnss_enu[straight], None,
-            moving_speed, fit_window_s, forward_axis, gyro_bias_sigma, travel,
+            dataset, float(straight_from + 0.5 * fit_window_s), gnss_t[straight],
+            gnss_enu[straight], None, moving_speed, fit_window_s, forward_axis, gyro_bias_sigma,
+            travel,
         )  # fmt: skip
-        if not later.moving:
-            continue  # stopped there: the start's speed is not the straight's
-        rotation = _rotate_back(dataset, later.rotation, t_start, float(t_align))
-        # The vehicle's way at the start: along its forward axis (ahead or reversing, as
-        # found on the straight), at the speed of the first fixes' chord.
-        ahead = float(np.sign(later.velocity @ (later.rotation @ forward_axis))) or 1.0
-        nose = rotation @ forward_axis
-        nose[2] = 0.0
-        nose = nose / np.linalg.norm(nose)
-        speed = _speed_carried_back(dataset, later, t_start, forward_axis, ahead)
-        velocity = ahead * speed * nose
-        position = gnss_enu[0] - velocity * (float(gnss_t[0]) - t_start)
-        carried = gyro_bias_sigma * (float(t_align) - t_start)
-        return Alignment(
-            t=t_start,
-            rotation=rotation,
-            velocity=velocity,
-            position=position,
-            attitude_sigma_rad=later.attitude_sigma_rad + np.array([0.01, 0.01, carried + 0.02]),
-            velocity_sigma=max(1.0, 0.3 * speed),
-            position_sigma=3.0,
-            moving=True,
-        )
+        if later.moving:  # stopped there: the start's speed is not the straight's
+            return later
     return None
 
 
+def _carry_back_along_nose(
+    dataset: Dataset,
+    later: Alignment,
+    t_start: float,
+    gnss_t: np.ndarray,
+    forward_axis: np.ndarray,
+    gyro_bias_sigma: float,
+) -> Alignment:
+    """``later`` (moving) carried back to ``t_start`` for a vehicle whose velocity follows
+    its nose: the attitude by the gyro, the speed by the accelerometer along track (or the
+    receiver's own among the usable fixes ``gnss_t``), the way along the nose."""
+    imu = dataset.imu
+    lead = float(later.t) - t_start
+    rotation = _rotate_back(dataset, later.rotation, t_start, float(later.t))
+    # Ahead or reversing, as found where aligned.
+    ahead = float(np.sign(later.velocity @ (later.rotation @ forward_axis))) or 1.0
+    speed = _speed_carried_back(dataset, later, t_start, gnss_t, forward_axis, ahead)
+    # The way from t_start to later.t along the nose, at the speed the accelerometer gives.
+    span = np.flatnonzero((imu.t >= t_start) & (imu.t < later.t))
+    level_up = _level_up(imu, t_start)
+    along = forward_axis - (forward_axis @ level_up) * level_up
+    along = ahead * along / np.linalg.norm(along)
+    way, step_speed, attitude = np.zeros(3), speed, rotation
+    for k in span:
+        dt = (float(imu.t[k + 1]) if k + 1 < len(imu.t) else float(later.t)) - float(imu.t[k])
+        dt = min(dt, float(later.t) - float(imu.t[k]))
+        nose = attitude @ forward_axis
+        nose[2] = 0.0
+        way += ahead * step_speed * dt * nose / max(float(np.linalg.norm(nose)), 1e-9)
+        step_speed = max(step_speed + float(imu.accel[k] @ along) * dt, 0.0)
+        attitude = attitude @ so3_exp(imu.gyro[k] * dt)
+    nose = rotation @ forward_axis
+    nose[2] = 0.0
+    velocity = ahead * speed * nose / max(float(np.linalg.norm(nose)), 1e-9)
+    carried = gyro_bias_sigma * lead
+    return Alignment(
+        t=t_start,
+        rotation=rotation,
+        velocity=velocity,
+        position=later.position - way,
+        attitude_sigma_rad=later.attitude_sigma_rad + np.array([0.01, 0.01, carried + 0.02]),
+        velocity_sigma=max(1.0, 0.3 * speed) + DEAD_RECKONING_ACCEL * lead,
+        position_sigma=later.position_sigma + 0.5 * DEAD_RECKONING_ACCEL * lead**2
+        + (np.tan(later.attitude_sigma_rad[2] + carried) + 0.1) * speed * lead,
+        moving=True,
+    )
+
+
+def _level_up(imu, t_start: float) -> np.ndarray:
+    """Gravity's direction in IMU axes: the specific force averaged over a minute from
+    ``t_start`` (a vehicle's accelerations average out)."""
+    window = (imu.t >= t_start) & (imu.t <= t_start + GRAVITY_MEAN_S)
+    up = imu.accel[window].mean(axis=0) if window.sum() >= 10 else imu.accel[:10].mean(axis=0)
+    return up / np.linalg.norm(up)
+
+
 def _speed_carried_back(
-    dataset: Dataset, later: Alignment, t_start: float, forward_axis: np.ndarray, ahead: float
+    dataset: Dataset,
+    later: Alignment,
+    t_start: float,
+    gnss_t: np.ndarray,
+    forward_axis: np.ndarray,
+    ahead: float,
 ) -> float:
-    """The speed at ``t_start``: the receiver's own velocity there if the data carry it,
-    else ``later``'s speed less the accelerometer's along-track gain since ``t_start`` (two
-    fixes' chord is metres off at 1 Hz in a town, and a quadratic's slope through a turn
-    cuts the arc)."""
+    """The speed at ``t_start``: the receiver's own velocity at a usable fix (``gnss_t``)
+    within a second of it if the data carry one, else ``later``'s speed less the
+    accelerometer's along-track gain since ``t_start`` (two fixes' chord is metres off at
+    1 Hz in a town, and a quadratic's slope through a turn cuts the arc)."""
     gnss = dataset.gnss
-    if gnss.velocity is not None:
-        near = np.isfinite(gnss.velocity[:, 0]) & (np.abs(gnss.t - t_start) <= 1.0)
-        if near.any():
-            k = np.flatnonzero(near)[np.argmin(np.abs(gnss.t[near] - t_start))]
+    usable = gnss_t[np.abs(gnss_t - t_start) <= 1.0]
+    if gnss.velocity is not None and len(usable):
+        rows = np.searchsorted(gnss.t, usable)
+        rows = rows[(rows < len(gnss.t))]
+        rows = rows[np.all(np.isfinite(gnss.velocity[rows, :2]), axis=1)]
+        if len(rows):
+            k = rows[np.argmin(np.abs(gnss.t[rows] - t_start))]
             return float(np.hypot(*gnss.velocity[k, :2]))
     imu = dataset.imu
     span = (imu.t >= t_start) & (imu.t <= later.t)
     speed = float(np.linalg.norm(later.velocity[:2]))
     if span.sum() < 2:
         return speed
-    long = (imu.t >= t_start) & (imu.t <= t_start + GRAVITY_MEAN_S)
-    up = imu.accel[long].mean(axis=0)  # gravity: the minute's accelerations average out
-    up = up / np.linalg.norm(up)
-    along = forward_axis - (forward_axis @ up) * up
+    level_up = _level_up(imu, t_start)
+    along = forward_axis - (forward_axis @ level_up) * level_up
     along = ahead * along / np.linalg.norm(along)
     force = imu.accel[span] @ along
     gained = float(np.sum(0.5 * (force[1:] + force[:-1]) * np.diff(imu.t[span])))
@@ -498,9 +561,7 @@ def _align_at(
         # over a minute (a car pulling away at 1.8 m/s^2 tilts the first second's by 10 deg,
         # and the gravity that tilt leaks into the forward axis outweighed the acceleration
         # it tested: a car driving ahead was aligned reversing).
-        long = (imu.t >= t0) & (imu.t <= t0 + GRAVITY_MEAN_S)
-        up_now = imu.accel[long].mean(axis=0) if long.sum() >= 10 else specific_force
-        up_now = up_now / np.linalg.norm(up_now)
+        up_now = _level_up(imu, t0)
         if travel == AHEAD_OR_BACK and _travels_backward(
             imu, gnss_t[window], gnss_enu[window], velocity[:2], forward_axis, up_now
         ):
