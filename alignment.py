@@ -663,12 +663,13 @@ def _receiver_velocity(
     data carry fewer than two there. A 6-s quadratic through an urban receiver's fixes (3 m
     sigma, multipath jumps) put a car cruising at 14 m/s at rest with a 0.5 m/s sigma."""
     gnss = dataset.gnss
-    if gnss.velocity is None:
+    velocity_nav = dataset.gnss_velocity_nav()
+    if velocity_nav is None:
         return None
     rows = np.searchsorted(gnss.t, times)
     rows = rows[(rows < len(gnss.t))]
     rows = rows[np.isclose(gnss.t[rows], times[: len(rows)])] if len(rows) == len(times) else rows
-    rows = rows[np.all(np.isfinite(gnss.velocity[rows]), axis=1)]
+    rows = rows[np.all(np.isfinite(velocity_nav[rows]), axis=1)]
     if len(rows) < 2:
         return None
     # A line through the fixes nearest t0 (over the whole window it misses a car braking
@@ -677,8 +678,8 @@ def _receiver_velocity(
     rows = np.sort(near)
     dt = gnss.t[rows] - t0
     design = np.column_stack([np.ones(len(rows)), dt])
-    coef, *_ = np.linalg.lstsq(design, gnss.velocity[rows], rcond=None)
-    residual = gnss.velocity[rows] - design @ coef
+    coef, *_ = np.linalg.lstsq(design, velocity_nav[rows], rcond=None)
+    residual = velocity_nav[rows] - design @ coef
     scatter = float(np.sqrt(np.mean(residual[:, :2] ** 2))) if len(rows) > 2 else 0.3
     return coef[0], coef[1], max(scatter, RECEIVER_SPEED_SIGMA_FLOOR)
 

@@ -100,7 +100,8 @@ class ImuData:
 class GnssData:
     """GNSS fixes. Positions geodetic (deg, deg, ellipsoidal m); optional columns are NaN.
 
-    ``velocity`` is ENU (m/s); ``std`` is the 1-sigma east/north/up position error (m) when the
+    ``velocity`` is ENU (m/s) in the local level at each fix, as receivers give it
+    (:meth:`Dataset.gnss_velocity_nav` turns it into the navigation frame); ``std`` is the 1-sigma east/north/up position error (m) when the
     source gives it (GST, covariance); DOPs as reported; ``fix_quality`` uses the NMEA GGA codes
     (0 invalid, 1 autonomous, 2 DGPS, 4 RTK fixed, 5 RTK float, 6 dead reckoning).
     ``speed`` (m/s over ground) and ``course`` (deg from north) come from RMC/VTG-like sources.
@@ -298,6 +299,16 @@ class Dataset:
         from fgins.geodesy import lla_to_enu
 
         return lla_to_enu(self.gnss.lla, self.origin)
+
+    def gnss_velocity_nav(self) -> np.ndarray | None:
+        """The receiver's velocities (M, 3) in the navigation frame (the origin's ENU), or
+        None: a receiver gives them in the local level where it is, 0.09 deg turned from
+        the origin's 10 km away (0.16 m/s of a 100 m/s flight)."""
+        if self.gnss.velocity is None:
+            return None
+        from fgins.geodesy import vectors_local_to_nav
+
+        return vectors_local_to_nav(self.gnss.lla, self.gnss.velocity, self.origin)
 
 
 @dataclass

@@ -105,7 +105,7 @@ def _track(
     hi = np.maximum(np.clip(hi, 0, len(t) - 1), np.minimum(index + 1, len(t) - 1))
     velocity = (enu[hi] - enu[lo]) / np.maximum(t[hi] - t[lo], 1e-9)[:, None]
     if gnss.velocity is not None and config.gnss.use_velocity:
-        receiver = gnss.velocity[usable]
+        receiver = dataset.gnss_velocity_nav()[usable]
         given = np.all(np.isfinite(receiver), axis=1)
         velocity[given] = receiver[given]
     return t, enu, velocity

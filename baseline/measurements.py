@@ -72,7 +72,7 @@ def select_gnss(dataset: Dataset, config: RunConfig, gnss_mask: np.ndarray | Non
         t=subset.t,
         position=dataset.gnss_enu()[usable],
         position_sigma=gnss_model.position_sigmas(subset, config.gnss),
-        velocity=subset.velocity,
+        velocity=None if subset.velocity is None else dataset.gnss_velocity_nav()[usable],
         velocity_sigma=velocity_sigma,
         usable=usable,
         gating_summary=gate.summary() + gnss_model.dropped_on_read_note(dataset.metadata),

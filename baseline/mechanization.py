@@ -1,11 +1,12 @@
 """Strapdown mechanization and the 15-state error model of the Kalman baselines (numpy only).
 
 Navigation model (the simulator's and the factor graph's, see :mod:`fgins.sim.strapdown`):
-local ENU frame at the origin, constant gravity ``g_n = (0, 0, -normal_gravity(lat0, h0))``,
-constant Earth rate ``w_ie`` in ENU. Each IMU sample is held over its interval ``dt`` and
+local ENU frame at the origin (an Earth-fixed Cartesian frame), gravity ``g_n(p)`` where the
+vehicle is (:func:`fgins.geodesy.gravity_enu`; ``(0, 0, -normal_gravity(lat0, h0))`` at the
+origin), constant Earth rate ``w_ie`` in ENU. Each IMU sample is held over its interval ``dt`` and
 
     R_k+1 = R_k Exp((gyro_k - b_g - R_k^T w_ie) dt)
-    a_k   = R_k (accel_k - b_a) + g_n - 2 w_ie x v_k
+    a_k   = R_k (accel_k - b_a) + g_n(p_k) - 2 w_ie x v_k
     p_k+1 = p_k + v_k dt + a_k dt^2 / 2,   v_k+1 = v_k + a_k dt.
 
 The per-sample Python work is avoided by propagating whole *blocks* of samples at once (the
@@ -31,7 +32,14 @@ import numpy as np
 
 from fgins.config import ImuNoise
 from fgins.datatypes import Origin
-from fgins.geodesy import earth_rate_enu, normal_gravity, skew_batch, so3_exp, so3_log
+from fgins.geodesy import (
+    earth_rate_enu,
+    gravity_enu,
+    normal_gravity,
+    skew_batch,
+    so3_exp,
+    so3_log,
+)
 
 STATE_DIM = 15
 POS = slice(0, 3)
@@ -43,17 +51,26 @@ GYRO_BIAS = slice(12, 15)
 
 @dataclass(frozen=True)
 class NavFrame:
-    """Gravity and Earth rate of the local ENU frame (constant over the run)."""
+    """Gravity and Earth rate of the local ENU frame at the origin; with ``origin``, gravity
+    where the vehicle is (:func:`fgins.geodesy.gravity_enu`)."""
 
     gravity: np.ndarray
     earth_rate: np.ndarray
+    origin: Origin | None = None
 
     @classmethod
     def at(cls, origin: Origin) -> NavFrame:
         return cls(
             gravity=np.array([0.0, 0.0, -normal_gravity(origin.lat, origin.alt)]),
             earth_rate=earth_rate_enu(origin.lat),
+            origin=origin,
         )
+
+    def gravity_at(self, position: np.ndarray) -> np.ndarray:
+        """Gravity (..., 3) at ENU positions (..., 3)."""
+        if self.origin is None:
+            return np.broadcast_to(self.gravity, np.shape(position))
+        return gravity_enu(position, self.origin)
 
 
 @dataclass
@@ -286,7 +303,9 @@ def propagate_nominal(
     earth_turn = _earth_turn(w_ie, dt)  # (n+1, 3, 3)
     rotation = earth_turn @ state.rotation[..., None, :, :] @ prefix_products(steps)
     f_nav = np.einsum("...nij,...nj->...ni", rotation[..., :-1, :, :], accel - ba)
-    a_free = f_nav + frame.gravity  # acceleration without the Coriolis term
+    # Acceleration without the Coriolis term; gravity where the block starts (a block is
+    # at most a few seconds: 100 m at 30 m/s changes gravity by 15 ug).
+    a_free = f_nav + frame.gravity_at(state.position)[..., None, :]
     v0 = state.velocity[..., None, :]
     velocity_guess = np.broadcast_to(v0, a_free.shape)
     for _ in range(3):  # fixed point on the (tiny) Coriolis term, see module docstring

@@ -195,7 +195,10 @@ def vehicle_aiding(
     else:
         quiet = np.zeros(len(times), dtype=bool)
         rest_gyro, rest_sigma = np.zeros((len(times), 3)), np.ones(len(times))
-    pressure = stationary.pressure_at(dataset.baro, times, before_s=BARO_WINDOW_S, after_s=0.0)
+    pressure = stationary.pressure_in_plane(
+        stationary.pressure_at(dataset.baro, times, before_s=BARO_WINDOW_S, after_s=0.0),
+        stationary.plane_fall(times, dataset.gnss.t, dataset.gnss_enu()),
+    )
     return VehicleAiding(
         times=np.asarray(times, dtype=float),
         nhc=smoother.nhc,

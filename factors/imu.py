@@ -30,6 +30,23 @@ def preintegration_params(
     return params
 
 
+def with_gravity(
+    params: gtsam.PreintegrationCombinedParams, gravity: np.ndarray
+) -> gtsam.PreintegrationCombinedParams:
+    """A copy of ``params`` with gravity ``gravity`` (ENU, m/s^2): gravity where an interval
+    lies (:func:`fgins.geodesy.gravity_enu`), not the origin's."""
+    out = gtsam.PreintegrationCombinedParams(np.asarray(gravity, dtype=float))
+    out.setAccelerometerCovariance(params.getAccelerometerCovariance())
+    out.setGyroscopeCovariance(params.getGyroscopeCovariance())
+    out.setIntegrationCovariance(params.getIntegrationCovariance())
+    out.setBiasAccCovariance(params.getBiasAccCovariance())
+    out.setBiasOmegaCovariance(params.getBiasOmegaCovariance())
+    omega = params.getOmegaCoriolis()  # None when unset
+    if omega is not None:
+        out.setOmegaCoriolis(omega)
+    return out
+
+
 def conditioned_noise(noise: ImuNoise, span_s: float) -> tuple[ImuNoise, list[str]]:
     """``noise`` with a zero bias instability made a constant bias (the rule the Kalman
     baselines share: :func:`fgins.config.constant_bias_noise`)."""

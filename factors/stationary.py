@@ -285,6 +285,35 @@ def standard_atmosphere_height(pressure_pa: float | np.ndarray) -> np.ndarray:
     return (1.0 - np.power(ratio, 1.0 / ISA_EXPONENT)) / ISA_LAPSE_COEFFICIENT_PER_M
 
 
+def standard_atmosphere_pressure(height_m: float | np.ndarray) -> np.ndarray:
+    """Pressure (Pa) at an ISA troposphere height: the inverse of
+    :func:`standard_atmosphere_height`."""
+    base = 1.0 - ISA_LAPSE_COEFFICIENT_PER_M * np.asarray(height_m, dtype=float)
+    return ISA_SEA_LEVEL_PA * np.power(base, ISA_EXPONENT)
+
+
+def pressure_in_plane(pressure_pa: np.ndarray, fall_m: np.ndarray) -> np.ndarray:
+    """Pressure as if taken ``fall_m`` lower: a height above the surface made a height in
+    the navigation frame, whose tangent plane falls d^2 / 2R below the surface d from the
+    origin (7.8 m 10 km out), while a barometer's height stays with the surface."""
+    height = standard_atmosphere_height(pressure_pa) - np.asarray(fall_m, dtype=float)
+    return standard_atmosphere_pressure(height)
+
+
+def plane_fall(times: np.ndarray, gnss_t: np.ndarray, gnss_enu: np.ndarray) -> np.ndarray:
+    """How far (m) the navigation frame's tangent plane lies below the surface at ``times``,
+    from the fixes' horizontal distance to the origin (interpolated; a km off in a long
+    outage moves it by d x 1 km / R: 1.6 m 10 km out)."""
+    if not len(gnss_t):
+        return np.zeros(len(times))
+    east = np.interp(times, gnss_t, gnss_enu[:, 0])
+    north = np.interp(times, gnss_t, gnss_enu[:, 1])
+    return (east**2 + north**2) / (2.0 * EARTH_MEAN_RADIUS_M)
+
+
+EARTH_MEAN_RADIUS_M = 6.371e6
+
+
 def gtsam_equivalent_kpa(pressure_pa: float | np.ndarray) -> np.ndarray:
     """The pressure (kPa) whose height in GTSAM's BarometricFactor (``heightOut``) is the ISA
     height of ``pressure_pa``: the inverse of ``(pow(p / 101.29, 1 / 5.256) * 288.08 -

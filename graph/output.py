@@ -49,7 +49,7 @@ def densify(
     accel: np.ndarray,
     gyro: np.ndarray,
     states: KeyframeStates,
-    gravity: np.ndarray,
+    gravity: np.ndarray,  # (K-1, 3) per interval
     omega_earth: np.ndarray,
     *,
     close_to_next: bool,
@@ -90,7 +90,7 @@ def densify(
         d_rot = d_rot @ so3_exp(w * dt[:, None])
         d_t += dt
 
-    def predict(rot_i, vel_i, pos_i, dr, dv, dp, dtt):
+    def predict(rot_i, vel_i, pos_i, dr, dv, dp, dtt, gravity):
         """Navigation state after (dr, dv, dp) over dtt from keyframe state i."""
         w_cross = skew(omega_earth)
         earth_turn = so3_exp(-omega_earth[None, :] * dtt[:, None])
@@ -111,6 +111,7 @@ def densify(
         seg_vel,
         seg_pos,
         seg_t,
+        gravity[interval_of],
     )
     if close_to_next:
         end_rot, end_vel, end_pos = predict(
@@ -121,6 +122,7 @@ def densify(
             d_vel,
             d_pos,
             d_t,
+            gravity,
         )
         err_pos = states.position[1:] - end_pos
         err_vel = states.velocity[1:] - end_vel

@@ -23,7 +23,7 @@ from fgins.factors import odometer as odometer_model
 from fgins.factors import stationary
 from fgins.factors import vehicle as vehicle_model
 from fgins.factors.values import put_double, put_vector
-from fgins.geodesy import earth_rate_enu, normal_gravity
+from fgins.geodesy import earth_rate_enu, gravity_enu, normal_gravity
 from fgins.graph.keyframes import Segments, build_segments, keyframe_times
 from fgins.mounting import mounting_rotation
 
@@ -52,7 +52,10 @@ class Problem:
     gnss_gyro: np.ndarray  # (M, 3) the gyro sample held at each used GNSS epoch (lever arm)
     gnss_velocity_sigma: np.ndarray
     alignment: Alignment
-    gravity: np.ndarray
+    gravity: np.ndarray  # (3,) at the origin
+    # (K-1, 3) gravity where each interval lies (fgins.geodesy.gravity_enu at its middle):
+    # from the fixes first, then from each solution (repreintegrate)
+    interval_gravity: np.ndarray
     omega_earth: np.ndarray
     quiet: np.ndarray  # (K,) the IMU is quiet around keyframe k (a stop, if the speed agrees)
     # (K,) the fixes of the last seconds before keyframe k moved (stationary.gnss_moving)
@@ -76,6 +79,10 @@ class Problem:
     _gnss_factors: dict[int, list] = field(default_factory=dict, repr=False)
     _imu_factors: dict[int, tuple] = field(default_factory=dict, repr=False)
     zupt_keyframes: set[int] = field(default_factory=set)
+    # (noise parameters, rounded gravity) -> their preintegration parameters
+    _gravity_params: dict[tuple, gtsam.PreintegrationCombinedParams] = field(
+        default_factory=dict, repr=False
+    )
 
     @property
     def n_keyframes(self) -> int:
@@ -492,9 +499,37 @@ class Problem:
 
     def preintegrate(self, i: int, bias: gtsam.imuBias.ConstantBias) -> None:
         """(Re)do interval i's preintegration about ``bias``."""
-        params = self.suspect_params.get(i, self.params)
+        params = self._params_for(i)
         self.pims[i] = _preintegrate(self.dataset.imu, self.segments, i, params, bias)
         self.pim_bias[i] = bias.vector()
+
+    def _params_for(self, i: int) -> gtsam.PreintegrationCombinedParams:
+        """Interval i's parameters: its noise (suspect stretches inflated) and the gravity
+        where it lies; one parameter set per noise and gravity (rounded to
+        ``GRAVITY_SAME_M_S2``), and the origin's within that of the origin's gravity."""
+        base = self.suspect_params.get(i, self.params)
+        gravity = self.interval_gravity[i]
+        if np.all(np.abs(gravity - self.gravity) < GRAVITY_SAME_M_S2):
+            return base
+        key = (id(base), *np.round(gravity / GRAVITY_SAME_M_S2).astype(int).tolist())
+        params = self._gravity_params.get(key)
+        if params is None:
+            params = imu_model.with_gravity(base, gravity)
+            self._gravity_params[key] = params
+        return params
+
+    def gravity_moved(self, values: gtsam.Values) -> np.ndarray:
+        """Intervals whose gravity at the solution's positions differs from the one they were
+        preintegrated with (a long outage's chord between fixes cuts a turn by kilometres);
+        their gravity is updated (to be re-preintegrated)."""
+        position = np.array(
+            [values.atPose3(X(k)).translation() for k in range(self.n_keyframes)]
+        )
+        gravity = gravity_enu(0.5 * (position[:-1] + position[1:]), self.dataset.origin)
+        change = np.max(np.abs(gravity - self.interval_gravity), axis=1)
+        moved = np.flatnonzero(change > GRAVITY_REDO_M_S2)
+        self.interval_gravity[moved] = gravity[moved]
+        return moved
 
     def preintegrate_all(self, accel_bias: np.ndarray, gyro_bias: np.ndarray, progress: bool) -> None:
         """Every interval about the bias estimate at its first keyframe (K, 3) each."""
@@ -519,6 +554,7 @@ class Problem:
             (change[:, 3:].max(axis=1) > gyro_threshold)
             | (change[:, :3].max(axis=1) > accel_threshold)
         )
+        redo = np.union1d(redo, self.gravity_moved(values)).astype(int)
         for i in redo:
             self.preintegrate(int(i), gtsam.imuBias.ConstantBias(estimate[i, :3], estimate[i, 3:]))
         return redo
@@ -605,7 +641,9 @@ def build_problem(
         if smoother.zupt
         else np.zeros(len(times), dtype=bool)
     )
-    baro_pressure = stationary.pressure_at(dataset.baro, times)
+    baro_pressure = stationary.pressure_in_plane(
+        stationary.pressure_at(dataset.baro, times), stationary.plane_fall(times, gnss.t, enu)
+    )
     vehicle_keyframe = _decimate(times, smoother.vehicle_constraint_interval_s)
     odometer_speed = np.where(vehicle_keyframe, _odometer_at(dataset, times), np.nan)
     nhc_sigma = np.tile(
@@ -628,11 +666,12 @@ def build_problem(
         gnss_enu=enu,
         gnss_sigma=sigma,
         gnss_sigma_modelled=gnss_model.sigmas_from_dop_model(gnss, config.gnss),
-        gnss_velocity=gnss.velocity,
+        gnss_velocity=None if gnss.velocity is None else dataset.gnss_velocity_nav()[usable],
         gnss_gyro=imu.gyro[np.clip(np.searchsorted(imu.t, gnss.t, side="right") - 1, 0, len(imu) - 1)],
         gnss_velocity_sigma=velocity_sigma,
         alignment=alignment,
         gravity=np.array([0.0, 0.0, -normal_gravity(dataset.origin.lat, dataset.origin.alt)]),
+        interval_gravity=_interval_gravity_from_fixes(times, gnss.t, enu, dataset.origin),
         omega_earth=earth_rate_enu(dataset.origin.lat),
         quiet=quiet,
         gnss_moving=stationary.gnss_moving(
@@ -659,6 +698,23 @@ def build_problem(
             **({"imu_bias_model": "; ".join(bias_notes)} if bias_notes else {}),
         },
     )
+
+
+# Gravity per interval: one parameter set per 1e-6 m/s^2 (0.1 ug) of gravity; re-preintegrated
+# when a solution puts an interval where gravity differs by more than 2e-6 m/s^2 (0.2 ug; a
+# navigation-grade accelerometer's bias is ~25 ug).
+GRAVITY_SAME_M_S2 = 1e-6
+GRAVITY_REDO_M_S2 = 2e-6
+
+
+def _interval_gravity_from_fixes(
+    times: np.ndarray, gnss_t: np.ndarray, enu: np.ndarray, origin
+) -> np.ndarray:
+    """(K-1, 3) gravity at the middle of each interval, its position interpolated between
+    the usable fixes (held before the first and after the last)."""
+    middle = 0.5 * (times[:-1] + times[1:])
+    position = np.column_stack([np.interp(middle, gnss_t, enu[:, j]) for j in range(3)])
+    return gravity_enu(position, origin)
 
 
 def _preintegrate(

@@ -661,7 +661,7 @@ def _to_trajectory(
         imu.accel,
         imu.gyro,
         states,
-        problem.gravity,
+        problem.interval_gravity,
         problem.omega_earth,
         close_to_next=smoothed,
     )

@@ -9,7 +9,12 @@ import numpy as np
 import pymap3d
 
 from fgins.datatypes import InputError, Origin, Trajectory
-from fgins.geodesy import enu_to_lla, roll_pitch_heading_to_rotation
+from fgins.geodesy import (
+    enu_to_lla,
+    local_to_origin_rotation,
+    roll_pitch_heading_to_rotation,
+    rotation_to_roll_pitch_heading,
+)
 from fgins.io.atomic import atomic_path
 
 COLUMNS = [
@@ -24,12 +29,19 @@ EXTRA_COLUMNS = [
 
 
 def trajectory_table(trajectory: Trajectory) -> np.ndarray:
-    """The trajectory as rows of :data:`COLUMNS` + :data:`EXTRA_COLUMNS`."""
+    """The trajectory as rows of :data:`COLUMNS` + :data:`EXTRA_COLUMNS`.
+
+    east/north/up are the navigation frame's (the tangent plane at the origin); velocity and
+    attitude are in the local level at each point, as a receiver or a reference system
+    gives them (20 km from the origin the two differ by 0.18 deg).
+    """
     lla = enu_to_lla(trajectory.position, trajectory.origin)
-    attitude = trajectory.roll_pitch_heading_deg()
+    to_local = np.swapaxes(local_to_origin_rotation(lla[:, 0], lla[:, 1], trajectory.origin), 1, 2)
+    velocity = np.einsum("nij,nj->ni", to_local, trajectory.velocity)
+    attitude = rotation_to_roll_pitch_heading(to_local @ trajectory.rotation)
     return np.column_stack(
         [
-            trajectory.t, lla, trajectory.position, trajectory.velocity, attitude,
+            trajectory.t, lla, trajectory.position, velocity, attitude,
             trajectory.position_std, trajectory.gyro_bias, trajectory.accel_bias,
             trajectory.attitude_std_deg,
         ]
@@ -256,6 +268,12 @@ def read_trajectory_csv(path: str | Path, origin: Origin | None = None) -> Traje
             for r, p, h in zip(col["roll_deg"], col["pitch_deg"], col["heading_deg"], strict=True)
         ]
     )
+    # Velocity and attitude columns are in the local level at each point (trajectory_table).
+    to_nav = local_to_origin_rotation(col["lat"], col["lon"], origin)
+    rotation = to_nav @ rotation
+    velocity = np.einsum(
+        "nij,nj->ni", to_nav, np.column_stack([col["vel_east"], col["vel_north"], col["vel_up"]])
+    )
     std = np.column_stack([col["std_east"], col["std_north"], col["std_up"]])
     cov = np.zeros((len(data), 3, 3))
     for i in range(3):
@@ -269,7 +287,7 @@ def read_trajectory_csv(path: str | Path, origin: Origin | None = None) -> Traje
     return Trajectory(
         t=col["time"],
         position=np.column_stack([col["east"], col["north"], col["up"]]),
-        velocity=np.column_stack([col["vel_east"], col["vel_north"], col["vel_up"]]),
+        velocity=velocity,
         rotation=rotation,
         origin=origin,
         method=path.stem,

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fgins.datatypes import GnssData, InputError, Origin
-from fgins.geodesy import enu_to_lla
+from fgins.geodesy import enu_to_lla, vectors_nav_to_local
 
 Window = tuple[float, float]
 
@@ -167,9 +167,12 @@ def simulate_gnss(
     keep = np.ones(n, dtype=bool)
     for a, b in model.outages:
         keep &= ~((rel_t >= a) & (rel_t < b))
+    lla = enu_to_lla(antenna + error, origin)
+    if velocity is not None:  # a receiver's velocity is in the local level where it is
+        velocity = vectors_nav_to_local(lla, velocity, origin)
     gnss = GnssData(
         t=t,
-        lla=enu_to_lla(antenna + error, origin),
+        lla=lla,
         velocity=velocity,
         std=std,
         velocity_std=velocity_std,

@@ -20,6 +20,7 @@ import numpy as np
 
 from fgins.config import ImuNoise, imu_noise_from_config
 from fgins.datatypes import AccelArrayData, Dataset, ImuData, InputError, Origin, Trajectory
+from fgins.geodesy import enu_to_lla
 from fgins.sim import motion
 from fgins.sim.baro import BaroModel, simulate_baro
 from fgins.sim.gnss import BiasedStretch, DopStretch, GnssModel, GnssTruthInput, simulate_gnss
@@ -312,7 +313,9 @@ def simulate_run(
         if setup.rotated and setup.write_mounting:
             config["smoother"] = {"imu_to_vehicle_rpy_deg": list(setup.imu_to_vehicle_rpy_deg())}
     if baro_model is not None:
-        baro, baro_bias = simulate_baro(rng, t, exact.position[:, 2] + origin.alt, baro_model)
+        # The height above the surface (a round Earth), not the tangent plane's up.
+        height = enu_to_lla(exact.position, origin)[:, 2]
+        baro, baro_bias = simulate_baro(rng, t, height, baro_model)
         config["baro"] = baro_model.config_table()
         info["baro_bias_m"] = baro_bias
     dataset = Dataset(

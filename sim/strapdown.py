@@ -1,11 +1,12 @@
 """Exact IMU commands and truth from a motion profile (the estimators' discrete model).
 
 Navigation model (shared with factors/ and baseline/, GTSAM's with omegaCoriolis = w_ie):
-local ENU at the origin, constant g_n = (0, 0, -normal_gravity(lat0, h0)), constant Earth
-rate w_ie in ENU. Each IMU sample is held over [t_k, t_k+1) and propagated as
+local ENU at the origin (an Earth-fixed Cartesian frame), gravity g_n(p) where the vehicle is
+(fgins.geodesy.gravity_enu: a round Earth; (0, 0, -normal_gravity(lat0, h0)) at the origin),
+constant Earth rate w_ie in ENU. Each IMU sample is held over [t_k, t_k+1) and propagated as
 
     R_k+1 = R_k Exp((gyro_k - R_k^T w_ie) dt)
-    a_n   = R_k accel_k + g_n - 2 w_ie x v_k
+    a_n   = R_k accel_k + g_n(p_k) - 2 w_ie x v_k
     p_k+1 = p_k + v_k dt + a_n dt^2 / 2,   v_k+1 = v_k + a_n dt
 
 The commands are solved from the profile's attitude and velocity at consecutive samples, so
@@ -21,22 +22,30 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgins.datatypes import InputError, Origin
-from fgins.geodesy import earth_rate_enu, normal_gravity, so3_exp
+from fgins.geodesy import earth_rate_enu, gravity_enu, normal_gravity, so3_exp
 from fgins.sim.motion import MotionProfile
 
 
 @dataclass(frozen=True)
 class NavModel:
-    """Gravity and Earth rate of the local ENU frame at ``origin``."""
+    """Gravity and Earth rate of the local ENU frame at ``origin``; with ``origin``, gravity
+    where the vehicle is (a round Earth, :func:`fgins.geodesy.gravity_enu`)."""
 
     gravity: np.ndarray
     earth_rate: np.ndarray
+    origin: Origin | None = None
 
     @classmethod
     def at(cls, origin: Origin, with_earth_rate: bool = True) -> NavModel:
         gravity = np.array([0.0, 0.0, -normal_gravity(origin.lat, origin.alt)])
         rate = earth_rate_enu(origin.lat) if with_earth_rate else np.zeros(3)
-        return cls(gravity=gravity, earth_rate=rate)
+        return cls(gravity=gravity, earth_rate=rate, origin=origin)
+
+    def gravity_at(self, position: np.ndarray) -> np.ndarray:
+        """Gravity (..., 3) at ENU positions (..., 3)."""
+        if self.origin is None:
+            return np.broadcast_to(self.gravity, np.shape(position))
+        return gravity_enu(position, self.origin)
 
 
 @dataclass
@@ -105,10 +114,10 @@ def exact_motion(
         w_nb[i : i + block] = rotation_log(r_k_t[i : i + block] @ r_next[i : i + block]) / dt
     gyro = w_nb + r_k_t @ nav.earth_rate
     a_n = (v_next - v_k) / dt
-    specific_force_n = a_n - nav.gravity + 2.0 * np.cross(nav.earth_rate, v_k)
-    accel = np.einsum("nji,nj->ni", r_k, specific_force_n)
     steps = v_k * dt + 0.5 * a_n * dt**2
     position = np.vstack([np.zeros((1, 3)), np.cumsum(steps, axis=0)])
+    specific_force_n = a_n - nav.gravity_at(position[:-1]) + 2.0 * np.cross(nav.earth_rate, v_k)
+    accel = np.einsum("nji,nj->ni", r_k, specific_force_n)
     return ExactMotion(
         t=profile.t[:-1].copy(),
         position=position[:-1],
@@ -140,7 +149,7 @@ def mechanize(
         if k == n - 1:
             break
         dt = t[k + 1] - t[k]
-        a_n = r @ accel[k] + nav.gravity - 2.0 * np.cross(nav.earth_rate, v)
+        a_n = r @ accel[k] + nav.gravity_at(p) - 2.0 * np.cross(nav.earth_rate, v)
         p = p + v * dt + 0.5 * a_n * dt**2
         v = v + a_n * dt
         r = r @ so3_exp((gyro[k] - r.T @ nav.earth_rate) * dt)

@@ -1,8 +1,8 @@
 """A compact independent flight simulator for tests (shares no code with fgins.sim).
 
-Flat ENU plane, constant normal gravity and Earth rate at the origin (DESIGN.md). IMU
-samples are the instantaneous ``gyro = vee(R^T dR/dt) + R^T w_ie`` and
-``accel = R^T (a - g + 2 w_ie x v)`` (4th-order central differences of analytic motion),
+ENU axes at the origin (an Earth-fixed Cartesian frame), normal gravity where the vehicle is
+(a round Earth: :mod:`round_earth`, through pymap3d) and Earth rate. IMU samples are the
+instantaneous ``gyro = vee(R^T dR/dt) + R^T w_ie`` and ``accel = R^T (a - g(p) + 2 w_ie x v)`` (4th-order central differences of analytic motion),
 plus turn-on biases and white noise; GNSS fixes carry position and velocity with their sigmas.
 
 - :class:`Multirotor`: smooth (C3) moves in any direction, yaw independent of them, body z
@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pymap3d
+import round_earth
 
 OMEGA_E = 7.292115e-5
 WGS_A, WGS_F = 6378137.0, 1 / 298.257223563
@@ -152,7 +153,7 @@ def write_flight(folder: Path, motion, duration_s: float, *, seed: int, frame: s
         p = np.vstack([np.zeros(3), np.cumsum((v[:-1] + 4 * mid + v[1:]) / (6 * imu_rate), 0)])
     rot_dot = _diff(motion.rotation, t, 2 * STEP)
     gyro = _vee(np.einsum("nji,njk->nik", rot, rot_dot)) + np.einsum("nji,j->ni", rot, w_ie)
-    force = _diff(motion.velocity, t) + np.array([0, 0, g]) + 2 * np.cross(w_ie, v)
+    force = _diff(motion.velocity, t) - round_earth.gravity(p, lat0, lon0, alt0) + 2 * np.cross(w_ie, v)
     accel = np.einsum("nji,nj->ni", rot, force)
     flip = np.diag([1.0, -1.0, -1.0]) if frame == "frd" else np.eye(3)
     rot, gyro, accel = rot @ flip, gyro @ flip, accel @ flip
@@ -170,13 +171,18 @@ def write_flight(folder: Path, motion, duration_s: float, *, seed: int, frame: s
     k = np.arange(0, n, every)
     fixes = p[k] + rng.normal(0, 1, (len(k), 3)) * [sigma_h, sigma_h, sigma_u]
     vel = v[k] + rng.normal(0, sigma_v, (len(k), 3))
+    # A receiver's velocity is in the local level where it is.
+    vel = np.einsum("nji,nj->ni", round_earth.local_axes(fixes, lat0, lon0, alt0), vel)
     lat, lon, alt = pymap3d.enu2geodetic(*fixes.T, lat0, lon0, alt0)
     sig = np.tile([sigma_h, sigma_h, sigma_u], (len(k), 1))
     np.savetxt(folder / "gnss.csv", np.column_stack([t[k], lat, lon, alt, vel, sig]),
                delimiter=",", fmt="%.10f",
                header="time,lat,lon,alt,vel_east,vel_north,vel_up,std_east,std_north,std_up",
                comments="")  # fmt: skip
-    r = rot
+    # Truth velocity and attitude in the local level at each point, as a reference gives them.
+    axes = round_earth.local_axes(p, lat0, lon0, alt0)
+    v = np.einsum("nji,nj->ni", axes, v)
+    r = np.swapaxes(axes, 1, 2) @ rot
     roll = np.degrees(np.arctan2(r[:, 2, 1], r[:, 2, 2]))
     pitch = np.degrees(np.arcsin(np.clip(r[:, 2, 0], -1, 1)))
     heading = np.mod(90 - np.degrees(np.arctan2(r[:, 1, 0], r[:, 0, 0])), 360)

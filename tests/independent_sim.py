@@ -1,12 +1,12 @@
 """An independent car simulator for tests: written from scratch, shares no code with fgins.sim.
 
-Flat-Earth ENU tangent plane, constant normal gravity at the origin, Earth rate on (the
-conventions of DESIGN.md). The trajectory is analytic in speed, heading and flight-path
+ENU axes at the origin (an Earth-fixed Cartesian frame), normal gravity where the car is (a
+round Earth: :mod:`round_earth`, through pymap3d), Earth rate on. The trajectory is analytic in speed, heading and flight-path
 angle (smooth steps and turns), integrated on a 1 ms grid. IMU samples are the
 *instantaneous* body rate and specific force at each (possibly jittered) timestamp, from
 4th-order central differences:
 
-    gyro  = vee(R^T dR/dt) + R^T w_ie,    accel = R^T (a - g + 2 w_ie x v)
+    gyro  = vee(R^T dR/dt) + R^T w_ie,    accel = R^T (a - g(p) + 2 w_ie x v)
 
 with turn-on biases, random-walk biases and white noise; GNSS fixes are positions with white
 noise and their sigmas in ``std_*``. It found a batch solve that crawled for minutes (Cholesky
@@ -19,10 +19,9 @@ from pathlib import Path
 
 import numpy as np
 import pymap3d
+import round_earth
 
 EARTH_RATE = 7.292115e-5
-A_WGS, F_WGS = 6378137.0, 1 / 298.257223563
-E2 = F_WGS * (2 - F_WGS)
 STEP_S = 1e-3  # differentiation step
 DEG = np.pi / 180
 
@@ -30,13 +29,6 @@ DEG = np.pi / 180
 # m/s/sqrt(h), instability mg, turn-on mg
 INDUSTRIAL = dict(preset="industrial-mems", gyro_arw=0.15, gyro_bi=2.0, gyro_on=180.0,
                   accel_vrw=0.05, accel_bi=0.03, accel_on=3.0)  # fmt: skip
-
-
-def normal_gravity(lat: float, h: float) -> float:
-    s2 = np.sin(np.radians(lat)) ** 2
-    g = 9.7803253359 * (1 + 0.00193185265241 * s2) / np.sqrt(1 - E2 * s2)
-    return g * (1 - 2 / A_WGS * (1 + F_WGS + 0.00344978650684 - 2 * F_WGS * s2) * h
-                + 3 / A_WGS**2 * h**2)  # fmt: skip
 
 
 def _d1(f, t):
@@ -149,7 +141,6 @@ def write_drive(folder: Path, profile: CarProfile, duration_s: float, *, grade: 
     folder.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
     w_ie = EARTH_RATE * np.array([0, np.cos(np.radians(lat0)), np.sin(np.radians(lat0))])
-    gravity = np.array([0, 0, -normal_gravity(lat0, alt0)])
     profile.build(0.0, duration_s)
     n = round(duration_s * imu_rate) + 1
     t = np.arange(n) / imu_rate
@@ -160,6 +151,7 @@ def write_drive(folder: Path, profile: CarProfile, duration_s: float, *, grade: 
     a = _d1(profile.velocity, t)
     rot, rot_dot = profile.rotation(t), _d1(profile.rotation, t)
     gyro = _vee_of_skew(np.einsum("nji,njk->nik", rot, rot_dot)) + np.einsum("nji,j->ni", rot, w_ie)
+    gravity = round_earth.gravity(p, lat0, lon0, alt0)
     accel = np.einsum("nji,nj->ni", rot, a - gravity + 2 * np.cross(w_ie, v))
     dt = np.diff(t, prepend=t[0])
     walk_g = grade["gyro_bi"] * DEG / 3600 / np.sqrt(600.0)
