@@ -519,7 +519,9 @@ def check_fields(instance: object, schema: dict[str, Check], section: str) -> di
 class SmootherConfig:
     """Keyframing and solver settings shared by batch and iSAM2."""
 
-    outage_keyframe_interval_s: float = 1.0
+    # Keyframes fill GNSS gaps (outages, slow receivers) at most this far apart. (An
+    # ``outage_keyframe_interval_s`` was accepted but never read: a setting that does nothing
+    # is now an unknown key.)
     max_keyframe_interval_s: float = 1.0
     # GNSS faster than this (20 Hz) is decimated: shorter IMU factors carry a near-singular
     # bias random-walk block. Up to 20 Hz every fix is a keyframe, as every fix is an update
@@ -614,7 +616,6 @@ GNSS_SCHEMA = _schema_from_fields(
 SMOOTHER_SCHEMA = _schema_from_fields(
     SmootherConfig,
     {
-        "outage_keyframe_interval_s": POSITIVE,
         "max_keyframe_interval_s": POSITIVE,
         "min_keyframe_interval_s": NON_NEGATIVE,
         "vehicle_constraint_interval_s": NON_NEGATIVE,

@@ -242,3 +242,28 @@ def test_both_gnss_kernels_are_an_error_not_a_silent_choice(tmp_path):
     path = _write(tmp_path, "[gnss]\nhuber_k = 1.5\ncauchy_k = 3.0\n")
     with pytest.raises(ConfigError, match="huber_k and cauchy_k both given"):
         load_config(path)
+
+
+@pytest.mark.parametrize("table", ["GnssConfig", "SmootherConfig"])
+def test_every_setting_is_read_somewhere(table):
+    """A key the config accepts but no code reads changes nothing without a word
+    (``outage_keyframe_interval_s`` was one): every field of the [gnss] and [smoother]
+    tables is read outside config.py."""
+    import dataclasses
+    import re
+    from pathlib import Path
+
+    import fgins.config as config_module
+
+    root = Path(config_module.__file__).parent
+    sources = "\n".join(
+        path.read_text()
+        for path in root.rglob("*.py")
+        if path.name != "config.py" and ".venv" not in path.parts and "tests" not in path.parts
+    )
+    unread = [
+        field.name
+        for field in dataclasses.fields(getattr(config_module, table))
+        if not re.search(rf"\.{field.name}\b", sources)
+    ]
+    assert not unread, unread
