@@ -701,10 +701,11 @@ def build_problem(
 
 
 # Gravity per interval: one parameter set per 1e-6 m/s^2 (0.1 ug) of gravity; re-preintegrated
-# when a solution puts an interval where gravity differs by more than 2e-6 m/s^2 (0.2 ug; a
+# when a solution puts an interval where gravity differs by more than 1.5e-5 m/s^2 (1.5 ug,
+# ~10 m of horizontal distance: a long outage's chord between fixes, not the fixes' noise; a
 # navigation-grade accelerometer's bias is ~25 ug).
 GRAVITY_SAME_M_S2 = 1e-6
-GRAVITY_REDO_M_S2 = 2e-6
+GRAVITY_REDO_M_S2 = 1.5e-5
 
 
 def _interval_gravity_from_fixes(
