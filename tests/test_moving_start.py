@@ -311,6 +311,18 @@ def test_kitti_with_its_fixes_shifted_20_ms_fits_as_well():
     assert len(report["gnss_large_residual_times"]) == 0
 
 
+def _started_at(dataset, start: float, keep_suspect: bool = False):
+    """``dataset`` cut to start at ``start``: its IMU from 0.3 s before, its fixes from then
+    (with ``keep_suspect``, the IMU's suspect stretches that reach past the cut kept)."""
+    keep = dataset.imu.t >= start - 0.3
+    suspect = [(a, b) for a, b in dataset.imu.suspect if b > start] if keep_suspect else None
+    dataset.imu = ImuData(t=dataset.imu.t[keep], gyro=dataset.imu.gyro[keep],
+                          accel=dataset.imu.accel[keep],
+                          **({"suspect": suspect} if keep_suspect else {}))  # fmt: skip
+    dataset.gnss = dataset.gnss.subset(dataset.gnss.t >= start)
+    return dataset
+
+
 @pytest.mark.parametrize("start_s", [45.0, 55.0, 75.0, 95.0, 125.0, 145.0, 185.0, 295.0])
 def test_kitti_started_anywhere_is_aligned_ahead(start_s):
     """The KITTI drive cut to start `start_s` into it (in turns, or pulling away on a
@@ -321,11 +333,7 @@ def test_kitti_started_anywhere_is_aligned_ahead(start_s):
     whole = fgins.load("demo:kitti")
     reference = fgins.smooth(whole)
     start = float(whole.t0) + start_s
-    dataset = fgins.load("demo:kitti")
-    keep = dataset.imu.t >= start - 0.3
-    dataset.imu = ImuData(t=dataset.imu.t[keep], gyro=dataset.imu.gyro[keep],
-                          accel=dataset.imu.accel[keep])  # fmt: skip
-    dataset.gnss = dataset.gnss.subset(dataset.gnss.t >= start)
+    dataset = _started_at(fgins.load("demo:kitti"), start)
     alignment = initial_alignment(dataset, smoother=dataset.metadata["run_config"].smoother)
     truth = reference.rotation[np.searchsorted(reference.t, dataset.imu.t[0])]
 
@@ -366,12 +374,7 @@ def test_an_urban_drive_cut_anywhere_starts_from_the_receivers_velocity(urban_dr
     the reversing test fitted noise and turned a cruising car round. The receiver's velocity
     is used where the data carry it, and a car's height is held level."""
     whole, truth = urban_drive
-    dataset = copy.deepcopy(whole)
-    start = float(whole.t0) + start_s
-    keep = dataset.imu.t >= start - 0.3
-    dataset.imu = ImuData(t=dataset.imu.t[keep], gyro=dataset.imu.gyro[keep],
-                          accel=dataset.imu.accel[keep])  # fmt: skip
-    dataset.gnss = dataset.gnss.subset(dataset.gnss.t >= start)
+    dataset = _started_at(copy.deepcopy(whole), float(whole.t0) + start_s)
     alignment = initial_alignment(dataset, smoother=dataset.metadata["run_config"].smoother)
     k = int(np.searchsorted(truth.time.to_numpy(), dataset.imu.t[0]))
     heading = np.degrees(np.arctan2(alignment.rotation[0, 0], alignment.rotation[1, 0]))
@@ -393,12 +396,7 @@ def test_kitti_with_its_first_fixes_withheld_starts_honestly(start_s, withheld_s
     whole = fgins.load("demo:kitti")
     reference = fgins.smooth(whole)
     start = float(whole.t0) + start_s
-    dataset = fgins.load("demo:kitti")
-    keep = dataset.imu.t >= start - 0.3
-    dataset.imu = ImuData(t=dataset.imu.t[keep], gyro=dataset.imu.gyro[keep],
-                          accel=dataset.imu.accel[keep],
-                          suspect=[(a, b) for a, b in dataset.imu.suspect if b > start])  # fmt: skip
-    dataset.gnss = dataset.gnss.subset(dataset.gnss.t >= start)
+    dataset = _started_at(fgins.load("demo:kitti"), start, keep_suspect=True)
     mask = outage_mask(dataset, [(0.0, withheld_s)])
     alignment = initial_alignment(dataset, mask, smoother=dataset.metadata["run_config"].smoother)
     k = int(np.searchsorted(reference.t, dataset.imu.t[0]))
