@@ -810,6 +810,12 @@ def _heading_from_first_motion(
     def yaw_at(t: float) -> float:
         return float(np.interp(t, imu.t, yaw))
 
+    if rest_force is not None:
+        # The IMU confirms each chord (below), so the chord's length decides, not the
+        # caller's noise-based speed: one or two multipath fixes among the first seconds'
+        # inflate that to 17-20 m/s, and a car driving off at 8 m/s was never "moving" (its
+        # heading unknown, the forward EKF 57-108 m off).
+        moving_speed = min(moving_speed, min_chord_m / chord_s)
     # The last fix within chord_s (and within MAX_CHORD_S) of each fix (times ascending).
     chord_end = np.searchsorted(gnss_t, gnss_t + chord_s, side="right") - 1
     stretch_end = np.searchsorted(gnss_t, gnss_t + MAX_CHORD_S, side="right") - 1
