@@ -604,22 +604,23 @@ class GnssUpdater:
     ) -> tuple[np.ndarray, np.ndarray] | None:
         """Measurement variances (Huber-inflated) and innovation covariance S of epoch ``g``
         given the predicted measurement covariance; None when the gate rejects the epoch."""
-        if np.all(np.isfinite(innovation)):  # before Huber and gate: the model's own S
-            plain = predicted + np.diag(variance)
+        plain = predicted + np.diag(variance)  # the model's own S, before Huber and gate
+        if np.all(np.isfinite(innovation)):
             self.nis.append(float(innovation @ np.linalg.solve(plain, innovation)) / len(innovation))
+        if self.gate_probability is not None:
+            # Judged on the model's S: after the Huber inflation (on by default) an outlier's
+            # own variance would shrink its NIS below the gate.
+            nis = float(innovation @ np.linalg.solve(plain, innovation))
+            if nis > chi2_quantile(self.gate_probability, len(innovation)):
+                self.counts["rejected_innovation"] += 1
+                self.rejected_times.append(float(self.epochs.t[g]))
+                return None
         if self.huber_k is not None:
             variance, n_down = huber_variances(
                 innovation, np.diag(predicted) + variance, variance, self.huber_k
             )
             self.counts["huber_downweighted"] += n_down
-        s = predicted + np.diag(variance)
-        if self.gate_probability is not None:
-            nis = float(innovation @ np.linalg.solve(s, innovation))
-            if nis > chi2_quantile(self.gate_probability, len(innovation)):
-                self.counts["rejected_innovation"] += 1
-                self.rejected_times.append(float(self.epochs.t[g]))
-                return None
-        return variance, s
+        return variance, predicted + np.diag(variance)
 
     def count_update(self, lin: Linearized) -> None:
         self.counts["gnss_updates"] += 1
