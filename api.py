@@ -76,7 +76,7 @@ INPUT_FOLDER_FILES = (
     "imu.csv", "gnss.csv", "baro.csv", "wheel.csv", "accel_array.csv", "config.toml", "truth.csv",
 )  # fmt: skip
 DEFAULT_BENCH_METHODS = ("batch", "isam2", "ekf", "ekf-rts")
-ROBUST_KERNELS = ("huber", "cauchy")
+ROBUST_KERNELS = ("huber", "cauchy", "none")
 
 
 class FginsWarning(UserWarning):
@@ -172,8 +172,9 @@ def configure(
     vehicle : str, optional
         ``car`` (turns on the land-vehicle constraints), ``aircraft``, ``uav``, ``pedestrian``,
         ``other``.
-    robust : {"huber", "cauchy"}, optional
-        Robust GNSS kernel: Huber with k = 2 sigma or Cauchy with k = 3 sigma.
+    robust : {"huber", "cauchy", "none"}, optional
+        Robust GNSS kernel: Huber with k = 2 sigma, Cauchy with k = 3 sigma, or none (every
+        fix at full weight). Without it, the configuration's (default Huber, k = 4 sigma).
 
     Returns
     -------
@@ -210,6 +211,8 @@ def configure(
         run_config.gnss.huber_k, run_config.gnss.cauchy_k = 2.0, None
     elif robust == "cauchy":
         run_config.gnss.cauchy_k = 3.0
+    elif robust == "none":
+        run_config.gnss.huber_k, run_config.gnss.cauchy_k = None, None
     return run_config
 
 

@@ -39,8 +39,9 @@ def _add_sensor_options(parser: argparse.ArgumentParser) -> None:
         help="vehicle type (land-vehicle constraints apply to car)",
     )  # fmt: skip
     parser.add_argument(
-        "--robust", choices=["huber", "cauchy"],
-        help="robust GNSS kernel against outliers (Huber k=2 or Cauchy k=3 in sigmas)",
+        "--robust", choices=["huber", "cauchy", "none"],
+        help="robust GNSS kernel against outliers: Huber k=2 or Cauchy k=3 (in sigmas), or "
+        "none (every fix at full weight); default Huber k=4",
     )  # fmt: skip
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
 

@@ -267,3 +267,25 @@ def test_every_setting_is_read_somewhere(table):
         if not re.search(rf"\.{field.name}\b", sources)
     ]
     assert not unread, unread
+
+
+def test_the_default_gnss_kernel_is_huber_at_4_sigma_and_can_be_turned_off(tmp_path):
+    """Huber k = 4 unless the file or the caller says otherwise: ``huber_k = 0`` in a file
+    (TOML has no null), ``--robust none`` / ``robust="none"``; a file's ``cauchy_k`` alone
+    takes precedence over the default Huber."""
+    from fgins.api import configure
+    from fgins.io.kitti import read_kitti
+
+    assert load_config(None).gnss.huber_k == 4.0
+    assert load_config(_write(tmp_path, "[gnss]\nhuber_k = 0\n")).gnss.huber_k is None
+    assert load_config(_write(tmp_path, "[gnss]\nhuber_k = 2.5\n")).gnss.huber_k == 2.5
+    cauchy = load_config(_write(tmp_path, "[gnss]\ncauchy_k = 3.0\n")).gnss
+    assert cauchy.cauchy_k == 3.0  # kernel_weights and the noise model take Cauchy first
+    with pytest.raises(ConfigError, match="huber_k"):
+        load_config(_write(tmp_path, "[gnss]\nhuber_k = -1\n"))
+    dataset = read_kitti()
+    assert configure(dataset).gnss.huber_k == 4.0
+    off = configure(dataset, robust="none").gnss
+    assert off.huber_k is None and off.cauchy_k is None
+    args = cli.build_parser().parse_args(["smooth", "x.csv", "-o", "y.csv", "--robust", "none"])
+    assert args.robust == "none"
