@@ -21,6 +21,7 @@ state and the same uncertainty.
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -65,23 +66,81 @@ def _gnss_fit(
 # own sigma (or this default, metre-level autonomous GNSS) is the floor.
 FIT_MIN_DOF = 3
 DEFAULT_FIX_SIGMA_M = 3.0
+# Outlying fixes of the start's fit: a least-trimmed-squares fit over half the fixes (up to
+# FIT_LTS_STARTS elemental starts, two concentration steps each) sets the scale;
+# fixes beyond FIT_OUTLIER_SIGMAS of it (never judged below the fixes' stated sigma or
+# FIT_MIN_SCALE_M: RTK fixes agree to centimetres, a vehicle's jerk over the window is
+# larger) are left out.
+FIT_OUTLIER_SIGMAS = 6.0
+FIT_MIN_SCALE_M = 0.5
+FIT_LTS_STARTS = 200
+
+
+def _fit_inliers(design: np.ndarray, horizontal: np.ndarray, min_scale_m: float) -> np.ndarray:
+    """Rows (fixes) of a polynomial fit ``design`` (n, p) to ``horizontal`` (n, 2) that are
+    not outliers. Least trimmed squares, not the residuals of one least-squares fit: over
+    the 6-7 fixes of a short window that fit bends toward an outlier, shrinking its residual
+    and growing the others', so no residual test on it tells the outlier apart. The scale
+    is never below ``min_scale_m`` (the fixes' own stated sigma): half of 6-7 fixes fit a
+    quadratic almost exactly, and a fix is no outlier within 6 of its own sigmas."""
+    n, p = design.shape
+    h = (n + p + 1) // 2  # the most robust choice: up to about half the fixes may be off
+    keep = np.ones(n, dtype=bool)
+    if h >= n or h - p < 2:
+        return keep
+    rng = np.random.default_rng(0)
+    n_subsets = math.comb(n, p)
+    if n_subsets <= FIT_LTS_STARTS:
+        starts = [list(c) for c in itertools.combinations(range(n), p)]
+    else:
+        starts = [sorted(rng.choice(n, p, replace=False)) for _ in range(FIT_LTS_STARTS)]
+    best_cost, best_coeffs = np.inf, None
+    for start in starts:
+        rows = np.asarray(start)
+        for _ in range(3):  # elemental fit, then two concentration steps
+            coeffs, *_ = np.linalg.lstsq(design[rows], horizontal[rows], rcond=None)
+            squared = np.sum((horizontal - design @ coeffs) ** 2, axis=1)
+            rows = np.argsort(squared)[:h]
+        coeffs, *_ = np.linalg.lstsq(design[rows], horizontal[rows], rcond=None)
+        squared = np.sum((horizontal - design @ coeffs) ** 2, axis=1)
+        cost = float(np.sum(np.sort(squared)[:h]))
+        if cost < best_cost:
+            best_cost, best_coeffs = cost, coeffs
+    squared = np.sum((horizontal - design @ best_coeffs) ** 2, axis=1)
+    scale = max(float(np.sqrt(best_cost / (2 * (h - p)))), min_scale_m)
+    keep = squared <= (FIT_OUTLIER_SIGMAS * scale) ** 2
+    if keep.sum() < p + FIT_MIN_DOF:
+        return np.ones(n, dtype=bool)
+    return keep
 
 
 def _gnss_fit_with_sigma(
-    t: np.ndarray, enu: np.ndarray, t_eval: float, fix_sigma: float | None = None
+    t: np.ndarray,
+    enu: np.ndarray,
+    t_eval: float,
+    fix_sigma: float | None = None,
+    degree: int | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """As :func:`_gnss_fit`, plus the 1-sigma of the horizontal speed: from the residuals,
     and with few of them at least from ``fix_sigma`` (m, horizontal per axis). Two fixes
     used to give a sigma of 0 (no residual): a speed of 23 +- 0 m/s from fixes 3 m apart
     in noise, the dead reckoning after them 4-5x more certain than its errors."""
     dt = t - t_eval
-    degree = 2 if len(t) >= 4 else 1
+    if degree is None:
+        degree = 2 if len(t) >= 4 else 1
     design = np.vander(dt, degree + 1, increasing=True)
+    # Without the fixes a trimmed fit of the others puts far off: one or two multipath fixes
+    # among the first seconds' made the residual RMS, and with it the speed sigma and the
+    # motion threshold (3 sigma), several times too large, so a car cruising at 8 m/s was
+    # aligned at rest (the forward EKF 70-300 m off) and one driving off was never "moving".
+    stated = fix_sigma if fix_sigma is not None and np.isfinite(fix_sigma) else 0.0
+    keep = _fit_inliers(design, enu[:, :2], max(stated, FIT_MIN_SCALE_M))
+    design, enu = design[keep], enu[keep]
     coeffs, *_ = np.linalg.lstsq(design, enu, rcond=None)
     position = coeffs[0]
     velocity = coeffs[1]
     acceleration = 2 * coeffs[2] if degree == 2 else np.zeros(3)
-    dof = len(t) - (degree + 1)
+    dof = len(design) - (degree + 1)
     noise = 0.0
     if dof > 0:
         residual = enu[:, :2] - design @ coeffs[:, :2]
@@ -515,9 +574,18 @@ def _align_at(
         window = np.arange(len(gnss_t)) < 3
     std = dataset.gnss.std
     horizontal = std[:, :2][np.isfinite(std[:, :2])] if std is not None else np.zeros(0)
+    # Accelerometer average over the first second of IMU data from t0.
+    first = (imu.t >= t0) & (imu.t <= t0 + 1.0)
+    if first.sum() < 10:
+        start = int(np.searchsorted(imu.t, t0))
+        first[start : start + 10] = True
+    static = _imu_static(imu.gyro[first], imu.accel[first], g)
+    # A quiet IMU does not accelerate: a line through the fixes, not a parabola. Its two
+    # parameters leave the trimmed fit (_fit_inliers) enough fixes to find two multipath
+    # outliers among 7 (a parabola through 5 noisy fixes fits one of them as well).
     position, velocity, acceleration, speed_sigma = _gnss_fit_with_sigma(
         gnss_t[window], gnss_enu[window], t0,
-        float(np.median(horizontal)) if len(horizontal) else None,
+        float(np.median(horizontal)) if len(horizontal) else None, degree=1 if static else None,
     )  # fmt: skip
     receiver = _receiver_velocity(dataset, gnss_t[window], t0)
     if receiver is not None:  # Doppler: centimetres per second where positions give m/s
@@ -525,11 +593,6 @@ def _align_at(
     speed = float(np.linalg.norm(velocity[:2]))
     # Motion must stand out of the fit's own noise (metre-level fixes fake m/s at rest).
     moving_speed = max(moving_speed, 3.0 * speed_sigma)
-    # Accelerometer average over the first second of IMU data from t0.
-    first = (imu.t >= t0) & (imu.t <= t0 + 1.0)
-    if first.sum() < 10:
-        start = int(np.searchsorted(imu.t, t0))
-        first[start : start + 10] = True
     specific_force = imu.accel[first].mean(axis=0)
     # A quiet IMU means no acceleration and no turning: at rest, or cruising straight at a
     # constant speed (an aircraft in level flight, a car on a highway), which an IMU cannot
@@ -537,7 +600,6 @@ def _align_at(
     # a cruising vehicle covers tens to thousands of metres in the fit window. So the IMU
     # decides "at rest" only when the fixes move further than GNSS drift can fake, judged on
     # medians (one multipath outlier near the start fakes tens of m/s in a quadratic fit).
-    static = _imu_static(imu.gyro[first], imu.accel[first], g)
     cruise_velocity = None
     if static:
         cruise_velocity = (
