@@ -108,10 +108,7 @@ def _fit_inliers(design: np.ndarray, horizontal: np.ndarray, min_scale_m: float)
             best_cost, best_coeffs = cost, coeffs
     squared = np.sum((horizontal - design @ best_coeffs) ** 2, axis=1)
     scale = max(float(np.sqrt(best_cost / (2 * (h - p)))), min_scale_m)
-    keep = squared <= (FIT_OUTLIER_SIGMAS * scale) ** 2
-    if keep.sum() < p + FIT_MIN_DOF:
-        return np.ones(n, dtype=bool)
-    return keep
+    return squared <= (FIT_OUTLIER_SIGMAS * scale) ** 2
 
 
 def _gnss_fit_with_sigma(
@@ -135,6 +132,8 @@ def _gnss_fit_with_sigma(
     # aligned at rest (the forward EKF 70-300 m off) and one driving off was never "moving".
     stated = fix_sigma if fix_sigma is not None and np.isfinite(fix_sigma) else 0.0
     keep = _fit_inliers(design, enu[:, :2], max(stated, FIT_MIN_SCALE_M))
+    if keep.sum() < degree + 1 + FIT_MIN_DOF:  # too few left to fit: a parabola through
+        keep[:] = True  # five of seven noisy fixes extrapolates velocity by 10 m/s
     design, enu = design[keep], enu[keep]
     coeffs, *_ = np.linalg.lstsq(design, enu, rcond=None)
     position = coeffs[0]
@@ -572,8 +571,6 @@ def _align_at(
     window = gnss_t <= max(gnss_t[0], t0) + fit_window_s
     if window.sum() < 3:
         window = np.arange(len(gnss_t)) < 3
-    std = dataset.gnss.std
-    horizontal = std[:, :2][np.isfinite(std[:, :2])] if std is not None else np.zeros(0)
     # Accelerometer average over the first second of IMU data from t0.
     first = (imu.t >= t0) & (imu.t <= t0 + 1.0)
     if first.sum() < 10:
@@ -585,7 +582,7 @@ def _align_at(
     # outliers among 7 (a parabola through 5 noisy fixes fits one of them as well).
     position, velocity, acceleration, speed_sigma = _gnss_fit_with_sigma(
         gnss_t[window], gnss_enu[window], t0,
-        float(np.median(horizontal)) if len(horizontal) else None, degree=1 if static else None,
+        _stated_fix_sigma(dataset), degree=1 if static else None,
     )  # fmt: skip
     receiver = _receiver_velocity(dataset, gnss_t[window], t0)
     if receiver is not None:  # Doppler: centimetres per second where positions give m/s
@@ -815,6 +812,27 @@ CHORD_SPEED_SEEN_FRACTION = 0.25
 CHORD_SPEED_SEEN_M_PER_S = 1.0
 
 
+OUTLIER_WINDOW_FIXES = 3  # each side of a fix judged against its neighbours
+
+
+def _stated_fix_sigma(dataset: Dataset) -> float | None:
+    """Median horizontal 1-sigma (m) the fixes state (covariance, GST), None without."""
+    std = dataset.gnss.std
+    horizontal = std[:, :2][np.isfinite(std[:, :2])] if std is not None else np.zeros(0)
+    return float(np.median(horizontal)) if len(horizontal) else None
+
+
+def _outlying_fix(gnss_t: np.ndarray, gnss_enu: np.ndarray, i: int, fix_sigma: float) -> bool:
+    """Is fix ``i`` off the line its neighbours trace (the ``2 OUTLIER_WINDOW_FIXES + 1``
+    fixes around it, shifted inward at the ends of the log), by the trimmed fit's test
+    (:func:`_fit_inliers`, scale at least ``fix_sigma``)?"""
+    width = 2 * OUTLIER_WINDOW_FIXES + 1
+    lo = int(np.clip(i - OUTLIER_WINDOW_FIXES, 0, max(len(gnss_t) - width, 0)))
+    hi = min(len(gnss_t), lo + width)
+    design = np.vander(gnss_t[lo:hi] - gnss_t[i], 2, increasing=True)
+    return not bool(_fit_inliers(design, gnss_enu[lo:hi, :2], fix_sigma)[i - lo])
+
+
 def _imu_saw_speed(imu, rest_force: np.ndarray, t0: float, t1: float, speed: float) -> bool:
     """Did the IMU, at rest at ``t0``, pick up speed by ``t1``? The specific force less its
     rest level, integrated (the velocity change in body axes, near enough over a start
@@ -864,6 +882,7 @@ def _heading_from_first_motion(
     accelerometer, and the heading is then the course plus 180 deg.
     """
     imu = dataset.imu
+    fix_sigma = max(_stated_fix_sigma(dataset) or DEFAULT_FIX_SIGMA_M, FIT_MIN_SCALE_M)
     # Yaw rate about the body's up (gravity at rest), any axes, less what it reads at rest.
     rate_up = imu.gyro @ up_body - (0.0 if rest_rate is None else rest_rate)
     unknown_rate = gyro_bias_sigma if rest_rate is None else 0.0
@@ -893,6 +912,13 @@ def _heading_from_first_motion(
                 imu, rest_force, t0, float(gnss_t[j]), length / span
             ):
                 continue  # fixes that jump while the IMU stays at rest: noise, not motion
+            if _outlying_fix(gnss_t, gnss_enu, k, fix_sigma) or _outlying_fix(
+                gnss_t, gnss_enu, j, fix_sigma
+            ):
+                # A chord from or to a multipath fix points anywhere (a highway car pulling
+                # away: a 25 m fix at 1 s turned its start heading by 167 deg; the forward EKF
+                # 545 m off, the batch diverged).
+                continue
             for m in range(j + 1, int(stretch_end[k]) + 1):  # while the vehicle goes straight
                 if abs(yaw_at(gnss_t[m]) - yaw_at(gnss_t[k])) > np.radians(STRAIGHT_TURN_DEG):
                     break
