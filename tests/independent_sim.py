@@ -188,3 +188,32 @@ def write_drive(folder: Path, profile: CarProfile, duration_s: float, *, grade: 
         f"accel_bias_instability_mg = {grade['accel_bi']:g}\n"
         f"accel_turn_on_bias_mg = {grade['accel_on']:g}\n"
     )
+
+
+def move_fixes(folder: Path, times: list[float], offset_m, origin=(45.0, 10.0, 100.0)) -> None:
+    """Move the fixes of ``folder/gnss.csv`` nearest each of ``times`` by ``offset_m`` (east,
+    north[, up] metres), as multipath does; the file is rewritten in place."""
+    import pandas as pd
+
+    offset = np.zeros(3)
+    offset[: len(offset_m)] = offset_m
+    gnss = pd.read_csv(folder / "gnss.csv")
+    for at in times:
+        row = int(np.argmin(np.abs(gnss["time"].to_numpy() - at)))
+        e, n, u = pymap3d.geodetic2enu(*gnss.loc[row, ["lat", "lon", "alt"]], *origin)
+        moved = pymap3d.enu2geodetic(e + offset[0], n + offset[1], u + offset[2], *origin)
+        gnss.loc[row, ["lat", "lon", "alt"]] = moved
+    gnss.to_csv(folder / "gnss.csv", index=False, float_format="%.10f")
+
+
+def horizontal_errors(track, folder: Path, origin=(45.0, 10.0, 100.0)) -> tuple[np.ndarray, np.ndarray]:
+    """Times and horizontal errors (m) of a fgins trajectory against ``folder/truth.csv``."""
+    import pandas as pd
+
+    truth = pd.read_csv(folder / "truth.csv")
+    frame = track.to_dataframe()
+    east, north, _ = pymap3d.geodetic2enu(frame["lat"], frame["lon"], frame["alt"], *origin)
+    t = frame["time"].to_numpy()
+    error = np.hypot(east - np.interp(t, truth["time"], truth["east"]),
+                     north - np.interp(t, truth["time"], truth["north"]))  # fmt: skip
+    return t, error

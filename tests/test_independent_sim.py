@@ -14,13 +14,12 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-import pymap3d
 import pytest
 
 import fgins
 
 sys.path.insert(0, str(Path(__file__).parent))
-from independent_sim import INDUSTRIAL, hilly_drive, write_drive
+from independent_sim import INDUSTRIAL, hilly_drive, horizontal_errors, write_drive
 
 OUTAGE = (100.0, 160.0)
 
@@ -33,16 +32,6 @@ def jittered_drive(tmp_path_factory) -> Path:
     return folder
 
 
-def _horizontal_errors(track, folder: Path) -> tuple[np.ndarray, np.ndarray]:
-    truth = pd.read_csv(folder / "truth.csv")
-    frame = track.to_dataframe()
-    east, north, _ = pymap3d.geodetic2enu(frame["lat"], frame["lon"], frame["alt"], 45.0, 10.0, 100.0)
-    t = frame["time"].to_numpy()
-    error = np.hypot(east - np.interp(t, truth["time"], truth["east"]),
-                     north - np.interp(t, truth["time"], truth["north"]))  # fmt: skip
-    return t, error
-
-
 @pytest.mark.parametrize("method", ["batch", "isam2"])
 def test_ill_conditioned_drive_converges_in_few_iterations(jittered_drive, method):
     dataset = fgins.load(jittered_drive / "imu.csv", jittered_drive / "gnss.csv",
@@ -52,7 +41,7 @@ def test_ill_conditioned_drive_converges_in_few_iterations(jittered_drive, metho
     assert 0.3 < summary["chi2_per_dof"] < 2.0
     if method == "batch":
         assert summary["iterations"] < 50, summary["solver"]
-    t, error = _horizontal_errors(track, jittered_drive)
+    t, error = horizontal_errors(track, jittered_drive)
     inside = (t >= OUTAGE[0]) & (t < OUTAGE[1])
     assert np.sqrt(np.mean(error[~inside] ** 2)) < 0.5
     assert np.sqrt(np.mean(error[inside] ** 2)) < 1.5
@@ -82,7 +71,7 @@ def test_every_10hz_fix_is_used_and_batch_bridges_like_ekf_rts(jittered_drive, s
         assert summary["gnss_epochs_used"] == summary["gnss_epochs"] - summary["gnss_withheld"]
         rms = []
         for track in (batch, fgins.smooth(dataset, "ekf-rts", gnss_outage=[OUTAGE])):
-            t, error = _horizontal_errors(track, folder)
+            t, error = horizontal_errors(track, folder)
             inside = (t >= OUTAGE[0]) & (t < OUTAGE[1])
             rms.append(np.sqrt(np.mean(error[inside] ** 2)))
         ratios.append(rms[0] / rms[1])

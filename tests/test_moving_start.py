@@ -159,7 +159,13 @@ def test_fixes_that_drift_at_rest_do_not_make_a_moving_start(tmp_path):
 # --- at rest, then moving off: the heading from the first straight -------------------------
 
 sys.path.insert(0, str(Path(__file__).parent))
-from independent_sim import INDUSTRIAL, CarProfile, write_drive  # noqa: E402
+from independent_sim import (  # noqa: E402
+    INDUSTRIAL,
+    CarProfile,
+    horizontal_errors,
+    move_fixes,
+    write_drive,
+)
 
 
 def _heading_error(tmp_path, profile, duration: float, seed: int, vehicle: str,
@@ -416,13 +422,7 @@ def _cruising_start_with_multipath(folder: Path, seed: int, times: list[float], 
     )
     write_drive(folder, profile, 90.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
                 gnss_rate=1.0, seed=seed, sigma_h=2.5, sigma_u=4.0)  # fmt: skip
-    gnss = pd.read_csv(folder / "gnss.csv")
-    for at in times:
-        row = int(np.argmin(np.abs(gnss["time"].to_numpy() - at)))
-        e, n, u = pymap3d.geodetic2enu(*gnss.loc[row, ["lat", "lon", "alt"]], 45.0, 10.0, 100.0)
-        moved = pymap3d.enu2geodetic(e + offset_m[0], n + offset_m[1], u, 45.0, 10.0, 100.0)
-        gnss.loc[row, ["lat", "lon", "alt"]] = moved
-    gnss.to_csv(folder / "gnss.csv", index=False, float_format="%.10f")
+    move_fixes(folder, times, offset_m)
     return folder
 
 
@@ -448,18 +448,12 @@ def test_multipath_in_the_first_seconds_does_not_align_a_cruising_car_at_rest(
     folder = _cruising_start_with_multipath(tmp_path / "drive", seed, times, offset_m)
     dataset = fgins.load(folder / "imu.csv", folder / "gnss.csv", config=folder / "cfg.toml",
                          vehicle="car")  # fmt: skip
-    truth = pd.read_csv(folder / "truth.csv")
-    origin = dataset.origin
-    shift = np.array(pymap3d.geodetic2enu(origin.lat, origin.lon, origin.alt, 45.0, 10.0, 100.0))
     outage = (30.0, 60.0)
     for method in ("batch", "ekf-rts", "ekf"):
         config = fgins.configure(dataset, folder / "cfg.toml", vehicle="car")
         track = fgins.smooth(dataset, method, config=config, gnss_outage=[outage])
-        rows = np.clip(np.searchsorted(truth["time"].to_numpy(), track.t - 1e-9), 0, len(truth) - 1)
-        error = np.linalg.norm(
-            track.position[:, :2] + shift[:2] - truth[["east", "north"]].to_numpy()[rows], axis=1
-        )
-        inside = (track.t >= outage[0]) & (track.t < outage[1])
+        t, error = horizontal_errors(track, folder)
+        inside = (t >= outage[0]) & (t < outage[1])
         limit = 10.0 if method == "ekf" else 4.0  # the forward EKF dead-reckons 30 s
         assert np.sqrt(np.mean(error[inside] ** 2)) < limit, method
         assert np.sqrt(np.mean(error[~inside] ** 2)) < 4.0, method

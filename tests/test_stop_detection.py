@@ -23,7 +23,7 @@ import fgins
 from fgins.factors.stationary import speed_confirms_stop
 
 sys.path.insert(0, str(Path(__file__).parent))
-from independent_sim import INDUSTRIAL, CarProfile, write_drive
+from independent_sim import INDUSTRIAL, CarProfile, horizontal_errors, move_fixes, write_drive
 
 OUTAGE = (58.0, 98.0)
 
@@ -124,8 +124,6 @@ def _outlier_in_the_first_stop(folder: Path, seed: int, at_s: float, offset_m: f
     """Rest 12 s, then 8 m/s with two junction turns; fixes without velocity (sigma 2.5 m at
     1 Hz, like a phone or an urban receiver) and one fix of the stop ``offset_m`` east,
     as a multipath jump does."""
-    import pymap3d
-
     profile = CarProfile(
         steps=[(12, 4, 8.0), (70, 5, -3.0), (85, 4, 3.0)],
         turns=[(30, 38, 1.5, np.radians(45)), (55, 63, 1.5, np.radians(-45))],
@@ -133,11 +131,7 @@ def _outlier_in_the_first_stop(folder: Path, seed: int, at_s: float, offset_m: f
     )
     write_drive(folder, profile, 110.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
                 gnss_rate=1.0, seed=seed, sigma_h=2.5, sigma_u=4.0)  # fmt: skip
-    gnss = pd.read_csv(folder / "gnss.csv")
-    row = int(np.argmin(np.abs(gnss["time"].to_numpy() - at_s)))
-    e, n, u = pymap3d.geodetic2enu(*gnss.loc[row, ["lat", "lon", "alt"]], 45.0, 10.0, 100.0)
-    gnss.loc[row, ["lat", "lon", "alt"]] = pymap3d.enu2geodetic(e + offset_m, n, u, 45.0, 10.0, 100.0)
-    gnss.to_csv(folder / "gnss.csv", index=False, float_format="%.10f")
+    move_fixes(folder, [at_s], (offset_m, 0.0))
     return folder
 
 
@@ -155,21 +149,14 @@ def test_an_outlier_among_a_stops_fixes_does_not_cancel_the_stop(tmp_path, seed,
     folder = _outlier_in_the_first_stop(tmp_path / "drive", seed, at_s, offset_m)
     dataset = fgins.load(folder / "imu.csv", folder / "gnss.csv", config=folder / "cfg.toml",
                          vehicle="car")  # fmt: skip
-    import pymap3d
-
     outage = [(40.0, 75.0)]
-    truth = pd.read_csv(folder / "truth.csv")
-    # The run's frame is centred on its first fix; the truth's on (45, 10, 100).
-    origin = dataset.origin
-    shift = np.array(pymap3d.geodetic2enu(origin.lat, origin.lon, origin.alt, 45.0, 10.0, 100.0))
     rms = {}
     for method in ("batch", "ekf-rts"):
         config = fgins.configure(dataset, folder / "cfg.toml", vehicle="car")
         track = fgins.smooth(dataset, method, config=config, gnss_outage=outage)
-        rows = np.clip(np.searchsorted(truth["time"].to_numpy(), track.t - 1e-9), 0, len(truth) - 1)
-        error = track.position[:, :2] + shift[:2] - truth[["east", "north"]].to_numpy()[rows]
-        inside = (track.t >= outage[0][0]) & (track.t < outage[0][1])
-        rms[method] = float(np.sqrt(np.mean(np.sum(error[inside] ** 2, axis=1))))
+        t, error = horizontal_errors(track, folder)
+        inside = (t >= outage[0][0]) & (t < outage[0][1])
+        rms[method] = float(np.sqrt(np.mean(error[inside] ** 2)))
         if method == "batch":
             assert track.info["zupt_keyframes"] >= 5, track.info["zupt_keyframes"]
     # The same drive's fixes are metre-level: a bridged outage is a few metres at most.
