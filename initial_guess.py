@@ -54,6 +54,6 @@ def guess_config(config: RunConfig) -> RunConfig:
 
     Huber-weighted updates bound what a gross outlier can do to the guess; a hard innovation
     gate would be worse: once it rejects a few fixes the filter can lock out. (The values
-    graph.smoother.initial_values has always used: huber_k = 2, no Cauchy kernel.)
+    graph.start.initial_values has always used: huber_k = 2, no Cauchy kernel.)
     """
     return replace(config, gnss=replace(config.gnss, huber_k=2.0, cauchy_k=None))

@@ -231,7 +231,7 @@ def gate_epochs(
 
 
 # 3-D whitened residual norm above which a fix is a "large residual": chi-square, 3 dof,
-# 99.9 % (the level graph/smoother.py reports at), so 0.1 % of good fixes exceed it.
+# 99.9 % (the level graph/reports.py reports at), so 0.1 % of good fixes exceed it.
 LARGE_RESIDUAL_SIGMA = 4.03
 LARGE_RESIDUAL_EXPECTED = 0.001
 

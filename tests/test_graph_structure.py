@@ -15,7 +15,8 @@ import pytest
 from fgins.config import load_config
 from fgins.datatypes import GnssData, OdometerData
 from fgins.graph.problem import build_problem
-from fgins.graph.smoother import _callback_factors, _full_graph, _nonlinear_graph, initial_values
+from fgins.graph.solve import callback_factors, full_graph, nonlinear_graph
+from fgins.graph.start import initial_values
 from fgins.sim.scenarios import SCENARIOS
 
 
@@ -41,8 +42,8 @@ def test_no_python_callback_factor_and_linear_factor_count(wheel):
     for duration in (40.0, 80.0):
         problem, values = _car_problem(duration, wheel)
         assert problem.has_odometer == wheel
-        graph = _full_graph(problem, _nonlinear_graph(problem, None), values)
-        assert _callback_factors(graph) == 0
+        graph = full_graph(problem, nonlinear_graph(problem, None), values)
+        assert callback_factors(graph) == 0
         assert not any(
             isinstance(graph.at(i), gtsam.CustomFactor) for i in range(graph.size())
         )

@@ -10,7 +10,7 @@ import numpy as np
 from gtsam.symbol_shorthand import X
 
 from fgins.config import load_config
-from fgins.graph import smoother
+from fgins.graph import isam2
 from fgins.graph.problem import build_problem
 from fgins.sim.scenarios import SCENARIOS
 
@@ -19,20 +19,20 @@ def _run(run, window_s: float, monkeypatch):
     """(final positions, online positions, marginalisations, (final graph, final values)) of
     iSAM2 with this window."""
     calls = []
-    marginalise = smoother._isam2_marginalize
+    marginalise = isam2._isam2_marginalize
 
     def counted(*args):
         calls.append(args[-1])
         marginalise(*args)
 
-    monkeypatch.setattr(smoother, "ISAM2_WINDOW_S", window_s)
-    monkeypatch.setattr(smoother, "_isam2_marginalize", counted)
+    monkeypatch.setattr(isam2, "ISAM2_WINDOW_S", window_s)
+    monkeypatch.setattr(isam2, "_isam2_marginalize", counted)
     dataset = run.dataset
     config = load_config(dataset_imu=dataset.imu_config, dataset_gnss=dataset.gnss_config)
     problem = build_problem(dataset, config, progress=False)
-    isam, final, online, *_ = smoother._run_isam2(problem, False)
+    isam, final, online, *_ = isam2.run_isam2(problem, False)
     position = np.array([final.atPose3(X(k)).translation() for k in range(problem.n_keyframes)])
-    graph = smoother._compact(isam.getFactorsUnsafe())
+    graph = isam2.compact_graph(isam.getFactorsUnsafe())
     return position, online.position, len(calls), (graph, final)
 
 

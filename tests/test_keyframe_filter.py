@@ -14,9 +14,11 @@ import pytest
 from gtsam.symbol_shorthand import B, V, X
 
 from fgins.config import config_for_dataset, load_config
-from fgins.graph import smoother
+from fgins.graph import start
 from fgins.graph.keyframe_filter import keyframe_filter
 from fgins.graph.problem import build_problem
+from fgins.graph.solution import marginal_function
+from fgins.graph.solve import solve_from
 from fgins.pipeline import run_method
 from fgins.sim.scenarios import SCENARIOS
 from fgins.tests.drive_fixtures import turned_imu
@@ -69,9 +71,9 @@ def test_keyframe_filter_is_a_good_filter_and_ends_where_the_smoother_ends(name,
     # (3) At the last keyframe the filter and the smoother of the same graph agree within
     # three of the smoother's sigmas (a filter's last state is the smoother's, up to the
     # linearisation points).
-    report, result, graph = smoother._solve_from(problem, filtered)
+    report, result, graph = solve_from(problem, filtered)
     assert report.converged
-    marginal = smoother._marginal_function(graph, result)
+    marginal = marginal_function(graph, result)
     position_sigma = np.sqrt(np.diag(marginal(X(last))[3:, 3:]))
     velocity_sigma = np.sqrt(np.diag(marginal(V(last))))
     smoothed = result.atPose3(X(last))
@@ -89,7 +91,7 @@ def test_a_failed_guess_filter_falls_back_to_dead_reckoning_and_says_so(monkeypa
     def fail(problem, progress=False):
         raise FginsError("the initial-guess filter failed at keyframe 3: singular update")
 
-    monkeypatch.setattr(smoother, "keyframe_filter", fail)
+    monkeypatch.setattr(start, "keyframe_filter", fail)
     run = SCENARIOS["highway"](seed=4, duration_s=60)
     config = config_for_dataset(run.dataset)
     batch = run_method(run.dataset, config, "batch", progress=False)

@@ -1,0 +1,162 @@
+"""Batch smoothing: Levenberg-Marquardt over the whole drive from the best start, restarts
+from the other candidates when a fit cannot be trusted, stops decided on a first solution,
+covariances from the marginals.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import gtsam
+import numpy as np
+
+from fgins.datatypes import FginsError, Trajectory
+from fgins.graph.isam2 import run_isam2
+from fgins.graph.problem import Problem, bias_estimates
+from fgins.graph.reports import (
+    extra_states,
+    gnss_report,
+    lever_arm_report,
+    merge_info,
+    solver_report,
+    vehicle_fit_report,
+)
+from fgins.graph.solution import (
+    covariance_report,
+    marginal_covariances,
+    marginal_function,
+    states_from_values,
+    to_trajectory,
+)
+from fgins.graph.solve import (
+    SolveReport,
+    callback_factors,
+    fail_if_diverged,
+    finish_report,
+    full_graph,
+    is_suspect,
+    nonlinear_graph,
+    solve_from,
+    solve_in_rounds,
+    stop_speeds,
+)
+from fgins.graph.start import InitialGuess, Start, dead_reckoning_guess, initial_values
+
+
+def _fall_back(
+    problem: Problem,
+    source: str,
+    others: list[Start],
+    report: SolveReport,
+    result: gtsam.Values,
+    graph: gtsam.NonlinearFactorGraph,
+) -> tuple[SolveReport, gtsam.Values, gtsam.NonlinearFactorGraph]:
+    """The first start led LM to an unconverged or inconsistent fit (e.g. the filter
+    diverged in an outage, or with sparse GNSS): try the other candidate guesses, then
+    GNSS-reset dead reckoning, then iSAM2 (whose incremental relinearisation follows a poor
+    start far better), and keep the first consistent fit, else the one with the least error.
+    Says which it took."""
+    first = report
+
+    def dead_reckoning() -> gtsam.Values:
+        zeros = np.zeros((problem.n_keyframes, 3))
+        problem.preintegrate_all(zeros, zeros, False)
+        return dead_reckoning_guess(problem)
+
+    def isam2() -> gtsam.Values:
+        return run_isam2(problem, False, online_covariance=False, relinearize_skip=1)[1]
+
+    best = (report, result, graph, source)
+    restarts: list[tuple[str, Callable[[], gtsam.Values]]] = [
+        (other.source, lambda other=other: other.take(problem)) for other in others
+    ]
+    restarts += [("dead reckoning", dead_reckoning), ("iSAM2", isam2)]
+    for name, start in restarts:
+        if name == source:
+            continue
+        try:
+            candidate = (*solve_from(problem, start()), name)
+        except FginsError:
+            continue  # this start cannot even be computed: try the next
+        if candidate[0].final_error < best[0].final_error:
+            best = candidate
+        if not is_suspect(candidate[0]):
+            break
+    report, result, graph, taken = best
+    # The preintegration must be the one about the kept solution's biases.
+    bias = bias_estimates(result, problem.n_keyframes)
+    problem.preintegrate_all(bias[:, :3], bias[:, 3:], False)
+    if taken != source:
+        report.initial_error = first.initial_error
+        report.iterations += first.iterations
+        report.rounds += first.rounds
+        report.fallback = (
+            f"the {source} initial guess gave an unconverged or inconsistent fit "
+            f"(chi2/dof {first.chi2_per_dof:.1f}); restarted from {taken}"
+        )
+        graph = full_graph(problem, nonlinear_graph(problem, None), result)
+        finish_report(report, graph, result)
+    return report, result, graph
+
+
+def smooth_batch(
+    problem: Problem, progress: bool = True, initial_guess: InitialGuess | None = None
+) -> Trajectory:
+    """Levenberg-Marquardt over the whole drive, covariances from the marginals.
+
+    With ZUPT on, two passes: the first solves without zero-velocity factors; stops are then
+    the quiet-IMU keyframes where that solution's speed is low, and the second pass adds
+    their ZUPTs. Deciding stops from the initial guess instead would let a guess that is
+    wrong in an outage plant a false stop, which no optimiser recovers from.
+    """
+    started = time.perf_counter()
+    start, others = initial_values(problem, initial_guess, progress)
+    source = start.source
+    report, result, graph = solve_from(problem, start.values)
+    if is_suspect(report):
+        report, result, graph = _fall_back(problem, source, others, report, result, graph)
+    report.start = source  # a restart says so in report.fallback
+    if problem.config.smoother.zupt and problem.stop_candidates.any():
+        speeds = stop_speeds(problem, graph, result)
+        problem.zupt_keyframes.clear()
+        if np.isfinite(speeds).any():
+            zupt_report = SolveReport(solver="batch LM", initial_error=report.initial_error)
+            result, graph = solve_in_rounds(problem, result, speeds, zupt_report)
+            report.iterations += zupt_report.iterations
+            report.rounds += zupt_report.rounds
+            report.repreintegrated += zupt_report.repreintegrated
+            report.converged = zupt_report.converged
+            finish_report(report, graph, result)
+    fail_if_diverged(report)
+    if not report.converged:
+        raise FginsError(
+            f"batch: Levenberg-Marquardt did not converge ({report.iterations} iterations in "
+            f"{report.rounds} rounds, error {report.initial_error:.4g} -> "
+            f"{report.final_error:.4g}); no output written. Try --method isam2, or check the "
+            "IMU noise settings"
+        )
+    solved = time.perf_counter()
+    marginal = marginal_function(graph, result)
+    covariances = marginal_covariances(problem, marginal, marginal, result, progress)
+    states = states_from_values(problem, result, covariances)
+    trajectory = to_trajectory(problem, states, "batch", smoothed=True)
+    trajectory.timings.update(
+        {"optimize": solved - started, "covariance": time.perf_counter() - solved}
+    )
+    merge_info(
+        trajectory,
+        gnss_report(problem, result),
+        lever_arm_report(problem, graph, result),
+        extra_states(result),
+        solver_report(report),
+        vehicle_fit_report(problem, result),
+        covariance_report(covariances),
+        {
+            "initial_guess": source,
+            "zupt_keyframes": len(problem.zupt_keyframes),
+            "restarted_from_isam2": report.fallback is not None,
+            "python_callback_factors": callback_factors(graph),
+        },
+    )
+    return trajectory

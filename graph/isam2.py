@@ -1,0 +1,557 @@
+"""Incremental smoothing: one iSAM2 update per keyframe over a sliding window, then a final
+pass over the whole graph. Yields the final (smoothed) and the online (filtered) estimate:
+each keyframe's state as it was right after its own update, what a real-time system would
+have had.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import deque
+from collections.abc import Callable
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import B, V, X
+
+from fgins.datatypes import FginsError, Trajectory
+from fgins.factors import odometer as odometer_model
+from fgins.factors import stationary
+from fgins.factors.values import put_bias, put_double, put_pose, put_vector
+from fgins.graph.output import KeyframeStates
+from fgins.graph.problem import Problem
+from fgins.graph.reports import (
+    extra_states,
+    gnss_report,
+    lever_arm_report,
+    merge_info,
+    solver_report,
+    vehicle_fit_report,
+)
+from fgins.graph.solution import (
+    covariance_report,
+    marginal_covariances,
+    marginal_function,
+    nav_covariances,
+    states_from_values,
+    to_trajectory,
+)
+from fgins.graph.solve import (
+    CHI2_WARN,
+    REPREINTEGRATE_ACCEL_M_S2,
+    REPREINTEGRATE_GYRO_RAD_S,
+    SolveReport,
+    callback_factors,
+    check_finite,
+    degrees_of_freedom,
+    error_blame,
+    fail_if_diverged,
+    full_graph,
+    is_suspect,
+    linearisation_moved,
+    nonlinear_graph,
+    stop_speeds,
+)
+
+RELINEARIZE_SKIP = 10  # GTSAM's default: relinearisation checks every 10 updates
+ISAM2_WILDFIRE_THRESHOLD = 0.01  # see _run_isam2_with
+ISAM2_WINDOW_S = 10.0  # keyframes the running iSAM2 holds: see _Window
+ISAM2_MARGINALISE_EVERY = RELINEARIZE_SKIP  # updates (with the relinearisation ones)
+ISAM2_FINAL_ROUNDS = 5  # rebuilds of the whole graph at most in the final pass
+ISAM2_SETTLED_RELATIVE_ERROR = 1e-3  # a final Gauss-Newton step that gains less: converged
+
+
+class _IndeterminateUpdate(Exception):
+    pass
+
+
+def run_isam2(
+    problem: Problem,
+    progress: bool,
+    online_covariance: bool = True,
+    relinearize_skip: int = RELINEARIZE_SKIP,
+):
+    """Incremental iSAM2, one update per keyframe.
+
+    Returns (isam, final values, online values, online covariances, report, (update times,
+    preintegration times) per keyframe):
+    the online states and covariances are each keyframe's right after its own update.
+    Cholesky first (fast); if it calls an update indeterminate (tight bias random walks
+    against loose bias priors: the conditioning, not the problem, is at fault) the run
+    restarts with QR. Anything else that fails is a clear error.
+    """
+    try:
+        return _run_isam2_with(problem, progress, online_covariance, "CHOLESKY", relinearize_skip)
+    except _IndeterminateUpdate:
+        return _run_isam2_with(problem, progress, online_covariance, "QR", relinearize_skip)
+
+
+def _guarded(factorization: str, failure: str, call: Callable[[], object]):
+    """``call()``; a GTSAM failure restarts a Cholesky run on QR (_IndeterminateUpdate),
+    and on QR is an error: ``failure``, then GTSAM's first line."""
+    try:
+        return call()
+    except RuntimeError as exc:
+        if factorization == "CHOLESKY":
+            raise _IndeterminateUpdate from None
+        raise FginsError(f"{failure}: {_first_line(exc)}") from None
+
+
+def _isam2_step(isam: gtsam.ISAM2, factorization: str, what: str, *args, **kwargs):
+    return _guarded(
+        factorization, f"iSAM2: {what} failed even with QR factorization",
+        lambda: isam.update(*args, **kwargs),
+    )  # fmt: skip
+
+
+class _Window:
+    """The keyframes the running iSAM2 holds: about the last ``span_s`` seconds of them.
+
+    GTSAM's iSAM2 update costs O(cliques) however little changes (the temporary Bayes tree
+    of the re-eliminated top is destroyed by a walk over every clique below it, orphans
+    included, i.e. the whole tree): 60 min, 200 Hz, 1 Hz keyframes: a plain update 0.4 ms
+    at the start, 1.6 ms at the end; update p99 10 ms in the first quarter, 23 ms in the
+    last. So older keyframes are marginalised out of the running iSAM2 (their information
+    stays, as GTSAM's linear marginal on the window's oldest states) once their estimate is
+    kept: the final pass then smooths the whole graph from those estimates
+    (_run_isam2_with). The online estimate of the newest keyframe hardly changes (KITTI:
+    keyframe positions within 9 mm of the unbounded run's, rms 1 mm): only states older
+    than the window are no longer relinearised online.
+
+    ``marginalizeLeaves`` needs the keys to be leaves of the Bayes tree (GTSAM's release
+    build does not check it), which the incremental orderings do not promise. So every
+    ``every`` updates the whole window is re-eliminated in one update, the leaving keys
+    first (constrained ordering), and only then marginalised: a leaf by construction.
+    That update sets the p99 (60 min: 5.4 ms with a 10 s window, 8.8 ms with 30 s).
+    """
+
+    def __init__(self, span_s: float, every: int, shared: frozenset[int]) -> None:
+        self.span_s = span_s
+        self.every = every
+        self.shared = shared  # keys of every keyframe (never marginalised): ordered last
+        self._keyframes: deque[tuple[float, list[int]]] = deque()  # (time, own keys)
+
+    def add(self, t: float, keys: list[int]) -> None:
+        self._keyframes.append((t, [key for key in keys if key not in self.shared]))
+
+    def due(self, k: int, t: float) -> bool:
+        """Does update k (at time t) marginalise keyframes out?"""
+        return k % self.every == self.every - 1 and self._keyframes[0][0] < t - self.span_s
+
+    def marginalisation(self, t: float) -> tuple[list[int], gtsam.KeyGroupMap, gtsam.KeyList]:
+        """(leaving keys, ordering groups, keys to re-eliminate) for the update at time t
+        that has just added the newest keyframe; the leaving keyframes leave the window."""
+        leaving: list[int] = []
+        while self._keyframes[0][0] < t - self.span_s:
+            leaving += self._keyframes.popleft()[1]
+        *kept, newest = self._keyframes
+        groups = gtsam.KeyGroupMap()
+        everything = gtsam.KeyList()  # the window's keys already in the tree
+        # CCOLAMD wants the groups numbered 0, 1, ... without gaps.
+        group = 0
+        for keys, in_tree in (
+            (leaving, True), ([key for _, own in kept for key in own], True),
+            ([*newest[1], *self.shared], False),
+        ):  # fmt: skip
+            for key in keys:
+                groups.insert2(key, group)
+                if in_tree:
+                    everything.push_back(key)
+            group += bool(keys)
+        return leaving, groups, everything
+
+
+def _isam2_speed_sigma(
+    problem: Problem, isam: gtsam.ISAM2, k: int, predicted: gtsam.NavState
+) -> float | None:
+    """The sigma of the speed predicted at quiet keyframe k: that of V(k-1) in the running
+    iSAM2 (one marginal, asked only where it decides a stop); None where not needed or
+    not available (the speed cap alone decides then)."""
+    speed = float(np.linalg.norm(predicted.velocity()))
+    if not (
+        problem.config.smoother.zupt
+        and problem.stop_candidates[k]
+        and speed >= stationary.STOP_SPEED_FLOOR_M_PER_S
+        and problem.speed_confirms_stop(speed, None)
+    ):
+        return None
+    try:
+        return stationary.speed_sigma(isam.marginalCovariance(V(k - 1)))
+    except RuntimeError:
+        return None
+
+
+def _run_isam2_with(
+    problem: Problem,
+    progress: bool,
+    online_covariance: bool,
+    factorization: str,
+    relinearize_skip: int,
+):
+    from tqdm import tqdm
+
+    problem.zupt_keyframes.clear()
+    params = gtsam.ISAM2Params()
+    params.setRelinearizeThreshold(problem.config.smoother.isam2_relinearize_threshold)
+    params.relinearizeSkip = relinearize_skip
+    # Look for variables to relinearise from the root down, only into cliques whose
+    # variables moved beyond the threshold (GTSAM's partial check), not over all K of them:
+    # the full check made every 10th update O(K), so the p99 grew with the drive (20 min,
+    # 200 Hz: update p99 53 -> 22 ms, last quarter 79 -> 20 ms; online and final positions
+    # the same to 0.1 mm).
+    params.enablePartialRelinearizationCheck = True
+    # The per-update estimate is read at the newest keyframe only, which sits in the root
+    # clique: the back-substitution need not descend into cliques whose solution changed by
+    # less than this (GTSAM's default 0.001 sent it far back on every update: 20 min, 200
+    # Hz: update p50 3.4 -> 1.7 ms, same online and final positions). Final estimates use a
+    # full back-substitution (_estimate).
+    params.setOptimizationParams(gtsam.ISAM2GaussNewtonParams(ISAM2_WILDFIRE_THRESHOLD))
+    params.setFactorization(factorization)
+    isam = gtsam.ISAM2(params)
+    window = _Window(ISAM2_WINDOW_S, ISAM2_MARGINALISE_EVERY, problem.shared_keys)
+    left = gtsam.Values()  # estimates of the keyframes marginalised out, for the final pass
+    times = problem.segments.times
+    n = problem.n_keyframes
+    online = {name: np.full((n, 3, 3), np.nan) for name in ("position", "velocity", "attitude")}
+    # The online states (right after each keyframe's own update), kept in arrays: inserting
+    # into a gtsam.Values from Python costs up to ~0.2 ms a value (overload resolution).
+    online_states = {
+        "rotation": np.empty((n, 3, 3)), "position": np.empty((n, 3)),
+        "velocity": np.empty((n, 3)), "accel_bias": np.empty((n, 3)),
+        "gyro_bias": np.empty((n, 3)),
+    }  # fmt: skip
+    align = problem.alignment
+    state = gtsam.NavState(gtsam.Rot3(align.rotation), align.position, align.velocity)
+    bias = gtsam.imuBias.ConstantBias()
+    scale_error = 0.0
+    nonlinear = gtsam.NonlinearFactorGraph()  # every C++ factor added, for the final pass
+    imu_index: dict[int, int] = {}  # interval -> index of its IMU factor in ``nonlinear``
+    linear_point = gtsam.Values()  # where the linearised factors were made
+    update_s = np.zeros(n)
+    preintegrate_s = np.zeros(n)
+    report = SolveReport(solver="iSAM2")
+    for k in tqdm(range(n), desc="iSAM2", unit="kf", disable=not progress, leave=False):
+        if k > 0:
+            # Preintegrate about the newest bias estimate: what a real-time system would do,
+            # sample by sample as they arrive between keyframes; so it is timed apart from
+            # the update (which starts when keyframe k arrives).
+            started = time.perf_counter()
+            problem.preintegrate(k - 1, bias)
+            preintegrate_s[k] = time.perf_counter() - started
+        step_started = time.perf_counter()
+        graph = problem.prior_factors() if k == 0 else gtsam.NonlinearFactorGraph()
+        new_values = gtsam.Values()
+        speed_sigma = None
+        if k > 0:
+            state = problem.predict(k - 1, state, bias)
+            speed_sigma = _isam2_speed_sigma(problem, isam, k, state)
+        keyframe = problem.keyframe_factors(
+            k, float(np.linalg.norm(state.velocity())), speed_sigma=speed_sigma
+        )
+        if k > 0:
+            imu_index[k - 1] = nonlinear.size() + graph.size()  # the IMU factor comes first
+        graph.push_back(keyframe)
+        nonlinear.push_back(graph)
+        pose, velocity = state.pose(), state.velocity()
+        put_pose(new_values, X(k), pose)
+        put_vector(new_values, V(k), velocity)
+        put_bias(new_values, B(k), bias)  # the antenna velocity's lever-arm term needs it
+        problem.insert_extra_values(k, new_values)
+        point = gtsam.Values(new_values)  # a C++ copy: cheaper than the typed inserts again
+        if problem.has_odometer and k > 0:
+            put_double(point, odometer_model.scale_key(), scale_error)
+        graph.push_back(problem.linear_factors(point, np.array([k])))
+        put_pose(linear_point, X(k), pose)
+        put_vector(linear_point, V(k), velocity)
+        window.add(float(times[k]), list(new_values.keys()))
+        leaving: list[int] = []
+        if window.due(k, float(times[k])):
+            leaving, groups, everything = window.marginalisation(float(times[k]))
+            _isam2_step(
+                isam, factorization, f"update at keyframe {k}", graph, new_values,
+                constrainedKeys=groups, extraReelimKeys=everything,
+            )  # fmt: skip
+        else:
+            _isam2_step(isam, factorization, f"update at keyframe {k}", graph, new_values)
+        try:
+            pose = isam.calculateEstimatePose3(X(k))
+            velocity = isam.calculateEstimateVector(V(k))
+            bias = isam.calculateEstimateConstantBias(B(k))
+            if problem.has_odometer:
+                scale_error = isam.calculateEstimateDouble(odometer_model.scale_key())
+        except RuntimeError as exc:
+            if factorization == "CHOLESKY":
+                raise _IndeterminateUpdate from None
+            raise FginsError(
+                f"iSAM2: estimate at keyframe {k} (t = {times[k] - problem.dataset.t0:.1f} s) "
+                f"failed even with QR factorization: {_first_line(exc).rstrip('.')}; the online "
+                "solution lost track of a state the data observe only later (e.g. a gyro-free "
+                "IMU with sparse GNSS); no output written. Try --method batch"
+            ) from None
+        state = gtsam.NavState(pose, velocity)
+        online_states["rotation"][k] = pose.rotation().matrix()
+        online_states["position"][k] = pose.translation()
+        online_states["velocity"][k] = velocity
+        online_states["accel_bias"][k] = bias.accelerometer()
+        online_states["gyro_bias"][k] = bias.gyroscope()
+        if online_covariance:
+            try:
+                # One joint marginal of the newest pose and velocity (both in the root
+                # clique): ~30 % cheaper than two marginalCovariance calls.
+                joint = isam.jointMarginalCovariance(gtsam.KeyVector([X(k), V(k)]))
+                attitude, position = nav_covariances(joint.at(X(k), X(k)), pose.rotation().matrix())
+                online["attitude"][k], online["position"][k] = attitude, position
+                online["velocity"][k] = joint.at(V(k), V(k))
+            except RuntimeError:
+                if factorization == "CHOLESKY":
+                    raise _IndeterminateUpdate from None
+                # QR could not resolve this marginal either: left NaN (reported as unknown).
+        if leaving:
+            left.insert(isam.calculateEstimate(leaving))
+            _isam2_marginalize(isam, factorization, leaving)
+        update_s[k] = time.perf_counter() - step_started
+    # Final smoothing: the linearised vehicle factors (made at each keyframe's prediction)
+    # and the preintegration (about the online bias) are redone at the smoothed estimate.
+    # Removing hundreds of factors from a running iSAM2 costs O(K^2) in GTSAM, so the
+    # refreshed graph goes into a new iSAM2 started at the old one's estimate. Once
+    # keyframes have left the window, the first round always rebuilds: the running iSAM2
+    # holds the window only, the marginalised keyframes at their estimates when they left.
+    # A round's Gauss-Newton step is repeated while it still lowers the error: from the
+    # window's estimates of the marginalised keyframes (fixed once they left) the first
+    # step can fall short where the attitude was still poorly known (uav-loop-baro, 120 s,
+    # 20 s window: error 18982 after it, 247 after a second, LM's 173.73 after the fourth).
+    # Windowed, the highway and KITTI need three rebuilds (the third only confirms).
+    windowed = not left.empty()
+    step_from = math.inf  # the full graph's error where the last rebuild started
+    for round_ in range(ISAM2_FINAL_ROUNDS):
+        estimate = _estimate(isam, factorization)
+        if windowed and round_ == 0:
+            estimate.insert(left)
+        redone = problem.repreintegrate(
+            estimate, REPREINTEGRATE_GYRO_RAD_S, REPREINTEGRATE_ACCEL_M_S2
+        )
+        for i in redone:
+            nonlinear.replace(imu_index[int(i)], problem.imu_factor(int(i)))
+        report.repreintegrated += len(redone)
+        has_linear = problem.has_linear_factors
+        settled = not math.isfinite(step_from) or (
+            step_from - isam.getFactorsUnsafe().error(estimate)
+            < ISAM2_SETTLED_RELATIVE_ERROR * step_from
+        )
+        if (
+            not (windowed and round_ == 0)
+            and not len(redone)
+            and settled
+            and not (has_linear and linearisation_moved(problem, linear_point, estimate))
+        ):
+            break
+        graph = gtsam.NonlinearFactorGraph()
+        graph.push_back(nonlinear)
+        graph.push_back(problem.linear_factors(estimate))
+        linear_point = estimate
+        step_from = graph.error(estimate)
+        isam = gtsam.ISAM2(params)
+        _isam2_step(isam, factorization, "final relinearisation", graph, estimate)
+        report.rounds += 1
+    for _ in range(2):
+        _isam2_step(isam, factorization, "final update")
+    if problem.zupt_keyframes:
+        isam = _isam2_redecide_stops(problem, isam, params, factorization, report)
+    final = _estimate(isam, factorization)
+    factors = compact_graph(isam.getFactorsUnsafe())
+    report.initial_error = float("nan")
+    report.final_error = factors.error(final)
+    check_finite(report.final_error, "at the final estimate", "iSAM2")
+    report.dof = degrees_of_freedom(factors, final)
+    if report.chi2_per_dof > CHI2_WARN:
+        report.blame = error_blame(factors, final)
+    report.iterations = n
+    online_keyframes = KeyframeStates(
+        **online_states,
+        position_cov=online["position"],
+        velocity_cov=online["velocity"],
+        attitude_cov=online["attitude"],
+    )
+    return isam, final, online_keyframes, online, report, (update_s, preintegrate_s)
+
+
+def _isam2_redecide_stops(
+    problem: Problem,
+    isam: gtsam.ISAM2,
+    params: gtsam.ISAM2Params,
+    factorization: str,
+    report: SolveReport,
+) -> gtsam.ISAM2:
+    """The online pass decided each stop from its causal prediction: dead reckoning through
+    an outage, the predicted speed of a car creeping at 1.2 m/s can drift below the floor
+    where a quiet IMU is taken as a stop, and the false stops then freeze the track (20 m
+    off). The final estimate re-decides them as the batch does: solve the whole graph
+    without stops, keep the quiet keyframes whose smoothed speed and its sigma confirm one
+    (:func:`stop_speeds`), and re-solve with those. Unchanged stops keep ``isam``."""
+    online_stops = set(problem.zupt_keyframes)
+    estimate = _estimate(isam, factorization)
+    free, free_estimate, _ = _isam2_solve_full(problem, None, estimate, params, factorization)
+    speeds = stop_speeds(problem, free, free_estimate)
+    confirmed = {int(k) for k in np.flatnonzero(np.isfinite(speeds))}
+    if confirmed == online_stops:
+        problem.zupt_keyframes = online_stops
+        return isam
+    problem.info["stops_redecided"] = (
+        f"stops re-decided on the smoothed solution: {len(online_stops)} taken online, "
+        f"{len(online_stops - confirmed)} dropped, {len(confirmed - online_stops)} added "
+        "(the online output keeps its own)"
+    )
+    report.rounds += 2
+    return _isam2_solve_full(problem, speeds, free_estimate, params, factorization)[2]
+
+
+def _isam2_solve_full(
+    problem: Problem,
+    speeds: np.ndarray | None,
+    start: gtsam.Values,
+    params: gtsam.ISAM2Params,
+    factorization: str,
+) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, gtsam.ISAM2]:
+    """The whole graph (stops where ``speeds`` confirm them) solved by a new iSAM2 from
+    ``start``, the vehicle constraints relinearised until they settle. Returns (the graph
+    at the solution, the solution, the iSAM2)."""
+    estimate = start
+    for _ in range(ISAM2_FINAL_ROUNDS):
+        graph = full_graph(problem, nonlinear_graph(problem, speeds), estimate)
+        isam = gtsam.ISAM2(params)
+        _isam2_step(isam, factorization, "stop re-decision", graph, estimate)
+        for _ in range(2):
+            _isam2_step(isam, factorization, "stop re-decision")
+        moved = problem.has_linear_factors and linearisation_moved(
+            problem, estimate, _estimate(isam, factorization)
+        )
+        estimate = _estimate(isam, factorization)
+        if not moved:
+            break
+    graph = full_graph(problem, nonlinear_graph(problem, speeds), estimate)
+    return graph, estimate, isam
+
+
+def _isam2_marginalize(isam: gtsam.ISAM2, factorization: str, keys: list[int]) -> None:
+    leaves = gtsam.KeyList()
+    for key in keys:
+        leaves.push_back(key)
+    _guarded(
+        factorization, "iSAM2: marginalising old keyframes failed",
+        lambda: isam.marginalizeLeaves(leaves),
+    )  # fmt: skip
+
+
+def _first_line(exc: Exception) -> str:
+    """GTSAM's messages run over many lines; the CLI promises one."""
+    lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
+    return " ".join(lines[:2]) if lines else type(exc).__name__
+
+
+def _estimate(isam: gtsam.ISAM2, factorization: str) -> gtsam.Values:
+    """Every variable's estimate by a full back-substitution (not the wildfire one that
+    the per-update estimates use, which leaves old variables' small changes unapplied)."""
+    return _guarded(
+        factorization, "iSAM2: the estimate could not be computed", isam.calculateBestEstimate
+    )
+
+
+def smooth_isam2(
+    problem: Problem, progress: bool = True, *, online_first: bool = False
+) -> tuple[Trajectory, DeferredTrajectory]:
+    """One iSAM2 update per keyframe. Returns (final smoothed, online filtered) trajectories,
+    the second made on first use (``online_first``: the other way round)."""
+    started = time.perf_counter()
+    isam, result, online_states, online, report, update_s = run_isam2(problem, progress)
+    if is_suspect(report):
+        # Relinearising at every update follows a poor start (large biases) much better.
+        retry = run_isam2(problem, progress, relinearize_skip=1)
+        if retry[4].final_error < report.final_error:
+            isam, result, online_states, online, report, update_s = retry
+            report.fallback = "relinearised at every update (the default schedule diverged)"
+    fail_if_diverged(report)
+    incremental = time.perf_counter()
+    report.notes = []
+    # Final marginals through one batch factorisation of the final graph: iSAM2's own
+    # per-key marginals after the final relinearisation can walk far up the tree (O(K) each).
+    factors = compact_graph(isam.getFactorsUnsafe())
+    update_s, preintegrate_s = update_s
+    # Per keyframe: the update once the keyframe is there (factors, iSAM2 update, estimate,
+    # online covariance), and apart from it the preintegration of the interval's samples,
+    # which a real-time system does as they arrive (~5 us a sample in GTSAM's binding).
+    timings = {
+        "incremental": incremental - started,
+        "isam2_update_s": update_s.tolist(),
+        "isam2_preintegrate_s": preintegrate_s.tolist(),
+    }
+
+    def make_final() -> Trajectory:
+        marginal = marginal_function(factors, result)
+        covariances = marginal_covariances(problem, marginal, marginal, result, progress)
+        final = to_trajectory(
+            problem, states_from_values(problem, result, covariances), "isam2", smoothed=True
+        )
+        merge_info(
+            final,
+            gnss_report(problem, result),
+            lever_arm_report(problem, factors, result),
+            extra_states(result),
+            solver_report(report),
+            vehicle_fit_report(problem, result),
+            covariance_report(covariances),
+            {
+                "python_callback_factors": callback_factors(factors),
+                "zupt_keyframes": len(problem.zupt_keyframes),
+            },
+        )
+        final.timings.update({**timings, "final": time.perf_counter() - incremental})
+        return final
+
+    def make_online() -> Trajectory:
+        filtered = to_trajectory(problem, online_states, "isam2-online", smoothed=False)
+        merge_info(
+            filtered,
+            covariance_report(online),
+            {"solver": "iSAM2 online (filtered)", "fallback": report.fallback},
+        )
+        filtered.timings.update(timings)
+        return filtered
+
+    if online_first:
+        return make_online(), DeferredTrajectory(make_final)
+    return make_final(), DeferredTrajectory(make_online)
+
+
+class DeferredTrajectory:
+    """A trajectory made on first use: the other estimate of an iSAM2 run (online beside the
+    final one, or the reverse). Each is a full IMU-rate trajectory (~0.4 KB per IMU sample),
+    so a run makes only the one asked for until the other is used. Attribute access
+    forwards to the trajectory."""
+
+    def __init__(self, build: Callable[[], Trajectory]) -> None:
+        self._build: Callable[[], Trajectory] | None = build
+        self._value: Trajectory | None = None
+
+    def get(self) -> Trajectory:
+        if self._value is None:
+            assert self._build is not None
+            self._value, self._build = self._build(), None
+        return self._value
+
+    def __getattr__(self, name: str):
+        if name.startswith("_"):
+            raise AttributeError(name)
+        return getattr(self.get(), name)
+
+    def __len__(self) -> int:
+        return len(self.get())
+
+
+def compact_graph(graph: gtsam.NonlinearFactorGraph) -> gtsam.NonlinearFactorGraph:
+    """The graph without the empty slots that removed factors leave in iSAM2's."""
+    out = gtsam.NonlinearFactorGraph()
+    for i in range(graph.size()):
+        if graph.exists(i):
+            out.add(graph.at(i))
+    return out
