@@ -32,17 +32,8 @@ from typing import Any
 from mcap.records import Channel, Schema
 
 from fgins.datatypes import GnssData, InputError
-from fgins.io.mcap import (
-    ROLE_GNSS,
-    ROLE_IMU,
-    ROLE_VELOCITY,
-    McapResult,
-    TopicScan,
-    assemble,
-    assemble_gnss,
-    role_of_schema,
-    ros2_type_name,
-)
+from fgins.io.mcap import McapResult, TopicScan, assemble, assemble_gnss
+from fgins.io.ros_messages import ROLE_GNSS, ROLE_IMU, ROLE_VELOCITY, role_of_schema, ros2_type_name
 
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
 ROS2_METADATA = "metadata.yaml"

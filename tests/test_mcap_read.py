@@ -317,11 +317,11 @@ def _imu_only_scan(path: Path):
     GNSS topic too)."""
     from mcap.records import Message
 
-    from fgins.io.mcap import _stream_records, _StreamOutcome
+    from fgins.io.mcap_stream import StreamOutcome, stream_records
 
-    outcome = _StreamOutcome()
+    outcome = StreamOutcome()
     stamps = []
-    for record in _stream_records(path, outcome, False, ""):
+    for record in stream_records(path, outcome, False, ""):
         if isinstance(record, Message):
             stamps.append(record.log_time)
     return np.array(stamps), outcome
