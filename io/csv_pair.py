@@ -48,7 +48,17 @@ KNOWN_NUMERIC_COLUMNS = frozenset(
     [*IMU_COLUMNS, *GNSS_REQUIRED, *GNSS_OPTIONAL, *BARO_COLUMNS, "baro_height", "wheel_speed"]
 )
 # The files a `fgins sim` folder holds that are inputs (config.toml is read separately).
+# Byte-order marks of UTF-16 text (little, big endian).
+UTF16_BOMS = (b"\xff\xfe", b"\xfe\xff")
 SIM_FOLDER_FILES = ("imu.csv", "accel_array.csv", "gnss.csv", "baro.csv", "wheel.csv")
+
+
+def _utf16_without_bom(start: bytes) -> bool:
+    """Do these first bytes read as printable ASCII interleaved with zero bytes?"""
+    for text, zeros in ((start[::2], start[1::2]), (start[1::2], start[::2])):
+        if len(start) == 4 and zeros == b"\0\0" and all(32 <= byte < 127 for byte in text):
+            return True
+    return False
 
 
 def read_header(path: Path) -> list[str]:
@@ -56,6 +66,13 @@ def read_header(path: Path) -> list[str]:
     and quotes around the names are dropped; a header separated by ';' or tabs, not commas,
     is an error that says so (its cells would be misread, e.g. decimal commas)."""
     try:
+        with path.open("rb") as raw:
+            start = raw.read(4)
+        if start[:2] in UTF16_BOMS or _utf16_without_bom(start):
+            raise InputError(
+                f"{path}: UTF-16 text (a spreadsheet's 'Unicode text' export); fgins reads "
+                "UTF-8 or ASCII comma-separated files (re-save as CSV UTF-8)"
+            )
         with path.open(newline="", encoding="utf-8-sig") as handle:
             first = handle.readline()
     except OSError as exc:

@@ -429,6 +429,29 @@ def test_csv_with_another_separator_is_an_error_that_says_so(tmp_path, urban, se
         load_dataset(paths)
 
 
+@pytest.mark.parametrize("encoding", ["utf-16", "utf-16-le", "utf-16-be"])
+@pytest.mark.parametrize("which", [0, 1])
+def test_a_utf16_csv_is_an_error_that_says_so(tmp_path, urban, encoding, which):
+    """A spreadsheet's "Unicode text" export is UTF-16 (with or without a byte-order mark):
+    it was called "binary content that is none of the formats fgins reads" (with a BOM) or
+    an unrecognised header (without); the file is left as it was."""
+    paths = _pair(tmp_path, urban.dataset)
+    path = Path(paths[which])
+    path.write_bytes(path.read_text().encode(encoding))
+    before = path.read_bytes()
+    with pytest.raises(InputError, match=r"UTF-16 text .*re-save as CSV UTF-8"):
+        load_dataset(paths)
+    assert path.read_bytes() == before
+
+
+def test_zero_bytes_that_are_not_utf16_text_are_not_called_utf16(tmp_path, urban):
+    paths = _pair(tmp_path, urban.dataset)
+    Path(paths[0]).write_bytes(b"\0\0\0\0\x01\x02")
+    with pytest.raises(InputError) as error:
+        load_dataset(paths)
+    assert "UTF-16" not in str(error.value)
+
+
 # --- corrupt NMEA end to end ------------------------------------------------------------------
 
 
