@@ -23,6 +23,8 @@ COARSE_STEP_S = 0.1
 FINE_STEP_S = 0.005
 MIN_TURN_RAD = 0.35  # a window with a clear turn (20 deg)
 MIN_TURNING_WINDOWS = 8
+# A lag is judged over at least this fraction of the windows that zero lag is judged over.
+COMPARABLE_WINDOWS = 0.8
 MIN_TOTAL_TURN_RAD = 2 * np.pi  # turns in all (overlapping windows count again): ~1 rad real
 # What is said. KITTI: its own fixes 0.045 s late (1.07x better), a 0.2 s offset 1.8x, 3 s
 # 190x, over 279 turning windows; the simulated highway, 14 windows, a false 3 s at 2.4x and a
@@ -67,30 +69,47 @@ def estimate_clock_offset(
     turning = good & (np.abs(change) > MIN_TURN_RAD)
     if turning.sum() < MIN_TURNING_WINDOWS or np.abs(change[good]).sum() < MIN_TOTAL_TURN_RAD:
         return None
-    start, change = start[good], change[good]
+    start, change, turning = start[good], change[good], turning[good]
     steps = 0.5 * (yaw_rate[1:] + yaw_rate[:-1]) * np.diff(t_imu)
     rotation = np.concatenate([[0.0], np.cumsum(steps)])
 
-    def mismatch(lags: np.ndarray) -> np.ndarray:
+    def mismatch(lags: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(mean squared mismatch, windows inside the IMU's span, turning ones) per lag."""
         a = start[None, :] + lags[:, None]
         inside = (a >= t_imu[0]) & (a + WINDOW_S <= t_imu[-1])
+        count = inside.sum(axis=1)
         gyro = np.interp(a + WINDOW_S, t_imu, rotation) - np.interp(a, t_imu, rotation)
-        diff = np.where(inside, change[None, :] - gyro, np.nan)
-        diff -= np.nanmean(diff, axis=1, keepdims=True)  # the gyro bias over a window
-        return np.nanmean(diff**2, axis=1)
+        diff = np.where(inside, change[None, :] - gyro, 0.0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            bias = diff.sum(axis=1, keepdims=True) / count[:, None]  # the gyro bias
+            cost = np.where(inside, (diff - bias) ** 2, 0.0).sum(axis=1) / count
+        return cost, count, (inside & turning[None, :]).sum(axis=1)
+
+    # Lags are compared over (nearly) the same windows: those inside the IMU's span at each
+    # lag. An IMU that covers only part of the fixes' span left a few windows at some lag
+    # (one window fits any lag exactly: a false "18.5 s, infinitely better").
+    at_zero, count_zero, turns_zero = (v[0] for v in mismatch(np.array([0.0])))
+    if turns_zero < MIN_TURNING_WINDOWS:
+        return None
+
+    def comparable_cost(lags: np.ndarray) -> np.ndarray:
+        cost, count, turns = mismatch(lags)
+        usable = (turns >= MIN_TURNING_WINDOWS) & (count >= COMPARABLE_WINDOWS * count_zero)
+        return np.where(usable, cost, np.nan)
 
     coarse = np.arange(-MAX_LAG_S, MAX_LAG_S + COARSE_STEP_S / 2, COARSE_STEP_S)
-    cost = mismatch(coarse)
+    cost = comparable_cost(coarse)
     if not np.any(np.isfinite(cost)):
         return None
     best = coarse[int(np.nanargmin(cost))]
     fine = best + np.arange(-2 * COARSE_STEP_S, 2 * COARSE_STEP_S + FINE_STEP_S / 2, FINE_STEP_S)
-    fine_cost = mismatch(fine)
+    fine_cost = comparable_cost(fine)
+    if not np.any(np.isfinite(fine_cost)):
+        return None
     lag = float(fine[int(np.nanargmin(fine_cost))])
-    at_zero = float(mismatch(np.array([0.0]))[0])
-    at_lag = float(np.nanmin(fine_cost))
+    at_lag, _, turns = (v[0] for v in mismatch(np.array([lag])))
     improvement = at_zero / at_lag if at_lag > 0 else np.inf
-    return ClockOffset(lag_s=lag, improvement=improvement, windows=int(turning.sum()))
+    return ClockOffset(lag_s=lag, improvement=float(improvement), windows=int(turns))
 
 
 def _course(t: np.ndarray, t_gnss: np.ndarray, east_north: np.ndarray, interval: float):

@@ -65,3 +65,37 @@ def test_drives_with_exact_stamps_are_not_called_offset(scenario, options):
     (periodic motion, a loop, aliases: the judge needs many windows and a clear gain)."""
     run = SCENARIOS[scenario](**options)
     assert judge(_estimate(run.dataset)) is None
+
+
+def _imu_cut(dataset, start_s: float, end_s: float):
+    """``dataset`` with its IMU cut to ``start_s .. end_s`` after its first sample (the fixes
+    keep their whole span: an IMU log that stopped early or started late)."""
+    from dataclasses import replace
+
+    t = dataset.imu.t - dataset.imu.t[0]
+    keep = (t >= start_s) & (t <= end_s)
+    imu = replace(dataset.imu, t=dataset.imu.t[keep], gyro=dataset.imu.gyro[keep],
+                  accel=dataset.imu.accel[keep])  # fmt: skip
+    return replace(dataset, imu=imu)
+
+
+@pytest.mark.parametrize(
+    ("start_s", "end_s"), [(0.0, 30.0), (0.0, 60.0), (380.0, 1e9), (200.0, 240.0)]
+)
+def test_an_imu_that_covers_part_of_the_fixes_is_not_called_offset(kitti_lag, start_s, end_s):
+    """The lags were compared over whichever windows fell inside the IMU's span at each lag:
+    KITTI's IMU cut to its first 30 s was "18.5 s, infinitely better" (one window fits any
+    lag), and the run refused with "the clocks differ"."""
+    found = _estimate(_imu_cut(load_dataset(["demo:kitti"], progress=False), start_s, end_s))
+    assert found is None or abs(found.lag_s - kitti_lag) < 0.1 or judge(found) is None, found
+
+
+@pytest.mark.parametrize("added", [3.0, -18.0])
+def test_an_offset_is_recovered_from_an_imu_that_covers_part_of_the_fixes(kitti_lag, added):
+    from dataclasses import replace
+
+    dataset = _imu_cut(load_dataset(["demo:kitti"], progress=False), 60.0, 300.0)
+    shifted = replace(dataset, gnss=replace(dataset.gnss, t=dataset.gnss.t + added))
+    found = _estimate(shifted)
+    assert found is not None and judge(found)[0] == "error", found
+    assert abs(found.lag_s - (kitti_lag - added)) < 0.02, found

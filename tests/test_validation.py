@@ -452,6 +452,32 @@ def test_zero_bytes_that_are_not_utf16_text_are_not_called_utf16(tmp_path, urban
     assert "UTF-16" not in str(error.value)
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_an_imu_log_that_stops_early_is_smoothed_where_it_has_samples(tmp_path, seed):
+    """An IMU log 30 s long beside 120 s of fixes: the clock-offset check compared lags over
+    whichever 4-s windows fell inside the IMU's span, printed numpy's "Mean of empty slice"
+    and refused the run with a false "the clocks differ ... give --time-offset +18.49". The
+    fixes outside the IMU's span are counted and left out; the rest is smoothed."""
+    import warnings
+
+    import fgins
+
+    run = _run("car-urban", seed, 120)
+    paths = _pair(tmp_path, run.dataset)
+    imu = Path(paths[0])
+    lines = imu.read_text().splitlines()
+    imu.write_text("\n".join(lines[: 1 + 3000]) + "\n")  # header + 30 s at 100 Hz
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        dataset = load_dataset(paths)
+        track = fgins.smooth(dataset, "batch")
+    assert any("outside the IMU time span" in w for w in dataset.warnings), dataset.warnings
+    assert track.summary()["gnss_counts"]["outside_imu_span"] >= 85
+    frame = track.to_dataframe()
+    east = np.interp(frame["time"], run.truth.t, run.truth.position[:, 0])
+    assert np.sqrt(np.mean((frame["east"] - east) ** 2)) < 5.0
+
+
 # --- corrupt NMEA end to end ------------------------------------------------------------------
 
 
