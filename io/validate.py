@@ -778,6 +778,16 @@ def _check_units(
 ) -> None:
     accel_norm = np.linalg.norm(imu.accel, axis=1)
     median_accel = float(np.median(accel_norm))
+    median_gyro = float(np.median(np.linalg.norm(imu.gyro, axis=1)))
+    # Swapped columns: gravity in the gyro's, rates (not g: below its range) in the accel's.
+    rate_like = median_accel < ACCEL_G_RANGE[0]
+    if rate_like and ACCEL_PLAUSIBLE_RANGE[0] <= median_gyro <= ACCEL_PLAUSIBLE_RANGE[1]:
+        raise InputError(
+            f"imu: the gyro and accelerometer columns look swapped: the gyro's median norm is "
+            f"{median_gyro:.3g} (gravity's 9.8 m/s^2) and the accelerometer's {median_accel:.3g}; "
+            "the columns are time, gyro_x, gyro_y, gyro_z (rad/s), accel_x, accel_y, accel_z "
+            "(m/s^2), matched by their header names"
+        )
     if ACCEL_G_RANGE[0] <= median_accel <= ACCEL_G_RANGE[1]:
         raise InputError(
             f"imu: the accelerometer is in g, not m/s^2: its median specific-force norm is "

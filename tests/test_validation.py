@@ -156,6 +156,25 @@ def test_accel_in_g_is_an_error(tmp_path, name, seed):
 
 
 @pytest.mark.parametrize(("name", "seed"), [("car-urban", 0), ("aircraft-ekf", 2), ("uav-loop-baro", 1)])
+@pytest.mark.parametrize("accel_in_g", [False, True])
+def test_swapped_gyro_and_accel_columns_are_an_error_that_says_so(tmp_path, name, seed, accel_in_g):
+    """Gravity in the gyro columns and rates in the accelerometer's was "a wrong unit or
+    scale factor" of the accelerometer. An accelerometer in g beside a gyro is still "in g"."""
+    from dataclasses import replace
+
+    run = _run(name, seed, 60)
+    imu = run.dataset.imu
+    if accel_in_g:
+        data = _with_imu(run.dataset, accel_scale=1 / 9.80665)
+        match = r"accelerometer is in g"
+    else:
+        data = replace(run.dataset, imu=replace(imu, gyro=imu.accel, accel=imu.gyro))
+        match = r"gyro and accelerometer columns look swapped: the gyro's median norm is 1?\d\.\d"
+    with pytest.raises(InputError, match=match):
+        load_dataset(_pair(tmp_path, data))
+
+
+@pytest.mark.parametrize(("name", "seed"), [("car-urban", 0), ("aircraft-ekf", 2), ("uav-loop-baro", 1)])
 @pytest.mark.parametrize("flip", ["acceleration", "gyro-z-sign"])
 def test_imu_turning_against_the_gnss_track_is_an_error(tmp_path, name, seed, flip):
     """Acceleration instead of specific force (gravity's reaction reversed: "up" is down),
