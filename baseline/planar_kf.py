@@ -54,7 +54,7 @@ from fgins.baseline.mechanization import block_times, segment_imu
 from fgins.config import RunConfig
 from fgins.datatypes import Dataset, InputError, Trajectory
 from fgins.factors.baro import standard_atmosphere_height
-from fgins.geodesy import earth_rate_enu
+from fgins.geodesy import earth_rate_enu, plane_fall, plane_fall_gradient
 
 EAST, NORTH, UP, SPEED, YAW = range(5)
 STATE_DIM = 5
@@ -134,7 +134,8 @@ def planar_inputs(dataset: Dataset, config: RunConfig, epochs: GnssEpochs) -> Pl
 
 @dataclass
 class BaroHeights:
-    """Barometric heights in the ENU frame (offset to the first usable GNSS up)."""
+    """Barometric heights above the origin (offset to the first usable GNSS heights): the
+    navigation frame's up is below them by the plane fall where the vehicle is."""
 
     t: np.ndarray
     up: np.ndarray
@@ -161,8 +162,10 @@ def baro_heights(
     t, height = baro.t[valid], height[valid]
     # The offset to the GNSS up is averaged over the fixes of the first ``window_s``: one
     # fix's vertical error (UERE x VDOP, metres) would otherwise stay in every baro height.
+    # The fixes' heights above the origin are up + the plane fall (fgins.geodesy.plane_fall).
     first = epochs.t <= epochs.t[0] + window_s
-    offset = float(np.mean(np.interp(epochs.t[first], t, height) - epochs.position[first, 2]))
+    above = epochs.position[first, 2] + plane_fall(epochs.position[first], dataset.origin)
+    offset = float(np.mean(np.interp(epochs.t[first], t, height) - above))
     return BaroHeights(t=t, up=height - offset, dropped=dropped)
 
 
@@ -327,9 +330,13 @@ def run_planar_kf(
             counts["gnss_updates"] += 1
             counts["course_updates"] += int(len(m.residual) > 3)
         if baro_at[k] >= 0:
+            # The barometer's height stays with the surface: up + the plane fall there.
+            position = state[[EAST, NORTH, UP]]
             h = np.zeros((1, STATE_DIM))
+            h[0, [EAST, NORTH]] = plane_fall_gradient(position)[0]
             h[0, UP] = 1.0
-            residual = np.array([baro.up[baro_at[k]] - state[UP]])
+            fall = plane_fall(position, dataset.origin)[0]
+            residual = np.array([baro.up[baro_at[k]] - fall - state[UP]])
             m = _Measurement(residual, h, np.array([baro_var]))
             state, cov = _update(state, cov, m, options.wrap_heading)
             counts["baro_updates"] += 1

@@ -49,7 +49,7 @@ from fgins.baseline.mechanization import ATT, GYRO_BIAS, POS, STATE_DIM, VEL, No
 from fgins.config import ImuNoise, RunConfig
 from fgins.datatypes import Dataset
 from fgins.factors import stationary
-from fgins.geodesy import skew
+from fgins.geodesy import Origin, plane_fall, plane_fall_gradient, skew
 from fgins.mounting import mounting_rotation
 
 BARO_BIAS = STATE_DIM  # index of the barometer bias in the augmented error state
@@ -77,6 +77,7 @@ class VehicleAiding:
     rest_gyro: np.ndarray  # (K, 3) mean gyro over that window
     rest_gyro_sigma: np.ndarray  # (K,) per-axis sigma of that mean as a rate measurement
     baro_height: np.ndarray  # (K,) standard-atmosphere height, NaN where no pressure
+    origin: Origin  # the navigation frame's (a barometer's height is taken down to its plane)
     baro_sigma: float
     baro_walk: float
     earth_rate: np.ndarray
@@ -171,12 +172,16 @@ class VehicleAiding:
     def baro_measurement(
         self, k: int, state: NominalState, dim: int
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Residual, Jacobian, variance of ``height(pressure) = up + b``."""
+        """Residual, Jacobian, variance of ``height(pressure) = up + fall + b``: the
+        navigation frame's tangent plane falls ``fall`` below the surface where the vehicle
+        is (:func:`fgins.geodesy.plane_fall`), a barometer's height stays with the surface."""
         assert state.extra is not None
         h = np.zeros((1, dim))
+        h[0, POS.start : POS.start + 2] = plane_fall_gradient(state.position)[0]
         h[0, POS.start + 2] = 1.0
         h[0, BARO_BIAS] = 1.0
-        residual = np.array([self.baro_height[k] - state.position[2] - state.extra[0]])
+        fall = plane_fall(state.position, self.origin)[0]
+        residual = np.array([self.baro_height[k] - fall - state.position[2] - state.extra[0]])
         return residual, h, np.array([self.baro_sigma**2])
 
 
@@ -195,10 +200,7 @@ def vehicle_aiding(
     else:
         quiet = np.zeros(len(times), dtype=bool)
         rest_gyro, rest_sigma = np.zeros((len(times), 3)), np.ones(len(times))
-    pressure = stationary.pressure_in_plane(
-        stationary.pressure_at(dataset.baro, times, before_s=BARO_WINDOW_S, after_s=0.0),
-        stationary.plane_fall(times, dataset.gnss.t, dataset.gnss_enu()),
-    )
+    pressure = stationary.pressure_at(dataset.baro, times, before_s=BARO_WINDOW_S, after_s=0.0)
     return VehicleAiding(
         times=np.asarray(times, dtype=float),
         nhc=smoother.nhc,
@@ -214,6 +216,7 @@ def vehicle_aiding(
         rest_gyro=rest_gyro,
         rest_gyro_sigma=rest_sigma,
         baro_height=np.asarray(stationary.standard_atmosphere_height(pressure), dtype=float),
+        origin=dataset.origin,
         baro_sigma=smoother.baro_sigma_m,
         baro_walk=smoother.baro_bias_walk_m_per_sqrt_s,
         earth_rate=np.asarray(earth_rate, dtype=float),

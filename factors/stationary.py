@@ -12,6 +12,7 @@ import numpy as np
 
 from fgins.config import ImuNoise
 from fgins.datatypes import BaroData, ImuData
+from fgins.geodesy import Origin, plane_fall
 
 MIN_QUIET_SAMPLES = 5
 
@@ -310,18 +311,17 @@ def pressure_in_plane(pressure_pa: np.ndarray, fall_m: np.ndarray) -> np.ndarray
     return standard_atmosphere_pressure(height)
 
 
-def plane_fall(times: np.ndarray, gnss_t: np.ndarray, gnss_enu: np.ndarray) -> np.ndarray:
-    """How far (m) the navigation frame's tangent plane lies below the surface at ``times``,
-    from the fixes' horizontal distance to the origin (interpolated; a km off in a long
-    outage moves it by d x 1 km / R: 1.6 m 10 km out)."""
+def plane_fall_along_fixes(
+    times: np.ndarray, gnss_t: np.ndarray, gnss_enu: np.ndarray, origin: Origin
+) -> np.ndarray:
+    """:func:`fgins.geodesy.plane_fall` at ``times`` on the fixes' track (interpolated): the
+    start before a solution exists. Across a long outage the chord between fixes can cut a
+    turn by a kilometre (d x 1 km / R: 5 m 32 km out), so the solvers redo it at their
+    solution's positions (:meth:`fgins.graph.problem.Problem.baro_fall_moved`)."""
     if not len(gnss_t):
         return np.zeros(len(times))
-    east = np.interp(times, gnss_t, gnss_enu[:, 0])
-    north = np.interp(times, gnss_t, gnss_enu[:, 1])
-    return (east**2 + north**2) / (2.0 * EARTH_MEAN_RADIUS_M)
-
-
-EARTH_MEAN_RADIUS_M = 6.371e6
+    track = np.column_stack([np.interp(times, gnss_t, gnss_enu[:, j]) for j in range(3)])
+    return plane_fall(track, origin)
 
 
 def gtsam_equivalent_kpa(pressure_pa: float | np.ndarray) -> np.ndarray:

@@ -51,6 +51,8 @@ from fgins.graph.solve import (
     is_suspect,
     linearisation_moved,
     nonlinear_graph,
+    pressure_factor_index,
+    refresh_plane_fall,
     stop_speeds,
 )
 
@@ -227,6 +229,7 @@ def _run_isam2_with(
     scale_error = 0.0
     nonlinear = gtsam.NonlinearFactorGraph()  # every C++ factor added, for the final pass
     imu_index: dict[int, int] = {}  # interval -> index of its IMU factor in ``nonlinear``
+    baro_index: dict[int, int] = {}  # keyframe -> index of its barometer factor there
     linear_point = gtsam.Values()  # where the linearised factors were made
     update_s = np.zeros(n)
     preintegrate_s = np.zeros(n)
@@ -246,11 +249,14 @@ def _run_isam2_with(
         if k > 0:
             state = problem.predict(k - 1, state, bias)
             speed_sigma = _isam2_speed_sigma(problem, isam, k, state)
+            # The plane fall where the prediction is (the fixes' chord is not known online).
+            problem.set_baro_fall(np.array([k]), state.position()[None])
         keyframe = problem.keyframe_factors(
             k, float(np.linalg.norm(state.velocity())), speed_sigma=speed_sigma
         )
         if k > 0:
             imu_index[k - 1] = nonlinear.size() + graph.size()  # the IMU factor comes first
+        baro_index.update(pressure_factor_index(keyframe, k, nonlinear.size() + graph.size()))
         graph.push_back(keyframe)
         nonlinear.push_back(graph)
         pose, velocity = state.pose(), state.velocity()
@@ -334,6 +340,7 @@ def _run_isam2_with(
         for i in redone:
             nonlinear.replace(imu_index[int(i)], problem.imu_factor(int(i)))
         report.repreintegrated += len(redone)
+        refalled = refresh_plane_fall(problem, estimate, nonlinear, baro_index)
         has_linear = problem.has_linear_factors
         settled = not math.isfinite(step_from) or (
             step_from - isam.getFactorsUnsafe().error(estimate)
@@ -342,6 +349,7 @@ def _run_isam2_with(
         if (
             not (windowed and round_ == 0)
             and not len(redone)
+            and not refalled
             and settled
             and not (has_linear and linearisation_moved(problem, linear_point, estimate))
         ):

@@ -53,6 +53,8 @@ def keyframe_filter(problem: Problem, progress: bool = False) -> gtsam.Values:
         leave=False,
     ):  # fmt: skip
         point = _prediction(problem, k, carried)
+        if k > 0:  # the plane fall where the prediction is (not on the fixes' chord)
+            problem.set_baro_fall(np.array([k]), point.atPose3(X(k)).translation()[None])
         factors = problem.prior_factors() if k == 0 else gtsam.NonlinearFactorGraph()
         speed = float(np.linalg.norm(point.atVector(V(k))))
         factors.push_back(problem.keyframe_factors(k, speed, gnss_config=gnss_config))

@@ -23,7 +23,7 @@ from fgins.factors import odometer as odometer_model
 from fgins.factors import stationary
 from fgins.factors import vehicle as vehicle_model
 from fgins.factors.values import put_double, put_vector
-from fgins.geodesy import earth_rate_enu, gravity_enu, normal_gravity
+from fgins.geodesy import earth_rate_enu, gravity_enu, normal_gravity, plane_fall
 from fgins.graph.keyframes import Segments, build_segments, keyframe_times
 from fgins.mounting import mounting_rotation
 
@@ -31,6 +31,9 @@ from fgins.mounting import mounting_rotation
 # (rad, m), the Kalman baselines' zero-angular-rate sigma (baseline.vehicle_updates).
 NO_MOTION_RATE_SIGMA = float(np.radians(0.01))
 NO_MOTION_SPEED_SIGMA = 0.01
+# A barometer factor is rebuilt when its plane fall at the solution moved this far (m): a
+# tenth of the best barometers' noise.
+BARO_FALL_REDO_M = 0.02
 
 @dataclass
 class Problem:
@@ -60,7 +63,10 @@ class Problem:
     quiet: np.ndarray  # (K,) the IMU is quiet around keyframe k (a stop, if the speed agrees)
     # (K,) the fixes of the last seconds before keyframe k moved (stationary.gnss_moving)
     gnss_moving: np.ndarray
-    baro_pressure: np.ndarray  # (K,) mean pressure (Pa) around keyframe k, NaN where none
+    baro_surface_pressure: np.ndarray  # (K,) mean pressure (Pa) around keyframe k, NaN where none
+    # (K,) how far the navigation frame's tangent plane lies below the surface at keyframe k
+    # (fgins.geodesy.plane_fall): from the fixes first, then from each solution
+    baro_fall: np.ndarray
     odometer_speed: np.ndarray  # (K,) mean wheel speed (m/s) around keyframe k, NaN where none
     imu_to_vehicle: np.ndarray  # R_vi: IMU axes -> vehicle axes (fgins.mounting)
     nhc_sigma: np.ndarray  # (K, 2) lateral, vertical NHC sigma per keyframe
@@ -440,26 +446,57 @@ class Problem:
                     smoother.baro_bias_walk_m_per_sqrt_s,
                 )
             )  # fmt: skip
-        if np.isfinite(self.baro_pressure[k]):
-            graph.add(
-                baro_model.pressure_factor(
-                    X(k),
-                    baro_model.baro_key(k),
-                    float(self.baro_pressure[k]),
-                    smoother.baro_sigma_m,
-                )
-            )
+        if np.isfinite(self.baro_surface_pressure[k]):
+            graph.add(self.pressure_factor(k))
+
+    def pressure_factor(self, k: int) -> gtsam.BarometricFactor:
+        """Keyframe k's barometer factor, its height taken down to the navigation frame's
+        tangent plane by the current :attr:`baro_fall`."""
+        return baro_model.pressure_factor(
+            X(k), baro_model.baro_key(k), self.pressure_in_plane(k),
+            self.config.smoother.baro_sigma_m,
+        )  # fmt: skip
+
+    def pressure_in_plane(self, k: int) -> float:
+        """Keyframe k's pressure as if taken at the navigation frame's height there."""
+        return float(
+            stationary.pressure_in_plane(self.baro_surface_pressure[k], self.baro_fall[k])
+        )
+
+    def set_baro_fall(self, keyframes: np.ndarray, positions: np.ndarray) -> np.ndarray:
+        """Take the plane fall of ``keyframes`` (those with a pressure) at ``positions``
+        (ENU); returns the keyframes whose fall moved by more than ``BARO_FALL_REDO_M``
+        (their pressure factors must be rebuilt)."""
+        keyframes = np.asarray(keyframes, dtype=int)
+        has = np.isfinite(self.baro_surface_pressure[keyframes])
+        keyframes, positions = keyframes[has], np.asarray(positions, dtype=float)[has]
+        if not len(keyframes):
+            return keyframes
+        fall = plane_fall(positions, self.dataset.origin)
+        moved = np.abs(fall - self.baro_fall[keyframes]) > BARO_FALL_REDO_M
+        self.baro_fall[keyframes[moved]] = fall[moved]
+        return keyframes[moved]
+
+    def baro_fall_moved(self, values: gtsam.Values) -> np.ndarray:
+        """Redo the plane fall at the solution's positions (a chord between fixes across a
+        long outage can cut a turn by a kilometre: 5 m of fall 32 km out); returns the
+        keyframes whose pressure factor changed."""
+        if not self.has_baro:
+            return np.zeros(0, dtype=int)
+        keyframes = np.flatnonzero(np.isfinite(self.baro_surface_pressure))
+        position = np.array([values.atPose3(X(int(k))).translation() for k in keyframes])
+        return self.set_baro_fall(keyframes, position)
 
     @cached_property
     def has_baro(self) -> bool:
-        return bool(np.any(np.isfinite(self.baro_pressure)))
+        return bool(np.any(np.isfinite(self.baro_surface_pressure)))
 
     @property
     def baro_bias0(self) -> float:
-        first = int(np.flatnonzero(np.isfinite(self.baro_pressure))[0])
+        first = int(np.flatnonzero(np.isfinite(self.baro_surface_pressure))[0])
         # Up at the first baro keyframe is roughly the alignment's up (near the start).
         return baro_model.initial_bias(
-            float(self.alignment.position[2]), float(self.baro_pressure[first])
+            float(self.alignment.position[2]), self.pressure_in_plane(first)
         )
 
     def insert_extra_values(
@@ -641,9 +678,8 @@ def build_problem(
         if smoother.zupt
         else np.zeros(len(times), dtype=bool)
     )
-    baro_pressure = stationary.pressure_in_plane(
-        stationary.pressure_at(dataset.baro, times), stationary.plane_fall(times, gnss.t, enu)
-    )
+    baro_surface_pressure = stationary.pressure_at(dataset.baro, times)
+    baro_fall = stationary.plane_fall_along_fixes(times, gnss.t, enu, dataset.origin)
     vehicle_keyframe = _decimate(times, smoother.vehicle_constraint_interval_s)
     odometer_speed = np.where(vehicle_keyframe, _odometer_at(dataset, times), np.nan)
     nhc_sigma = np.tile(
@@ -677,7 +713,8 @@ def build_problem(
         gnss_moving=stationary.gnss_moving(
             times, gnss.t, enu, sigma, moving_before_fixes=alignment.steady_motion_possible
         ),
-        baro_pressure=baro_pressure,
+        baro_surface_pressure=baro_surface_pressure,
+        baro_fall=baro_fall,
         odometer_speed=odometer_speed,
         imu_to_vehicle=imu_to_vehicle,
         nhc_sigma=nhc_sigma,

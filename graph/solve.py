@@ -104,17 +104,47 @@ def degrees_of_freedom(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) 
 
 
 def nonlinear_graph(
-    problem: Problem, speeds: np.ndarray | None, imu_index: list[int] | None = None
+    problem: Problem,
+    speeds: np.ndarray | None,
+    imu_index: list[int] | None = None,
+    baro_index: dict[int, int] | None = None,
 ) -> gtsam.NonlinearFactorGraph:
     """Every C++ nonlinear factor; ZUPTs only where ``speeds`` (a solution's) confirm a stop.
-    ``imu_index`` (if given) receives the graph index of each interval's IMU factor."""
+    ``imu_index`` (if given) receives the graph index of each interval's IMU factor,
+    ``baro_index`` that of each keyframe's barometer factor."""
     problem.zupt_keyframes.clear()
     graph = problem.prior_factors()
     for k in range(problem.n_keyframes):
         if k > 0 and imu_index is not None:
             imu_index.append(graph.size())  # keyframe_factors puts the IMU factor first
-        graph.push_back(problem.keyframe_factors(k, None if speeds is None else float(speeds[k])))
+        factors = problem.keyframe_factors(k, None if speeds is None else float(speeds[k]))
+        if baro_index is not None:
+            baro_index.update(pressure_factor_index(factors, k, graph.size()))
+        graph.push_back(factors)
     return graph
+
+
+def pressure_factor_index(
+    factors: gtsam.NonlinearFactorGraph, k: int, offset: int
+) -> dict[int, int]:
+    """{k: offset + index of the barometer factor in ``factors``}, or {} without one."""
+    for i in range(factors.size()):
+        if isinstance(factors.at(i), gtsam.BarometricFactor):
+            return {k: offset + i}
+    return {}
+
+
+def refresh_plane_fall(
+    problem: Problem,
+    values: gtsam.Values,
+    nonlinear: gtsam.NonlinearFactorGraph,
+    baro_index: dict[int, int],
+) -> int:
+    """Rebuild the barometer factors whose plane fall moved at ``values``; how many."""
+    moved = problem.baro_fall_moved(values)
+    for k in moved:
+        nonlinear.replace(baro_index[int(k)], problem.pressure_factor(int(k)))
+    return len(moved)
 
 
 def full_graph(
@@ -186,7 +216,8 @@ def solve_in_rounds(
     max_iterations = problem.config.smoother.batch_max_iterations
     has_linear = problem.has_linear_factors
     imu_index: list[int] = []
-    nonlinear = nonlinear_graph(problem, speeds, imu_index)
+    baro_index: dict[int, int] = {}
+    nonlinear = nonlinear_graph(problem, speeds, imu_index, baro_index)
     settled = False
     previous_error = math.inf
     damping = 1e-5  # carried across rounds: LM's trust region survives the rebuilds
@@ -209,8 +240,8 @@ def solve_in_rounds(
         redone_intervals = problem.repreintegrate(
             result, REPREINTEGRATE_GYRO_RAD_S, REPREINTEGRATE_ACCEL_M_S2
         )
-        redone = len(redone_intervals)
-        report.repreintegrated += redone
+        report.repreintegrated += len(redone_intervals)
+        redone = len(redone_intervals) + refresh_plane_fall(problem, result, nonlinear, baro_index)
         moved = has_linear and linearisation_moved(problem, values, result)
         values = result
         for i in redone_intervals:  # only their IMU factors change
