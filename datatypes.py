@@ -360,13 +360,17 @@ class Trajectory:
     @property
     def attitude_std_deg(self) -> np.ndarray:
         """1-sigma roll, pitch and heading errors (N, 3) in deg, NaN where unknown: the
-        navigation-frame attitude covariance about the body's forward axis (roll), the
-        horizontal axis across it (pitch) and up (heading)."""
+        navigation-frame attitude covariance about the horizontal direction of the body's
+        forward axis (roll), the horizontal axis across it (pitch) and up (heading). Both
+        tilt axes are horizontal, as the Euler angles' are: a heading known to 180 deg only
+        (a vehicle that never moved) does not leak into the roll of a pitched body."""
         assert self.attitude_cov is not None  # filled with NaN by __post_init__
-        forward = self.rotation[:, :, 0]
-        across = np.stack([-forward[:, 1], forward[:, 0], np.zeros(len(forward))], axis=1)
-        norm = np.linalg.norm(across, axis=1, keepdims=True)
-        across = np.where(norm > 1e-9, across / np.maximum(norm, 1e-9), [1.0, 0.0, 0.0])
+        heading = self.rotation[:, :2, 0]
+        norm = np.linalg.norm(heading, axis=1, keepdims=True)
+        heading = np.where(norm > 1e-9, heading / np.maximum(norm, 1e-9), [1.0, 0.0])
+        zeros = np.zeros(len(heading))
+        forward = np.stack([heading[:, 0], heading[:, 1], zeros], axis=1)
+        across = np.stack([-heading[:, 1], heading[:, 0], zeros], axis=1)
         cov = self.attitude_cov
         var = np.stack(
             [

@@ -39,9 +39,58 @@ def run_method(
     dataset = integration_samples(dataset, config)
     mounting_note = _check_mounting(dataset, config)
     trajectory = _run(dataset, config, method, gnss_mask, progress)
-    if mounting_note:
-        trajectory.info.setdefault("fit_warnings", []).append(mounting_note)
+    notes = [mounting_note]
+    if config.smoother.initial_heading_deg is None:  # else the configured heading is known
+        notes.append(unobservable_heading(dataset, trajectory))
+    for note in filter(None, notes):
+        trajectory.info.setdefault("fit_warnings", []).append(note)
     return trajectory
+
+
+# Fixes whose running median (over this many) never leaves this many metres of the log's
+# median, over a log they cover almost end to end, show a vehicle that never moved.
+STATIC_SPAN_M = 10.0
+STATIC_MEDIAN_FIXES = 9
+STATIC_COVERAGE = 0.8
+
+
+def never_moved(dataset: Dataset) -> float | None:
+    """How far (m) the fixes' running median strays from their median when the vehicle
+    never moved, else None (it moved, or the fixes do not cover the log to tell)."""
+    t, enu = dataset.gnss.t, dataset.gnss_enu()[:, :2]
+    span_imu = float(dataset.imu.t[-1] - dataset.imu.t[0])
+    good = np.all(np.isfinite(enu), axis=1)
+    t, enu = t[good], enu[good]
+    if len(t) < STATIC_MEDIAN_FIXES or (t[-1] - t[0]) < STATIC_COVERAGE * span_imu:
+        return None
+    windows = np.lib.stride_tricks.sliding_window_view(enu, STATIC_MEDIAN_FIXES, axis=0)
+    running = np.median(windows, axis=-1)  # (n - w + 1, 2): one outlier cannot move it
+    span = float(np.max(np.linalg.norm(running - np.median(enu, axis=0), axis=1)))
+    return span if span <= STATIC_SPAN_M else None
+
+
+def unobservable_heading(dataset: Dataset, trajectory: Trajectory) -> str | None:
+    """A vehicle that never moved has no observable heading: only the Earth's rate would
+    show it (15 deg/h at most, far below a MEMS gyro's bias), and every solver's linearised
+    covariance claimed 5-60 deg where the errors were up to 160 deg (their Gauss-Newton
+    curvature takes the noise-level wiggles of the track for motion). The heading's
+    variance is then set to (180 deg)^2, uncorrelated with the rest, and said; None when
+    the vehicle moved."""
+    span = never_moved(dataset)
+    if span is None:
+        return None
+    cov = trajectory.attitude_cov
+    if cov is not None:
+        cov[:, 2, :] = 0.0
+        cov[:, :, 2] = 0.0
+        cov[:, 2, 2] = math.pi**2
+    trajectory.info["heading_observable"] = False
+    return (
+        f"heading: the vehicle never moved (the fixes' running median stays within {span:.1f} "
+        "m): nothing shows its heading, so heading_deg is arbitrary and std_heading_deg is "
+        "180; position, velocity, roll and pitch are not affected ([smoother] "
+        "initial_heading_deg gives a known heading)"
+    )
 
 
 def integration_samples(dataset: Dataset, config: RunConfig) -> Dataset:

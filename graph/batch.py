@@ -38,8 +38,7 @@ from fgins.graph.solve import (
     is_suspect,
     nonlinear_graph,
     solve_from,
-    solve_in_rounds,
-    stop_speeds,
+    solve_with_stops,
 )
 from fgins.graph.start import InitialGuess, Start, dead_reckoning_guess, initial_values
 
@@ -117,17 +116,7 @@ def smooth_batch(
     if is_suspect(report):
         report, result, graph = _fall_back(problem, source, others, report, result, graph)
     report.start = source  # a restart says so in report.fallback
-    if problem.config.smoother.zupt and problem.stop_candidates.any():
-        speeds = stop_speeds(problem, graph, result)
-        problem.zupt_keyframes.clear()
-        if np.isfinite(speeds).any():
-            zupt_report = SolveReport(solver="batch LM", initial_error=report.initial_error)
-            result, graph = solve_in_rounds(problem, result, speeds, zupt_report)
-            report.iterations += zupt_report.iterations
-            report.rounds += zupt_report.rounds
-            report.repreintegrated += zupt_report.repreintegrated
-            report.converged = zupt_report.converged
-            finish_report(report, graph, result)
+    report, result, graph = solve_with_stops(problem, report, result, graph)
     fail_if_diverged(report)
     if not report.converged:
         raise FginsError(

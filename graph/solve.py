@@ -261,6 +261,31 @@ def solve_in_rounds(
     return values, graph
 
 
+def solve_with_stops(
+    problem: Problem,
+    report: SolveReport,
+    result: gtsam.Values,
+    graph: gtsam.NonlinearFactorGraph,
+) -> tuple[SolveReport, gtsam.Values, gtsam.NonlinearFactorGraph]:
+    """With ZUPT on, the second pass of a solve: stops are the quiet keyframes where the
+    first solution (without stops) is slow enough (:func:`stop_speeds`), and their ZUPTs
+    are added. Deciding stops from a start instead would let a start that is wrong in an
+    outage plant a false stop, which no optimiser recovers from."""
+    if not (problem.config.smoother.zupt and problem.stop_candidates.any()):
+        return report, result, graph
+    speeds = stop_speeds(problem, graph, result)
+    problem.zupt_keyframes.clear()
+    if np.isfinite(speeds).any():
+        stops = SolveReport(solver=report.solver, initial_error=report.initial_error)
+        result, graph = solve_in_rounds(problem, result, speeds, stops)
+        report.iterations += stops.iterations
+        report.rounds += stops.rounds
+        report.repreintegrated += stops.repreintegrated
+        report.converged = stops.converged
+        finish_report(report, graph, result)
+    return report, result, graph
+
+
 def finish_report(
     report: SolveReport, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
 ) -> None:
