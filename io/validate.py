@@ -811,7 +811,7 @@ def _check_units(
             f"(no vehicle turns at {routine:.0f} rad/s routinely); multiply gyro_x, gyro_y, "
             f"gyro_z by pi/180 = {math.pi / 180:.6f}"
         )
-    at_rest = _gyro_at_rest(imu)
+    at_rest = _gyro_at_rest(imu, gnss, origin)
     if at_rest > GYRO_REST_MAX_RAD_PER_S:
         raise InputError(
             f"imu: the gyro looks like deg/s, not rad/s: it reads {at_rest:.2f} while the "
@@ -1071,9 +1071,12 @@ def _check_shrunk_track(gnss: GnssData, enu: np.ndarray, sigma: np.ndarray) -> N
         )
 
 
-def _gyro_at_rest(imu, window_s: float = 1.0) -> float:
-    """Median gyro-rate norm over 1-s windows where the accelerometer shows rest (steady
-    specific force of ~g): the gyro bias plus Earth rate (0.0 when it is never at rest)."""
+def _gyro_at_rest(imu, gnss: GnssData, origin: Origin, window_s: float = 1.0) -> float:
+    """Median gyro-rate norm over 1-s windows where the vehicle is at rest: a steady specific
+    force of ~g (which a steady turn also shows: 8 m/s around a 30 m circle is 0.27 rad/s
+    at 10.0 m/s^2, and such test-track drives were refused as "gyro in deg/s") and fixes
+    around it that stay together (:func:`_fixes_at_rest`). That is the gyro bias plus Earth
+    rate (0.0 when the vehicle is never seen at rest)."""
     rate = 1.0 / float(np.median(np.diff(imu.t)))
     n = max(round(window_s * rate), 5)
     blocks = len(imu.t) // n
@@ -1084,9 +1087,39 @@ def _gyro_at_rest(imu, window_s: float = 1.0) -> float:
     steady = np.all(accel.std(axis=1) < REST_ACCEL_STD_M_S2, axis=1)
     level = np.abs(np.linalg.norm(accel.mean(axis=1), axis=1) - G) < REST_ACCEL_NORM_TOL_M_S2
     rest = steady & level
+    if rest.any():
+        middle = imu.t[: blocks * n].reshape(blocks, n).mean(axis=1)
+        rest[rest] = _fixes_at_rest(middle[rest], gnss, origin)
     if rest.sum() < 3:
         return 0.0
     return float(np.median(np.linalg.norm(gyro[rest].mean(axis=1), axis=1)))
+
+
+# Fixes within this many seconds of a moment, all within this many metres (or this many of
+# their horizontal sigmas) of their median, show the vehicle at rest then.
+REST_GNSS_WINDOW_S = 5.0
+REST_GNSS_SPREAD_M = 5.0
+REST_GNSS_SPREAD_SIGMAS = 3.5
+
+
+def _fixes_at_rest(times: np.ndarray, gnss: GnssData, origin: Origin) -> np.ndarray:
+    """For each of ``times``: do at least 3 fixes lie within ``REST_GNSS_WINDOW_S`` of it,
+    all close to their median (a vehicle at rest), rather than strung along a track?"""
+    from fgins.geodesy import lla_to_enu
+
+    enu = lla_to_enu(gnss.lla, origin)[:, :2]
+    limit = REST_GNSS_SPREAD_M
+    stated = gnss.std[:, :2] if gnss.std is not None else np.zeros((0, 2))
+    if np.isfinite(stated).any():
+        limit = max(limit, REST_GNSS_SPREAD_SIGMAS * float(np.nanmedian(stated)))
+    lo = np.searchsorted(gnss.t, times - REST_GNSS_WINDOW_S)
+    hi = np.searchsorted(gnss.t, times + REST_GNSS_WINDOW_S, side="right")
+    out = np.zeros(len(times), dtype=bool)
+    for i, (a, b) in enumerate(zip(lo, hi, strict=True)):
+        if b - a >= 3:
+            near = enu[a:b]
+            out[i] = np.linalg.norm(near - np.median(near, axis=0), axis=1).max() <= limit
+    return out
 
 
 def _gyro_turn_ratio(imu, gnss: GnssData, origin: Origin) -> tuple[float, int, float]:
