@@ -48,15 +48,21 @@ def run_method(
 
 
 # Fixes whose running median (over this many) never leaves this many metres of the log's
-# median, over a log they cover almost end to end, show a vehicle that never moved.
+# median, over a log they cover almost end to end, and an IMU whose 1-s means of rate and
+# specific force stay this close to their medians (idle vibration averages out; a vehicle
+# circling a small courtyard turns and accelerates far more) show a vehicle that never moved.
 STATIC_SPAN_M = 10.0
 STATIC_MEDIAN_FIXES = 9
 STATIC_COVERAGE = 0.8
+STATIC_RATE_RAD_S = 0.02
+STATIC_FORCE_M_S2 = 0.3
 
 
 def never_moved(dataset: Dataset) -> float | None:
     """How far (m) the fixes' running median strays from their median when the vehicle
     never moved, else None (it moved, or the fixes do not cover the log to tell)."""
+    if not _imu_at_rest(dataset.imu):
+        return None
     t, enu = dataset.gnss.t, dataset.gnss_enu()[:, :2]
     span_imu = float(dataset.imu.t[-1] - dataset.imu.t[0])
     good = np.all(np.isfinite(enu), axis=1)
@@ -67,6 +73,21 @@ def never_moved(dataset: Dataset) -> float | None:
     running = np.median(windows, axis=-1)  # (n - w + 1, 2): one outlier cannot move it
     span = float(np.max(np.linalg.norm(running - np.median(enu, axis=0), axis=1)))
     return span if span <= STATIC_SPAN_M else None
+
+
+def _imu_at_rest(imu) -> bool:
+    """Do 99 % of the IMU's 1-s means of rate and specific force stay within
+    ``STATIC_RATE_RAD_S`` and ``STATIC_FORCE_M_S2`` of their medians?"""
+    per_second = max(1, round(imu.rate_hz))
+    blocks = len(imu.t) // per_second
+    if blocks < 2:
+        return False
+    for samples, limit in ((imu.gyro, STATIC_RATE_RAD_S), (imu.accel, STATIC_FORCE_M_S2)):
+        means = samples[: blocks * per_second].reshape(blocks, per_second, 3).mean(axis=1)
+        spread = np.linalg.norm(means - np.median(means, axis=0), axis=1)
+        if float(np.percentile(spread, 99)) > limit:
+            return False
+    return True
 
 
 def unobservable_heading(dataset: Dataset, trajectory: Trajectory) -> str | None:

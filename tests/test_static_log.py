@@ -81,3 +81,15 @@ def test_kitti_and_a_configured_heading_are_not_called_static(tmp_path):
     track = fgins.smooth(dataset, "batch", config=config)
     assert "heading_observable" not in track.summary()
     assert track.to_dataframe()["std_heading_deg"].iloc[0] < 5.0
+
+
+def test_a_car_shuttling_back_and_forth_a_few_metres_is_not_called_static(tmp_path):
+    """Forward 8 m and back again, twice: the fixes' running median never leaves a few
+    metres, but the IMU feels every start and stop (0.75 m/s^2), so the heading is observable
+    and keeps its sigma."""
+    steps = [(10.0, 2.0, 1.5), (16.0, 2.0, -1.5), (22.0, 2.0, -1.5), (28.0, 2.0, 1.5)]
+    steps += [(t + 40.0, tau, dv) for t, tau, dv in steps]
+    dataset = _drive(tmp_path, 4, 75.0, steps=steps)
+    assert never_moved(dataset) is None
+    summary = fgins.smooth(dataset, "batch").summary()
+    assert "heading_observable" not in summary
