@@ -1100,14 +1100,27 @@ def _gyro_at_rest(imu, gnss: GnssData, origin: Origin, window_s: float = 1.0) ->
 REST_GNSS_WINDOW_S = 5.0
 REST_GNSS_SPREAD_M = 5.0
 REST_GNSS_SPREAD_SIGMAS = 3.5
+REST_GNSS_SPEED_M_S = 0.5
 
 
 def _fixes_at_rest(times: np.ndarray, gnss: GnssData, origin: Origin) -> np.ndarray:
     """For each of ``times``: do at least 3 fixes lie within ``REST_GNSS_WINDOW_S`` of it,
-    all close to their median (a vehicle at rest), rather than strung along a track?"""
+    all close to their median (a vehicle at rest), rather than strung along a track, and
+    their median horizontal speed (where the receiver gives velocity) below
+    ``REST_GNSS_SPEED_M_S`` (a car circling a few metres at walking pace keeps its fixes
+    together, not its velocity; a receiver at rest reads its velocity noise, ~1.2 sigma)?"""
     from fgins.geodesy import lla_to_enu
 
     enu = lla_to_enu(gnss.lla, origin)[:, :2]
+    speed = (
+        np.zeros(len(gnss.t))
+        if gnss.velocity is None
+        else np.nan_to_num(np.linalg.norm(gnss.velocity[:, :2], axis=1), nan=0.0)
+    )
+    speed_limit = REST_GNSS_SPEED_M_S
+    stated_v = gnss.velocity_std[:, :2] if gnss.velocity_std is not None else np.zeros((0, 2))
+    if np.isfinite(stated_v).any():
+        speed_limit = max(speed_limit, REST_GNSS_SPREAD_SIGMAS * float(np.nanmedian(stated_v)))
     limit = REST_GNSS_SPREAD_M
     stated = gnss.std[:, :2] if gnss.std is not None else np.zeros((0, 2))
     if np.isfinite(stated).any():
@@ -1116,7 +1129,7 @@ def _fixes_at_rest(times: np.ndarray, gnss: GnssData, origin: Origin) -> np.ndar
     hi = np.searchsorted(gnss.t, times + REST_GNSS_WINDOW_S, side="right")
     out = np.zeros(len(times), dtype=bool)
     for i, (a, b) in enumerate(zip(lo, hi, strict=True)):
-        if b - a >= 3:
+        if b - a >= 3 and np.median(speed[a:b]) <= speed_limit:
             near = enu[a:b]
             out[i] = np.linalg.norm(near - np.median(near, axis=0), axis=1).max() <= limit
     return out

@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from fgins.cli import main
@@ -168,6 +169,34 @@ def test_a_car_circling_a_test_track_is_not_called_deg_per_s(tmp_path, speed, ra
                 imu_rate=100.0, jitter=0.0, gnss_rate=1.0, seed=1)  # fmt: skip
     dataset = fgins.load(tmp_path, config=tmp_path / "cfg.toml")
     assert fgins.smooth(dataset, "ekf").summary()["gnss_updates"] > 150
+
+
+@pytest.mark.parametrize(("speed", "radius"), [(2.0, 4.0), (1.0, 3.0)])
+def test_a_small_circle_at_walking_pace_is_not_rest_where_the_receiver_gives_velocity(
+    tmp_path, speed, radius
+):
+    """Circling a few metres at walking pace keeps the fixes together (a 4 m circle), so
+    only the receiver's velocity shows the motion: with it, 0.5 rad/s is a turn, not a gyro
+    bias in deg/s. (Without velocity such a log is still refused: nothing tells it apart.)"""
+    import sys
+
+    import fgins
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from independent_sim import INDUSTRIAL, CarProfile, write_drive
+
+    profile = CarProfile(steps=[(5.0, 3.0, speed)], turns=[(8.0, 118.0, 2.0, speed / radius)],
+                         gamma=lambda t: 0.0 * np.asarray(t, float), heading0_deg=0.0)  # fmt: skip
+    write_drive(tmp_path, profile, 120.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
+                gnss_rate=1.0, seed=1, sigma_h=1.0)  # fmt: skip
+    gnss = pd.read_csv(tmp_path / "gnss.csv")
+    truth = pd.read_csv(tmp_path / "truth.csv")
+    noise = np.random.default_rng(1).normal(0.0, 0.1, (len(gnss), 3))
+    for j, column in enumerate(("vel_east", "vel_north", "vel_up")):
+        gnss[column] = np.interp(gnss["time"], truth["time"], truth[column]) + noise[:, j]
+    gnss.to_csv(tmp_path / "gnss.csv", index=False, float_format="%.10f")
+    dataset = fgins.load(tmp_path, config=tmp_path / "cfg.toml")
+    assert dataset.gnss.velocity is not None
 
 
 @pytest.mark.parametrize(("name", "seed"), [("car-urban", 0), ("uav-loop-baro", 1)])
