@@ -21,13 +21,11 @@ import time
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
-import pymap3d
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "tests"))
 
-from independent_sim import INDUSTRIAL, hilly_drive, write_drive  # noqa: E402
+from independent_sim import INDUSTRIAL, hilly_drive, horizontal_errors, write_drive  # noqa: E402
 
 import fgins  # noqa: E402
 
@@ -37,12 +35,7 @@ ORIGIN = (45.0, 10.0, 100.0)  # write_drive's default origin
 
 
 def outage_rms(track: fgins.Trajectory, folder: Path) -> float:
-    truth = pd.read_csv(folder / "truth.csv")
-    frame = track.to_dataframe()
-    east, north, _ = pymap3d.geodetic2enu(frame["lat"], frame["lon"], frame["alt"], *ORIGIN)
-    t = frame["time"].to_numpy()
-    error = np.hypot(east - np.interp(t, truth["time"], truth["east"]),
-                     north - np.interp(t, truth["time"], truth["north"]))  # fmt: skip
+    t, error = horizontal_errors(track, folder, ORIGIN)
     inside = (t >= OUTAGE[0]) & (t < OUTAGE[1])
     return float(np.sqrt(np.mean(error[inside] ** 2)))
 
