@@ -128,9 +128,17 @@ def _course(t: np.ndarray, t_gnss: np.ndarray, east_north: np.ndarray, interval:
     return np.arctan2(d[:, 1], d[:, 0]), usable
 
 
-def judge(offset: ClockOffset | None, given_offset_s: float = 0.0) -> tuple[str, str] | None:
+def judge(
+    offset: ClockOffset | None, given_offset_s: float = 0.0, *, banks: bool = False
+) -> tuple[str, str] | None:
     """("error" | "warning", message) for an offset worth saying, else None.
-    ``given_offset_s``: the --time-offset already applied (the advice is the total)."""
+    ``given_offset_s``: the --time-offset already applied (the advice is the total).
+    ``banks``: the body banks into its turns (an aircraft): its gyro about the log's mean
+    "up" is not its rotation about the vertical while it rolls in and out, which shifts the
+    fit by seconds at a small gain (a climbing 45 deg turn: a false +2.1 s at 1.6x; the gyro
+    about the true vertical does no better, as a roll at a pitch turns about it too), so only
+    a clock offset (many seconds, a large gain) is said, with its uncertainty, not a
+    receiver's latency."""
     if offset is None:
         return None
     lag, gain, windows = offset.lag_s, offset.improvement, offset.windows
@@ -143,7 +151,10 @@ def judge(offset: ClockOffset | None, given_offset_s: float = 0.0) -> tuple[str,
         return "error", (
             f"time: {where}: the IMU and GNSS clocks differ (GPS time against UTC is 18 s); "
             f"give --time-offset {total:+.2f}"
+            + (" (from a banking aircraft's turns this is good to about 2 s)" if banks else "")
         )
+    if banks:
+        return None
     if abs(lag) >= WARN_MIN_LAG_S and gain >= WARN_MIN_IMPROVEMENT and windows >= WARN_MIN_WINDOWS:
         return "warning", (
             f"time: {where}: fixes stamped late or early (receiver latency) or offset clocks; "

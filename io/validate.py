@@ -148,7 +148,10 @@ def _validated(dataset: Dataset, vehicle: str | None) -> Dataset:
         body_follows_track=vehicle not in FREE_BODY_VEHICLES,
     )  # fmt: skip
     if vehicle not in FREE_BODY_VEHICLES and dataset.accel_array is None:
-        _check_clock_offset(imu, gnss, enu, up, checks, dataset.metadata.get("gnss_time_offset_s"))
+        _check_clock_offset(
+            imu, gnss, enu, up, checks, dataset.metadata.get("gnss_time_offset_s"),
+            banks=vehicle == "aircraft",
+        )  # fmt: skip
     _check_gnss_velocity(gnss, origin)
     baro = _checked_baro(dataset.baro, imu.t, checks)
     _check_pressure_unit(baro)
@@ -866,7 +869,7 @@ def _check_units(
 
 def _check_clock_offset(
     imu, gnss: GnssData, enu: np.ndarray, up: np.ndarray, checks: list[str],
-    given_offset_s: object,
+    given_offset_s: object, *, banks: bool = False,
 ) -> None:
     """The GNSS clock against the IMU's from the drive's turns (:mod:`fgins.io.clock_offset`):
     an offset of seconds is an error naming the --time-offset that aligns them (KITTI with 3 s
@@ -876,7 +879,7 @@ def _check_clock_offset(
 
     offset = estimate_clock_offset(imu.t, imu.gyro @ up, gnss.t, enu[:, :2])
     given = float(given_offset_s) if isinstance(given_offset_s, (int, float)) else 0.0
-    verdict = judge(offset, given)
+    verdict = judge(offset, given, banks=banks)
     if verdict is None:
         return
     kind, message = verdict

@@ -11,6 +11,7 @@ guard the EKF+RTS against the batch solve.
 
 from __future__ import annotations
 
+import re
 import sys
 from pathlib import Path
 
@@ -179,3 +180,24 @@ def test_attitude_reset_is_that_of_the_global_error():
     reset = reset_jacobian(dtheta)[6:9, 6:9]
     assert np.abs(reset - numeric).max() < 5e-3
     assert np.abs(reset - (np.eye(3) + 0.5 * skew(dtheta))).max() < 1e-12
+
+
+def test_a_climbing_banked_turn_is_not_called_a_clock_offset(tmp_path):
+    """An 80 s climbing turn banked 45 deg: rolling in and out, the gyro about the log's mean
+    "up" is not the rotation about the vertical (it saw 0.73 of the track's turn, its roll-in
+    shifted by ~2 s), and every flight like it got "the fixes line up with the gyro when
+    moved by +2.12 s ... --time-offset +2.12 aligns them", advice that makes the fit worse.
+    A real clock offset (GPS time against UTC) is still an error."""
+    rate = 9.8 * np.tan(np.radians(45)) / 80.0
+    motion = FixedWing(speed=80.0, heading0_deg=250, turns=[(30, 110, 3, rate)],
+                       climbs=[(25, 120, 15, np.radians(30))])  # fmt: skip
+    folder = write_flight(tmp_path / "climbturn", motion, 140.0, seed=2, vehicle="aircraft",
+                          gnss_rate=2.0)  # fmt: skip
+    dataset = fgins.load(folder, vehicle="aircraft")
+    assert not any(w.startswith("time:") for w in dataset.warnings), dataset.warnings
+    track = fgins.smooth(dataset, "batch", gnss_outage=[(60.0, 110.0)])
+    assert _errors(track, folder, (60.0, 110.0))["rms"] < 1.0
+    with pytest.raises(fgins.InputError, match=r"clocks differ .* good to about 2 s") as error:
+        fgins.load(folder, vehicle="aircraft", time_offset=18.0)
+    advice = float(re.search(r"give --time-offset ([-+][0-9.]+)", str(error.value)).group(1))
+    assert abs(advice) < 2.5, error.value
