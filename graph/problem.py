@@ -517,17 +517,17 @@ class Problem:
                 put_double(values, key, self.baro_bias0)
 
     def gnss_whitened_residuals(self, values: gtsam.Values) -> tuple[np.ndarray, np.ndarray]:
-        """(times, |whitened residual|) of every GNSS position factor at an estimate, in
-        the order of :attr:`gnss_used`."""
+        """(times, whitened residual east/north/up, one row per fix) of every GNSS position
+        factor at an estimate, in the order of :attr:`gnss_used`."""
         keyframes = np.flatnonzero(self.gnss_at >= 0)
         lever = np.asarray(self.config.gnss.lever_arm_m, dtype=float)
-        norms = np.empty(len(keyframes))
+        whitened = np.empty((len(keyframes), 3))
         for i, k in enumerate(keyframes):
             g = int(self.gnss_at[k])
             pose = values.atPose3(X(int(k)))
             antenna = pose.translation() + pose.rotation().matrix() @ lever
-            norms[i] = np.linalg.norm((antenna - self.gnss_enu[g]) / self.gnss_sigma[g])
-        return self.segments.times[keyframes], norms
+            whitened[i] = (antenna - self.gnss_enu[g]) / self.gnss_sigma[g]
+        return self.segments.times[keyframes], whitened
 
     @property
     def gnss_used(self) -> np.ndarray:

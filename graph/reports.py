@@ -38,7 +38,8 @@ def extra_states(values: gtsam.Values) -> dict[str, object]:
 
 
 def gnss_report(problem: Problem, values: gtsam.Values) -> dict[str, object]:
-    times, norms = problem.gnss_whitened_residuals(values)
+    times, whitened = problem.gnss_whitened_residuals(values)
+    norms = np.linalg.norm(whitened, axis=1)
     large = times[norms > LARGE_RESIDUAL_WHITENED]
     gnss = problem.config.gnss
     kernel = "Cauchy" if gnss.cauchy_k is not None else "Huber" if gnss.huber_k else None
@@ -66,7 +67,7 @@ def gnss_report(problem: Problem, values: gtsam.Values) -> dict[str, object]:
         "gnss_rejected_times": [float(t) for t in large] if kernel == "Cauchy" else [],
         "gnss_large_residual_times": [float(t) for t in large],
         "gnss_rejected": text + listed,
-        **_dop_model_scale(problem, norms),
+        **_merged_warnings(_dop_model_scale(problem, norms), _sigmas_too_small(whitened)),
     }
 
 
@@ -178,6 +179,54 @@ def _dop_model_scale(problem: Problem, norms: np.ndarray) -> dict[str, object]:
     return out
 
 
+def _merged_warnings(*parts: dict[str, object]) -> dict[str, object]:
+    out: dict[str, object] = {}
+    for part in parts:
+        warnings = [*out.get("fit_warnings", []), *part.get("fit_warnings", [])]  # type: ignore[misc]
+        out.update(part)
+        if warnings:
+            out["fit_warnings"] = warnings
+    return out
+
+
+def _sigmas_too_small(whitened: np.ndarray) -> dict[str, object]:
+    """How far the fixes scatter about the solution against their own sigmas, horizontally
+    and vertically (robust: 1.4826 x the median absolute whitened residual, so a few outliers
+    do not count; ~0.7-1 when the sigmas are right, as the fit follows the fixes a little).
+
+    The overall chi-square, diluted by the IMU's many factors, hid fixes whose heights were
+    in feet (3.3x their vertical sigma: chi2/dof 2.6, no word) or whose sigmas were a few
+    times too small; every reported uncertainty then comes out that much too small."""
+    if len(whitened) < MIN_FIXES_FOR_SCALE:
+        return {}
+    horizontal = float(1.4826 * np.median(np.abs(whitened[:, :2])))
+    vertical = float(1.4826 * np.median(np.abs(whitened[:, 2])))
+    out: dict[str, object] = {
+        "gnss_whitened_scale_horizontal": horizontal, "gnss_whitened_scale_vertical": vertical,
+    }  # fmt: skip
+    if vertical > SIGMA_TOO_SMALL and vertical > SIGMA_AXIS_RATIO * horizontal:
+        out["fit_warnings"] = [
+            f"GNSS: the fixes' heights scatter {vertical:.1f}x their vertical sigma about the "
+            f"solution (horizontally {horizontal:.1f}x; robust whitened RMS, ~1 expected): an "
+            "altitude in feet (3.3x), heights of two datums mixed (ellipsoid and mean sea "
+            "level), or a vertical sigma (VDOP, std_up) too small; the vertical uncertainty "
+            "reported is that much too small"
+        ]
+    elif max(horizontal, vertical) > SIGMA_TOO_SMALL:
+        out["fit_warnings"] = [
+            f"GNSS: the fixes scatter {horizontal:.1f}x their horizontal and {vertical:.1f}x "
+            "their vertical sigma about the solution (robust whitened RMS, ~1 expected): the "
+            "sigmas (std columns, GST, covariance, [gnss] sigma_m or UERE x DOP) are too small "
+            "for this receiver, or the IMU's noise setting holds the track too stiff; the "
+            "reported uncertainties are that much too small"
+        ]
+    return out
+
+
+# Fixes scattering this many times their own sigma (robust whitened RMS) about the solution;
+# a height scale this many times the horizontal one points at the heights alone.
+SIGMA_TOO_SMALL = 2.0
+SIGMA_AXIS_RATIO = 1.5
 MIN_FIXES_FOR_SCALE = 30
 DOP_MODEL_PESSIMISTIC = 0.4
 # A receiver's own sigmas are often pessimistic (u-blox hAcc: 2-3x); 10x is a unit.
