@@ -142,6 +142,8 @@ def _validated(dataset: Dataset, vehicle: str | None) -> Dataset:
     enu = lla_to_enu(gnss.lla, origin)  # the checks below share the fixes' local positions
     up = _mean_up(imu)
     _check_frozen_position(gnss, enu, imu, up)
+    if vehicle not in FREE_BODY_VEHICLES:
+        _check_track_scale_by_turns(gnss, enu, imu, up)
     _check_time_bases(imu.t, gnss.t, checks, n_read=len(dataset.gnss))
     _check_units(
         imu, gnss, origin, checks, has_accel_array=dataset.accel_array is not None,
@@ -1035,6 +1037,54 @@ def _check_frozen_position(gnss: GnssData, enu: np.ndarray, imu, up: np.ndarray)
             "(a receiver repeating its last fix, or a constant column); give the fixes' real "
             "positions"
         )
+
+
+def _check_track_scale_by_turns(gnss: GnssData, enu: np.ndarray, imu, up: np.ndarray) -> None:
+    """Fixes that move far slower than the IMU's turns say, without velocity columns to
+    compare with: in a turn the horizontal specific force is at least speed x yaw rate (1-s
+    means, so not vibration), so its ratio to the yaw rate is at least the speed (more while
+    speeding up or braking, or tilted). The fixes' own speed far below it is a shrunk track
+    (lat/lon in radians: 57x; it ran 80 Levenberg-Marquardt rounds to an error blaming the
+    IMU noise). A multirotor or a walker (yaw without a turn, steps) is not judged, and
+    a banked aircraft's specific force stays along its up axis (a larger ratio, never
+    smaller)."""
+    finite = np.all(np.isfinite(enu[:, :2]), axis=1)
+    t_fix, xy = gnss.t[finite], enu[finite, :2]
+    if len(t_fix) < VELOCITY_MIN_EPOCHS or np.any(np.diff(t_fix) <= 0):
+        return
+    rate = 1.0 / float(np.median(np.diff(imu.t)))
+    n = max(round(rate), 5)
+    blocks = len(imu.t) // n
+    if blocks < SCALE_MIN_TURNS:
+        return
+    t_mid = imu.t[: blocks * n].reshape(blocks, n).mean(axis=1)
+    gyro = imu.gyro[: blocks * n].reshape(blocks, n, 3).mean(axis=1)
+    accel = imu.accel[: blocks * n].reshape(blocks, n, 3).mean(axis=1)
+    yaw_rate = np.abs(gyro @ up - np.median(gyro @ up))
+    horizontal = accel - np.outer(accel @ up, up)
+    force = np.linalg.norm(horizontal - np.median(horizontal, axis=0), axis=1)
+    inside = (t_mid > t_fix[0]) & (t_mid < t_fix[-1])
+    turns = inside & (yaw_rate > SCALE_TURN_RAD_S) & (force > SCALE_FORCE_M_S2)
+    if turns.sum() < SCALE_MIN_TURNS:
+        return
+    velocity = np.gradient(xy, t_fix, axis=0)
+    speed = np.hypot(*(np.interp(t_mid[turns], t_fix, velocity[:, i]) for i in range(2)))
+    ratio = float(np.median(speed / (force[turns] / yaw_rate[turns])))
+    if ratio < SCALE_SHRUNK_RATIO:
+        raise InputError(
+            f"gnss: the fixes move {1.0 / max(ratio, 1e-9):.3g} times slower than the IMU's "
+            f"turns say (their speed against horizontal specific force over yaw rate, median "
+            f"of {int(turns.sum())} 1-s turns; ~1 or below expected, lat/lon in radians gives "
+            "57): give lat/lon in degrees (and positions in metres)"
+        )
+
+
+# A turn: 1-s means of the yaw rate and the horizontal specific force above these; this
+# many of them; the fixes' speed over the speed they imply below this is a shrunk track.
+SCALE_TURN_RAD_S = 0.1
+SCALE_FORCE_M_S2 = 0.5
+SCALE_MIN_TURNS = 10
+SCALE_SHRUNK_RATIO = 0.1
 
 
 def _check_shrunk_track(gnss: GnssData, enu: np.ndarray, sigma: np.ndarray) -> None:

@@ -980,7 +980,9 @@ def test_lat_lon_in_radians_is_named(tmp_path, urban, with_velocity):
     off West Africa, 57x too close together: with velocity columns the run ended in "LM
     diverged ... the GNSS velocities disagree with the IMU"; without, it ran at chi2/dof 9
     with no word about units. Now: an error naming radians when the receiver's velocity
-    shows the shrink; otherwise a warning naming radians. Real fixes elsewhere say nothing."""
+    shows the shrink, and without velocity when the IMU's turns do (the fixes' speed against
+    horizontal specific force over yaw rate: it had warned about the place, then run 80
+    Levenberg-Marquardt rounds to an error blaming the IMU noise). Real fixes say nothing."""
     paths = _pair(tmp_path, urban.dataset)
     gnss_path = Path(paths[1])
     lines = gnss_path.read_text().splitlines()
@@ -998,12 +1000,12 @@ def test_lat_lon_in_radians_is_named(tmp_path, urban, with_velocity):
         rows.append(",".join(cells))
     assert not any("radians" in w for w in load_dataset(paths).warnings)  # degrees: silent
     gnss_path.write_text("\n".join([lines[0], *rows]) + "\n")
-    if with_velocity:
-        with pytest.raises(InputError, match="lat/lon in radians gives 57"):
-            load_dataset(paths)
-    else:
-        checked = load_dataset(paths)
-        assert [w for w in checked.warnings if "in radians, convert them to degrees" in w]
+    match = "lat/lon in radians gives 57" if with_velocity else "slower than the IMU's turns"
+    with pytest.raises(InputError, match=match) as error:
+        load_dataset(paths)
+    if not with_velocity:
+        times = float(str(error.value).split("move ")[1].split(" times")[0])
+        assert 30 < times < 90, error.value
 
 
 @pytest.mark.parametrize("scale,expect", [(1000.0, "look like milliseconds"),
@@ -1047,3 +1049,20 @@ def test_fixes_far_from_the_origin_say_the_frame_is_approximate_there(reach_km, 
         reach = float(np.hypot(east[-1], 0.42 * east[-1]))
         assert f"reach {reach / 1000:.0f} km" in notes[0]
         assert f"{reach**2 / (2 * 6.371e6) / 1000:.1f} km below" in notes[0]
+
+
+@pytest.mark.parametrize("imu_rate", [50.0, 200.0])
+def test_a_shrunk_track_without_velocity_is_caught_by_the_turns_on_another_simulator(tmp_path, imu_rate):
+    """The independent simulator's hilly drive (fixes without velocity, 1.5 m noise): in
+    degrees it loads without a word; in radians the IMU's turns name the shrink."""
+    from independent_sim import INDUSTRIAL, hilly_drive, write_drive
+
+    write_drive(tmp_path, hilly_drive(), 200.0, grade=INDUSTRIAL, imu_rate=imu_rate, jitter=0.0,
+                gnss_rate=1.0, seed=3, sigma_h=1.5, sigma_u=3.0)  # fmt: skip
+    paths = [str(tmp_path / "imu.csv"), str(tmp_path / "gnss.csv")]
+    assert not any("radians" in w for w in load_dataset(paths).warnings)
+    fixes = pd.read_csv(tmp_path / "gnss.csv")
+    fixes[["lat", "lon"]] = np.radians(fixes[["lat", "lon"]])
+    fixes.to_csv(tmp_path / "gnss.csv", index=False, float_format="%.12f")
+    with pytest.raises(InputError, match="slower than the IMU's turns say"):
+        load_dataset(paths)
