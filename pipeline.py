@@ -10,6 +10,7 @@ import numpy as np
 
 from fgins.config import RunConfig
 from fgins.datatypes import Dataset, FginsError, InputError, Trajectory
+from fgins.gnss_scatter import gnss_scatter
 from fgins.initial_guess import KeyframeGuess
 
 GRAPH_METHODS = ("batch", "isam2", "isam2-online")
@@ -207,9 +208,8 @@ def _run(
         except (ImportError, AttributeError):
             raise FginsError(f"method {method!r} is not available in this build") from None
         trajectory = function(dataset, config, gnss_mask=gnss_mask, progress=progress)
-        fit_note = _filter_fit_note(dataset, config, gnss_mask, trajectory, method)
-        if fit_note:
-            trajectory.info.setdefault("fit_warnings", []).append(fit_note)
+        for note in _filter_fit_note(dataset, config, gnss_mask, trajectory, method):
+            trajectory.info.setdefault("fit_warnings", []).append(note)
         if dataset.odometer is not None and len(dataset.odometer.t):
             # The Kalman baselines have no wheel-speed update: said, never silently ignored.
             trajectory.info["fit_warnings"] = [
@@ -240,36 +240,44 @@ def _filter_fit_note(
     gnss_mask: np.ndarray | None,
     trajectory: Trajectory,
     method: str,
-) -> str | None:
-    """A warning when a Kalman baseline's track does not fit the fixes it used, or its
-    predictions miss the fixes by far more than its covariance says."""
+) -> list[str]:
+    """Warnings when a Kalman baseline's track does not fit the fixes it used or its
+    predictions miss the fixes by far more than its covariance says (one of the two), and
+    when the fixes scatter about its track far beyond their sigmas
+    (:func:`fgins.gnss_scatter.gnss_scatter`, the graph's check too): said beside the
+    others only when the heights alone scatter, which names a cause they cannot (feet)."""
     from fgins.baseline.measurements import select_gnss
 
     epochs = select_gnss(dataset, config, gnss_mask)
     if len(epochs.t) < 10 or len(trajectory) < 2:
-        return None
+        return []
     nearest = np.clip(np.searchsorted(trajectory.t, epochs.t), 0, len(trajectory) - 1)
     lever = np.asarray(config.gnss.lever_arm_m, dtype=float)
     antenna = trajectory.at(epochs.t) + trajectory.rotation[nearest] @ lever
-    z2 = ((antenna - epochs.position)[:, :2] / epochs.position_sigma[:, :2]) ** 2
+    whitened = (antenna - epochs.position) / epochs.position_sigma
+    scatter = gnss_scatter(whitened, method)
+    trajectory.info.update({k: v for k, v in scatter.items() if k != "fit_warnings"})
+    scatter_notes: list[str] = scatter.get("fit_warnings", [])  # type: ignore[assignment]
+    heights_only = [note for note in scatter_notes if "heights scatter" in note]
+    z2 = whitened[:, :2] ** 2
     chi2 = float(np.nanmean(z2))
     if np.isfinite(chi2) and chi2 > FILTER_FIT_CHI2_MAX:
-        return (
+        return [(
             f"{method}: its track does not fit the GNSS fixes it used: horizontal residuals "
             f"chi2/dof {chi2:.3g} (about 1 or below expected from their sigmas); the filter "
             "diverged (IMU gaps, axes or units, noise too small for this IMU, IMU and GNSS on "
             "different clocks: --time-offset) or the GNSS sigmas are too small: compare --method batch, which checks its own fit"
-        )
+        ), *heights_only]
     nis = float(trajectory.info.get("gnss_nis_median", math.nan))
     if np.isfinite(nis) and nis > FILTER_NIS_MAX:
-        return (
+        return [(
             f"{method}: its IMU predictions miss the GNSS fixes by far more than its covariance "
             f"says (median normalised innovation {nis:.3g} per dimension, ~0.8 expected): IMU "
             "and GNSS on different clocks (--time-offset), wrong axes or units, or IMU noise "
             "set far too small; its output and sigmas are not to be trusted: compare --method "
             "batch, which checks its own fit"
-        )
-    return None
+        ), *heights_only]
+    return scatter_notes
 
 
 def filter_initial_guess(

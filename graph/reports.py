@@ -13,6 +13,7 @@ from fgins.datatypes import Trajectory
 from fgins.factors import gnss as gnss_model
 from fgins.factors import odometer as odometer_model
 from fgins.factors import vehicle as vehicle_model
+from fgins.gnss_scatter import gnss_scatter
 from fgins.graph.problem import Problem
 from fgins.graph.solve import CHI2_FAR_TOO_GOOD, CHI2_WARN, SolveReport
 
@@ -67,7 +68,7 @@ def gnss_report(problem: Problem, values: gtsam.Values) -> dict[str, object]:
         "gnss_rejected_times": [float(t) for t in large] if kernel == "Cauchy" else [],
         "gnss_large_residual_times": [float(t) for t in large],
         "gnss_rejected": text + listed,
-        **_merged_warnings(_dop_model_scale(problem, norms), _sigmas_too_small(whitened)),
+        **_merged_warnings(_dop_model_scale(problem, norms), gnss_scatter(whitened)),
     }
 
 
@@ -189,44 +190,6 @@ def _merged_warnings(*parts: dict[str, object]) -> dict[str, object]:
     return out
 
 
-def _sigmas_too_small(whitened: np.ndarray) -> dict[str, object]:
-    """How far the fixes scatter about the solution against their own sigmas, horizontally
-    and vertically (robust: 1.4826 x the median absolute whitened residual, so a few outliers
-    do not count; ~0.7-1 when the sigmas are right, as the fit follows the fixes a little).
-
-    The overall chi-square, diluted by the IMU's many factors, hid fixes whose heights were
-    in feet (3.3x their vertical sigma: chi2/dof 2.6, no word) or whose sigmas were a few
-    times too small; every reported uncertainty then comes out that much too small."""
-    if len(whitened) < MIN_FIXES_FOR_SCALE:
-        return {}
-    horizontal = float(1.4826 * np.median(np.abs(whitened[:, :2])))
-    vertical = float(1.4826 * np.median(np.abs(whitened[:, 2])))
-    out: dict[str, object] = {
-        "gnss_whitened_scale_horizontal": horizontal, "gnss_whitened_scale_vertical": vertical,
-    }  # fmt: skip
-    if vertical > SIGMA_TOO_SMALL and vertical > SIGMA_AXIS_RATIO * horizontal:
-        out["fit_warnings"] = [
-            f"GNSS: the fixes' heights scatter {vertical:.1f}x their vertical sigma about the "
-            f"solution (horizontally {horizontal:.1f}x; robust whitened RMS, ~1 expected): an "
-            "altitude in feet (3.3x), heights of two datums mixed (ellipsoid and mean sea "
-            "level), or a vertical sigma (VDOP, std_up) too small; the vertical uncertainty "
-            "reported is that much too small"
-        ]
-    elif max(horizontal, vertical) > SIGMA_TOO_SMALL:
-        out["fit_warnings"] = [
-            f"GNSS: the fixes scatter {horizontal:.1f}x their horizontal and {vertical:.1f}x "
-            "their vertical sigma about the solution (robust whitened RMS, ~1 expected): the "
-            "sigmas (std columns, GST, covariance, [gnss] sigma_m or UERE x DOP) are too small "
-            "for this receiver, or the IMU's noise setting holds the track too stiff; the "
-            "reported uncertainties are that much too small"
-        ]
-    return out
-
-
-# Fixes scattering this many times their own sigma (robust whitened RMS) about the solution;
-# a height scale this many times the horizontal one points at the heights alone.
-SIGMA_TOO_SMALL = 2.0
-SIGMA_AXIS_RATIO = 1.5
 MIN_FIXES_FOR_SCALE = 30
 DOP_MODEL_PESSIMISTIC = 0.4
 # A receiver's own sigmas are often pessimistic (u-blox hAcc: 2-3x); 10x is a unit.

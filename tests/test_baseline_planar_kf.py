@@ -165,3 +165,27 @@ def test_pipeline_and_bad_input(uav_loop):
         run_planar_kf(run.dataset, config, gnss_mask=np.zeros(len(run.dataset.gnss), bool))
     with pytest.raises(InputError):
         PlanarKfOptions(max_block_s=0.0)
+
+
+def test_a_planar_fit_too_stiff_for_kitti_is_said():
+    """On the KITTI drive the planar filter's track misses the fixes it used by 0.56 m RMS
+    while it claims 0.22 m and the fixes 0.3 m (residual over claimed variance 2.2, checked
+    here from its output): its uncertainties are too small, and that is now said (it was
+    silent). The 15-state EKF+RTS on the same drive fits within its sigmas and says nothing."""
+    from fgins.baseline.measurements import select_gnss
+    from fgins.config import config_for_dataset
+    from fgins.io.inputs import load_dataset
+
+    dataset = load_dataset(["demo:kitti"], progress=False)
+    config = config_for_dataset(dataset)
+    epochs = select_gnss(dataset, config, None)
+    for method, stiff in (("planar-kf", True), ("ekf-rts", False)):
+        track = run_method(dataset, config, method, progress=False)
+        near = np.clip(np.searchsorted(track.t, epochs.t), 0, len(track) - 1)
+        residual = (track.at(epochs.t) - epochs.position)[:, :2]
+        claimed = epochs.position_sigma[:, :2] ** 2 + np.stack(
+            [track.position_cov[near, 0, 0], track.position_cov[near, 1, 1]], axis=1
+        )
+        consistency = float(np.mean(residual**2 / claimed))
+        notes = [w for w in track.info.get("fit_warnings", []) if "scatter" in w]
+        assert (consistency > 1.5) == stiff and bool(notes) == stiff, (method, consistency, notes)
