@@ -608,19 +608,26 @@ class SmootherConfig:
 
 
 SIGMA_HINT = "a 1-sigma error; 0 would make the measurement infinitely certain"
+GNSS_SIGMA_HINT = (
+    "a 1-sigma error in metres (m/s); no receiver is better than a millimetre (RTK: ~1 cm), "
+    "and 0 would make the measurement infinitely certain"
+)
+# A configured GNSS sigma below this is a unit mix-up: 1e-9 m pinned the track to every fix
+# and the solve diverged with the blame on the IMU noise.
+MIN_GNSS_SIGMA = 1e-3
 GNSS_SCHEMA = _schema_from_fields(
     GnssConfig,
     {
         "lever_arm_m": Check("vec3", abs_max=100.0, hint="metres, antenna in the IMU frame"),
         "uere_m": Check("table", low=0.0, strict=True, choices=tuple(DEFAULT_UERE_M)),
-        "sigma_m": Check("vec3", low=0.0, strict=True, scalar_ok=True, hint=SIGMA_HINT),
-        "default_sigma_m": Check("vec3", low=0.0, strict=True, scalar_ok=True, hint=SIGMA_HINT),
+        "sigma_m": Check("vec3", low=MIN_GNSS_SIGMA, scalar_ok=True, hint=GNSS_SIGMA_HINT),
+        "default_sigma_m": Check("vec3", low=MIN_GNSS_SIGMA, scalar_ok=True, hint=GNSS_SIGMA_HINT),
         "min_sigma_m": Check("number", low=0.0, strict=True, hint=SIGMA_HINT),
         "pdop_max": Check("number", low=0.0, strict=True),
         "min_fix_quality": Check("int", low=0.0, abs_max=9.0),
         "huber_k": replace(NON_NEGATIVE, hint="0 turns the kernel off"),
         "cauchy_k": POSITIVE,
-        "velocity_sigma_m_per_s": replace(POSITIVE, hint=SIGMA_HINT),
+        "velocity_sigma_m_per_s": Check("number", low=MIN_GNSS_SIGMA, hint=GNSS_SIGMA_HINT),
         "course_min_speed_m_per_s": NON_NEGATIVE,
     },
 )

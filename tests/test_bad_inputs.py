@@ -225,10 +225,21 @@ CONFIG_CASES = [
     _toml_case(
         "sigma-zeros",
         "[gnss]\nsigma_m = [0, 0, 0]\n",
-        r"\[gnss\]\.sigma_m = \[0, 0, 0\]: must be > 0",
+        r"\[gnss\]\.sigma_m = \[0, 0, 0\]: must be >= 0\.001",
     ),
     _toml_case(
-        "sigma-negative", "[gnss]\nsigma_m = -1.0\n", r"\[gnss\]\.sigma_m = -1\.0: must be > 0"
+        "sigma-negative", "[gnss]\nsigma_m = -1.0\n", r"\[gnss\]\.sigma_m = -1\.0: must be >= 0\.001"
+    ),
+    # 1e-9 m pinned the track to every fix: the solve diverged, blaming the IMU noise.
+    _toml_case(
+        "sigma-nanometres",
+        "[gnss]\nsigma_m = [1e-9, 1e-9, 1e-9]\n",
+        r"\[gnss\]\.sigma_m = \[1e-09, 1e-09, 1e-09\]: must be >= 0\.001 .*RTK",
+    ),
+    _toml_case(
+        "velocity-sigma-tiny",
+        "[gnss]\nvelocity_sigma_m_per_s = 1e-6\n",
+        r"\[gnss\]\.velocity_sigma_m_per_s = 1e-06: must be >= 0\.001",
     ),
     _toml_case(
         "lever-arm-length",
@@ -319,7 +330,7 @@ CONFIG_CASES = [
     Case(
         "dataset-sigma-zeros",
         SMOOTH,
-        r"sensor settings of drive: \[gnss\]\.sigma_m = \[0, 0, 0\]: must be > 0",
+        r"sensor settings of drive: \[gnss\]\.sigma_m = \[0, 0, 0\]: must be >= 0\.001",
         edit_sim_config=lambda text: text.replace("[gnss]\n", "[gnss]\nsigma_m = [0, 0, 0]\n"),
     ),
     Case(

@@ -95,7 +95,8 @@ def _bad_values(check) -> list[tuple[object, str]]:
         bad = [([1.0, 2.0], "3 numbers"), ([1.0, "x", 2.0], "expected numbers")]
         bad += [([1.0, math.nan, 2.0], "finite"), ([True, 1.0, 1.0], "got a boolean")]
         if check.low is not None:
-            bad.append(([check.low, 1.0, 1.0], "must be >"))
+            below = check.low if check.strict else check.low / 2 - 1.0
+            bad.append(([below, 1.0, 1.0], f"must be {'>' if check.strict else '>='}"))
         if check.abs_max is not None:
             bad.append(([0.0, 0.0, 10 * check.abs_max], "must be within"))
         return bad
@@ -195,7 +196,7 @@ def test_unknown_keys_suggest_the_nearest(tmp_path):
 
 
 def test_values_set_in_code_are_checked_too():
-    with pytest.raises(ConfigError, match=r"\[gnss\]\.sigma_m = \[0, 0, 0\]: must be > 0"):
+    with pytest.raises(ConfigError, match=r"\[gnss\]\.sigma_m = \[0, 0, 0\]: must be >= 0\.001"):
         GnssConfig(sigma_m=(0, 0, 0))
     with pytest.raises(ConfigError, match=r"vehicle = \"boat\""):
         SmootherConfig(vehicle="boat")
