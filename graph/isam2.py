@@ -538,7 +538,7 @@ def smooth_isam2(
             final,
             gnss_report(problem, result),
             lever_arm_report(problem, factors, result),
-            extra_states(result),
+            extra_states(problem, result),
             solver_report(report),
             vehicle_fit_report(problem, result),
             covariance_report(covariances),

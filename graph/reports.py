@@ -17,18 +17,33 @@ from fgins.gnss_scatter import gnss_scatter
 from fgins.graph.problem import Problem
 from fgins.graph.solve import CHI2_FAR_TOO_GOOD, CHI2_WARN, SolveReport
 
+ODOMETER_SCALE_PRIOR_SIGMAS = 3.0
 # A fix whose whitened residual exceeds this at the solution (chi-square, 3 dof, 99.9 %) has a
 # large residual; only a robust kernel actually down-weights it.
 LARGE_RESIDUAL_WHITENED = 4.03
 
 
-def extra_states(values: gtsam.Values) -> dict[str, object]:
+def extra_states(problem: Problem, values: gtsam.Values) -> dict[str, object]:
     """Estimated non-navigation states worth reporting (odometer scale-factor error, the
     NHC misalignment: the angle between the vehicle's x axis as configured and its
-    velocity, i.e. a mounting error, lateral (yaw) and vertical (pitch), degrees)."""
+    velocity, i.e. a mounting error, lateral (yaw) and vertical (pitch), degrees).
+
+    A scale-factor error beyond 3 sigma of its prior is a warning: tyres are within a few
+    per cent, so a scale the data pulled that far is a wrong radius or pulses-per-metre (a
+    unit is refused at load: :func:`fgins.io.validate._check_wheel_speed`)."""
     out: dict[str, object] = {}
     if values.exists(odometer_model.scale_key()):
-        out["odometer_scale_error"] = float(values.atDouble(odometer_model.scale_key()))
+        scale = float(values.atDouble(odometer_model.scale_key()))
+        out["odometer_scale_error"] = scale
+        prior = problem.config.smoother.odometer_scale_sigma
+        if abs(scale) > ODOMETER_SCALE_PRIOR_SIGMAS * prior:
+            out["fit_warnings"] = [
+                f"wheel speed: its scale-factor error came out {100 * scale:+.1f} %, beyond "
+                f"{ODOMETER_SCALE_PRIOR_SIGMAS:g} sigma of its prior ({100 * prior:g} %, [smoother] "
+                "odometer_scale_sigma): a wrong tyre radius or pulses per metre in the wheel "
+                "speed, or a wheel that slips; fix the wheel speed's scale, or widen the prior "
+                "if it is real"
+            ]
     if values.exists(vehicle_model.misalignment_key(0)):
         lateral, vertical = np.degrees(values.atVector(vehicle_model.misalignment_key(0)))
         drifting = values.exists(vehicle_model.misalignment_key(1))  # one key per keyframe

@@ -1066,3 +1066,35 @@ def test_a_shrunk_track_without_velocity_is_caught_by_the_turns_on_another_simul
     fixes.to_csv(tmp_path / "gnss.csv", index=False, float_format="%.12f")
     with pytest.raises(InputError, match="slower than the IMU's turns say"):
         load_dataset(paths)
+
+
+@pytest.mark.parametrize(
+    ("unit", "scale"), [("m/s", 1.0), ("km/h", 3.6), ("mph", 2.23694), ("rad/s", 1 / 0.31), ("tyre", 1.3)]
+)
+def test_a_wheel_speed_in_another_unit_is_named(tmp_path, unit, scale):
+    """The independent simulator's hilly drive with a 10 Hz wheel speed from its truth: in
+    m/s it loads and its scale state stays near zero; in km/h the scale state took +260 %
+    on a simulated car and the run said nothing but that number. Now the wheel speed is
+    held against the speed the fixes show, and a unit is named before any solve."""
+    from independent_sim import INDUSTRIAL, hilly_drive, write_drive
+
+    write_drive(tmp_path, hilly_drive(), 150.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
+                gnss_rate=1.0, seed=2, sigma_h=1.5, sigma_u=3.0)  # fmt: skip
+    truth = pd.read_csv(tmp_path / "truth.csv").iloc[::10]
+    speed = np.linalg.norm(truth[["vel_east", "vel_north", "vel_up"]].to_numpy(), axis=1)
+    rng = np.random.default_rng(0)
+    wheel = pd.DataFrame({"time": truth["time"], "wheel_speed": scale * (speed + rng.normal(0, 0.05, len(speed)))})
+    wheel.to_csv(tmp_path / "wheel.csv", index=False)
+    paths = [str(tmp_path / name) for name in ("imu.csv", "gnss.csv", "wheel.csv")]
+    if scale == 1.0:
+        assert not any(w.startswith("wheel") for w in load_dataset(paths).warnings)
+    elif unit == "tyre":
+        # Within the load check's 0.7-1.4, but no tyre is 30 % off: the batch says so.
+        import fgins
+
+        track = fgins.smooth(fgins.load(*paths, vehicle="car"), "batch")
+        assert abs(track.info["odometer_scale_error"] - 0.3) < 0.03
+        assert any("scale-factor error came out +30" in w for w in track.info["fit_warnings"])
+    else:
+        with pytest.raises(InputError, match=rf"wheel: the wheel speed is {scale:.2g}\d* times .*{unit[:3]}"):
+            load_dataset(paths)
