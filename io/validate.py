@@ -159,6 +159,7 @@ def _validated(dataset: Dataset, vehicle: str | None) -> Dataset:
         _check_wheel_speed(dataset.odometer, gnss, enu)
     baro = _checked_baro(dataset.baro, imu.t, checks)
     _check_pressure_unit(baro)
+    _check_baro_scale(baro, gnss)
     _warn_frame_extent(gnss, origin, checks)
     _report_gnss_time_gaps(gnss.t, checks)
     metadata = {**dataset.metadata, "input_checks": list(checks)}
@@ -237,8 +238,11 @@ def _checked_baro(baro, imu_t: np.ndarray, checks: list[str]):
     off the IMU were both dropped without a word, exit 0)."""
     if baro is None:
         return None
-    values = baro.pressure if baro.pressure is not None else baro.height
-    name = "pressure" if baro.pressure is not None else "height"
+    from_height = _given_as_height(baro)
+    if from_height:
+        baro = _pressure_from_height(baro)
+    values = baro.height if from_height else baro.pressure
+    name = "height" if from_height else "pressure"
     if values is None or not len(baro.t):
         return baro
     with np.errstate(invalid="ignore"):
@@ -276,10 +280,49 @@ def _checked_baro(baro, imu_t: np.ndarray, checks: list[str]):
     return baro
 
 
+def _given_as_height(baro) -> bool:
+    """A barometer given as heights (a ``baro_height`` column) and no pressure."""
+    return (
+        baro.height is not None
+        and bool(np.any(np.isfinite(baro.height)))
+        and (baro.pressure is None or not np.any(np.isfinite(baro.pressure)))
+    )
+
+
+def _pressure_from_height(baro):
+    """Heights made the standard-atmosphere pressure they stand for, so that the graph and
+    every filter, which take pressure, use them (they read only pressure, and this check
+    refused every ``baro_height`` file as "a pressure no barometer gives (nan)"). Heights no
+    barometer reports are an error."""
+    from fgins.factors.stationary import standard_atmosphere_pressure
+
+    height = np.asarray(baro.height, dtype=float)
+    finite = height[np.isfinite(height)]
+    median = float(np.median(finite))
+    if not BARO_HEIGHT_PLAUSIBLE_M[0] <= median <= BARO_HEIGHT_PLAUSIBLE_M[1]:
+        raise InputError(
+            f"baro: the median baro_height is {median:.4g} m, outside what a barometer "
+            f"reports ({BARO_HEIGHT_PLAUSIBLE_M[0]:g} to {BARO_HEIGHT_PLAUSIBLE_M[1]:g} m): give "
+            "baro_height in metres (or pressure_pa in pascals)"
+        )
+    with np.errstate(invalid="ignore"):
+        pressure = np.where(np.isfinite(height), standard_atmosphere_pressure(height), np.nan)
+    return type(baro)(t=baro.t, pressure=pressure, height=height)
+
+
+def _from_height(baro) -> bool:
+    """Whether the pressures were made from a height column (both present, equal heights)."""
+    return baro.height is not None and bool(np.any(np.isfinite(baro.height)))
+
+
+# Heights a barometer column can hold (the Dead Sea to 20 km), metres.
+BARO_HEIGHT_PLAUSIBLE_M = (-1000.0, 20000.0)
+
+
 def _check_pressure_unit(baro) -> None:
     """A pressure no air has is a unit mistake (outside testers: hPa given as Pa, 955 "Pa"
     or ~30 km of standard atmosphere, moved the height by metres at exit 0)."""
-    if baro is None or baro.pressure is None:
+    if baro is None or baro.pressure is None or _from_height(baro):
         return
     pressure = baro.pressure[np.isfinite(baro.pressure) & (baro.pressure > 0.0)]
     if not len(pressure):
@@ -297,6 +340,57 @@ def _check_pressure_unit(baro) -> None:
         f"baro: the median pressure is {median:.4g} Pa, which no air between the Dead Sea and "
         f"20 km has ({low:g}-{high:g} Pa){guess}; give pressure_pa in pascals"
     )
+
+
+def _check_baro_scale(baro, gnss: GnssData) -> None:
+    """The barometer's height changes against the fixes' altitude changes, where it climbs
+    or descends well beyond both sensors' noise: the fixes' altitude regressed on the
+    barometer's (ISA) height has a slope of ~1 (the ISA against a real day's temperature:
+    +-10 %); a height column in feet gives 1/3.28 (the barometer then pulled every height
+    3.3x its climbs, and only the fit's chi-square said anything). The barometer's own
+    noise is small, so the fixes' noise does not bias this slope."""
+    if baro is None or not len(baro.t):
+        return
+    if _from_height(baro):
+        height, what = np.asarray(baro.height, dtype=float), "height"
+    else:
+        from fgins.factors.stationary import standard_atmosphere_height
+
+        with np.errstate(invalid="ignore"):
+            height = np.asarray(standard_atmosphere_height(baro.pressure), dtype=float)
+        what = "pressure's ISA height"
+    alt = gnss.lla[:, 2]
+    use = np.isfinite(alt) & (gnss.t >= baro.t[0]) & (gnss.t <= baro.t[-1])
+    finite = np.isfinite(height)
+    if use.sum() < VELOCITY_MIN_EPOCHS or finite.sum() < 2:
+        return
+    at_fixes = np.interp(gnss.t[use], baro.t[finite], height[finite])
+    sigma_up = float(np.median(_fix_sigma(gnss)[use]))  # 3-D: at least the vertical
+
+    def spread_of(values: np.ndarray) -> float:  # robust: a few altitude outliers do not count
+        q1, q3 = np.percentile(values, [25, 75])
+        return float(q3 - q1) / 1.349
+
+    spread = spread_of(at_fixes)
+    if max(spread, spread_of(alt[use])) < max(BARO_SCALE_MIN_SPREAD_M, 2.0 * sigma_up):
+        return  # level by both: nothing to tell a scale from
+    x = at_fixes - at_fixes.mean()
+    y = alt[use] - alt[use].mean()
+    slope = float(np.sum(x * y) / np.sum(x * x))
+    ratio = 1.0 / slope if slope != 0 else np.inf
+    if not BARO_SCALE_RANGE[0] <= ratio <= BARO_SCALE_RANGE[1]:
+        raise InputError(
+            f"baro: the barometer's {what} changes {ratio:.3g} times as much as the fixes' "
+            f"altitude (its heights spread {spread:.0f} m, 1 sigma; ~1 expected, feet give "
+            "3.28, a negative ratio a height that falls as the fixes climb): give "
+            "baro_height in metres, up positive, or pressure_pa in pascals"
+        )
+
+
+# The barometer judged only over climbs and descents of this spread (std, m) or more, and
+# twice the fixes' vertical sigma; its height scale within this range of the fixes'.
+BARO_SCALE_MIN_SPREAD_M = 10.0
+BARO_SCALE_RANGE = (0.7, 1.4)
 
 
 # --------------------------------------------------------------------------------------------

@@ -1098,3 +1098,55 @@ def test_a_wheel_speed_in_another_unit_is_named(tmp_path, unit, scale):
     else:
         with pytest.raises(InputError, match=rf"wheel: the wheel speed is {scale:.2g}\d* times .*{unit[:3]}"):
             load_dataset(paths)
+
+
+def _hilly_drive_with_barometer(folder: Path):
+    """The independent simulator's car over +-8 % hills (54 m of climbs and descents) and a
+    5 Hz barometer's geodetic height from its truth (0.3 m noise)."""
+    import pymap3d
+    from independent_sim import INDUSTRIAL, CarProfile, write_drive
+
+    def gamma(t):
+        return np.arctan(0.08 * np.sin(2 * np.pi * (np.asarray(t, float) - 20) / 120))
+
+    profile = CarProfile(steps=[(5, 8, 15.0)], turns=[(40, 50, 4, 0.12), (115, 130, 4, 0.09)],
+                         gamma=gamma)  # fmt: skip
+    write_drive(folder, profile, 240.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
+                gnss_rate=1.0, seed=1, sigma_h=1.5, sigma_u=3.0)  # fmt: skip
+    truth = pd.read_csv(folder / "truth.csv").iloc[::20]
+    height = pymap3d.enu2geodetic(truth["east"], truth["north"], truth["up"], 45.0, 10.0, 100.0)[2]
+    noise = np.random.default_rng(0).normal(0, 0.3, len(truth))
+    return truth["time"].to_numpy(), np.asarray(height) + noise
+
+
+def test_a_barometer_given_as_heights_is_used_and_its_unit_checked(tmp_path):
+    """A ``baro.csv`` of ``time,baro_height`` (documented) was refused by every run: the
+    check read its NaN pressure column, "4801 of 4801 samples have a pressure no barometer
+    gives (nan)", and the graph and filters read only pressure. The heights now stand for
+    their standard-atmosphere pressure (the same solution as that pressure given as
+    pressure_pa), and heights in feet or pointing down are named before any solve."""
+    import fgins
+    from fgins.factors.stationary import standard_atmosphere_pressure
+
+    t, height = _hilly_drive_with_barometer(tmp_path)
+    base = [tmp_path / "imu.csv", tmp_path / "gnss.csv"]
+    pd.DataFrame({"time": t, "baro_height": height}).to_csv(tmp_path / "baro_h.csv", index=False)
+    pd.DataFrame({"time": t, "pressure_pa": standard_atmosphere_pressure(height)}).to_csv(
+        tmp_path / "baro_p.csv", index=False, float_format="%.6f"
+    )
+    tracks = [
+        fgins.smooth(fgins.load(*base, tmp_path / name, vehicle="car"), "batch")
+        for name in ("baro_h.csv", "baro_p.csv")
+    ]
+    assert np.abs(tracks[0].position - tracks[1].position).max() < 1e-3
+    for name, values, match in (
+        ("feet", 3.28084 * height, r"changes 3\.2\d times as much as the fixes' altitude"),
+        ("down", -height, r"changes -(0\.9|1\.0)\d* times as much"),
+        ("km", height / 1000.0, r"changes 0\.00\d+ times"),
+    ):
+        pd.DataFrame({"time": t, "baro_height": values}).to_csv(tmp_path / f"{name}.csv", index=False)
+        with pytest.raises(InputError, match=match):
+            load_dataset([str(p) for p in (*base, tmp_path / f"{name}.csv")])
+    pd.DataFrame({"time": t, "baro_height": height + 3e4}).to_csv(tmp_path / "high.csv", index=False)
+    with pytest.raises(InputError, match=r"median baro_height is 3\.0\d+e\+04 m, outside"):
+        load_dataset([str(p) for p in (*base, tmp_path / "high.csv")])
