@@ -819,6 +819,20 @@ def _checked_smoother(where: str, table: dict[str, Any]) -> SmootherConfig:
             f"{where}[smoother].min_keyframe_interval_s = {_show(smoother.min_keyframe_interval_s)}"
             f": must not exceed max_keyframe_interval_s = {_show(smoother.max_keyframe_interval_s)}"
         )
+    if smoother.nhc_misalignment_prior_deg == 0.0:
+        # The misalignment state exists only with a prior; its walk or correlation alone was
+        # taken and silently did nothing.
+        for key in (
+            "nhc_misalignment_walk_deg_per_sqrt_s",
+            "nhc_misalignment_vertical_walk_deg_per_sqrt_s",
+            "nhc_misalignment_correlation_s",
+        ):
+            if getattr(smoother, key) > 0.0:
+                raise ConfigError(
+                    f"{where}[smoother].{key} = {_show(getattr(smoother, key))}: has no effect "
+                    "while nhc_misalignment_prior_deg = 0 (no misalignment state); give "
+                    "nhc_misalignment_prior_deg > 0 (its sigma, degrees) as well"
+                )
     return smoother
 
 

@@ -290,3 +290,17 @@ def test_the_default_gnss_kernel_is_huber_at_4_sigma_and_can_be_turned_off(tmp_p
     assert off.huber_k is None and off.cauchy_k is None
     args = cli.build_parser().parse_args(["smooth", "x.csv", "-o", "y.csv", "--robust", "none"])
     assert args.robust == "none"
+
+
+@pytest.mark.parametrize(
+    "key",
+    ["nhc_misalignment_walk_deg_per_sqrt_s", "nhc_misalignment_vertical_walk_deg_per_sqrt_s",
+     "nhc_misalignment_correlation_s"],
+)  # fmt: skip
+def test_a_misalignment_setting_without_its_state_is_refused(tmp_path, key):
+    """Without nhc_misalignment_prior_deg there is no misalignment state: its walk or its
+    correlation time alone was accepted and changed nothing (the same track to the bit)."""
+    with pytest.raises(ConfigError, match=rf"\[smoother\]\.{key} = 0\.1: has no effect while"):
+        load_config(_write(tmp_path, f"[smoother]\n{key} = 0.1\n"))
+    config = load_config(_write(tmp_path, f"[smoother]\nnhc_misalignment_prior_deg = 0.5\n{key} = 0.1\n"))
+    assert getattr(config.smoother, key) == 0.1
