@@ -262,10 +262,15 @@ def _filter_fit_note(
     z2 = whitened[:, :2] ** 2
     chi2 = float(np.nanmean(z2))
     if np.isfinite(chi2) and chi2 > FILTER_FIT_CHI2_MAX:
+        planar = (
+            "its planar model reads the forward acceleration as if the vehicle kept its first "
+            "tilt (a hill's grade or a bank is taken for acceleration: 0.8 m/s^2 at 8 %), or "
+            if method == "planar-kf" else ""
+        )  # fmt: skip
         return [(
             f"{method}: its track does not fit the GNSS fixes it used: horizontal residuals "
-            f"chi2/dof {chi2:.3g} (about 1 or below expected from their sigmas); the filter "
-            "diverged (IMU gaps, axes or units, noise too small for this IMU, IMU and GNSS on "
+            f"chi2/dof {chi2:.3g} (about 1 or below expected from their sigmas); {planar}the "
+            "filter diverged (IMU gaps, axes or units, noise too small for this IMU, IMU and GNSS on "
             "different clocks: --time-offset) or the GNSS sigmas are too small: compare --method batch, which checks its own fit"
         ), *heights_only]
     nis = float(trajectory.info.get("gnss_nis_median", math.nan))
