@@ -1213,9 +1213,9 @@ def _check_track_scale_by_turns(gnss: GnssData, enu: np.ndarray, imu, up: np.nda
 
 # A turn: 1-s means of the yaw rate and the horizontal specific force above these; this
 # many of them; the fixes' speed over the speed they imply below this is a shrunk track.
-SCALE_TURN_RAD_S = 0.1
+SCALE_TURN_RAD_S = 0.05
 SCALE_FORCE_M_S2 = 0.5
-SCALE_MIN_TURNS = 10
+SCALE_MIN_TURNS = 8
 SCALE_SHRUNK_RATIO = 0.1
 
 
