@@ -400,6 +400,19 @@ def read_gnss_csv(path: str | Path, warnings: list[str] | None = None) -> GnssDa
     # speed/course (m/s, degrees from north) give the horizontal velocity where the vel_*
     # columns do not (absent, or empty cells): vel_* win where both are given.
     velocity = triple(["vel_east", "vel_north", "vel_up"])
+    horizontal = [name for name in ("vel_east", "vel_north") if name in columns]
+    if len(horizontal) == 1:  # one horizontal component is no velocity: said, not silently unused
+        warnings.append(
+            f"{path.name}: {horizontal[0]} without "
+            f"{'vel_north' if horizontal[0] == 'vel_east' else 'vel_east'}: the horizontal "
+            "velocity is not used (give both, or neither)"
+        )
+    lone = [name for name in ("speed", "course") if name in columns]
+    if len(lone) == 1 and not horizontal:
+        warnings.append(
+            f"{path.name}: {lone[0]} without {'course' if lone[0] == 'speed' else 'speed'}: "
+            "no horizontal velocity from them (give both, or vel_east and vel_north)"
+        )
     if "speed" in columns and "course" in columns:
         speed, course = columns["speed"][index], columns["course"][index]
         fill = np.isfinite(speed) & np.isfinite(course)

@@ -274,3 +274,17 @@ def test_attitude_sigmas_are_written_after_the_biases(tmp_path):
     values = np.loadtxt(out, delimiter=",", skiprows=1)[:, -3:]
     np.testing.assert_allclose(values[0], [0.5, 1.0, 3.0], atol=1e-4)  # forward = east
     np.testing.assert_allclose(values[1], [1.0, 0.5, 3.0], atol=1e-4)  # forward = north
+
+
+@pytest.mark.parametrize("given", ["vel_east", "vel_north", "speed", "course"])
+def test_one_horizontal_velocity_column_is_said_not_silently_unused(tmp_path, given):
+    """A gnss.csv with vel_east but no vel_north was read, its velocity never used, and
+    nothing said."""
+    from fgins.io.csv_pair import read_gnss_csv
+
+    rows = [f"{t},45.0,10.0,100.0,{1.5 * t}" for t in range(12)]
+    (tmp_path / "gnss.csv").write_text(f"time,lat,lon,alt,{given}\n" + "\n".join(rows) + "\n")
+    found: list[str] = []
+    gnss = read_gnss_csv(tmp_path / "gnss.csv", found)
+    assert len(found) == 1 and f"{given} without" in found[0], found
+    assert not np.any(np.all(np.isfinite(gnss.velocity[:, :2]), axis=1))
