@@ -157,9 +157,11 @@ def _validated(dataset: Dataset, vehicle: str | None) -> Dataset:
     _check_gnss_velocity(gnss, origin)
     if dataset.odometer is not None and len(dataset.odometer.t):
         _check_wheel_speed(dataset.odometer, gnss, enu)
+    baro_heights = dataset.baro is not None and _given_as_height(dataset.baro)
     baro = _checked_baro(dataset.baro, imu.t, checks)
-    _check_pressure_unit(baro)
-    _check_baro_scale(baro, gnss)
+    if not baro_heights:  # heights were checked for range and made pressures
+        _check_pressure_unit(baro)
+    _check_baro_scale(baro, gnss, "height" if baro_heights else "pressure's ISA height")
     _warn_frame_extent(gnss, origin, checks)
     _report_gnss_time_gaps(gnss.t, checks)
     metadata = {**dataset.metadata, "input_checks": list(checks)}
@@ -310,11 +312,6 @@ def _pressure_from_height(baro):
     return type(baro)(t=baro.t, pressure=pressure, height=height)
 
 
-def _from_height(baro) -> bool:
-    """Whether the pressures were made from a height column (both present, equal heights)."""
-    return baro.height is not None and bool(np.any(np.isfinite(baro.height)))
-
-
 # Heights a barometer column can hold (the Dead Sea to 20 km), metres.
 BARO_HEIGHT_PLAUSIBLE_M = (-1000.0, 20000.0)
 
@@ -322,7 +319,7 @@ BARO_HEIGHT_PLAUSIBLE_M = (-1000.0, 20000.0)
 def _check_pressure_unit(baro) -> None:
     """A pressure no air has is a unit mistake (outside testers: hPa given as Pa, 955 "Pa"
     or ~30 km of standard atmosphere, moved the height by metres at exit 0)."""
-    if baro is None or baro.pressure is None or _from_height(baro):
+    if baro is None or baro.pressure is None:
         return
     pressure = baro.pressure[np.isfinite(baro.pressure) & (baro.pressure > 0.0)]
     if not len(pressure):
@@ -342,23 +339,20 @@ def _check_pressure_unit(baro) -> None:
     )
 
 
-def _check_baro_scale(baro, gnss: GnssData) -> None:
+def _check_baro_scale(baro, gnss: GnssData, what: str) -> None:
     """The barometer's height changes against the fixes' altitude changes, where it climbs
     or descends well beyond both sensors' noise: the fixes' altitude regressed on the
     barometer's (ISA) height has a slope of ~1 (the ISA against a real day's temperature:
     +-10 %); a height column in feet gives 1/3.28 (the barometer then pulled every height
     3.3x its climbs, and only the fit's chi-square said anything). The barometer's own
-    noise is small, so the fixes' noise does not bias this slope."""
+    noise is small, so the fixes' noise does not bias this slope. ``what``: how the
+    barometer was given, for the message."""
     if baro is None or not len(baro.t):
         return
-    if _from_height(baro):
-        height, what = np.asarray(baro.height, dtype=float), "height"
-    else:
-        from fgins.factors.stationary import standard_atmosphere_height
+    from fgins.factors.stationary import standard_atmosphere_height
 
-        with np.errstate(invalid="ignore"):
-            height = np.asarray(standard_atmosphere_height(baro.pressure), dtype=float)
-        what = "pressure's ISA height"
+    with np.errstate(invalid="ignore"):  # a height given as such: the same height back
+        height = np.asarray(standard_atmosphere_height(baro.pressure), dtype=float)
     alt = gnss.lla[:, 2]
     use = np.isfinite(alt) & (gnss.t >= baro.t[0]) & (gnss.t <= baro.t[-1])
     finite = np.isfinite(height)
