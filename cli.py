@@ -535,6 +535,14 @@ def cmd_inspect(args: argparse.Namespace) -> int:
     return 0
 
 
+def _rate(t: np.ndarray) -> float:
+    return 1.0 / float(np.median(np.diff(t))) if len(t) > 1 else float("nan")
+
+
+def _span(t: np.ndarray) -> float:
+    return float(t[-1] - t[0]) if len(t) else 0.0
+
+
 def _summarize_csv(path: Path) -> str:
     from fgins.io.csv_pair import csv_kind, read_gnss_csv, read_imu_csv
 
@@ -551,8 +559,43 @@ def _summarize_csv(path: Path) -> str:
         gnss = read_gnss_csv(path, warnings)
         rate = 1 / np.median(np.diff(gnss.t)) if len(gnss) > 1 else float("nan")
         lines = [f"{path}: GNSS, {len(gnss)} fixes, {rate:.2f} Hz, {gnss.t[-1] - gnss.t[0]:.1f} s"]
+    elif kind == "baro":
+        from fgins.io.csv_pair import read_baro_csv
+
+        baro = read_baro_csv(path, warnings)
+        given = "pressure_pa" if np.any(np.isfinite(baro.pressure)) else "baro_height"
+        values = baro.pressure if given == "pressure_pa" else baro.height
+        unit = "Pa" if given == "pressure_pa" else "m"
+        lines = [
+            f"{path}: barometer ({given}), {len(baro.t)} samples, {_rate(baro.t):.2f} Hz, "
+            f"{_span(baro.t):.1f} s",
+            f"  {given} median {np.nanmedian(values):.6g} {unit}, range "
+            f"{np.nanmin(values):.6g} .. {np.nanmax(values):.6g} {unit}",
+        ]
+    elif kind == "odometer":
+        from fgins.io.csv_pair import read_odometer_csv
+
+        wheel = read_odometer_csv(path, warnings)
+        lines = [
+            f"{path}: wheel speed, {len(wheel.t)} samples, {_rate(wheel.t):.2f} Hz, "
+            f"{_span(wheel.t):.1f} s",
+            f"  speed median {np.nanmedian(wheel.speed):.3g} m/s, max {np.nanmax(wheel.speed):.3g} m/s",
+        ]
+    elif kind == "accel_array":
+        from fgins.io.accel_array_csv import read_accel_array_csv
+
+        t, readings = read_accel_array_csv(path, warnings)
+        lines = [
+            f"{path}: accelerometer array, {readings.shape[1]} accelerometers, {len(t)} samples, "
+            f"{_rate(t):.1f} Hz, {_span(t):.1f} s (its geometry: the folder's config.toml "
+            "[accel_array])"
+        ]
     else:
-        raise FginsError(f"{path}: not an imu.csv or gnss.csv (unrecognised header)")
+        raise FginsError(
+            f"{path}: not a CSV fgins reads (unrecognised header): imu.csv (time,gyro_x,...,"
+            "accel_z), gnss.csv (time,lat,lon,alt,...), baro.csv (time,pressure_pa or "
+            "time,baro_height), wheel.csv (time,wheel_speed) or accel_array.csv (time,a1,...)"
+        )
     lines += [f"  warning: {w}" for w in warnings]
     return "\n".join(lines)
 

@@ -144,3 +144,25 @@ def test_gpsd_log_converts_and_inspects(tmp_path, capsys, shared):
     report = capsys.readouterr().out
     assert "GGA" in report and "RMC" in report
     assert main(["convert", str(log), "-o", str(tmp_path / "fixes.kml")]) == 0
+
+
+@pytest.mark.parametrize(
+    ("header", "rows", "expected"),
+    [
+        ("time,pressure_pa", [(0.05 * k, 101000.0 - k) for k in range(40)],
+         "barometer (pressure_pa), 40 samples, 20.00 Hz"),
+        ("time,baro_height", [(0.1 * k, 250.0 + k) for k in range(30)],
+         "barometer (baro_height), 30 samples, 10.00 Hz"),
+        ("time,wheel_speed", [(0.1 * k, 12.5) for k in range(20)],
+         "wheel speed, 20 samples, 10.00 Hz"),
+        ("time,a1,a2,a3,a4,a5,a6", [(0.01 * k, 0, 0, 9.8, 0, 0, 9.8) for k in range(50)],
+         "accelerometer array, 6 accelerometers, 50 samples, 100.0 Hz"),
+    ],
+)  # fmt: skip
+def test_inspect_summarises_every_csv_smooth_reads(tmp_path, capsys, header, rows, expected):
+    """``fgins smooth`` reads baro.csv, wheel.csv and accel_array.csv; ``fgins inspect`` said
+    "not an imu.csv or gnss.csv (unrecognised header)" for each of them."""
+    path = tmp_path / "input.csv"
+    path.write_text(header + "\n" + "\n".join(",".join(str(v) for v in row) for row in rows) + "\n")
+    assert main(["inspect", str(path)]) == 0
+    assert expected in capsys.readouterr().out
