@@ -862,6 +862,14 @@ SHORT_IMU_S = 10.0  # an IMU record shorter than this cannot show the heading or
 FREE_BODY_VEHICLES = ("uav", "pedestrian")
 
 
+# The specific force an accelerometer array's readings solve to, median norm (m/s^2): gravity
+# within ~12 % (a vehicle's own accelerations raise it a little; an automotive-grade array's
+# runaway rates move it by centripetal terms: 9.60 on a 5-min drive). Two columns swapped or one
+# accelerometer dead gave 7.75 over the first minute (the rates it derives then run away:
+# 163 over five minutes), within the band a single IMU gets for its scale errors.
+ARRAY_FORCE_RANGE = (8.5, 11.0)
+
+
 def _check_units(
     imu,
     gnss: GnssData,
@@ -886,10 +894,19 @@ def _check_units(
     if ACCEL_G_RANGE[0] <= median_accel <= ACCEL_G_RANGE[1]:
         raise InputError(
             f"imu: the accelerometer is in g, not m/s^2: its median specific-force norm is "
-            f"{median_accel:.3f} (gravity alone gives 9.81 m/s^2, i.e. 1 g); multiply accel_x, "
-            f"accel_y, accel_z by {G} before giving them to fgins"
+            f"{median_accel:.3f} (gravity alone gives 9.81 m/s^2, i.e. 1 g); multiply "
+            f"{'a1..aN' if has_accel_array else 'accel_x, accel_y, accel_z'} by {G} before "
+            "giving them to fgins"
         )
-    if not ACCEL_PLAUSIBLE_RANGE[0] <= median_accel <= ACCEL_PLAUSIBLE_RANGE[1]:
+    plausible = ARRAY_FORCE_RANGE if has_accel_array else ACCEL_PLAUSIBLE_RANGE
+    if not plausible[0] <= median_accel <= plausible[1]:
+        if has_accel_array:  # its specific force is solved from N readings and the geometry
+            raise InputError(
+                f"accel_array: the specific force solved from the accelerometers has a median "
+                f"norm of {median_accel:.4g}, not the ~9.8 m/s^2 of gravity: the columns a1..aN "
+                "do not match the [accel_array] geometry (order, positions, sensing axes), an "
+                "accelerometer is dead, or the readings are not in m/s^2"
+            )
         raise InputError(
             f"imu: the accelerometer's median specific-force norm is {median_accel:.4g}, not "
             f"the ~9.8 m/s^2 of gravity: a wrong unit or scale factor; give accel_x..z in m/s^2"

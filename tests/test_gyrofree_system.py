@@ -334,3 +334,32 @@ def test_graph_holds_the_heading_over_the_initial_standstill(grade: str, seed: i
     speed = np.linalg.norm(batch.velocity[rest], axis=1)
     held = batch.t[rest] - batch.t[0] > 3.0
     assert np.max(speed[held]) < 0.05
+
+
+@pytest.mark.parametrize(
+    ("change", "match"),
+    [("swap a1 a2", r"do not match the \[accel_array\] geometry"),
+     ("a3 dead", r"do not match the \[accel_array\] geometry"),
+     ("in g", r"in g, not m/s\^2: .*multiply a1\.\.aN by 9\.80665")],
+)  # fmt: skip
+def test_an_accelerometer_array_that_does_not_fit_its_geometry_is_named(tmp_path, change, match):
+    """Two columns swapped, or one accelerometer dead, made the specific force solved from
+    the array 6-17 g, and the error asked for "accel_x..z in m/s^2", columns the array
+    file does not have. It now names the array's columns and geometry."""
+    import pandas as pd
+
+    from fgins.cli import main
+    from fgins.io.inputs import load_dataset
+
+    folder = tmp_path / "cube"
+    assert main(["sim", "gyrofree-cube", "-o", str(folder), "--duration", "60", "--seed", "1"]) == 0
+    readings = pd.read_csv(folder / "accel_array.csv")
+    if change == "swap a1 a2":
+        readings[["a1", "a2"]] = readings[["a2", "a1"]].to_numpy()
+    elif change == "a3 dead":
+        readings["a3"] = 0.0
+    else:
+        readings.iloc[:, 1:] /= 9.80665
+    readings.to_csv(folder / "accel_array.csv", index=False, float_format="%.9e")
+    with pytest.raises(InputError, match=match):
+        load_dataset([str(folder)], progress=False)
