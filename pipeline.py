@@ -40,12 +40,31 @@ def run_method(
     dataset = integration_samples(dataset, config)
     mounting_note = _check_mounting(dataset, config)
     trajectory = _run(dataset, config, method, gnss_mask, progress)
-    notes = [mounting_note]
+    notes = [mounting_note, _unknown_height(dataset, trajectory)]
     if config.smoother.initial_heading_deg is None:  # else the configured heading is known
         notes.append(unobservable_heading(dataset, trajectory))
     for note in filter(None, notes):
         trajectory.info.setdefault("fit_warnings", []).append(note)
     return trajectory
+
+
+def _unknown_height(dataset: Dataset, trajectory: Trajectory) -> str | None:
+    """A log without any height (NMEA RMC only): the heights are the validation's invented
+    0 m, and nothing in the data fixes the vertical. Its sigma is said to be at least the
+    invented height's, whatever the solver's covariance gives: the batch's marginals, taken
+    by QR where Cholesky calls the system indeterminate, came out 43.7 m (numerical noise
+    over 15 orders of magnitude) with the height 85 m off."""
+    if not dataset.metadata.get("gnss_without_height"):
+        return None
+    from fgins.io.validate import NO_HEIGHT_SIGMA_M
+
+    cov = trajectory.position_cov
+    cov[:, 2, 2] = np.fmax(np.nan_to_num(cov[:, 2, 2], nan=0.0), NO_HEIGHT_SIGMA_M**2)
+    return (
+        "GNSS: the log has no height at all (2-D fixes): alt and up are the invented 0 m "
+        f"carried by the IMU, std_up at least {NO_HEIGHT_SIGMA_M:g} m; add GGA sentences or an "
+        "altitude column for a vertical solution"
+    )
 
 
 # Fixes whose running median (over this many) never leaves this many metres of the log's

@@ -165,6 +165,9 @@ def _validated(dataset: Dataset, vehicle: str | None) -> Dataset:
     _warn_frame_extent(gnss, origin, checks)
     _report_gnss_time_gaps(gnss.t, checks)
     metadata = {**dataset.metadata, "input_checks": list(checks)}
+    with np.errstate(invalid="ignore"):
+        if not np.any(np.isfinite(dataset.gnss.lla[:, 2])):
+            metadata["gnss_without_height"] = True  # every height invented: see pipeline
     return replace(
         dataset,
         imu=imu,
@@ -571,8 +574,12 @@ def _fill_missing_heights(gnss: GnssData, checks: list[str]) -> GnssData:
         lla[flat, 2] = np.interp(gnss.t[flat], gnss.t[solid], lla[solid, 2])
         sigma, how = HELD_HEIGHT_SIGMA_M, "the height of the 3-D fixes around them"
     else:
+        # One invented height, not N measurements of it: each held 0 m gets sqrt(N) x the
+        # sigma, so that all of them together say "within ~1 km" (241 fixes at 1000 m each
+        # claimed 64 m).
         lla[flat, 2] = 0.0
-        sigma, how = NO_HEIGHT_SIGMA_M, "height 0 m (the log has no height at all)"
+        sigma = NO_HEIGHT_SIGMA_M * math.sqrt(int(flat.sum()))
+        how = "height 0 m (the log has no height at all; together they weigh as one)"
     std[flat, 2] = np.fmax(np.nan_to_num(std[flat, 2], nan=0.0), sigma)
     checks.append(
         f"gnss: {int(flat.sum())} of {len(gnss)} fix(es) without a height (2-D: RMC without "

@@ -481,7 +481,9 @@ def test_a_log_without_any_height_smooths_horizontally(tmp_path, urban):
         lines[row] = ",".join(cells)
     gnss.write_text("\n".join(lines) + "\n")
     flat = fgins.load(*paths)
-    assert np.all(flat.gnss.lla[:, 2] == 0.0) and np.all(flat.gnss.std[:, 2] == 1000.0)
+    # One invented height: 1 km over all the fixes together (sqrt(N) km each).
+    assert np.all(flat.gnss.lla[:, 2] == 0.0)
+    np.testing.assert_allclose(flat.gnss.std[:, 2], 1000.0 * np.sqrt(len(flat.gnss)))
     full = fgins.load(*_pair(tmp_path / "full", urban.dataset))
     errors = []
     for dataset in (full, flat):
@@ -1150,3 +1152,61 @@ def test_a_barometer_given_as_heights_is_used_and_its_unit_checked(tmp_path):
     pd.DataFrame({"time": t, "baro_height": height + 3e4}).to_csv(tmp_path / "high.csv", index=False)
     with pytest.raises(InputError, match=r"median baro_height is 3\.0\d+e\+04 m, outside"):
         load_dataset([str(p) for p in (*base, tmp_path / "high.csv")])
+
+
+def _rmc(t_posix: float, lat: float, lon: float) -> str:
+    import datetime as dt
+
+    stamp = dt.datetime.fromtimestamp(t_posix, tz=dt.UTC)
+
+    def dm(value: float, width: int) -> str:
+        whole = int(abs(value))
+        minutes = round((abs(value) - whole) * 60, 5)
+        if minutes >= 60:
+            whole, minutes = whole + 1, 0.0
+        return f"{whole:0{width}d}{minutes:08.5f}"
+
+    body = (f"GPRMC,{stamp:%H%M%S}.{stamp.microsecond // 10000:02d},A,{dm(lat, 2)},"
+            f"{'N' if lat >= 0 else 'S'},{dm(lon, 3)},{'E' if lon >= 0 else 'W'},,,"
+            f"{stamp:%d%m%y},,,A")  # fmt: skip
+    checksum = 0
+    for char in body:
+        checksum ^= ord(char)
+    return f"${body}*{checksum:02X}"
+
+
+def test_a_log_without_any_height_says_the_vertical_is_unknown(tmp_path):
+    """NMEA RMC only (no GGA: no height anywhere) beside an IMU: the batch reported
+    std_up 2.7 m (the start's fixed 2 m position prior) with the height 85-100 m off; its
+    marginals, after a wider prior, 43.7 m (numerical noise). Now every method says the
+    vertical is invented (std_up >= 1000 m) while the horizontal stays the fixes' own."""
+    import pandas as pd
+    import pymap3d
+    from independent_sim import INDUSTRIAL, hilly_drive, write_drive
+
+    import fgins
+
+    write_drive(tmp_path, hilly_drive(), 150.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
+                gnss_rate=1.0, seed=2, sigma_h=1.0, sigma_u=2.0)  # fmt: skip
+    start = 1714564800.0  # 2024-05-01 12:00 UTC: the RMC date and time, the IMU's clock
+    fixes = pd.read_csv(tmp_path / "gnss.csv")
+    (tmp_path / "rmc.nmea").write_text(
+        "\n".join(_rmc(start + t, la, lo) for t, la, lo in zip(fixes.time, fixes.lat, fixes.lon, strict=False))
+        + "\n"
+    )
+    imu = pd.read_csv(tmp_path / "imu.csv")
+    imu["time"] += start
+    imu.to_csv(tmp_path / "imu_utc.csv", index=False, float_format="%.6f")
+    dataset = fgins.load(tmp_path / "rmc.nmea", tmp_path / "imu_utc.csv", vehicle="car")
+    truth = pd.read_csv(tmp_path / "truth.csv")
+    for method in ("batch", "ekf-rts"):
+        track = fgins.smooth(dataset, method)
+        assert any("no height at all" in w for w in track.info["fit_warnings"]), method
+        assert np.all(np.sqrt(track.position_cov[:, 2, 2]) >= 999.0), method
+        origin = dataset.origin
+        lat, lon, _ = pymap3d.enu2geodetic(*track.position.T, origin.lat, origin.lon, origin.alt)
+        east, north, _ = pymap3d.geodetic2enu(lat, lon, 100.0, 45.0, 10.0, 100.0)
+        t = track.t - start
+        error = np.hypot(east - np.interp(t, truth.time, truth.east),
+                         north - np.interp(t, truth.time, truth.north))  # fmt: skip
+        assert np.sqrt(np.mean(error**2)) < 1.0, method
