@@ -765,10 +765,23 @@ def _stats(values: np.ndarray) -> str:
     return f"{finite.min():.2f} / {np.median(finite):.2f} / {finite.max():.2f}"
 
 
+def _has_dollar(path: Path) -> bool:
+    """Whether the file's first 64 KiB hold a '$' (an NMEA sentence start, even a corrupt one)."""
+    with path.open("rb") as handle:
+        return b"$" in handle.read(65536)
+
+
 def summarize_nmea(path: str | Path) -> str:
     """A human-readable report of one NMEA log (what ``fgins inspect FILE.nmea`` prints)."""
     path = Path(path)
     reader = _parse(path)
+    if not reader.counts and reader.checksum_failures == 0 and not _has_dollar(path):
+        # Not one sentence: not an NMEA log at all (a config file, a text note), rather
+        # than an NMEA log whose every line is "corrupt".
+        raise InputError(
+            f"{path}: not a log fgins reads: no NMEA sentence, UBX frame, MCAP or bag, and no "
+            "CSV header fgins knows (imu.csv, gnss.csv, baro.csv, wheel.csv, accel_array.csv)"
+        )
     lines = [f"NMEA log {path}"]
     by_type = ", ".join(f"{k} {v}" for k, v in sorted(reader.counts.items()))
     by_talker = ", ".join(f"{k} {v}" for k, v in sorted(reader.talkers.items()))

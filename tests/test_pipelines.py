@@ -166,3 +166,17 @@ def test_inspect_summarises_every_csv_smooth_reads(tmp_path, capsys, header, row
     path.write_text(header + "\n" + "\n".join(",".join(str(v) for v in row) for row in rows) + "\n")
     assert main(["inspect", str(path)]) == 0
     assert expected in capsys.readouterr().out
+
+
+def test_inspect_of_a_file_that_is_no_log_is_an_error(tmp_path, capsys):
+    """A config file given to ``fgins inspect`` was reported as an NMEA log with 14 corrupt
+    lines, exit 0. A file with no NMEA sentence start at all is now an error saying what
+    fgins reads; a damaged NMEA log is still summarised."""
+    note = tmp_path / "run.toml"
+    note.write_text('[smoother]\nvehicle = "car"\n' * 7)
+    assert main(["inspect", str(note)]) == 2
+    assert "not a log fgins reads" in capsys.readouterr().err
+    damaged = tmp_path / "damaged.nmea"
+    damaged.write_text("$GPGGA,12,garbage\n" * 5)
+    assert main(["inspect", str(damaged)]) == 0
+    assert "corrupt lines: 5" in capsys.readouterr().out
