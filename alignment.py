@@ -22,8 +22,7 @@ from __future__ import annotations
 
 import itertools
 import math
-import warnings
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -44,9 +43,7 @@ class Alignment:
     position: np.ndarray
     attitude_sigma_rad: np.ndarray  # roll, pitch, yaw
     velocity_sigma: float
-    # 1-sigma m; per axis (east, north, up) as initial_alignment returns it, never tighter
-    # than the fixes it comes from.
-    position_sigma: float | np.ndarray
+    position_sigma: float
     moving: bool
     # At rest by the IMU, but the fixes' fit did not rule out a steady motion (the velocity
     # sigma covers it): stops at the start wait until the fixes can tell.
@@ -155,47 +152,6 @@ def _gnss_fit_with_sigma(
 
 
 def initial_alignment(
-    dataset: Dataset,
-    gnss_mask: np.ndarray | None = None,
-    *,
-    smoother: SmootherConfig | None = None,
-    heading_deg: float | None = None,
-    moving_speed: float = 2.0,
-    fit_window_s: float = 6.0,
-    forward_axis: np.ndarray | None = None,
-    gyro_bias_sigma: float = 0.0,
-    fix_sigma: np.ndarray | None = None,
-) -> Alignment:
-    """Initial state at the first IMU sample (see :func:`_initial_alignment`), its position
-    sigma per axis and never tighter than the fixes it comes from.
-
-    ``fix_sigma`` (M, 3): the 1-sigma of each usable fix (the rows ``gnss_mask`` keeps), as
-    the estimator weighs them; without it, the data's own sigmas where they are given. The
-    fixed 2 m the position started with pinned a log without any height (its 0 m heights
-    carry 1000 m sigmas) to 0 +- 2.7 m in the output, 100 m from the truth, and weighted a
-    first fix of an 8 m receiver four times over its own factor."""
-    align = _initial_alignment(
-        dataset, gnss_mask, smoother=smoother, heading_deg=heading_deg,
-        moving_speed=moving_speed, fit_window_s=fit_window_s, forward_axis=forward_axis,
-        gyro_bias_sigma=gyro_bias_sigma,
-    )  # fmt: skip
-    mask = np.ones(len(dataset.gnss), dtype=bool) if gnss_mask is None else gnss_mask
-    if fix_sigma is None:
-        fix_sigma = np.asarray(dataset.gnss.std, dtype=float)[mask]
-    gnss_t = dataset.gnss.t[mask]
-    first = gnss_t <= gnss_t[0] + fit_window_s  # the fixes the start's position comes from
-    with np.errstate(invalid="ignore"):
-        usable = np.where(np.isfinite(fix_sigma) & (fix_sigma > 0), fix_sigma, np.nan)[first]
-    floor = np.zeros(3)
-    if usable.size:
-        with np.errstate(invalid="ignore"), warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # an axis with no sigma at all
-            floor = np.nan_to_num(np.nanmedian(usable, axis=0), nan=0.0)
-    sigma = np.maximum(np.broadcast_to(np.asarray(align.position_sigma, dtype=float), (3,)), floor)
-    return replace(align, position_sigma=sigma)
-
-
-def _initial_alignment(
     dataset: Dataset,
     gnss_mask: np.ndarray | None = None,
     *,

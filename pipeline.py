@@ -51,9 +51,10 @@ def run_method(
 def _unknown_height(dataset: Dataset, trajectory: Trajectory) -> str | None:
     """A log without any height (NMEA RMC only): the heights are the validation's invented
     0 m, and nothing in the data fixes the vertical. Its sigma is said to be at least the
-    invented height's, whatever the solver's covariance gives: the batch's marginals, taken
-    by QR where Cholesky calls the system indeterminate, came out 43.7 m (numerical noise
-    over 15 orders of magnitude) with the height 85 m off."""
+    invented height's, whatever the solver's covariance gives: the batch said 2.7 m (the
+    start's 2 m position prior holds the invented height) with the height 85 m off, and
+    43.7 m with that prior widened (QR marginals of a near-singular system: numerical
+    noise)."""
     if not dataset.metadata.get("gnss_without_height"):
         return None
     from fgins.io.validate import NO_HEIGHT_SIGMA_M

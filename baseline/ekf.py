@@ -136,7 +136,7 @@ def initial_covariance(
     rotation: np.ndarray,
     attitude_sigma: np.ndarray,
     velocity_sigma: float,
-    position_sigma: float | np.ndarray,
+    position_sigma: float,
     noise: ImuNoise,
     extra_variance: np.ndarray | None = None,
 ) -> np.ndarray:
@@ -147,7 +147,7 @@ def initial_covariance(
     extra = np.zeros(0) if extra_variance is None else np.asarray(extra_variance, dtype=float)
     dim = STATE_DIM + len(extra)
     p0 = np.zeros((dim, dim))
-    p0[POS, POS] = np.diag(np.broadcast_to(position_sigma, (3,)) ** 2)
+    p0[POS, POS] = np.eye(3) * position_sigma**2
     p0[VEL, VEL] = np.eye(3) * velocity_sigma**2
     del rotation  # the error state's attitude is in the navigation frame already
     p0[ATT, ATT] = np.diag(np.asarray(attitude_sigma) ** 2)
@@ -221,9 +221,8 @@ def prepare_filter(
     noise, _ = constant_bias_noise(config.imu_noise(), float(imu.t[-1] - imu.t[0]))
     frame = NavFrame.at(dataset.origin)
     align = initial_alignment(
-        dataset, epochs.usable, smoother=config.smoother, gyro_bias_sigma=noise.gyro_bias_prior,
-        fix_sigma=epochs.position_sigma,
-    )  # fmt: skip
+        dataset, epochs.usable, smoother=config.smoother, gyro_bias_sigma=noise.gyro_bias_prior
+    )
     times = block_times(float(imu.t[0]), float(imu.t[-1]), epochs.t, max_block_s)
     segments = segment_imu(imu.t, times)
     # Which boundary carries which GNSS epoch (-1: none).

@@ -418,7 +418,7 @@ def _ekf18_pass(
     epochs = select_gnss(dataset, config, gnss_mask)
     align = initial_alignment(
         dataset, epochs.usable, smoother=config.smoother,
-        gyro_bias_sigma=config.imu_noise().gyro_bias_prior, fix_sigma=epochs.position_sigma,
+        gyro_bias_sigma=config.imu_noise().gyro_bias_prior,
     )  # fmt: skip
     lever_arm = np.asarray(config.gnss.lever_arm_m, dtype=float)
     times = block_times(float(data.t[0]), float(data.t[-1]), epochs.t, max_block_s)
@@ -450,7 +450,7 @@ def _ekf18_pass(
     bias = np.zeros(data.n_sensors)
     bias_sigma = data.bias_sigma if data.bias_sigma is not None else 1e-3 * 9.80665
     cov = np.zeros((STATE_DIM, STATE_DIM))
-    cov[POS, POS] = np.diag(np.broadcast_to(align.position_sigma, (3,)) ** 2)
+    cov[POS, POS] = np.eye(3) * align.position_sigma**2
     cov[VEL, VEL] = np.eye(3) * align.velocity_sigma**2
     att_sigma = np.asarray(align.attitude_sigma_rad)
     cov[ATT, ATT] = np.diag(att_sigma**2)  # tilt about east, north; heading about up

@@ -109,7 +109,7 @@ def planar_inputs(dataset: Dataset, config: RunConfig, epochs: GnssEpochs) -> Pl
     """Level-frame inputs and the initial state from the shared alignment."""
     align = initial_alignment(
         dataset, epochs.usable, smoother=config.smoother,
-        gyro_bias_sigma=config.imu_noise().gyro_bias_prior, fix_sigma=epochs.position_sigma,
+        gyro_bias_sigma=config.imu_noise().gyro_bias_prior,
     )  # fmt: skip
     rotation = np.asarray(align.rotation, dtype=float)
     yaw = float(np.arctan2(rotation[1, 0], rotation[0, 0]))
@@ -121,8 +121,7 @@ def planar_inputs(dataset: Dataset, config: RunConfig, epochs: GnssEpochs) -> Pl
     speed = float(np.hypot(velocity[0], velocity[1]))
     yaw_sigma = min(float(align.attitude_sigma_rad[2]), np.pi)
     state = np.array([*align.position, speed, yaw])
-    position_variance = np.broadcast_to(align.position_sigma, (3,)) ** 2
-    cov = np.diag([*position_variance, align.velocity_sigma**2, yaw_sigma**2])
+    cov = np.diag([align.position_sigma**2] * 3 + [align.velocity_sigma**2, yaw_sigma**2])
     lever = tilt @ np.asarray(config.gnss.lever_arm_m, dtype=float)
     return PlanarInputs(
         forward_accel=level_accel[:, 0],

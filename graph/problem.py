@@ -105,7 +105,7 @@ class Problem:
         rotation = np.asarray(align.rotation, dtype=float)
         covariance = np.zeros((6, 6))
         covariance[:3, :3] = rotation.T @ np.diag(align.attitude_sigma_rad**2) @ rotation
-        covariance[3:, 3:] = np.diag(np.broadcast_to(align.position_sigma, (3,)) ** 2)
+        covariance[3:, 3:] = np.eye(3) * align.position_sigma**2
         graph.add(
             gtsam.PriorFactorPose3(X(0), pose, gtsam.noiseModel.Gaussian.Covariance(covariance))
         )
@@ -653,9 +653,8 @@ def build_problem(
     velocity_sigma = gnss_model.velocity_sigmas(gnss, config.gnss)
     imu_to_vehicle = mounting_rotation(config.smoother.imu_to_vehicle_rpy_deg)
     alignment = initial_alignment(
-        dataset, usable, smoother=config.smoother, gyro_bias_sigma=noise.gyro_bias_prior,
-        fix_sigma=sigma,
-    )  # fmt: skip
+        dataset, usable, smoother=config.smoother, gyro_bias_sigma=noise.gyro_bias_prior
+    )
 
     decimated = _decimate(gnss.t, config.smoother.min_keyframe_interval_s)
     times = keyframe_times(

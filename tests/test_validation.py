@@ -1177,9 +1177,10 @@ def _rmc(t_posix: float, lat: float, lon: float) -> str:
 
 def test_a_log_without_any_height_says_the_vertical_is_unknown(tmp_path):
     """NMEA RMC only (no GGA: no height anywhere) beside an IMU: the batch reported
-    std_up 2.7 m (the start's fixed 2 m position prior) with the height 85-100 m off; its
-    marginals, after a wider prior, 43.7 m (numerical noise). Now every method says the
-    vertical is invented (std_up >= 1000 m) while the horizontal stays the fixes' own."""
+    std_up 2.7 m (the start's 2 m position prior holds the invented 0 m) with the height
+    85-100 m off; with that prior widened, its marginals gave 43.7 m (numerical noise on a
+    near-singular system). Every method now says the vertical is invented (std_up >= 1000
+    m) while the horizontal stays the fixes' own."""
     import pandas as pd
     import pymap3d
     from independent_sim import INDUSTRIAL, hilly_drive, write_drive
