@@ -1004,29 +1004,38 @@ def _check_clock_offset(
     checks.append(message)
 
 
+def _chord_velocity(gnss: GnssData, enu: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The velocity the fixes' own VELOCITY_CHORD_S chords show, centred on each fix:
+    (dense: the chord spans most of its length, velocity (N, 3), clear: a horizontal speed
+    well above what the fixes' noise fakes over the chord and above TURN_MIN_SPEED_M_PER_S;
+    a few satellites give tens of metres of scatter, "metres per second" at a standstill)."""
+    t = gnss.t
+    a = np.searchsorted(t, t - VELOCITY_CHORD_S / 2)
+    b = np.clip(np.searchsorted(t, t + VELOCITY_CHORD_S / 2, side="right") - 1, 0, len(t) - 1)
+    span = t[b] - t[a]
+    dense = span > 0.75 * VELOCITY_CHORD_S
+    sigma = _fix_sigma(gnss)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        velocity = (enu[b] - enu[a]) / span[:, None]
+        noise = np.sqrt(sigma[a] ** 2 + sigma[b] ** 2) / span
+        speed = np.hypot(velocity[:, 0], velocity[:, 1])
+        clear = dense & np.isfinite(speed) & (speed > np.maximum(TURN_MIN_SPEED_M_PER_S, 3 * noise))
+    return dense, velocity, clear
+
+
 def _check_wheel_speed(odometer, gnss: GnssData, enu: np.ndarray) -> None:
     """The wheel speed against the speed the fixes' own 4-s chords show, where they move well
     beyond their noise: a median ratio outside 0.7-1.4 is a unit (km/h: the wheel-speed
     scale state took +260 % on a simulated car and the run said nothing but that number) or
     a wheel's angular rate. A wheel log beside no moving fix is not judged."""
     t = gnss.t
-    a = np.searchsorted(t, t - VELOCITY_CHORD_S / 2)
-    b = np.clip(np.searchsorted(t, t + VELOCITY_CHORD_S / 2, side="right") - 1, 0, len(t) - 1)
-    span = t[b] - t[a]
-    sigma = _fix_sigma(gnss)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        track_speed = np.hypot(*(enu[b, :2] - enu[a, :2]).T) / span
-        noise = np.sqrt(sigma[a] ** 2 + sigma[b] ** 2) / span
+    dense, track, clear = _chord_velocity(gnss, enu)
+    track_speed = np.hypot(track[:, 0], track[:, 1])
     # Only where a wheel sample lies within half a second (a wheel log covering part of the
     # drive is judged where it is).
     nearest = np.clip(np.searchsorted(odometer.t, t), 1, len(odometer.t) - 1)
     close = np.minimum(np.abs(odometer.t[nearest] - t), np.abs(odometer.t[nearest - 1] - t))
-    moving = (
-        (span > 0.75 * VELOCITY_CHORD_S)
-        & np.isfinite(track_speed)
-        & (track_speed > np.maximum(TURN_MIN_SPEED_M_PER_S, 3 * noise))
-        & (close <= 0.5)
-    )
+    moving = dense & clear & (close <= 0.5)
     if moving.sum() < VELOCITY_MIN_EPOCHS:
         return
     wheel = np.abs(np.interp(t[moving], odometer.t, odometer.speed))
@@ -1060,26 +1069,16 @@ def _check_gnss_velocity(gnss: GnssData, origin: Origin) -> None:
 
     if gnss.velocity is None or len(gnss.t) < 3:
         return
-    t = gnss.t
-    a = np.searchsorted(t, t - VELOCITY_CHORD_S / 2)
-    b = np.clip(np.searchsorted(t, t + VELOCITY_CHORD_S / 2, side="right") - 1, 0, len(t) - 1)
-    span = t[b] - t[a]
-    dense = span > 0.75 * VELOCITY_CHORD_S
+    enu = lla_to_enu(gnss.lla, origin)
+    dense, track_all, clear = _chord_velocity(gnss, enu)
     if dense.sum() < VELOCITY_MIN_EPOCHS:
         return
-    enu = lla_to_enu(gnss.lla, origin)
-    track = (enu[b] - enu[a])[dense] / span[dense, None]
+    track = track_all[dense]
     given = gnss.velocity[dense]
     track_speed = np.hypot(track[:, 0], track[:, 1])
     given_speed = np.hypot(given[:, 0], given[:, 1])
-    # A chord's speed is only a speed well above what the fixes' own noise fakes over it
-    # (a few satellites: tens of metres of scatter, "metres per second" at a standstill).
-    sigma = _fix_sigma(gnss)
-    noise = np.sqrt(sigma[a] ** 2 + sigma[b] ** 2)[dense] / span[dense]
-    moving = np.isfinite(given_speed) & (
-        track_speed > np.maximum(TURN_MIN_SPEED_M_PER_S, 3 * noise)
-    )
-    _check_shrunk_track(gnss, enu, sigma)
+    moving = np.isfinite(given_speed) & clear[dense]
+    _check_shrunk_track(gnss, enu, _fix_sigma(gnss))
     if moving.sum() >= VELOCITY_MIN_EPOCHS:
         from_course = _velocity_from_speed_course(gnss)
         ratio = float(np.median(given_speed[moving] / track_speed[moving]))
