@@ -196,12 +196,15 @@ def _dop_model_scale(problem: Problem, norms: np.ndarray) -> dict[str, object]:
 
 
 def _merged_warnings(*parts: dict[str, object]) -> dict[str, object]:
+    """The parts' entries in one dict, their ``fit_warnings`` lists joined in order."""
     out: dict[str, object] = {}
+    warnings: list[str] = []
     for part in parts:
-        warnings = [*out.get("fit_warnings", []), *part.get("fit_warnings", [])]  # type: ignore[misc]
-        out.update(part)
-        if warnings:
-            out["fit_warnings"] = warnings
+        entries = dict(part)
+        warnings += entries.pop("fit_warnings", [])  # type: ignore[arg-type]
+        out.update(entries)
+    if warnings:
+        out["fit_warnings"] = warnings
     return out
 
 
@@ -276,9 +279,7 @@ def solver_report(report: SolveReport) -> dict[str, object]:
 
 
 def merge_info(trajectory: Trajectory, *parts: dict[str, object]) -> None:
-    for part in parts:
-        part = dict(part)
-        warnings = part.pop("fit_warnings", [])
-        trajectory.info.update(part)
-        if warnings:
-            trajectory.info["fit_warnings"] = [*trajectory.info.get("fit_warnings", []), *warnings]
+    """Each part's entries into ``trajectory.info``, their ``fit_warnings`` appended."""
+    existing = trajectory.info.get("fit_warnings")
+    start = {"fit_warnings": existing} if existing else {}
+    trajectory.info.update(_merged_warnings(start, *parts))
