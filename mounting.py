@@ -263,6 +263,12 @@ MOUNTING_ERROR_DEG = 10.0
 # camber of 1-2 % leans a right-hand-traffic car ~1 deg): the roll and pitch of the mounting
 # (an outside tester's [5, -3, 45] given as [0, 0, 45]: +45 % inside outages, not a word).
 TILT_WARN_DEG = 3.0
+# A configured forward axis this far above or below the horizontal is no road's grade (a
+# drive's mean grade is a few degrees at most): the IMU is on its side or on end. Its yaw
+# check cannot run (no horizontal forward to compare), and an outside tester's IMU with x up
+# and y forward ran to "batch LM diverged" with a generic hint.
+FORWARD_ELEVATION_ERROR_DEG = 30.0
+FORWARD_TILT_SEEN_DEG = 1.0  # a forward axis tilted less is a roll-only difference
 MAX_MEAN_GRADE_DEG = 1.5  # a drive mostly uphill or downhill leans the mean: cannot tell
 
 
@@ -278,8 +284,10 @@ def _mounting_rpy_deg(forward: np.ndarray, up: np.ndarray) -> np.ndarray:
     forward = forward - (forward @ up) * up
     forward = forward / np.linalg.norm(forward)
     r_vi = np.vstack([forward, np.cross(up, forward), up])  # rows: vehicle axes in IMU axes
-    yaw = np.arctan2(r_vi[1, 0], r_vi[0, 0])
     pitch = -np.arcsin(np.clip(r_vi[2, 0], -1.0, 1.0))
+    if abs(r_vi[2, 0]) > np.cos(np.radians(0.5)):  # pitch ~+-90: roll and yaw act as one
+        return np.degrees([np.arctan2(-r_vi[2, 0] * r_vi[0, 1], r_vi[1, 1]), pitch, 0.0])
+    yaw = np.arctan2(r_vi[1, 0], r_vi[0, 0])
     roll = np.arctan2(r_vi[2, 1], r_vi[2, 2])
     return np.degrees([roll, pitch, yaw])
 
@@ -294,6 +302,7 @@ def check_mounting(dataset, rpy_deg) -> str | None:
         return None
     forward, turning_s = found
     up = _gravity_axis(dataset, forward)
+    _check_forward_level(rpy_deg, forward, up)
     angle = _yaw_error_deg(forward, up, rpy_deg)
     if angle is None:
         return None
@@ -310,6 +319,25 @@ def check_mounting(dataset, rpy_deg) -> str | None:
     return message
 
 
+def _check_forward_level(rpy_deg, forward: np.ndarray, up: np.ndarray) -> None:
+    """Raise InputError when the configured forward axis points more than
+    FORWARD_ELEVATION_ERROR_DEG above or below the horizontal (gravity's mean direction):
+    an IMU mounted on its side or nose up, whose forward axis has no yaw to compare."""
+    configured = mounting_rotation(rpy_deg)[0]
+    elevation = float(np.degrees(np.arcsin(np.clip(configured @ up, -1.0, 1.0))))
+    if abs(elevation) <= FORWARD_ELEVATION_ERROR_DEG:
+        return
+    raise InputError(
+        f"imu: the configured mounting's forward axis (imu_to_vehicle_rpy_deg = "
+        f"{_angles(rpy_deg, 2)}) points {abs(elevation):.0f} deg "
+        f"{'above' if elevation > 0 else 'below'} the horizontal (gravity's mean direction "
+        "over the drive): the IMU sits on its side or on end in the vehicle; a mounting that "
+        f"fits the data: imu_to_vehicle_rpy_deg = {_angles(_mounting_rpy_deg(forward, up), 0)} "
+        "(forward from the turns' centripetal acceleration, up from gravity); the car "
+        "constraints would fight the data"
+    )
+
+
 def _tilt_note(dataset, rpy_deg, forward: np.ndarray, up: np.ndarray) -> str | None:
     """A warning when the configured mounting's up axis lies more than TILT_WARN_DEG from
     gravity's mean direction in IMU axes, on a drive whose mean grade is near zero."""
@@ -322,16 +350,24 @@ def _tilt_note(dataset, rpy_deg, forward: np.ndarray, up: np.ndarray) -> str | N
     mean_grade = float(np.degrees(np.arctan(np.mean(climb[moving] / speed[moving]))))
     if abs(mean_grade) > MAX_MEAN_GRADE_DEG:
         return None
-    configured_up = mounting_rotation(rpy_deg)[2]
-    tilt = float(np.degrees(np.arccos(np.clip(configured_up @ up, -1.0, 1.0))))
+    configured = mounting_rotation(rpy_deg)
+    tilt = float(np.degrees(np.arccos(np.clip(configured[2] @ up, -1.0, 1.0))))
     if tilt <= TILT_WARN_DEG:
         return None
+    # The constraints zero the lateral and vertical velocity alike: a mounting off in roll
+    # alone (an FRD IMU given no mounting: 180 deg) leaves them as they are, to the bit.
+    forward_tilt = float(np.degrees(np.arcsin(np.clip(abs(configured[0] @ up), 0.0, 1.0))))
+    effect = (
+        "its roll or pitch is off, and the car constraints bend the fit toward it"
+        if forward_tilt > FORWARD_TILT_SEEN_DEG
+        else "its roll is off (the car constraints do not see a roll; only their lever arm, "
+        "nhc_lever_arm_m, does)"
+    )
     return (
         f"imu: the vehicle's up axis, from gravity's mean direction over the drive (mean grade "
         f"{mean_grade:+.1f} deg), lies {tilt:.1f} deg from the configured mounting's "
-        f"(imu_to_vehicle_rpy_deg = {_angles(rpy_deg, 2)}): its roll or pitch is off, and the "
-        "car constraints bend the fit toward it; a mounting that fits the data: "
-        f"imu_to_vehicle_rpy_deg = {_angles(_mounting_rpy_deg(forward, up), 1)}"
+        f"(imu_to_vehicle_rpy_deg = {_angles(rpy_deg, 2)}): {effect}; a mounting that fits "
+        f"the data: imu_to_vehicle_rpy_deg = {_angles(_mounting_rpy_deg(forward, up), 1)}"
     )
 
 
