@@ -338,17 +338,62 @@ def _check_forward_level(rpy_deg, forward: np.ndarray, up: np.ndarray) -> None:
     )
 
 
-def _tilt_note(dataset, rpy_deg, forward: np.ndarray, up: np.ndarray) -> str | None:
-    """A warning when the configured mounting's up axis lies more than TILT_WARN_DEG from
-    gravity's mean direction in IMU axes, on a drive whose mean grade is near zero."""
+def adopted_mounting(dataset, rpy_deg) -> tuple[np.ndarray, str] | None:
+    """For a car whose mounting nobody gave (``rpy_deg`` the default): the mounting the data
+    show, with the line that says so, when :func:`check_mounting` finds the default wrong;
+    None when it agrees or the drive cannot tell. Only what the check found off is taken
+    from the data: the forward axis from the turns where its yaw (or the whole axis) is off,
+    else the default's own forward axis (the turns' fit is good to ~0.1-1 deg, no better
+    than a right default); the up axis from gravity's mean direction over the drive,
+    pitched by the drive's mean grade (a drive mostly uphill leans gravity backward in the
+    vehicle)."""
+    found = forward_axis_from_motion(dataset)
+    if found is None:
+        return None
+    forward, turning_s = found
+    up = _gravity_axis(dataset, forward)
+    try:
+        finding = check_mounting(dataset, rpy_deg)
+    except InputError as error:
+        finding = str(error)
+    if finding is None:
+        return None
+    configured = mounting_rotation(rpy_deg)[0]
+    yaw_error = _yaw_error_deg(forward, up, rpy_deg)
+    if yaw_error is not None and abs(yaw_error) <= MOUNTING_WARN_DEG:
+        forward = configured  # the yaw agrees: the finding is the roll or pitch
+    forward = forward - (forward @ up) * up
+    forward = forward / np.linalg.norm(forward)
+    grade = np.radians(_mean_grade_deg(dataset) or 0.0)
+    vehicle_forward = np.cos(grade) * forward - np.sin(grade) * up
+    vehicle_up = np.cos(grade) * up + np.sin(grade) * forward
+    rpy = _mounting_rpy_deg(vehicle_forward, vehicle_up)
+    note = (
+        f"imu: no IMU mounting was given (imu_to_vehicle_rpy_deg), and the drive's "
+        f"{turning_s} s of turns and gravity show the default {_angles(rpy_deg, 2)} is wrong: "
+        f"using imu_to_vehicle_rpy_deg = {_angles(rpy, 1)}, the mounting they show; set it "
+        "in [smoother] to silence this"
+    )
+    return rpy, note
+
+
+def _mean_grade_deg(dataset) -> float | None:
+    """The drive's mean grade (deg, uphill positive) over the epochs it moves, from the
+    fixes; None with fewer than 10 such epochs."""
     gnss = dataset.gnss
     speed = _speed(gnss.t, dataset.gnss_enu(), gnss.velocity)
     climb = _climb(gnss.t, dataset.gnss_enu(), gnss.velocity)
-    moving = np.isfinite(speed) & (speed > MOTION_MIN_SPEED_M_S)
+    moving = np.isfinite(speed) & np.isfinite(climb) & (speed > MOTION_MIN_SPEED_M_S)
     if moving.sum() < 10:
         return None
-    mean_grade = float(np.degrees(np.arctan(np.mean(climb[moving] / speed[moving]))))
-    if abs(mean_grade) > MAX_MEAN_GRADE_DEG:
+    return float(np.degrees(np.arctan(np.mean(climb[moving] / speed[moving]))))
+
+
+def _tilt_note(dataset, rpy_deg, forward: np.ndarray, up: np.ndarray) -> str | None:
+    """A warning when the configured mounting's up axis lies more than TILT_WARN_DEG from
+    gravity's mean direction in IMU axes, on a drive whose mean grade is near zero."""
+    mean_grade = _mean_grade_deg(dataset)
+    if mean_grade is None or abs(mean_grade) > MAX_MEAN_GRADE_DEG:
         return None
     configured = mounting_rotation(rpy_deg)
     tilt = float(np.degrees(np.arccos(np.clip(configured[2] @ up, -1.0, 1.0))))

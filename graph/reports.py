@@ -231,6 +231,12 @@ def vehicle_fit_report(problem: Problem, values: gtsam.Values) -> dict[str, obje
         return {}
     select = vehicle_model.nhc_rows(problem.imu_to_vehicle)
     residual = vehicle_model.nhc_residuals(rotation[moving], velocity[moving], select)
+    if problem.estimates_misalignment:  # less the misalignment the fit estimated
+        misalignment = np.array(
+            [values.atVector(problem.misalignment_key(int(k))) for k in moving_k[moving]]
+        )
+        body_velocity = np.einsum("kji,kj->ki", rotation[moving], velocity[moving])
+        residual = residual - misalignment * (body_velocity @ problem.imu_to_vehicle[0])[:, None]
     statistic = float(np.sqrt(np.mean((residual / NHC_REFERENCE_SIGMAS) ** 2)))
     out: dict[str, object] = {"nhc_fit_rms": statistic}
     if statistic > NHC_FIT_WARN:
