@@ -35,6 +35,12 @@ WARN_MIN_IMPROVEMENT = 1.5
 ERROR_MIN_WINDOWS = 30
 ERROR_MIN_LAG_S = 1.0
 ERROR_MIN_IMPROVEMENT = 10.0
+# Over as many windows as a warning needs, a smaller gain will do for an offset of seconds:
+# noisy fixes raise the mismatch at every lag alike (an independent simulator's hilly drive,
+# 1 m fixes, 4 turns: 3 s found at 3.0-3.8x, 7 s at 8.5-10.9x, 0 s at 1.00x; 3 m fixes:
+# 7 s at 1.5-2.0x, found to 0.05-0.3 s). At 3-7 s it was a warning, and the run went on to
+# chi2/dof 12-40 and an antenna "41-84 m ahead" of the IMU.
+ERROR_MIN_IMPROVEMENT_MANY_WINDOWS = 2.0
 
 
 @dataclass
@@ -147,7 +153,10 @@ def judge(
         f"the GNSS track's turns line up with the gyro's when the fixes are moved by "
         f"{lag:+.2f} s ({gain:.3g}x closer than as stamped, over {windows} turning 4-s windows)"
     )
-    if abs(lag) >= ERROR_MIN_LAG_S and gain >= ERROR_MIN_IMPROVEMENT and windows >= ERROR_MIN_WINDOWS:
+    clear = gain >= ERROR_MIN_IMPROVEMENT and windows >= ERROR_MIN_WINDOWS
+    if not banks:  # a banking aircraft's turns are off by seconds at a small gain
+        clear |= gain >= ERROR_MIN_IMPROVEMENT_MANY_WINDOWS and windows >= WARN_MIN_WINDOWS
+    if abs(lag) >= ERROR_MIN_LAG_S and clear:
         return "error", (
             f"time: {where}: the IMU and GNSS clocks differ (GPS time against UTC is 18 s); "
             f"give --time-offset {total:+.2f}"

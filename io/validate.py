@@ -145,14 +145,20 @@ def _validated(dataset: Dataset, vehicle: str | None) -> Dataset:
     _check_time_bases(imu.t, gnss.t, checks, n_read=len(dataset.gnss))
     if vehicle not in FREE_BODY_VEHICLES:  # after the time bases: a time unit shrinks speeds too
         _check_track_scale_by_turns(gnss, enu, imu, up)
-    _check_units(
-        imu, gnss, origin, checks, has_accel_array=dataset.accel_array is not None,
-        body_follows_track=vehicle not in FREE_BODY_VEHICLES,
-    )  # fmt: skip
+    given_offset = dataset.metadata.get("gnss_time_offset_s")
+    try:
+        _check_units(
+            imu, gnss, origin, checks, has_accel_array=dataset.accel_array is not None,
+            body_follows_track=vehicle not in FREE_BODY_VEHICLES,
+        )  # fmt: skip
+    except TurnsDisagree:
+        # Turns that line up at another time are offset clocks, and the offset is the fix
+        # (GPS time against UTC: "the gyro does not see the turns", its ratio 0.05).
+        _check_clock_offset(imu, gnss, enu, up, [], given_offset, banks=vehicle == "aircraft")
+        raise
     if vehicle not in FREE_BODY_VEHICLES and dataset.accel_array is None:
         _check_clock_offset(
-            imu, gnss, enu, up, checks, dataset.metadata.get("gnss_time_offset_s"),
-            banks=vehicle == "aircraft",
+            imu, gnss, enu, up, checks, given_offset, banks=vehicle == "aircraft"
         )  # fmt: skip
     _check_gnss_velocity(gnss, origin)
     if dataset.odometer is not None and len(dataset.odometer.t):
@@ -975,12 +981,17 @@ def _check_units(
             "(give --time-offset SECONDS)"
         )
     if problems and body_follows_track:
-        raise InputError(
+        raise TurnsDisagree(
             problems[0] + "; a multirotor or a pedestrian, which need not yaw with the track: "
             "--vehicle uav or pedestrian"
         )
     checks.extend(f"{problem} (a {'/'.join(FREE_BODY_VEHICLES)} need not yaw with its track: "
                   "checked, not refused)" for problem in problems)  # fmt: skip
+
+
+class TurnsDisagree(InputError):
+    """The gyro's turns do not match the track's (size or sense): units, axes, a mirrored
+    track or offset clocks."""
 
 
 def _check_clock_offset(
