@@ -197,11 +197,15 @@ def _load(args: argparse.Namespace, inputs: list[str], **options) -> Dataset:
         )  # fmt: skip
 
 
-def _report(dataset: Dataset, trajectory: Trajectory) -> None:
+def _report_input(dataset: Dataset) -> None:
     for line in dataset.metadata.get("mcap_report", []):
         print(line, file=sys.stderr)
     for warning in dataset.warnings:
         print(f"warning: {warning}", file=sys.stderr)
+
+
+def _report(dataset: Dataset, trajectory: Trajectory) -> None:
+    _report_input(dataset)
     summary = trajectory.summary()
     for key in ("gnss_gating", "gnss_rejected", "imu_bias_model", "solver"):
         if key in summary:
@@ -231,9 +235,14 @@ def cmd_smooth(args: argparse.Namespace) -> int:
         args, args.inputs, time_offset=args.time_offset, imu_topic=args.imu_topic,
         gnss_topic=args.gnss_topic,
     )  # fmt: skip
-    trajectory = api.smooth(
-        dataset, args.method, gnss_outage=windows, online=args.online, progress=_progress(args)
-    )
+    try:
+        trajectory = api.smooth(
+            dataset, args.method, gnss_outage=windows, online=args.online,
+            progress=_progress(args),
+        )  # fmt: skip
+    except FginsError:
+        _report_input(dataset)  # what the input checks found may be why (a dead axis)
+        raise
     trajectory.write(args.output, with_input=args.with_input)
     _report(dataset, trajectory)
     summary = trajectory.summary()

@@ -883,6 +883,25 @@ FREE_BODY_VEHICLES = ("uav", "pedestrian")
 ARRAY_FORCE_RANGE = (8.5, 11.0)
 
 
+def _note_constant_channels(imu, checks: list[str]) -> None:
+    """A warning for each IMU axis that reads one value in every sample: a dead or missing
+    axis (a real sensor's noise moves every axis), unless the data were simulated without
+    noise (a level car's roll and pitch rates are then exactly 0, and valid). A gyro_y
+    column of zeros on a hilly drive ran to "batch LM diverged" blamed on the GNSS sigmas."""
+    if len(imu.t) < 100:
+        return
+    for kind, samples in (("gyro", imu.gyro), ("accel", imu.accel)):
+        for axis, name in enumerate("xyz"):
+            column = samples[:, axis]
+            if np.all(column == column[0]):
+                checks.append(
+                    f"imu: {kind}_{name} reads {column[0]:g} in every one of {len(column)} "
+                    "samples: a dead or missing axis (a real sensor's noise moves every axis) "
+                    "unless the data are simulated without noise; a wrong axis makes the "
+                    "solution drift and fit badly"
+                )
+
+
 def _check_units(
     imu,
     gnss: GnssData,
@@ -892,6 +911,8 @@ def _check_units(
     has_accel_array: bool,
     body_follows_track: bool = True,
 ) -> None:
+    if not has_accel_array:
+        _note_constant_channels(imu, checks)
     accel_norm = np.linalg.norm(imu.accel, axis=1)
     median_accel = float(np.median(accel_norm))
     median_gyro = float(np.median(np.linalg.norm(imu.gyro, axis=1)))

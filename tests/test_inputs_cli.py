@@ -262,3 +262,35 @@ def test_imu_gaps_no_method_can_bridge_are_refused_naming_the_gap(tmp_path, sim_
     out.unlink()
     assert main(["smooth", str(long_gap), "--config", str(config), "--method", method,
                  "-o", str(out), "--no-progress"]) == 0  # fmt: skip
+
+
+def test_a_dead_imu_axis_is_said_and_shown_when_the_solve_fails(tmp_path, capsys):
+    """gyro_y all zeros on an independent simulator's hilly drive ran to "batch LM diverged"
+    blamed on the GNSS sigmas, and the input checks' warnings were never printed when a
+    solve failed. Now each constant axis is a warning (not an error: a level car simulated
+    without noise has exactly zero roll and pitch rates), printed before the solve's error."""
+    import pandas as pd
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from independent_sim import INDUSTRIAL, hilly_drive, write_drive
+
+    write_drive(tmp_path, hilly_drive(), 300.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
+                gnss_rate=1.0, seed=3)  # fmt: skip
+    imu = pd.read_csv(tmp_path / "imu.csv")
+    imu["gyro_y"] = 0.0
+    imu.to_csv(tmp_path / "imu.csv", index=False, float_format="%.10e")
+    files = [str(tmp_path / "imu.csv"), str(tmp_path / "gnss.csv")]
+    dataset = read_csv_dataset([Path(f) for f in files])
+    from fgins.io.validate import validate_dataset
+
+    checked = validate_dataset(dataset, vehicle="car")
+    dead = [w for w in checked.warnings if "gyro_y reads 0 in every one of" in w]
+    assert len(dead) == 1, checked.warnings
+    assert not [w for w in checked.warnings if "accel_" in w and "every one of" in w]
+    capsys.readouterr()
+    code = main(["smooth", *files, "--config", str(tmp_path / "cfg.toml"), "--vehicle", "car",
+                 "-o", str(tmp_path / "out.csv"), "--no-progress"])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2 and "fgins: error:" in err, err
+    assert err.index("gyro_y reads 0 in every one of") < err.index("fgins: error:"), err
+    assert not (tmp_path / "out.csv").exists()
