@@ -340,7 +340,7 @@ def _check_forward_level(rpy_deg, forward: np.ndarray, up: np.ndarray) -> None:
 
 def adopted_mounting(dataset, rpy_deg) -> tuple[np.ndarray, str] | None:
     """For a car whose mounting nobody gave (``rpy_deg`` the default): the mounting the data
-    show, with the line that says so, when :func:`check_mounting` finds the default wrong;
+    show, with what shows it (words for a warning), when :func:`check_mounting` finds the default wrong;
     None when it agrees or the drive cannot tell. Only what the check found off is taken
     from the data: the forward axis from the turns where its yaw (or the whole axis) is off,
     else the default's own forward axis (the turns' fit is good to ~0.1-1 deg, no better
@@ -368,13 +368,21 @@ def adopted_mounting(dataset, rpy_deg) -> tuple[np.ndarray, str] | None:
     vehicle_forward = np.cos(grade) * forward - np.sin(grade) * up
     vehicle_up = np.cos(grade) * up + np.sin(grade) * forward
     rpy = _mounting_rpy_deg(vehicle_forward, vehicle_up)
-    note = (
-        f"imu: no IMU mounting was given (imu_to_vehicle_rpy_deg), and the drive's "
-        f"{turning_s} s of turns and gravity show the default {_angles(rpy_deg, 2)} is wrong: "
-        f"using imu_to_vehicle_rpy_deg = {_angles(rpy, 1)}, the mounting they show; set it "
-        "in [smoother] to silence this"
-    )
-    return rpy, note
+    return rpy, f"the drive's {turning_s} s of turns and gravity show {_angles(rpy, 1)}"
+
+
+def turned_by_misalignment(rpy_deg, lateral_rad: float, vertical_rad: float) -> tuple[np.ndarray, float]:
+    """The mounting whose forward axis is ``rpy_deg``'s turned by an NHC misalignment (the
+    vehicle's velocity has ``lateral`` and ``vertical`` parts per unit of forward speed in
+    the vehicle axes ``rpy_deg`` sets: the true forward axis is f + lateral l + vertical u),
+    and the angle (deg) between the two forward axes. The up axis stays as near the old one
+    as the new forward axis allows."""
+    r_vi = mounting_rotation(rpy_deg)
+    forward = r_vi[0] + lateral_rad * r_vi[1] + vertical_rad * r_vi[2]
+    forward = forward / np.linalg.norm(forward)
+    up = r_vi[2] - (r_vi[2] @ forward) * forward
+    angle = float(np.degrees(np.arccos(np.clip(forward @ r_vi[0], -1.0, 1.0))))
+    return _mounting_rpy_deg(forward, up / np.linalg.norm(up)), angle
 
 
 def _mean_grade_deg(dataset) -> float | None:

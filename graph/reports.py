@@ -45,7 +45,9 @@ def extra_states(problem: Problem, values: gtsam.Values) -> dict[str, object]:
                 "if it is real"
             ]
     if values.exists(vehicle_model.misalignment_key(0)):
-        lateral, vertical = np.degrees(values.atVector(vehicle_model.misalignment_key(0)))
+        angles = values.atVector(vehicle_model.misalignment_key(0))
+        out["nhc_misalignment_rad"] = (float(angles[0]), float(angles[1]))
+        lateral, vertical = np.degrees(angles)
         drifting = values.exists(vehicle_model.misalignment_key(1))  # one key per keyframe
         out["nhc_misalignment_deg"] = f"lateral {lateral:+.2f}, vertical {vertical:+.2f}" + (
             " (at the start; it drifts)" if drifting else ""
