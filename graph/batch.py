@@ -137,7 +137,7 @@ def smooth_batch(
         trajectory,
         gnss_report(problem, result),
         lever_arm_report(problem, graph, result),
-        extra_states(problem, result),
+        extra_states(problem, result, marginal),
         solver_report(report),
         vehicle_fit_report(problem, result),
         covariance_report(covariances),

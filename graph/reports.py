@@ -5,6 +5,8 @@ vehicle constraints fit, the solver's report.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import V, X
@@ -23,14 +25,17 @@ ODOMETER_SCALE_PRIOR_SIGMAS = 3.0
 LARGE_RESIDUAL_WHITENED = 4.03
 
 
-def extra_states(problem: Problem, values: gtsam.Values) -> dict[str, object]:
+def extra_states(
+    problem: Problem, values: gtsam.Values, marginal: Callable[[int], np.ndarray] | None = None
+) -> dict[str, object]:
     """Estimated non-navigation states worth reporting (odometer scale-factor error, the
     NHC misalignment: the angle between the vehicle's x axis as configured and its
     velocity, i.e. a mounting error, lateral (yaw) and vertical (pitch), degrees).
 
     A scale-factor error beyond 3 sigma of its prior is a warning: tyres are within a few
     per cent, so a scale the data pulled that far is a wrong radius or pulses-per-metre (a
-    unit is refused at load: :func:`fgins.io.validate._check_wheel_speed`)."""
+    unit is refused at load: :func:`fgins.io.validate._check_wheel_speed`). With
+    ``marginal`` (a key's marginal covariance), the constant misalignment's sigmas too."""
     out: dict[str, object] = {}
     if values.exists(odometer_model.scale_key()):
         scale = float(values.atDouble(odometer_model.scale_key()))
@@ -47,6 +52,9 @@ def extra_states(problem: Problem, values: gtsam.Values) -> dict[str, object]:
     if values.exists(vehicle_model.misalignment_key(0)):
         angles = values.atVector(vehicle_model.misalignment_key(0))
         out["nhc_misalignment_rad"] = (float(angles[0]), float(angles[1]))
+        if marginal is not None:
+            sigma = np.sqrt(np.diagonal(marginal(vehicle_model.misalignment_key(0))))
+            out["nhc_misalignment_sigma_rad"] = (float(sigma[0]), float(sigma[1]))
         lateral, vertical = np.degrees(angles)
         drifting = values.exists(vehicle_model.misalignment_key(1))  # one key per keyframe
         out["nhc_misalignment_deg"] = f"lateral {lateral:+.2f}, vertical {vertical:+.2f}" + (
