@@ -46,6 +46,12 @@ MOTION_MAX_FIX_GAP_S = 1.5  # speed interpolated only this close to a fix
 MOTION_MIN_SPEED_M_S = 3.0
 CENTRIPETAL_MIN_M_S2 = 0.5  # a time "in a turn" has v * w above this
 MOTION_MIN_TURN_S = 12.0  # seconds of turning needed to tell (9 s: up to 20 deg off)
+# Without enough turns, speeding up and slowing down (forward acceleration above this, for
+# this long) show the nose too.
+SPEED_CHANGE_MIN_M_S2 = 0.5
+SPEED_CHANGE_WINDOW_S = 4.0
+STRAIGHT_MAX_CENTRIPETAL_M_S2 = 0.1  # straight ahead: v w below this
+MOTION_MIN_SPEED_CHANGE_S = 8.0
 MOTION_MAX_SIGMA_DEG = 2.0  # the fitted nose direction's standard error: above, cannot tell
 GRAVITY_M_S2 = 9.81
 MOTION_SCALE_RANGE = (0.7, 1.3)  # |specific force per v w| in the turns: ~1
@@ -101,13 +107,74 @@ def forward_axis_from_motion(dataset) -> tuple[np.ndarray, int] | None:
     turning &= np.abs(rate) > MOTION_MIN_RATE_RAD_S
     n = int(turning.sum())
     if n * MOTION_STEP_S < MOTION_MIN_TURN_S:
-        return None
+        bias = np.median(gyro[straight] @ up) if straight.sum() >= 5 else 0.0
+        return _forward_from_speed_changes(imu, t, speed, up, bias)
     motion = np.column_stack([centripetal[turning], along[turning]])
     forward = _free_fit(accel[turning], motion, up)
     if forward is None:
         forward = _rigid_fit(accel[turning], motion, up)
     if forward is None:
         return None  # the turns do not show the nose well enough: cannot tell
+    return forward / np.linalg.norm(forward), round(n * MOTION_STEP_S)
+
+
+def _forward_from_speed_changes(
+    imu, t: np.ndarray, speed: np.ndarray, up: np.ndarray, rate_bias: float
+) -> tuple[np.ndarray, int] | None:
+    """The forward axis from speeding up and slowing down, for a drive with too few turns
+    (a straight road): over SPEED_CHANGE_WINDOW_S windows (a speed differenced over 1 s of
+    metre-level fixes is all noise), the mean horizontal specific force regressed on the
+    speed change, less its median where the speed holds, over the epochs where it clearly
+    changes straight ahead; the
+    speed change's coefficient is the forward axis (~unit length). The grade's share of
+    gravity is left out (from metre-level heights at a few m/s it is noise of ~1 m/s^2): it
+    acts along the forward axis too, so it can bias the scale, not the direction. None when there is too little of it,
+    its scale is not ~1 or its direction uncertain by more than MOTION_MAX_SIGMA_DEG. An IMU
+    with x right and y forward on a straight drive went unchecked to "batch LM diverged",
+    the Kalman baselines to 126 m at exit 0."""
+    half = SPEED_CHANGE_WINDOW_S / 2
+    with np.errstate(invalid="ignore", divide="ignore"):
+        along = (np.interp(t + half, t, speed) - np.interp(t - half, t, speed)) / (2 * half)
+    lo = np.searchsorted(imu.t, t - half)
+    hi = np.searchsorted(imu.t, t + half)
+    count = np.maximum(hi - lo, 1)[:, None]
+    summed_accel, summed_gyro = _prefix_sums(imu.accel), _prefix_sums(imu.gyro)
+    accel = (summed_accel[hi] - summed_accel[lo]) / count
+    centripetal = speed * (((summed_gyro[hi] - summed_gyro[lo]) / count) @ up - rate_bias)
+    usable = (hi - lo >= 3) & np.isfinite(along) & np.isfinite(centripetal)
+    usable &= (t - half >= t[0]) & (t + half <= t[-1])
+    with np.errstate(invalid="ignore"):
+        changing = usable & (speed > MOTION_MIN_SPEED_M_S) & (np.abs(along) > SPEED_CHANGE_MIN_M_S2)
+        # Straight ahead only: a highway's lane changes and curves while speeding up turned
+        # the fit 11-12 deg (the simulated highway, seed 4).
+        changing &= np.abs(centripetal) < STRAIGHT_MAX_CENTRIPETAL_M_S2
+    n = int(changing.sum())
+    if n * MOTION_STEP_S < MOTION_MIN_SPEED_CHANGE_S:
+        return None
+    # The constant (accelerometer bias, the mounting's tilt) from where the speed holds: a
+    # drive whose one speed change is its start would make it collinear with that change.
+    with np.errstate(invalid="ignore"):
+        steady = usable & (np.abs(along) < 0.4 * SPEED_CHANGE_MIN_M_S2)
+        steady &= np.abs(centripetal) < STRAIGHT_MAX_CENTRIPETAL_M_S2
+    if steady.sum() < n:
+        return None
+    level = accel - np.outer(accel @ up, up)
+    horizontal = level[changing] - np.median(level[steady], axis=0)
+    design = along[changing][:, None]
+    coefficients, *_ = np.linalg.lstsq(design, horizontal, rcond=None)
+    forward = coefficients[0]
+    scale = float(np.linalg.norm(forward))
+    if not MOTION_SCALE_RANGE[0] <= scale <= MOTION_SCALE_RANGE[1]:
+        return None
+    try:
+        unscaled = float(np.linalg.inv(design.T @ design)[0, 0])
+    except np.linalg.LinAlgError:
+        return None
+    variance = _residual_variance(horizontal - design @ coefficients, design.shape[1])
+    variance *= SPEED_CHANGE_WINDOW_S / MOTION_WINDOW_S  # longer windows: fewer independent
+    if not np.degrees(np.sqrt(max(variance * unscaled, 0.0)) / scale) <= MOTION_MAX_SIGMA_DEG:
+        return None
+    forward = forward - (forward @ up) * up
     return forward / np.linalg.norm(forward), round(n * MOTION_STEP_S)
 
 
@@ -309,8 +376,8 @@ def check_mounting(dataset, rpy_deg) -> str | None:
     if abs(angle) <= MOUNTING_WARN_DEG:
         return _tilt_note(dataset, rpy_deg, forward, up)
     message = (
-        f"imu: the vehicle's forward axis, from the centripetal acceleration over {turning_s} s "
-        f"of turns, lies {angle:+.0f} deg about up from the configured mounting's "
+        f"imu: the vehicle's forward axis, from the horizontal specific force over {turning_s} s "
+        f"of turns or speed changes, lies {angle:+.0f} deg about up from the configured mounting's "
         f"(imu_to_vehicle_rpy_deg = {_angles(rpy_deg, 2)}); a mounting that fits the data: "
         f"imu_to_vehicle_rpy_deg = {_angles(_mounting_rpy_deg(forward, up), 0)}"
     )
@@ -368,7 +435,9 @@ def adopted_mounting(dataset, rpy_deg) -> tuple[np.ndarray, str] | None:
     vehicle_forward = np.cos(grade) * forward - np.sin(grade) * up
     vehicle_up = np.cos(grade) * up + np.sin(grade) * forward
     rpy = _mounting_rpy_deg(vehicle_forward, vehicle_up)
-    return rpy, f"the drive's {turning_s} s of turns and gravity show {_angles(rpy, 1)}"
+    return rpy, (
+        f"the drive's {turning_s} s of turns or speed changes and gravity show {_angles(rpy, 1)}"
+    )
 
 
 def turned_by_misalignment(rpy_deg, lateral_rad: float, vertical_rad: float) -> tuple[np.ndarray, float]:
