@@ -405,15 +405,17 @@ def _check_forward_level(rpy_deg, forward: np.ndarray, up: np.ndarray) -> None:
     )
 
 
-def adopted_mounting(dataset, rpy_deg) -> tuple[np.ndarray, str] | None:
+def adopted_mounting(
+    dataset, rpy_deg, refine_beyond_deg: float = MOUNTING_WARN_DEG
+) -> tuple[np.ndarray, str] | None:
     """For a car whose mounting nobody gave (``rpy_deg`` the default): the mounting the data
-    show, with what shows it (words for a warning), when :func:`check_mounting` finds the default wrong;
-    None when it agrees or the drive cannot tell. Only what the check found off is taken
-    from the data: the forward axis from the turns where its yaw (or the whole axis) is off,
-    else the default's own forward axis (the turns' fit is good to ~0.1-1 deg, no better
-    than a right default); the up axis from gravity's mean direction over the drive,
-    pitched by the drive's mean grade (a drive mostly uphill leans gravity backward in the
-    vehicle)."""
+    show, with what shows it (words for a warning), when :func:`check_mounting` finds the
+    default wrong or the turns put its forward axis more than ``refine_beyond_deg`` off
+    about up; None when it agrees or the drive cannot tell. The forward axis comes from the
+    turns where its yaw (or the whole axis) is off by more than that, else it is the
+    default's own (the turns' fit is good to ~0.1-1 deg, no better than a right default);
+    the up axis from gravity's mean direction over the drive, pitched by the drive's mean
+    grade (a drive mostly uphill leans gravity backward in the vehicle)."""
     found = forward_axis_from_motion(dataset)
     if found is None:
         return None
@@ -423,12 +425,13 @@ def adopted_mounting(dataset, rpy_deg) -> tuple[np.ndarray, str] | None:
         finding = check_mounting(dataset, rpy_deg)
     except InputError as error:
         finding = str(error)
-    if finding is None:
-        return None
     configured = mounting_rotation(rpy_deg)[0]
     yaw_error = _yaw_error_deg(forward, up, rpy_deg)
-    if yaw_error is not None and abs(yaw_error) <= MOUNTING_WARN_DEG:
-        forward = configured  # the yaw agrees: the finding is the roll or pitch
+    yaw_agrees = yaw_error is not None and abs(yaw_error) <= refine_beyond_deg
+    if finding is None and yaw_agrees:
+        return None
+    if yaw_agrees:
+        forward = configured  # the finding is the roll or pitch
     forward = forward - (forward @ up) * up
     forward = forward / np.linalg.norm(forward)
     grade = np.radians(_mean_grade_deg(dataset) or 0.0)

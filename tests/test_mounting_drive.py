@@ -196,12 +196,15 @@ def test_a_mounting_off_in_roll_alone_is_said_without_blaming_the_constraints(dr
 
 
 @pytest.mark.parametrize(
-    "rpy", [(0.0, 0.0, -90.0), (180.0, 0.0, 35.0), (-90.0, -90.0, 0.0), (0.0, 0.0, 8.0)]
-)
+    "rpy",
+    [(0.0, 0.0, -90.0), (180.0, 0.0, 35.0), (-90.0, -90.0, 0.0), (0.0, 0.0, 8.0),
+     (0.0, 0.0, -0.5)],
+)  # fmt: skip
 @pytest.mark.parametrize("method", ["batch", "isam2", "ekf-rts"])
 def test_a_mounting_nobody_gave_is_taken_from_the_drive(drive, rpy, method):
     """A car IMU in other axes (x right and y forward, upside down and turned, on its side,
-    8 deg off) and no mounting anywhere: the axes are a convention, not a mistake. The run
+    8 deg off, half a degree off: 48 % worse inside the outage, below any check's line) and
+    no mounting anywhere: the axes are a convention, not a mistake. The run
     takes the mounting the turns and gravity show, refined by a batch solve's constant
     misalignment state, says so in a warning naming it, and every method matches the IMU
     given its true mounting inside the outage. Before, an error (or, within 10 deg, a
@@ -329,3 +332,16 @@ def test_a_straight_drive_shows_the_forward_axis_by_its_speed_changes(tmp_path, 
     error = np.hypot(e - np.interp(track.t, truth["time"], truth["east"]),
                      n - np.interp(track.t, truth["time"], truth["north"]))[inside]  # fmt: skip
     assert np.sqrt(np.mean(error**2)) < 0.7  # the true mounting: 0.47 m
+
+
+@pytest.mark.parametrize("seed", [0, 2, 6])
+def test_a_rough_turn_fit_on_a_right_default_changes_nothing(seed):
+    """The simulated highway's few turns put the right (FLU) default's forward axis 1-3.9 deg
+    off; refined, it comes back within the estimate's noise: the default stays, and nothing
+    is said."""
+    from fgins.config import config_for_dataset
+
+    run = SCENARIOS["highway"](seed=seed)
+    config = config_for_dataset(run.dataset, vehicle="car")
+    track = run_method(run.dataset, config, "batch", progress=False)
+    assert not [w for w in track.info.get("fit_warnings", []) if "mounting" in w], track.info
