@@ -277,6 +277,8 @@ def _check_mounting(
     holds_deg = DEFAULT_HOLDS_DEG
     if smoother.nhc_misalignment_prior_deg == 0.0:  # else the run estimates one itself
         refined = _refined_mounting(dataset, config, gnss_mask, progress)
+        if refined is None:  # the refining solve failed: judged as a given mounting is
+            return original, check_mounting(dataset, rpy)
     if refined is not None:
         angles, turned_deg, sigma_deg = refined
         holds_deg = max(holds_deg, MISALIGNMENT_SIGNIFICANT * sigma_deg)
@@ -311,11 +313,11 @@ def _refined_mounting(
     """The mounting taken from the turns, turned by the constant NHC misalignment a batch
     solve estimates with it (sigma ADOPTED_MOUNTING_SIGMA_DEG), each of its two angles only
     where it exceeds MISALIGNMENT_SIGNIFICANT sigmas of its own estimate; the angle turned
-    and the larger sigma (deg). None when that solve fails. The turns' fit is good to ~0.1-1 deg: 1.2 deg off
-    on an independent simulator's hilly drive, 1.52 m inside a 40 s outage where the true
-    mounting gives 0.23 m; the state alone (kept in the run) got 0.24 m there, but where the
-    fit is exact it costs 6-9 %, and so does turning by an estimate within its noise (0.07
-    deg of yaw: 1.33 m against 1.24 m on the urban car). Folded into the mounting, the
+    and the larger sigma (deg). None when that solve fails. The turns' fit is good to
+    ~0.1-1 deg: 1.2 deg off on an independent simulator's hilly drive, 1.52 m inside a 40 s
+    outage where the true mounting gives 0.23 m; the state alone (kept in the run) got
+    0.24 m there, but where the fit is exact it costs 6-9 %, and so does turning by an
+    estimate within its noise (0.07 deg of yaw: 1.33 m against 1.24 m on the urban car). Folded into the mounting, the
     misalignment serves every method, the Kalman baselines too, at the cost of one solve."""
     from fgins.mounting import turned_by_misalignment
 
