@@ -217,3 +217,15 @@ def horizontal_errors(track, folder: Path, origin=(45.0, 10.0, 100.0)) -> tuple[
     error = np.hypot(east - np.interp(t, truth["time"], truth["east"]),
                      north - np.interp(t, truth["time"], truth["north"]))  # fmt: skip
     return t, error
+
+
+def turn_imu_axes(folder: Path, turn: str) -> None:
+    """Rewrite ``folder/imu.csv`` as read by an IMU mounted otherwise: ``"rfu"`` x right,
+    y forward, z up; ``"backward"`` x back, y right, z up (from the FLU samples)."""
+    import pandas as pd
+
+    imu = pd.read_csv(folder / "imu.csv")
+    for kind in ("gyro", "accel"):
+        x, y = imu[f"{kind}_x"].copy(), imu[f"{kind}_y"].copy()
+        imu[f"{kind}_x"], imu[f"{kind}_y"] = {"rfu": (-y, x), "backward": (-x, -y)}[turn]
+    imu.to_csv(folder / "imu.csv", index=False, float_format="%.10e")

@@ -212,11 +212,9 @@ def test_an_aircraft_imu_whose_x_is_not_forward_is_said(tmp_path, turn, said):
     folder = write_flight(tmp_path / turn, _fixed_wing(30.0, 60.0), 130.0, seed=2,
                           vehicle="aircraft", gnss_rate=2.0)  # fmt: skip
     if turn != "none":
-        imu = pd.read_csv(folder / "imu.csv")
-        for kind in ("gyro", "accel"):
-            x, y = imu[f"{kind}_x"].copy(), imu[f"{kind}_y"].copy()
-            imu[f"{kind}_x"], imu[f"{kind}_y"] = (-y, x) if turn == "rfu" else (-x, -y)
-        imu.to_csv(folder / "imu.csv", index=False, float_format="%.10e")
+        from independent_sim import turn_imu_axes
+
+        turn_imu_axes(folder, turn)
     dataset = fgins.load(folder, vehicle="aircraft")
     track = fgins.smooth(dataset, "batch", gnss_outage=[FW_OUTAGE])
     notes = [w for w in track.info.get("fit_warnings", []) if "forward axis" in w]

@@ -242,35 +242,25 @@ def test_a_mounting_taken_from_a_hilly_drive_is_refined_by_the_fit(tmp_path, met
     import sys
     from pathlib import Path
 
-    import pandas as pd
-
     import fgins
 
     sys.path.insert(0, str(Path(__file__).parent))
-    from independent_sim import INDUSTRIAL, hilly_drive, write_drive
+    from independent_sim import (
+        INDUSTRIAL,
+        hilly_drive,
+        horizontal_errors,
+        turn_imu_axes,
+        write_drive,
+    )
 
     write_drive(tmp_path, hilly_drive(), 300.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
                 gnss_rate=1.0, seed=3)  # fmt: skip
-    imu = pd.read_csv(tmp_path / "imu.csv")
-    for kind in ("gyro", "accel"):  # FLU -> x right, y forward, z up
-        x, y = imu[f"{kind}_x"].copy(), imu[f"{kind}_y"].copy()
-        imu[f"{kind}_x"], imu[f"{kind}_y"] = -y, x
-    imu.to_csv(tmp_path / "imu.csv", index=False, float_format="%.10e")
+    turn_imu_axes(tmp_path, "rfu")
     config = tmp_path / "cfg.toml"
-    truth = pd.read_csv(tmp_path / "truth.csv")
 
     def outage_rms(track) -> float:
-        """Horizontal RMS inside the outage against the truth (ENU about 45N 10E 100 m)."""
-        import pymap3d
-
-        inside = (track.t >= 110.0) & (track.t < 150.0)
-        east = np.interp(track.t, truth["time"], truth["east"])
-        north = np.interp(track.t, truth["time"], truth["north"])
-        o = track.origin
-        lat, lon, alt = pymap3d.enu2geodetic(*track.position.T, o.lat, o.lon, o.alt)
-        e, n, _ = pymap3d.geodetic2enu(lat, lon, alt, 45.0, 10.0, 100.0)
-        error = np.hypot(e - east, n - north)
-        return float(np.sqrt(np.mean(error[inside] ** 2)))
+        t, error = horizontal_errors(track, tmp_path)
+        return float(np.sqrt(np.mean(error[(t >= 110.0) & (t < 150.0)] ** 2)))
 
     runs = {}
     for label, extra in (("given", "[smoother]\nimu_to_vehicle_rpy_deg = [0, 0, -90]\n"), ("none", "")):
@@ -296,24 +286,24 @@ def test_a_straight_drive_shows_the_forward_axis_by_its_speed_changes(tmp_path, 
     import sys
     from pathlib import Path
 
-    import pandas as pd
-
     import fgins
     from fgins.mounting import forward_axis_from_motion
 
     sys.path.insert(0, str(Path(__file__).parent))
-    from independent_sim import INDUSTRIAL, CarProfile, write_drive
+    from independent_sim import (
+        INDUSTRIAL,
+        CarProfile,
+        horizontal_errors,
+        turn_imu_axes,
+        write_drive,
+    )
 
     profile = CarProfile(steps=[(5, 10, 25.0)], turns=[(60, 120, 10, 0.01), (200, 260, 10, -0.012)],
                          gamma=lambda t: 0 * t)  # fmt: skip
     write_drive(tmp_path, profile, 300.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
                 gnss_rate=1.0, seed=2)  # fmt: skip
     if turned:
-        imu = pd.read_csv(tmp_path / "imu.csv")
-        for kind in ("gyro", "accel"):  # FLU -> x right, y forward, z up
-            x, y = imu[f"{kind}_x"].copy(), imu[f"{kind}_y"].copy()
-            imu[f"{kind}_x"], imu[f"{kind}_y"] = -y, x
-        imu.to_csv(tmp_path / "imu.csv", index=False, float_format="%.10e")
+        turn_imu_axes(tmp_path, "rfu")
     dataset = fgins.load(tmp_path / "imu.csv", tmp_path / "gnss.csv", config=tmp_path / "cfg.toml",
                          vehicle="car")  # fmt: skip
     forward, _ = forward_axis_from_motion(dataset)
@@ -322,16 +312,9 @@ def test_a_straight_drive_shows_the_forward_axis_by_its_speed_changes(tmp_path, 
     track = fgins.smooth(dataset, "ekf-rts", gnss_outage=[(130.0, 190.0)])
     notes = [w for w in track.info.get("fit_warnings", []) if "no IMU mounting" in w]
     assert len(notes) == (1 if turned else 0), track.info.get("fit_warnings")
-    truth = pd.read_csv(tmp_path / "truth.csv")
-    o = track.origin
-    import pymap3d
-
-    lat, lon, alt = pymap3d.enu2geodetic(*track.position.T, o.lat, o.lon, o.alt)
-    e, n, _ = pymap3d.geodetic2enu(lat, lon, alt, 45.0, 10.0, 100.0)
-    inside = (track.t >= 130.0) & (track.t < 190.0)
-    error = np.hypot(e - np.interp(track.t, truth["time"], truth["east"]),
-                     n - np.interp(track.t, truth["time"], truth["north"]))[inside]  # fmt: skip
-    assert np.sqrt(np.mean(error**2)) < 0.7  # the true mounting: 0.47 m
+    t, error = horizontal_errors(track, tmp_path)
+    inside = (t >= 130.0) & (t < 190.0)
+    assert np.sqrt(np.mean(error[inside] ** 2)) < 0.7  # the true mounting: 0.47 m
 
 
 @pytest.mark.parametrize("seed", [0, 2, 6])
