@@ -61,7 +61,7 @@ CLIMB_CHORD_S = 10.0  # and the climb (grades change slowly; heights are noisier
 
 def forward_axis_from_motion(dataset) -> tuple[np.ndarray, int] | None:
     """The vehicle's forward axis in IMU axes as the motion shows it, or None when the drive
-    has too few turns to tell; with the seconds of turning used.
+    has too few turns or straight speed changes to tell; with the seconds used.
 
     A ground vehicle turning at rate ``w`` (about up) with speed ``v`` accelerates toward the
     turn's centre, ``v w`` along its left axis; the IMU's specific force shows it in the
@@ -122,16 +122,16 @@ def _forward_from_speed_changes(
     imu, t: np.ndarray, speed: np.ndarray, up: np.ndarray, rate_bias: float
 ) -> tuple[np.ndarray, int] | None:
     """The forward axis from speeding up and slowing down, for a drive with too few turns
-    (a straight road): over SPEED_CHANGE_WINDOW_S windows (a speed differenced over 1 s of
-    metre-level fixes is all noise), the mean horizontal specific force regressed on the
-    speed change, less its median where the speed holds, over the epochs where it clearly
-    changes straight ahead; the
-    speed change's coefficient is the forward axis (~unit length). The grade's share of
-    gravity is left out (from metre-level heights at a few m/s it is noise of ~1 m/s^2): it
-    acts along the forward axis too, so it can bias the scale, not the direction. None when there is too little of it,
-    its scale is not ~1 or its direction uncertain by more than MOTION_MAX_SIGMA_DEG. An IMU
-    with x right and y forward on a straight drive went unchecked to "batch LM diverged",
-    the Kalman baselines to 126 m at exit 0."""
+    (a straight road). Over SPEED_CHANGE_WINDOW_S windows (a speed differenced over 1 s of
+    metre-level fixes is all noise), the mean horizontal specific force less its median
+    where the speed holds is regressed on the speed change, over the epochs where the speed
+    clearly changes straight ahead; the coefficient is the forward axis (~unit length). The
+    grade's share of gravity is left out (from metre-level heights at a few m/s it is noise
+    of ~1 m/s^2): it acts along the forward axis too, so it can bias the scale, not the
+    direction. None when there is too little of it, its scale is not ~1 or its direction is
+    uncertain by more than MOTION_MAX_SIGMA_DEG. An IMU with x right and y forward on a
+    straight drive went unchecked to "batch LM diverged", the Kalman baselines to 126 m at
+    exit 0."""
     half = SPEED_CHANGE_WINDOW_S / 2
     with np.errstate(invalid="ignore", divide="ignore"):
         along = (np.interp(t + half, t, speed) - np.interp(t - half, t, speed)) / (2 * half)
@@ -400,7 +400,7 @@ def _check_forward_level(rpy_deg, forward: np.ndarray, up: np.ndarray) -> None:
         f"{'above' if elevation > 0 else 'below'} the horizontal (gravity's mean direction "
         "over the drive): the IMU sits on its side or on end in the vehicle; a mounting that "
         f"fits the data: imu_to_vehicle_rpy_deg = {_angles(_mounting_rpy_deg(forward, up), 0)} "
-        "(forward from the turns' centripetal acceleration, up from gravity); the car "
+        "(forward from the turns or speed changes, up from gravity); the car "
         "constraints would fight the data"
     )
 
