@@ -108,7 +108,7 @@ def forward_axis_from_motion(dataset) -> tuple[np.ndarray, int] | None:
     n = int(turning.sum())
     if n * MOTION_STEP_S < MOTION_MIN_TURN_S:
         bias = np.median(gyro[straight] @ up) if straight.sum() >= 5 else 0.0
-        return _forward_from_speed_changes(imu, t, speed, up, bias)
+        return _forward_from_speed_changes(imu.t, summed_accel, summed_gyro, t, speed, up, bias)
     motion = np.column_stack([centripetal[turning], along[turning]])
     forward = _free_fit(accel[turning], motion, up)
     if forward is None:
@@ -119,7 +119,8 @@ def forward_axis_from_motion(dataset) -> tuple[np.ndarray, int] | None:
 
 
 def _forward_from_speed_changes(
-    imu, t: np.ndarray, speed: np.ndarray, up: np.ndarray, rate_bias: float
+    imu_t: np.ndarray, summed_accel: np.ndarray, summed_gyro: np.ndarray, t: np.ndarray,
+    speed: np.ndarray, up: np.ndarray, rate_bias: float,
 ) -> tuple[np.ndarray, int] | None:
     """The forward axis from speeding up and slowing down, for a drive with too few turns
     (a straight road). Over SPEED_CHANGE_WINDOW_S windows (a speed differenced over 1 s of
@@ -135,11 +136,10 @@ def _forward_from_speed_changes(
     half = SPEED_CHANGE_WINDOW_S / 2
     with np.errstate(invalid="ignore", divide="ignore"):
         along = (np.interp(t + half, t, speed) - np.interp(t - half, t, speed)) / (2 * half)
-    lo = np.searchsorted(imu.t, t - half)
-    hi = np.searchsorted(imu.t, t + half)
+    lo = np.searchsorted(imu_t, t - half)
+    hi = np.searchsorted(imu_t, t + half)
     count = np.maximum(hi - lo, 1)[:, None]
-    summed_accel, summed_gyro = _prefix_sums(imu.accel), _prefix_sums(imu.gyro)
-    accel = (summed_accel[hi] - summed_accel[lo]) / count
+    accel = (summed_accel[hi] - summed_accel[lo]) / count  # the caller's prefix sums
     centripetal = speed * (((summed_gyro[hi] - summed_gyro[lo]) / count) @ up - rate_bias)
     usable = (hi - lo >= 3) & np.isfinite(along) & np.isfinite(centripetal)
     usable &= (t - half >= t[0]) & (t + half <= t[-1])

@@ -1025,14 +1025,10 @@ def _clock_offset_explains_turns(
     stamped times but agree (size and sense) once the fixes are moved by the offset the
     turns show. A mirrored track (lat/lon swapped) lines up best somewhere too (a false
     -14 s at 2.2x): it still disagrees there, and the caller's error stands."""
-    from fgins.io.clock_offset import estimate_clock_offset, judge
-
-    offset = estimate_clock_offset(imu.t, imu.gyro @ up, gnss.t, enu[:, :2])
-    given = float(given_offset_s) if isinstance(given_offset_s, (int, float)) else 0.0
-    verdict = judge(offset, given, banks=banks)
-    if offset is None or verdict is None or verdict[0] != "error":
+    lag, verdict = _clock_verdict(imu, gnss, enu, up, given_offset_s, banks=banks)
+    if verdict is None or verdict[0] != "error":
         return
-    moved = replace(gnss, t=gnss.t + offset.lag_s)
+    moved = replace(gnss, t=gnss.t + lag)
     ratio, turns, turn_sign = _gyro_turn_ratio(imu, moved, origin)
     agree = GYRO_TURN_RATIO_MIN <= ratio <= GYRO_TURN_RATIO_MAX and turn_sign >= -TURN_SIGN_MIN_RATIO
     if turns >= TURN_SIGN_MIN_WINDOWS and agree:
@@ -1047,17 +1043,24 @@ def _check_clock_offset(
     an offset of seconds is an error naming the --time-offset that aligns them (KITTI with 3 s
     added ran 29 s to a fit blamed on the lever arm and the mounting), a fraction of a second
     a warning. Only for a body that yaws with its track (not a multirotor or a walker)."""
-    from fgins.io.clock_offset import estimate_clock_offset, judge
-
-    offset = estimate_clock_offset(imu.t, imu.gyro @ up, gnss.t, enu[:, :2])
-    given = float(given_offset_s) if isinstance(given_offset_s, (int, float)) else 0.0
-    verdict = judge(offset, given, banks=banks)
+    _, verdict = _clock_verdict(imu, gnss, enu, up, given_offset_s, banks=banks)
     if verdict is None:
         return
     kind, message = verdict
     if kind == "error":
         raise InputError(message)
     checks.append(message)
+
+
+def _clock_verdict(
+    imu, gnss: GnssData, enu: np.ndarray, up: np.ndarray, given_offset_s: object, *, banks: bool
+) -> tuple[float, tuple[str, str] | None]:
+    """(the lag the turns show, s; :func:`fgins.io.clock_offset.judge`'s verdict on it)."""
+    from fgins.io.clock_offset import estimate_clock_offset, judge
+
+    offset = estimate_clock_offset(imu.t, imu.gyro @ up, gnss.t, enu[:, :2])
+    given = float(given_offset_s) if isinstance(given_offset_s, (int, float)) else 0.0
+    return (offset.lag_s if offset else 0.0), judge(offset, given, banks=banks)
 
 
 def _chord_velocity(gnss: GnssData, enu: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
