@@ -865,9 +865,20 @@ def _check_imu_time_unit(t: np.ndarray) -> None:
     if interval > IMU_MAX_SAMPLE_INTERVAL_S:
         raise InputError(
             f"imu: the samples are {interval:.6g} time units apart ({1 / interval:.3g} Hz): no "
-            "IMU samples that slowly; the times look like milliseconds or nanoseconds, give "
+            f"IMU samples that slowly; the times look like {_likely_time_unit(interval)}, give "
             "them in seconds (and the GNSS times on the same clock)"
         )
+
+
+def _likely_time_unit(interval: float) -> str:
+    """The units in which ``interval`` (a median IMU sample spacing) is that of an IMU of
+    1-4000 Hz: a 100 Hz log in ms is 10 units apart, in us 1e4, in ns 1e7."""
+    units = [name for name, per_second in (("milliseconds", 1e3), ("microseconds", 1e6),
+                                           ("nanoseconds", 1e9))
+             if 1.0 <= per_second / interval <= 4000.0]  # fmt: skip
+    if not units:
+        return "another unit than seconds"
+    return " or ".join(units)
 
 
 SHORT_IMU_S = 10.0  # an IMU record shorter than this cannot show the heading or the biases

@@ -359,15 +359,18 @@ def test_latitude_and_longitude_swapped_is_an_error(tmp_path, urban):
         load_dataset(_pair(tmp_path, data))
 
 
-@pytest.mark.parametrize("scale", [1e3, 1e9])
-def test_imu_times_in_ms_or_ns_are_an_error(tmp_path, urban, scale):
+@pytest.mark.parametrize(("scale", "unit"), [(1e3, "milliseconds"), (1e6, "microseconds"),
+                                           (1e9, "nanoseconds")])  # fmt: skip
+def test_imu_times_in_ms_us_or_ns_are_an_error_naming_the_unit(tmp_path, urban, scale, unit):
+    """The error names the unit in which the spacing is that of an IMU (microseconds were
+    called "milliseconds or nanoseconds")."""
     from dataclasses import replace
 
     data = urban.dataset
     data = replace(
         data, imu=replace(data.imu, t=data.imu.t * scale), gnss=replace(data.gnss, t=data.gnss.t * scale)
     )
-    with pytest.raises(InputError, match=r"samples are .* apart.*milliseconds or nanoseconds"):
+    with pytest.raises(InputError, match=rf"samples are .* apart.*look like {unit}, give"):
         load_dataset(_pair(tmp_path, data))
 
 
