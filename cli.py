@@ -445,7 +445,7 @@ def cmd_convert(args: argparse.Namespace) -> int:
         return 0
     api.check_output(args.output, [args.input], suffixes=GNSS_OUTPUT_SUFFIXES, what="GNSS output")
     gnss, warnings = _read_gnss_only(args.input, check_time_offset(args.time_offset))
-    from fgins.io.validate import check_gnss_records
+    from fgins.io.gnss_checks import check_gnss_records
 
     # DOP placeholders (u-blox 99.99, NMEA 0.00) written as missing; fixes that are no
     # measurement (quality 6-8) written with their fix_quality, and said.

@@ -58,7 +58,7 @@ def _unknown_height(dataset: Dataset, trajectory: Trajectory) -> str | None:
     noise)."""
     if not dataset.metadata.get("gnss_without_height"):
         return None
-    from fgins.io.validate import NO_HEIGHT_SIGMA_M
+    from fgins.io.gnss_checks import NO_HEIGHT_SIGMA_M
 
     cov = trajectory.position_cov
     cov[:, 2, 2] = np.fmax(np.nan_to_num(cov[:, 2, 2], nan=0.0), NO_HEIGHT_SIGMA_M**2)

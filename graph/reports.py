@@ -34,7 +34,7 @@ def extra_states(
 
     A scale-factor error beyond 3 sigma of its prior is a warning: tyres are within a few
     per cent, so a scale the data pulled that far is a wrong radius or pulses-per-metre (a
-    unit is refused at load: :func:`fgins.io.validate._check_wheel_speed`). With
+    unit is refused at load: :func:`fgins.io.motion_checks.check_wheel_speed`). With
     ``marginal`` (a key's marginal covariance), the constant misalignment's sigmas too."""
     out: dict[str, object] = {}
     if values.exists(odometer_model.scale_key()):

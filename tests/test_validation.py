@@ -325,9 +325,9 @@ def test_real_receiver_velocities_agree_with_their_fixes():
     import os
 
     from fgins.datatypes import Origin
+    from fgins.io.motion_checks import check_gnss_velocity
     from fgins.io.nmea import read_nmea
     from fgins.io.ubx import read_ubx_gnss
-    from fgins.io.validate import _check_gnss_velocity
 
     shared = Path(os.environ.get("FGINS_SHARED") or Path(__file__).resolve().parents[2] / "shared")
     shared = shared / "data"
@@ -344,7 +344,7 @@ def test_real_receiver_velocities_agree_with_their_fixes():
         finite = np.all(np.isfinite(gnss.lla), axis=1)
         if finite.sum() >= 3:
             gnss = gnss.subset(finite)
-            _check_gnss_velocity(gnss, Origin(*gnss.lla[0]))
+            check_gnss_velocity(gnss, Origin(*gnss.lla[0]))
             checked += 1
     assert checked >= 50
 

@@ -1,0 +1,182 @@
+"""Barometer checks of the input-validation layer (:mod:`fgins.io.validate`): pressures
+no air has (hPa, kPa, psi, bar given as Pa), heights given instead of pressures, a scale
+against the fixes' heights. GTSAM-free."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fgins.datatypes import GnssData, InputError
+from fgins.io.gnss_checks import fix_sigma
+
+# --------------------------------------------------------------------------------------------
+# Barometer
+# --------------------------------------------------------------------------------------------
+
+# Air pressure from the Dead Sea shore (~107 kPa) to 20 km (~5.5 kPa), with margin: outside
+# it the numbers are in another unit (hPa/mbar ~1000, kPa ~100, psi ~15, bar/atm ~1).
+PRESSURE_PLAUSIBLE_PA = (3.0e3, 1.2e5)
+PRESSURE_UNITS = (  # (median range, unit, factor to Pa)
+    ((250.0, 1200.0), "hPa (mbar)", 100.0),
+    ((25.0, 120.0), "kPa", 1000.0),
+    ((3.0, 17.5), "psi", 6894.757),
+    ((0.25, 1.2), "bar or atm", 1.0e5),
+)
+
+
+BARO_MAX_BAD_FRACTION = 0.01
+
+
+def checked_baro(baro, imu_t: np.ndarray, checks: list[str]):
+    """Barometer samples the smoother can use: a pressure that is not a positive finite
+    number is dropped and counted (more than 1 %: an error, the column is not pressure); none
+    inside the IMU's span is said (outside testers: negative pressures and a barometer 5,000 s
+    off the IMU were both dropped without a word, exit 0)."""
+    if baro is None:
+        return None
+    from_height = given_as_height(baro)
+    if from_height:
+        baro = _pressure_from_height(baro)
+    values = baro.height if from_height else baro.pressure
+    name = "height" if from_height else "pressure"
+    if values is None or not len(baro.t):
+        return baro
+    with np.errstate(invalid="ignore"):
+        bad = ~np.isfinite(values) | ((values <= 0.0) if name == "pressure" else False)
+    if bad.any():
+        count = int(bad.sum())
+        example = values[bad][0]
+        if count > BARO_MAX_BAD_FRACTION * len(values):
+            raise InputError(
+                f"baro: {count} of {len(values)} samples have a {name} no barometer gives "
+                f"(e.g. {example:g}{' Pa' if name == 'pressure' else ' m'}): "
+                + ("give pressure_pa in pascals (> 0)" if name == "pressure" else "check the column")
+            )
+        checks.append(
+            f"baro: dropped {count} sample(s) with a {name} no barometer gives (e.g. {example:g})"
+        )
+        keep = ~bad
+        baro = type(baro)(
+            t=baro.t[keep],
+            pressure=None if baro.pressure is None else baro.pressure[keep],
+            height=None if baro.height is None else baro.height[keep],
+        )
+    inside = (baro.t >= imu_t[0]) & (baro.t <= imu_t[-1])
+    if len(baro.t) and not inside.any():
+        checks.append(
+            f"baro: none of its {len(baro.t)} samples ({baro.t[0]:.3f}-{baro.t[-1]:.3f} s) lies "
+            f"within the IMU's span ({imu_t[0]:.3f}-{imu_t[-1]:.3f} s): the barometer is not "
+            "used; check its time base"
+        )
+    elif not inside.all():
+        checks.append(
+            f"baro: {int((~inside).sum())} of {len(baro.t)} samples lie outside the IMU's span "
+            "and are not used"
+        )
+    return baro
+
+
+def given_as_height(baro) -> bool:
+    """A barometer given as heights (a ``baro_height`` column) and no pressure."""
+    return (
+        baro.height is not None
+        and bool(np.any(np.isfinite(baro.height)))
+        and (baro.pressure is None or not np.any(np.isfinite(baro.pressure)))
+    )
+
+
+def _pressure_from_height(baro):
+    """Heights made the standard-atmosphere pressure they stand for, so that the graph and
+    every filter, which take pressure, use them (they read only pressure, and this check
+    refused every ``baro_height`` file as "a pressure no barometer gives (nan)"). Heights no
+    barometer reports are an error."""
+    from fgins.factors.stationary import standard_atmosphere_pressure
+
+    height = np.asarray(baro.height, dtype=float)
+    finite = height[np.isfinite(height)]
+    median = float(np.median(finite))
+    if not BARO_HEIGHT_PLAUSIBLE_M[0] <= median <= BARO_HEIGHT_PLAUSIBLE_M[1]:
+        raise InputError(
+            f"baro: the median baro_height is {median:.4g} m, outside what a barometer "
+            f"reports ({BARO_HEIGHT_PLAUSIBLE_M[0]:g} to {BARO_HEIGHT_PLAUSIBLE_M[1]:g} m): give "
+            "baro_height in metres (or pressure_pa in pascals)"
+        )
+    with np.errstate(invalid="ignore"):
+        pressure = np.where(np.isfinite(height), standard_atmosphere_pressure(height), np.nan)
+    return type(baro)(t=baro.t, pressure=pressure, height=height)
+
+
+# Heights a barometer column can hold (the Dead Sea to 20 km), metres.
+BARO_HEIGHT_PLAUSIBLE_M = (-1000.0, 20000.0)
+
+
+def check_pressure_unit(baro) -> None:
+    """A pressure no air has is a unit mistake (outside testers: hPa given as Pa, 955 "Pa"
+    or ~30 km of standard atmosphere, moved the height by metres at exit 0)."""
+    if baro is None or baro.pressure is None:
+        return
+    pressure = baro.pressure[np.isfinite(baro.pressure) & (baro.pressure > 0.0)]
+    if not len(pressure):
+        return
+    median = float(np.median(pressure))
+    low, high = PRESSURE_PLAUSIBLE_PA
+    if low <= median <= high:
+        return
+    guess = next(
+        (f"; it looks like {unit}: multiply by {factor:g}" for (a, b), unit, factor in
+         PRESSURE_UNITS if a <= median <= b),
+        "",
+    )  # fmt: skip
+    raise InputError(
+        f"baro: the median pressure is {median:.4g} Pa, which no air between the Dead Sea and "
+        f"20 km has ({low:g}-{high:g} Pa){guess}; give pressure_pa in pascals"
+    )
+
+
+def check_baro_scale(baro, gnss: GnssData, what: str) -> None:
+    """The barometer's height changes against the fixes' altitude changes, where it climbs
+    or descends well beyond both sensors' noise: the fixes' altitude regressed on the
+    barometer's (ISA) height has a slope of ~1 (the ISA against a real day's temperature:
+    +-10 %); a height column in feet gives 1/3.28 (the barometer then pulled every height
+    3.3x its climbs, and only the fit's chi-square said anything). The barometer's own
+    noise is small, so the fixes' noise does not bias this slope. ``what``: how the
+    barometer was given, for the message."""
+    if baro is None or not len(baro.t):
+        return
+    from fgins.factors.stationary import standard_atmosphere_height
+
+    with np.errstate(invalid="ignore"):  # a height given as such: the same height back
+        height = np.asarray(standard_atmosphere_height(baro.pressure), dtype=float)
+    alt = gnss.lla[:, 2]
+    use = np.isfinite(alt) & (gnss.t >= baro.t[0]) & (gnss.t <= baro.t[-1])
+    finite = np.isfinite(height)
+    if use.sum() < BARO_SCALE_MIN_FIXES or finite.sum() < 2:
+        return
+    at_fixes = np.interp(gnss.t[use], baro.t[finite], height[finite])
+    sigma_up = float(np.median(fix_sigma(gnss)[use]))  # 3-D: at least the vertical
+
+    def spread_of(values: np.ndarray) -> float:  # robust: a few altitude outliers do not count
+        q1, q3 = np.percentile(values, [25, 75])
+        return float(q3 - q1) / 1.349
+
+    spread = spread_of(at_fixes)
+    if max(spread, spread_of(alt[use])) < max(BARO_SCALE_MIN_SPREAD_M, 2.0 * sigma_up):
+        return  # level by both: nothing to tell a scale from
+    x = at_fixes - at_fixes.mean()
+    y = alt[use] - alt[use].mean()
+    slope = float(np.sum(x * y) / np.sum(x * x))
+    ratio = 1.0 / slope if slope != 0 else np.inf
+    if not BARO_SCALE_RANGE[0] <= ratio <= BARO_SCALE_RANGE[1]:
+        raise InputError(
+            f"baro: the barometer's {what} changes {ratio:.3g} times as much as the fixes' "
+            f"altitude (its heights spread {spread:.0f} m, 1 sigma; ~1 expected, feet give "
+            "3.28, a negative ratio a height that falls as the fixes climb): give "
+            "baro_height in metres, up positive, or pressure_pa in pascals"
+        )
+
+
+# The barometer judged only over climbs and descents of this spread (std, m) or more, and
+# twice the fixes' vertical sigma; its height scale within this range of the fixes'.
+BARO_SCALE_MIN_SPREAD_M = 10.0
+BARO_SCALE_MIN_FIXES = 10  # fixes with heights and pressures over the climbs judged
+BARO_SCALE_RANGE = (0.7, 1.4)

@@ -1,0 +1,479 @@
+"""GNSS record and time-base checks of the input-validation layer (:mod:`fgins.io.validate`):
+geodetic ranges, sigmas and DOPs, fixes that are no measurement, jumps no vehicle can make,
+time gaps, IMU and GNSS time bases. GTSAM-free."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from fgins.datatypes import GnssData, InputError, Origin
+
+# Geodetic ranges for the supported vehicles (cars, UAVs, aircraft): below the Dead Sea shore
+# (-430 m) and deep mines with margin; above any aircraft (1e5 m is the Karman line).
+ALT_MIN_M, ALT_MAX_M = -1000.0, 1.0e5
+# No supported vehicle moves faster (airliners ~250 m/s, fast jets ~700 m/s).
+MAX_SPEED_M_PER_S = 1000.0
+JUMP_SIGMA_FACTOR = 5.0  # tolerance in the fixes' own sigmas on top of the speed bound
+DEFAULT_FIX_SIGMA_M = 10.0  # a fix without any sigma or DOP: a consumer receiver's error
+UERE_FOR_DOP_M = 5.0
+JUMP_NEIGHBOURS = 3  # a fix is judged against this many fixes on each side
+GNSS_GAP_MIN_S = 5.0
+GNSS_GAP_PERIODS = 10.0
+
+
+# --------------------------------------------------------------------------------------------
+# GNSS
+# --------------------------------------------------------------------------------------------
+
+
+def _geodetic_ok(lla: np.ndarray) -> np.ndarray:
+    lat, lon, alt = lla[:, 0], lla[:, 1], lla[:, 2]
+    finite = np.all(np.isfinite(lla), axis=1)
+    with np.errstate(invalid="ignore"):
+        return (
+            finite
+            & (np.abs(lat) <= 90.0)
+            & (np.abs(lon) <= 180.0)
+            & (alt >= ALT_MIN_M)
+            & (alt <= ALT_MAX_M)
+        )
+
+
+def _describe_bad_lla(lla: np.ndarray) -> str:
+    parts = []
+    lat, lon, alt = lla[:, 0], lla[:, 1], lla[:, 2]
+    with np.errstate(invalid="ignore"):
+        if np.any(~np.all(np.isfinite(lla), axis=1)):
+            parts.append(f"{int(np.sum(~np.all(np.isfinite(lla), axis=1)))} not finite")
+        if np.any(np.abs(lat) > 90):
+            parts.append(
+                f"{int(np.sum(np.abs(lat) > 90))} with |lat| > 90 (e.g. {lat[np.abs(lat) > 90][0]:g})"
+            )
+        if np.any(np.abs(lon) > 180):
+            parts.append(
+                f"{int(np.sum(np.abs(lon) > 180))} with |lon| > 180 (e.g. {lon[np.abs(lon) > 180][0]:g})"
+            )
+        out = (alt < ALT_MIN_M) | (alt > ALT_MAX_M)
+        if np.any(out):
+            parts.append(
+                f"{int(np.sum(out))} with altitude outside [{ALT_MIN_M:g}, {ALT_MAX_M:g}] m "
+                f"(e.g. {alt[out][0]:g})"
+            )
+    return ", ".join(parts)
+
+
+def fix_sigma(gnss: GnssData) -> np.ndarray:
+    """A 3D 1-sigma per fix (m): the fix's own std, else from HDOP, else a consumer default."""
+    sigma = np.linalg.norm(np.nan_to_num(gnss.std, nan=0.0), axis=1)
+    from_dop = UERE_FOR_DOP_M * np.where(np.isfinite(gnss.pdop), gnss.pdop, gnss.hdop)
+    sigma = np.where(np.all(np.isfinite(gnss.std), axis=1), sigma, np.nan)
+    sigma = np.where(np.isfinite(sigma), sigma, from_dop)
+    return np.where(np.isfinite(sigma) & (sigma > 0), sigma, DEFAULT_FIX_SIGMA_M)
+
+
+def _ecef(lla: np.ndarray) -> np.ndarray:
+    """WGS-84 ECEF (m), vectorised (distances between fixes anywhere on Earth)."""
+    a, f = 6378137.0, 1 / 298.257223563
+    e2 = f * (2 - f)
+    lat, lon, alt = np.radians(lla[:, 0]), np.radians(lla[:, 1]), lla[:, 2]
+    n = a / np.sqrt(1 - e2 * np.sin(lat) ** 2)
+    return np.column_stack(
+        [
+            (n + alt) * np.cos(lat) * np.cos(lon),
+            (n + alt) * np.cos(lat) * np.sin(lon),
+            (n * (1 - e2) + alt) * np.sin(lat),
+        ]
+    )
+
+
+def _implausible_jumps(t: np.ndarray, xyz: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """Mask of fixes that disagree with most of their neighbours by more than any vehicle moves.
+
+    Fix i and j agree when |x_i - x_j| <= v_max |t_i - t_j| + k (sigma_i + sigma_j). A fix is
+    implausible when it disagrees with more than half of the (up to 2 x JUMP_NEIGHBOURS)
+    fixes around it: a lone spike disagrees with all of them, its neighbours with one or two.
+    Repeated on the remaining fixes until nothing changes (a run of bad fixes). O(N).
+    """
+    bad = np.zeros(t.size, dtype=bool)
+    for _ in range(5):
+        idx = np.flatnonzero(~bad)
+        n = idx.size
+        if n < 3:
+            break
+        disagree = np.zeros(n)
+        compared = np.zeros(n)
+        for k in range(1, min(JUMP_NEIGHBOURS, n - 1) + 1):
+            a, b = idx[:-k], idx[k:]
+            distance = np.linalg.norm(xyz[b] - xyz[a], axis=1)
+            allowed = MAX_SPEED_M_PER_S * (t[b] - t[a]) + JUMP_SIGMA_FACTOR * (sigma[a] + sigma[b])
+            off = (distance > allowed).astype(float)
+            disagree[:-k] += off
+            disagree[k:] += off
+            compared[:-k] += 1
+            compared[k:] += 1
+        new = disagree > 0.5 * compared
+        if not new.any():
+            break
+        bad[idx[new]] = True
+    return bad
+
+
+def check_gnss(gnss: GnssData, origin: Origin, checks: list[str]) -> tuple[GnssData, Origin]:
+    n = len(gnss)
+    if n == 0:
+        raise InputError("gnss: no fix at all; nothing to anchor the trajectory")
+    origin_is_first_fix = bool(
+        np.allclose(
+            [origin.lat, origin.lon, origin.alt], gnss.lla[0], rtol=0, atol=1e-12, equal_nan=True
+        )
+    )
+    gnss = _fill_missing_heights(gnss, checks)
+    if origin_is_first_fix and not np.isfinite(origin.alt):  # a 2-D first fix, height given
+        origin = Origin(*(float(v) for v in gnss.lla[0]))
+    keep = _geodetic_ok(gnss.lla)
+    if not keep.any():
+        raise InputError(
+            f"gnss: none of the {n} fixes has a possible position ({_describe_bad_lla(gnss.lla)}); "
+            "check the columns (lat, lon in degrees, ellipsoidal altitude in m)"
+        )
+    if not keep.all():
+        checks.append(
+            f"gnss: dropped {int((~keep).sum())} of {n} fix(es) outside the geodetic ranges "
+            f"({_describe_bad_lla(gnss.lla[~keep])}) as implausible"
+        )
+        gnss = gnss.subset(keep)
+    gnss = check_gnss_records(gnss, checks)
+    gnss = _drop_no_fix(gnss, checks)
+    bad = _implausible_jumps(gnss.t, _ecef(gnss.lla), fix_sigma(gnss))
+    if bad.all() or (~bad).sum() < 1:
+        raise InputError("gnss: no two fixes agree with each other; the positions are not usable")
+    if bad.any():
+        times = ", ".join(f"{v - gnss.t[0]:.1f}" for v in gnss.t[bad][:5])
+        more = " ..." if bad.sum() > 5 else ""
+        checks.append(
+            f"gnss: dropped {int(bad.sum())} fix(es) that jump further than "
+            f"{MAX_SPEED_M_PER_S:g} m/s from their neighbours (beyond {JUMP_SIGMA_FACTOR:g} "
+            f"sigma) as implausible, at t - t_gnss0 = {times}{more} s"
+        )
+        gnss = gnss.subset(~bad)
+    _reject_persistent_jumps(gnss)
+    _warn_radians(gnss, checks)
+    if not _geodetic_ok(np.array([[origin.lat, origin.lon, origin.alt]]))[0]:
+        if not origin_is_first_fix:
+            raise InputError(
+                f"origin ({origin.lat:g}, {origin.lon:g}, {origin.alt:g} m) is outside the "
+                "geodetic ranges; fix the [origin] table of config.toml"
+            )
+    if origin_is_first_fix and not np.allclose(
+        [origin.lat, origin.lon, origin.alt], gnss.lla[0], rtol=0, atol=1e-12
+    ):
+        origin = Origin(*(float(v) for v in gnss.lla[0]))
+        checks.append(
+            "gnss: the first fix was implausible; the local frame's origin is the first fix kept "
+            f"({origin.lat:.7f}, {origin.lon:.7f}, {origin.alt:.2f} m)"
+        )
+    return gnss, origin
+
+
+def _warn_radians(gnss: GnssData, checks: list[str]) -> None:
+    """Every fix inside |lat| <= pi/2, |lon| <= pi: latitude and longitude given in radians
+    look like a valid place in the Gulf of Guinea, 57x too close together (a drive of 1 km
+    shrinks to 17 m). Rare for real data there, so a warning, not an error; with velocity
+    columns the speed check below turns it into a clear error."""
+    lat, lon = gnss.lla[:, 0], gnss.lla[:, 1]
+    if len(lat) and np.all(np.abs(lat) <= np.pi / 2) and np.all(np.abs(lon) <= np.pi):
+        checks.append(
+            f"gnss: every fix lies within {np.pi / 2:.4f} deg of latitude and {np.pi:.4f} deg of "
+            "longitude of (0, 0): if the lat/lon columns are in radians, convert them to degrees"
+        )
+
+
+def _fill_missing_heights(gnss: GnssData, checks: list[str]) -> GnssData:
+    """2-D fixes (latitude and longitude without a height: NMEA RMC without GGA, a GGA with
+    an empty altitude, a 2-D fix) get the height of the 3-D fixes around them (held at the
+    ends) with a vertical sigma of ``HELD_HEIGHT_SIGMA_M``; in a log without any height, 0 m
+    with ``NO_HEIGHT_SIGMA_M``: the horizontal solution is as good, the vertical says it is
+    unknown. Counted in one line."""
+    lla = gnss.lla
+    with np.errstate(invalid="ignore"):
+        flat = np.all(np.isfinite(lla[:, :2]), axis=1) & ~np.isfinite(lla[:, 2])
+    if not flat.any():
+        return gnss
+    solid = np.all(np.isfinite(lla), axis=1)
+    lla, std = lla.copy(), gnss.std.copy()
+    if solid.any():
+        lla[flat, 2] = np.interp(gnss.t[flat], gnss.t[solid], lla[solid, 2])
+        sigma, how = HELD_HEIGHT_SIGMA_M, "the height of the 3-D fixes around them"
+    else:
+        # One invented height, not N measurements of it: each held 0 m gets sqrt(N) x the
+        # sigma, so that all of them together say "within ~1 km" (241 fixes at 1000 m each
+        # claimed 64 m).
+        lla[flat, 2] = 0.0
+        sigma = NO_HEIGHT_SIGMA_M * math.sqrt(int(flat.sum()))
+        how = "height 0 m (the log has no height at all; together they weigh as one)"
+    std[flat, 2] = np.fmax(np.nan_to_num(std[flat, 2], nan=0.0), sigma)
+    checks.append(
+        f"gnss: {int(flat.sum())} of {len(gnss)} fix(es) without a height (2-D: RMC without "
+        f"GGA, an empty altitude) given {how}, vertical sigma {sigma:g} m"
+    )
+    return replace(gnss, lla=lla, std=std)
+
+
+HELD_HEIGHT_SIGMA_M = 30.0
+NO_HEIGHT_SIGMA_M = 1000.0
+
+
+def _drop_no_fix(gnss: GnssData, checks: list[str]) -> GnssData:
+    """Epochs that are a receiver's "no fix" in a fix's clothes: position exactly (0, 0) (null
+    island, what a receiver reports before its first fix) or a horizontal sigma above
+    ``NO_FIX_SIGMA_M`` (u-blox NAV-POSLLH before a fix: hAcc 4,294,967 m). Kept, they became
+    the local frame's origin and the batch "diverged" with chi2/dof 1e11."""
+    lat, lon = gnss.lla[:, 0], gnss.lla[:, 1]
+    null_island = (lat == 0.0) & (lon == 0.0)
+    with np.errstate(invalid="ignore"):
+        vague = np.nan_to_num(np.hypot(gnss.std[:, 0], gnss.std[:, 1])) > NO_FIX_SIGMA_M
+    drop = null_island | vague
+    if not drop.any():
+        return gnss
+    if drop.all():
+        raise InputError(
+            f"gnss: none of the {len(gnss)} fixes is a fix: "
+            f"{int(null_island.sum())} at position (0, 0), {int((vague & ~null_island).sum())} "
+            f"with a horizontal sigma above {NO_FIX_SIGMA_M:g} m (what receivers report "
+            "without a fix)"
+        )
+    checks.append(
+        f"gnss: dropped {int(drop.sum())} of {len(gnss)} epoch(s) that report no fix "
+        f"({int(null_island.sum())} at position (0, 0), {int((vague & ~null_island).sum())} "
+        f"with a horizontal sigma above {NO_FIX_SIGMA_M:g} m)"
+    )
+    return gnss.subset(~drop)
+
+
+NO_FIX_SIGMA_M = 1000.0
+
+
+# A DOP the receiver could not compute is sent as a placeholder, not left empty: u-blox caps
+# its U2 DOP fields at 99.99 (NAV-DOP, NAV-PVT pDOP: ublox-glo gives hDOP 99.99 next to vDOP
+# 1.0), NMEA receivers print 99.9/99.99 in GSA or 99.0 in GGA, or 0.00. Taken as DOPs they gate
+# every epoch (pdop_max) or scale a sigma to 500 m or to 0: they are missing (NaN) instead, and
+# the sigma falls back as for a log without DOPs. Geometry that bad has no usable fix anyway.
+DOP_NOT_AVAILABLE_MIN = 99.0
+
+
+def _clean_sigmas(gnss: GnssData, checks: list[str]) -> GnssData:
+    """Sigmas and DOPs must be positive and finite where given, velocities finite and below
+    any vehicle's; others are ignored (counted). DOP placeholders (0, >= ``DOP_NOT_AVAILABLE_MIN``) become missing, counted."""
+    std = gnss.std
+    given = ~np.isnan(std)
+    bad_std = given & ~(np.isfinite(std) & (std > 0))
+    replaced = {}
+    if bad_std.any():
+        std = np.where(bad_std, np.nan, std)
+        replaced["std"] = std
+        checks.append(
+            f"gnss: {int(bad_std.any(axis=1).sum())} fix(es) with a zero, negative or infinite "
+            "sigma; those sigmas ignored (DOP or the [gnss] config used instead)"
+        )
+    if gnss.velocity is not None:
+        velocity = np.asarray(gnss.velocity, dtype=float)
+        with np.errstate(invalid="ignore", over="ignore"):
+            bad_velocity = np.any(~np.isnan(velocity) & ~np.isfinite(velocity), axis=1) | (
+                np.nan_to_num(np.linalg.norm(np.nan_to_num(velocity, posinf=0, neginf=0), axis=1))
+                > MAX_SPEED_M_PER_S
+            )
+        if bad_velocity.any():
+            velocity = velocity.copy()
+            velocity[bad_velocity] = np.nan
+            replaced["velocity"] = velocity
+            checks.append(
+                f"gnss: {int(bad_velocity.sum())} fix(es) with an infinite velocity or one "
+                f"above {MAX_SPEED_M_PER_S:g} m/s; those velocities ignored (positions kept)"
+            )
+    bad_dops = 0
+    placeholders = np.zeros(len(gnss), dtype=bool)
+    placeholder_values = 0
+    for name in ("hdop", "vdop", "pdop"):
+        value = getattr(gnss, name)
+        with np.errstate(invalid="ignore"):
+            absent = (value == 0.0) | ((value >= DOP_NOT_AVAILABLE_MIN) & np.isfinite(value))
+        bad = ~np.isnan(value) & ~(np.isfinite(value) & (value > 0)) & ~absent
+        if bad.any() or absent.any():
+            bad_dops += int(bad.sum())
+            placeholder_values += int(absent.sum())
+            placeholders |= absent
+            replaced[name] = np.where(bad | absent, np.nan, value)
+    if placeholder_values:
+        checks.append(
+            f"gnss: {placeholder_values} DOP value(s) in {int(placeholders.sum())} fix(es) are "
+            f"the receiver's 'not available' (0, or >= {DOP_NOT_AVAILABLE_MIN:g}: u-blox 99.99, "
+            "NMEA 99.99/0.00): treated as missing (sigmas from the fixes' own accuracy, else "
+            "UERE x another DOP or [gnss] default_sigma_m; no PDOP gate on them)"
+        )
+    if bad_dops:
+        checks.append(f"gnss: {bad_dops} negative or infinite DOP value(s) ignored")
+    return replace(gnss, **replaced) if replaced else gnss
+
+
+def _note_not_measured(gnss: GnssData, checks: list[str]) -> None:
+    """A note for fixes whose quality says they are no measurement (6 dead reckoning, 7 manual
+    input, 8 simulator): the smoother's gate leaves them out, the user should know why; a log
+    that is all simulator (Garmin GPSmap-76S, Geko 201 in demo mode) is said as such."""
+    from fgins.factors.gnss import NOT_MEASURED_QUALITIES
+
+    quality = np.asarray(gnss.fix_quality)
+    counts = {q: int((quality == q).sum()) for q in NOT_MEASURED_QUALITIES}
+    total = sum(counts.values())
+    if not total:
+        return
+    gate = "the smoother's fix-quality gate leaves them out (\"by fix quality\")"
+    if total == len(quality) and len({q for q, n in counts.items() if n}) == 1:
+        q = next(q for q, n in counts.items() if n)
+        what = (
+            "the receiver was in simulator mode, its positions are not GNSS measurements"
+            if q == 8
+            else f"{NOT_MEASURED_QUALITIES[q]}, not GNSS measurements"
+        )
+        checks.append(f"gnss: every fix ({total}) has fix quality {q}: {what}; {gate}")
+        return
+    kinds = ", ".join(
+        f"{n} with {q} ({NOT_MEASURED_QUALITIES[q]})" for q, n in counts.items() if n
+    )
+    checks.append(
+        f"gnss: {total} of {len(quality)} fix(es) are not GNSS measurements by their fix "
+        f"quality ({kinds}); {gate}"
+    )
+
+
+def check_gnss_records(gnss: GnssData, checks: list[str]) -> GnssData:
+    """The checks a GNSS record needs without an IMU: sigmas and DOPs that are not positive
+    finite numbers or are "not available" placeholders become missing (counted), and fixes
+    that are no measurement by their quality are noted. :func:`validate_dataset` applies it
+    to every dataset, ``fgins convert`` to the fixes it writes (fix_quality kept)."""
+    gnss = _clean_sigmas(gnss, checks)
+    _note_not_measured(gnss, checks)
+    return gnss
+
+
+def _reject_persistent_jumps(gnss: GnssData) -> None:
+    """After spikes are gone, a jump between consecutive fixes means two sources in one log."""
+    if len(gnss) < 2:
+        return
+    xyz = _ecef(gnss.lla)
+    sigma = fix_sigma(gnss)
+    distance = np.linalg.norm(np.diff(xyz, axis=0), axis=1)
+    dt = np.diff(gnss.t)
+    allowed = MAX_SPEED_M_PER_S * dt + JUMP_SIGMA_FACTOR * (sigma[1:] + sigma[:-1])
+    off = np.flatnonzero(distance > allowed)
+    if off.size:
+        i = int(off[0])
+        raise InputError(
+            f"gnss: the position jumps {distance[i] / 1e3:.1f} km in {dt[i]:.1f} s at "
+            f"t={gnss.t[i + 1]:.3f} ({distance[i] / max(dt[i], 1e-9):.0f} m/s, faster than any "
+            f"vehicle) and stays there ({off.size} such jump(s)); the log mixes two receivers or "
+            "datums: split it"
+        )
+
+
+def _gnss_gap_limit(t: np.ndarray) -> float:
+    """A stretch without fixes longer than this is a gap: 10 fix intervals, at least 5 s."""
+    nominal = float(np.median(np.diff(t))) if t.size > 1 else 0.0
+    return max(GNSS_GAP_PERIODS * nominal, GNSS_GAP_MIN_S)
+
+
+def report_gnss_time_gaps(t: np.ndarray, checks: list[str]) -> None:
+    """GNSS gaps far beyond the fix interval: outages, or a clock that jumped."""
+    if len(t) < 3:
+        return
+    dt = np.diff(t)
+    limit = _gnss_gap_limit(t)
+    jumps = np.flatnonzero(dt > limit)
+    if jumps.size:
+        largest = int(jumps[int(np.argmax(dt[jumps]))])
+        checks.append(
+            f"gnss: {jumps.size} gap(s) in the fixes longer than {limit:.0f} s (largest "
+            f"{dt[largest]:.1f} s at t={t[largest]:.1f}): outages or a time jump"
+        )
+
+
+# --------------------------------------------------------------------------------------------
+# Time bases
+# --------------------------------------------------------------------------------------------
+
+
+# No navigation receiver reports fixes this far apart (the gyro-free study's slowest is 5 s).
+GNSS_MAX_EPOCH_INTERVAL_S = 100.0
+
+
+def check_time_bases(
+    t_imu: np.ndarray, t_gnss: np.ndarray, checks: list[str], n_read: int = 0
+) -> None:
+    """The GNSS epochs against the IMU's span; ``n_read``: the fixes the reader gave (before
+    the GNSS checks dropped any), to tell a log with one fix from two clocks."""
+    a, b = float(t_imu[0]), float(t_imu[-1])
+    c, d = float(t_gnss[0]), float(t_gnss[-1])
+    inside = (t_gnss >= a) & (t_gnss <= b)
+    if t_gnss.size == 1 and inside.all():
+        # One fix in the whole input, inside the IMU span: nothing to do with the clocks.
+        dropped = n_read - 1
+        notes = [line.removeprefix("gnss: ") for line in checks if line.startswith("gnss:")]
+        why = f" ({dropped} of the {n_read} read were dropped as unusable" if dropped > 0 else ""
+        why += f": {notes[0]})" if why and notes else ")" if why else ""
+        raise InputError(
+            f"gnss: the input has only 1 usable GNSS fix (at t = {c:.3f} s){why}; at least 2 "
+            "are needed to anchor the trajectory (position and heading): give a GNSS log that "
+            "covers the drive"
+        )
+    if not inside.any():
+        raise InputError(
+            f"the IMU ({a:.3f} .. {b:.3f} s) and the GNSS ({c:.3f} .. {d:.3f} s) time spans do "
+            f"not overlap (offset ~{c - a:+.3f} s): the files use different time bases; give "
+            "--time-offset SECONDS (added to the GNSS times) or convert one clock"
+        )
+    if inside.sum() < 2:
+        # One fix cannot anchor a trajectory; say why there is only one, not "alignment
+        # needs 2 fixes" (GNSS times in milliseconds overlap the IMU at t = 0 only).
+        spacing = float(np.median(np.diff(t_gnss))) if t_gnss.size > 1 else float("nan")
+        if spacing >= GNSS_MAX_EPOCH_INTERVAL_S:
+            hint = (
+                f"the GNSS times look like milliseconds (fixes {spacing:.4g} units apart): give "
+                "them in seconds"
+            )
+        elif c >= a - max(2 * spacing, 2.0) and d <= b + max(2 * spacing, 2.0):
+            # The fixes lie where the IMU is (one clock), there are just too few of them (a
+            # log cut short), not an offset.
+            hint = (
+                f"the recording is too short (IMU {b - a:.1f} s, {t_gnss.size} fixes): at least "
+                "2 fixes within the IMU's span are needed; give a longer log"
+            )
+        else:
+            hint = (
+                "the files use different time bases? give --time-offset SECONDS or convert "
+                "one clock"
+            )
+        raise InputError(
+            f"only {int(inside.sum())} of {t_gnss.size} GNSS fixes lie within the IMU time "
+            f"span ({a:.3f} .. {b:.3f} s; GNSS {c:.3f} .. {d:.3f} s): {hint}"
+        )
+    outside = int((~inside).sum())
+    if outside:
+        checks.append(
+            f"time: {outside} of {t_gnss.size} GNSS epoch(s) lie outside the IMU time span "
+            f"({a:.3f} .. {b:.3f} s; GNSS {c:.3f} .. {d:.3f} s) and cannot be used"
+        )
+    # The output covers the IMU's span; where no fix brackets it, it is dead reckoning.
+    first, last = float(t_gnss[inside][0]), float(t_gnss[inside][-1])
+    limit = _gnss_gap_limit(t_gnss)
+    ends = [
+        f"{span:.1f} s {where}"
+        for span, where in ((first - a, "before the first fix"), (b - last, "after the last fix"))
+        if span > limit
+    ]
+    if ends:
+        checks.append(
+            f"time: the IMU runs {' and '.join(ends)}: the trajectory there is dead reckoning "
+            "(its std_* grow accordingly)"
+        )

@@ -1,0 +1,679 @@
+"""Checks of the IMU against the GNSS track (input-validation layer, :mod:`fgins.io.validate`):
+units (IMU times, gyro in deg/s, accelerometer in g), the gyro's turns against the track's
+(signs, a dead gyro, clocks offset), GNSS velocity and wheel speed against the fixes, frozen
+or shrunk tracks. GTSAM-free."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from fgins.datatypes import GnssData, InputError, Origin
+from fgins.io.gnss_checks import fix_sigma
+
+# Units. In rad/s no vehicle's rate is routinely (10 % of the time) above 10 rad/s; integrated
+# over a turn the GNSS track shows, a rad/s gyro gives ~1x the turn, a deg/s one 57x.
+GYRO_ROUTINE_MAX_RAD_PER_S = 10.0
+GYRO_TURN_RATIO_MAX = 8.0
+GYRO_TURN_RATIO_MIN = 0.25  # a right gyro gives 0.7-1.25 (median over the turns)
+TURN_WINDOW_S = 10.0
+TURN_MIN_RAD = 0.5  # a turn far above the course noise of the window's end points
+TURN_MIN_SPEED_M_PER_S = 3.0
+TURN_MIN_WINDOWS = 1  # ratio > 8 needs > 4 rad of gyro rotation in one window: not noise
+# Without turns: the gyro integrated over a window of straight driving stays below this
+# (biases of 1 deg/s and body oscillations give ~0.2 rad in 10 s; deg/s values give rad-sized).
+STRAIGHT_MAX_ROTATION_RAD = 1.5
+# At rest a gyro reads its bias plus Earth rate: 0.2 rad/s (11 deg/s) is beyond any real gyro
+# bias (consumer MEMS: < 5 deg/s), while a 0.2-deg/s bias read as rad/s is exactly this.
+GYRO_REST_MAX_RAD_PER_S = 0.2
+# A multirotor's or pedestrian's gyro need not follow the track's turns, but it is alive:
+# its rates vary (tilting to accelerate, own yaw) by more than this at the 90th percentile
+# about their median; a dead gyro (noise only) or one converted to rad/s twice (57x too
+# small) varies by less.
+GYRO_ALIVE_RAD_PER_S = 0.02
+REST_ACCEL_STD_M_S2 = 0.05
+REST_ACCEL_NORM_TOL_M_S2 = 0.3
+STRAIGHT_MIN_WINDOWS = 10
+G = 9.80665
+ACCEL_G_RANGE = (0.5, 2.0)  # a median specific-force norm here is g, not m/s^2
+ACCEL_PLAUSIBLE_RANGE = (5.0, 20.0)  # m/s^2: gravity plus any vehicle's mean acceleration
+# No IMU samples slower than 1 Hz: samples 10 or 1e7 "seconds" apart are times in ms or ns.
+IMU_MAX_SAMPLE_INTERVAL_S = 1.0
+# In the clear turns, the gyro's rotation about up must turn the way the track does: over the
+# track's turn it gives ~+1 (median over the turns), ~-1 when its sign is reversed.
+TURN_SIGN_MIN_RATIO = -0.3
+TURN_SIGN_MIN_WINDOWS = 3
+# GNSS velocity against the track of the fixes (chords of VELOCITY_CHORD_S, moving epochs):
+# speed ratio ~1 (km/h gives 3.6, knots 1.94), direction within a few degrees (east and north
+# swapped mirror it), and the climb rate against the altitude's (feet give 3.28, NED's down
+# -1) where the vehicle climbs and sinks enough to tell.
+VELOCITY_CHORD_S = 4.0
+VELOCITY_MIN_EPOCHS = 10
+VELOCITY_SPEED_RATIO_RANGE = (0.7, 1.4)
+VELOCITY_MAX_ANGLE_DEG = 25.0
+CLIMB_MIN_STD_M_S = 1.0
+CLIMB_RATIO_RANGE = (0.6, 1.6)
+
+
+# --------------------------------------------------------------------------------------------
+# Units
+# --------------------------------------------------------------------------------------------
+
+
+def check_imu_time_unit(t: np.ndarray) -> None:
+    if t.size < 2:
+        return
+    interval = float(np.median(np.diff(t)))
+    if interval > IMU_MAX_SAMPLE_INTERVAL_S:
+        raise InputError(
+            f"imu: the samples are {interval:.6g} time units apart ({1 / interval:.3g} Hz): no "
+            f"IMU samples that slowly; the times look like {_likely_time_unit(interval)}, give "
+            "them in seconds (and the GNSS times on the same clock)"
+        )
+
+
+def _likely_time_unit(interval: float) -> str:
+    """The units in which ``interval`` (a median IMU sample spacing) is that of an IMU of
+    1-4000 Hz: a 100 Hz log in ms is 10 units apart, in us 1e4, in ns 1e7."""
+    units = [name for name, per_second in (("milliseconds", 1e3), ("microseconds", 1e6),
+                                           ("nanoseconds", 1e9))
+             if 1.0 <= per_second / interval <= 4000.0]  # fmt: skip
+    if not units:
+        return "another unit than seconds"
+    return " or ".join(units)
+
+
+SHORT_IMU_S = 10.0  # an IMU record shorter than this cannot show the heading or the biases
+
+# A multirotor or a pedestrian need not yaw with its track (a drone circles with its nose
+# held): for them a gyro that does not follow the track's turns is a note, not an error.
+FREE_BODY_VEHICLES = ("uav", "pedestrian")
+
+
+# The specific force an accelerometer array's readings solve to, median norm (m/s^2): gravity
+# within ~12 % (a vehicle's own accelerations raise it a little; an automotive-grade array's
+# runaway rates move it by centripetal terms: 9.60 on a 5-min drive). Two columns swapped or one
+# accelerometer dead gave 7.75 over the first minute (the rates it derives then run away:
+# 163 over five minutes), within the band a single IMU gets for its scale errors.
+ARRAY_FORCE_RANGE = (8.5, 11.0)
+
+
+def _note_constant_channels(imu, checks: list[str]) -> None:
+    """A warning for each IMU axis that reads one value in every sample: a dead or missing
+    axis (a real sensor's noise moves every axis), unless the data were simulated without
+    noise (a level car's roll and pitch rates are then exactly 0, and valid). A gyro_y
+    column of zeros on a hilly drive ran to "batch LM diverged" blamed on the GNSS sigmas."""
+    if len(imu.t) < 100:
+        return
+    for kind, samples in (("gyro", imu.gyro), ("accel", imu.accel)):
+        for axis, name in enumerate("xyz"):
+            column = samples[:, axis]
+            if np.all(column == column[0]):
+                checks.append(
+                    f"imu: {kind}_{name} reads {column[0]:g} in every one of {len(column)} "
+                    "samples: a dead or missing axis (a real sensor's noise moves every axis) "
+                    "unless the data are simulated without noise; a wrong axis makes the "
+                    "solution drift and fit badly"
+                )
+
+
+def check_units(
+    imu,
+    gnss: GnssData,
+    origin: Origin,
+    checks: list[str],
+    *,
+    has_accel_array: bool,
+    body_follows_track: bool = True,
+) -> None:
+    if not has_accel_array:
+        _note_constant_channels(imu, checks)
+    accel_norm = np.linalg.norm(imu.accel, axis=1)
+    median_accel = float(np.median(accel_norm))
+    median_gyro = float(np.median(np.linalg.norm(imu.gyro, axis=1)))
+    # Swapped columns: gravity in the gyro's, rates (not g: below its range) in the accel's.
+    rate_like = median_accel < ACCEL_G_RANGE[0]
+    if rate_like and ACCEL_PLAUSIBLE_RANGE[0] <= median_gyro <= ACCEL_PLAUSIBLE_RANGE[1]:
+        raise InputError(
+            f"imu: the gyro and accelerometer columns look swapped: the gyro's median norm is "
+            f"{median_gyro:.3g} (gravity's 9.8 m/s^2) and the accelerometer's {median_accel:.3g}; "
+            "the columns are time, gyro_x, gyro_y, gyro_z (rad/s), accel_x, accel_y, accel_z "
+            "(m/s^2), matched by their header names"
+        )
+    if ACCEL_G_RANGE[0] <= median_accel <= ACCEL_G_RANGE[1]:
+        raise InputError(
+            f"imu: the accelerometer is in g, not m/s^2: its median specific-force norm is "
+            f"{median_accel:.3f} (gravity alone gives 9.81 m/s^2, i.e. 1 g); multiply "
+            f"{'a1..aN' if has_accel_array else 'accel_x, accel_y, accel_z'} by {G} before "
+            "giving them to fgins"
+        )
+    plausible = ARRAY_FORCE_RANGE if has_accel_array else ACCEL_PLAUSIBLE_RANGE
+    if not plausible[0] <= median_accel <= plausible[1]:
+        if has_accel_array:  # its specific force is solved from N readings and the geometry
+            raise InputError(
+                f"accel_array: the specific force solved from the accelerometers has a median "
+                f"norm of {median_accel:.4g}, not the ~9.8 m/s^2 of gravity: the columns a1..aN "
+                "do not match the [accel_array] geometry (order, positions, sensing axes), an "
+                "accelerometer is dead, or the readings are not in m/s^2"
+            )
+        raise InputError(
+            f"imu: the accelerometer's median specific-force norm is {median_accel:.4g}, not "
+            f"the ~9.8 m/s^2 of gravity: a wrong unit or scale factor; give accel_x..z in m/s^2"
+        )
+    if has_accel_array:
+        # Rates derived from an accelerometer array carry a large, ramping bias by nature;
+        # their unit follows from the accelerometers', checked above.
+        return
+    gyro_norm = np.linalg.norm(imu.gyro, axis=1)
+    routine = float(np.percentile(gyro_norm, 90))
+    if routine > GYRO_ROUTINE_MAX_RAD_PER_S:
+        raise InputError(
+            f"imu: the gyro looks like deg/s, not rad/s: 10 % of its rates exceed {routine:.1f} "
+            f"(no vehicle turns at {routine:.0f} rad/s routinely); multiply gyro_x, gyro_y, "
+            f"gyro_z by pi/180 = {math.pi / 180:.6f}"
+        )
+    at_rest = _gyro_at_rest(imu, gnss, origin)
+    if at_rest > GYRO_REST_MAX_RAD_PER_S:
+        raise InputError(
+            f"imu: the gyro looks like deg/s, not rad/s: it reads {at_rest:.2f} while the "
+            f"accelerometer shows the IMU at rest (a bias of {math.degrees(at_rest):.0f} deg/s, "
+            f"far beyond any gyro's); multiply gyro_x, gyro_y, gyro_z by "
+            f"pi/180 = {math.pi / 180:.6f}"
+        )
+    ratio, turns, turn_sign = _gyro_turn_ratio(imu, gnss, origin)
+    if turns >= TURN_MIN_WINDOWS and ratio > GYRO_TURN_RATIO_MAX:
+        raise InputError(
+            f"imu: the gyro looks like deg/s, not rad/s: over {turns} {TURN_WINDOW_S:g}-s windows "
+            f"of the GNSS track it integrates to {ratio:.1f} times the turn the fixes show "
+            f"(57.3 for deg/s, ~1 for rad/s); multiply gyro_x, gyro_y, gyro_z by "
+            f"pi/180 = {math.pi / 180:.6f}"
+        )
+    problems = []
+    gyro_alive = (
+        float(np.percentile(np.linalg.norm(imu.gyro - np.median(imu.gyro, axis=0), axis=1), 90))
+        > GYRO_ALIVE_RAD_PER_S
+    )
+    if (
+        turns >= TURN_SIGN_MIN_WINDOWS
+        and ratio < GYRO_TURN_RATIO_MIN
+        and (body_follows_track or not gyro_alive)
+    ):
+        problems.append(
+            f"imu: the gyro does not see the turns: over {turns} {TURN_WINDOW_S:g}-s windows of "
+            f"the GNSS track it integrates to {ratio:.3g} times the turn the fixes show (~1 "
+            "expected; 0.017 if rad/s were converted to rad/s again, 0 for a dead gyro), or "
+            "the IMU and GNSS clocks are offset (give --time-offset SECONDS)"
+        )
+    # A multirotor or a walker may yaw against its track (outside tester: every valid
+    # multirotor flight got this note): only a body that follows its track is judged.
+    if body_follows_track and turns >= TURN_SIGN_MIN_WINDOWS and turn_sign < TURN_SIGN_MIN_RATIO:
+        problems.append(
+            f"imu: the gyro turns against the GNSS track: over {turns} turns its rotation about "
+            "up (the direction of the accelerometer's mean reading) is "
+            f"{turn_sign:.2f} times the track's (~+1 expected); the accelerometer must give "
+            "specific force (+9.8 m/s^2 along up at rest, not the acceleration -9.8) and the "
+            "axes must be right-handed (a flipped axis sign flips the turn); or latitude and "
+            "longitude are swapped (a mirrored track), or the IMU and GNSS clocks are offset "
+            "(give --time-offset SECONDS)"
+        )
+    if problems and body_follows_track:
+        raise TurnsDisagree(
+            problems[0] + "; a multirotor or a pedestrian, which need not yaw with the track: "
+            "--vehicle uav or pedestrian"
+        )
+    checks.extend(f"{problem} (a {'/'.join(FREE_BODY_VEHICLES)} need not yaw with its track: "
+                  "checked, not refused)" for problem in problems)  # fmt: skip
+
+
+class TurnsDisagree(InputError):
+    """The gyro's turns do not match the track's (size or sense): units, axes, a mirrored
+    track or offset clocks."""
+
+
+def clock_offset_explains_turns(
+    imu, gnss: GnssData, enu: np.ndarray, up: np.ndarray, origin: Origin,
+    given_offset_s: object, *, banks: bool,
+) -> None:
+    """Raise the clock-offset error when the gyro's turns disagree with the track's at the
+    stamped times but agree (size and sense) once the fixes are moved by the offset the
+    turns show. A mirrored track (lat/lon swapped) lines up best somewhere too (a false
+    -14 s at 2.2x): it still disagrees there, and the caller's error stands."""
+    lag, verdict = _clock_verdict(imu, gnss, enu, up, given_offset_s, banks=banks)
+    if verdict is None or verdict[0] != "error":
+        return
+    moved = replace(gnss, t=gnss.t + lag)
+    ratio, turns, turn_sign = _gyro_turn_ratio(imu, moved, origin)
+    agree = GYRO_TURN_RATIO_MIN <= ratio <= GYRO_TURN_RATIO_MAX and turn_sign >= -TURN_SIGN_MIN_RATIO
+    if turns >= TURN_SIGN_MIN_WINDOWS and agree:
+        raise InputError(verdict[1])
+
+
+def check_clock_offset(
+    imu, gnss: GnssData, enu: np.ndarray, up: np.ndarray, checks: list[str],
+    given_offset_s: object, *, banks: bool = False,
+) -> None:
+    """The GNSS clock against the IMU's from the drive's turns (:mod:`fgins.io.clock_offset`):
+    an offset of seconds is an error naming the --time-offset that aligns them (KITTI with 3 s
+    added ran 29 s to a fit blamed on the lever arm and the mounting), a fraction of a second
+    a warning. Only for a body that yaws with its track (not a multirotor or a walker)."""
+    _, verdict = _clock_verdict(imu, gnss, enu, up, given_offset_s, banks=banks)
+    if verdict is None:
+        return
+    kind, message = verdict
+    if kind == "error":
+        raise InputError(message)
+    checks.append(message)
+
+
+def _clock_verdict(
+    imu, gnss: GnssData, enu: np.ndarray, up: np.ndarray, given_offset_s: object, *, banks: bool
+) -> tuple[float, tuple[str, str] | None]:
+    """(the lag the turns show, s; :func:`fgins.io.clock_offset.judge`'s verdict on it)."""
+    from fgins.io.clock_offset import estimate_clock_offset, judge
+
+    offset = estimate_clock_offset(imu.t, imu.gyro @ up, gnss.t, enu[:, :2])
+    given = float(given_offset_s) if isinstance(given_offset_s, (int, float)) else 0.0
+    return (offset.lag_s if offset else 0.0), judge(offset, given, banks=banks)
+
+
+def _chord_velocity(gnss: GnssData, enu: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The velocity the fixes' own VELOCITY_CHORD_S chords show, centred on each fix:
+    (dense: the chord spans most of its length, velocity (N, 3), clear: a horizontal speed
+    well above what the fixes' noise fakes over the chord and above TURN_MIN_SPEED_M_PER_S;
+    a few satellites give tens of metres of scatter, "metres per second" at a standstill)."""
+    t = gnss.t
+    a = np.searchsorted(t, t - VELOCITY_CHORD_S / 2)
+    b = np.clip(np.searchsorted(t, t + VELOCITY_CHORD_S / 2, side="right") - 1, 0, len(t) - 1)
+    span = t[b] - t[a]
+    dense = span > 0.75 * VELOCITY_CHORD_S
+    sigma = fix_sigma(gnss)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        velocity = (enu[b] - enu[a]) / span[:, None]
+        noise = np.sqrt(sigma[a] ** 2 + sigma[b] ** 2) / span
+        speed = np.hypot(velocity[:, 0], velocity[:, 1])
+        clear = dense & np.isfinite(speed) & (speed > np.maximum(TURN_MIN_SPEED_M_PER_S, 3 * noise))
+    return dense, velocity, clear
+
+
+def check_wheel_speed(odometer, gnss: GnssData, enu: np.ndarray) -> None:
+    """The wheel speed against the speed the fixes' own 4-s chords show, where they move well
+    beyond their noise: a median ratio outside 0.7-1.4 is a unit (km/h: the wheel-speed
+    scale state took +260 % on a simulated car and the run said nothing but that number) or
+    a wheel's angular rate. A wheel log beside no moving fix is not judged."""
+    t = gnss.t
+    dense, track, clear = _chord_velocity(gnss, enu)
+    track_speed = np.hypot(track[:, 0], track[:, 1])
+    # Only where a wheel sample lies within half a second (a wheel log covering part of the
+    # drive is judged where it is).
+    nearest = np.clip(np.searchsorted(odometer.t, t), 1, len(odometer.t) - 1)
+    close = np.minimum(np.abs(odometer.t[nearest] - t), np.abs(odometer.t[nearest - 1] - t))
+    moving = dense & clear & (close <= 0.5)
+    if moving.sum() < VELOCITY_MIN_EPOCHS:
+        return
+    wheel = np.abs(np.interp(t[moving], odometer.t, odometer.speed))
+    ratio = float(np.median(wheel / track_speed[moving]))
+    if not VELOCITY_SPEED_RATIO_RANGE[0] <= ratio <= VELOCITY_SPEED_RATIO_RANGE[1]:
+        raise InputError(
+            f"wheel: the wheel speed is {ratio:.3g} times the speed the fixes show (median "
+            f"over {int(moving.sum())} moving fixes; ~1 expected: km/h gives 3.6, mph 2.24, a "
+            "wheel's angular rate in rad/s about 3, pulses per second far more): give "
+            "wheel_speed in m/s over ground"
+        )
+
+
+def _velocity_from_speed_course(gnss: GnssData) -> bool:
+    """Whether the velocity is the horizontal one built from speed and course (CSV speed and
+    course columns, NMEA RMC/VTG), so that a complaint names those, not vel_* columns."""
+    if gnss.velocity is None or gnss.speed is None or gnss.course is None:
+        return False
+    if np.any(np.isfinite(gnss.velocity[:, 2])):
+        return False
+    course = np.radians(gnss.course)
+    built = np.column_stack([gnss.speed * np.sin(course), gnss.speed * np.cos(course)])
+    given = gnss.velocity[:, :2]
+    both = np.all(np.isfinite(given), axis=1) & np.all(np.isfinite(built), axis=1)
+    return bool(both.any()) and bool(np.allclose(given[both], built[both], atol=1e-6))
+
+
+def check_gnss_velocity(gnss: GnssData, origin: Origin) -> None:
+    """The receiver's velocity against the velocity its own fixes show (see the constants)."""
+    from fgins.geodesy import lla_to_enu
+
+    if gnss.velocity is None or len(gnss.t) < 3:
+        return
+    enu = lla_to_enu(gnss.lla, origin)
+    dense, track_all, clear = _chord_velocity(gnss, enu)
+    if dense.sum() < VELOCITY_MIN_EPOCHS:
+        return
+    track = track_all[dense]
+    given = gnss.velocity[dense]
+    track_speed = np.hypot(track[:, 0], track[:, 1])
+    given_speed = np.hypot(given[:, 0], given[:, 1])
+    moving = np.isfinite(given_speed) & clear[dense]
+    _check_shrunk_track(gnss, enu, fix_sigma(gnss))
+    if moving.sum() >= VELOCITY_MIN_EPOCHS:
+        from_course = _velocity_from_speed_course(gnss)
+        ratio = float(np.median(given_speed[moving] / track_speed[moving]))
+        if not VELOCITY_SPEED_RATIO_RANGE[0] <= ratio <= VELOCITY_SPEED_RATIO_RANGE[1]:
+            what, fix = (
+                ("speed over ground gives", "give the speed column in m/s")
+                if from_course
+                else ("velocity columns give", "give vel_east/north/up in m/s")
+            )
+            raise InputError(
+                f"gnss: the {what} {ratio:.3g} times the speed the fixes show "
+                f"(~1 expected; km/h gives 3.6, knots 1.94): {fix}"
+            )
+        angle = np.degrees(np.abs(np.angle(
+            (given[moving, 0] + 1j * given[moving, 1]) / (track[moving, 0] + 1j * track[moving, 1])
+        )))  # fmt: skip
+        median_angle = float(np.median(angle))
+        if median_angle > VELOCITY_MAX_ANGLE_DEG:
+            if from_course:
+                course = np.asarray(gnss.course, dtype=float)
+                course = course[np.isfinite(course)]
+                why = (
+                    "all course values lie within 0..6.3: radians?"
+                    if np.all(np.abs(course) <= 2 * np.pi + 0.01)
+                    else "a course not measured clockwise from north?"
+                )
+                raise InputError(
+                    f"gnss: the course points {median_angle:.0f} deg away from the track the "
+                    f"fixes show (median; ~0 expected): {why} give the course column in degrees "
+                    "clockwise from north"
+                )
+            raise InputError(
+                f"gnss: the velocity points {median_angle:.0f} deg away from the track the fixes "
+                "show (median; ~0 expected): east and north swapped (NED order?) or another "
+                "frame; give vel_east, vel_north, vel_up (ENU, m/s)"
+            )
+    climb = track[:, 2]
+    given_climb = given[:, 2]
+    usable = np.isfinite(given_climb)
+    if usable.sum() >= VELOCITY_MIN_EPOCHS and np.std(given_climb[usable]) >= CLIMB_MIN_STD_M_S:
+        slope = float(
+            np.sum(climb[usable] * given_climb[usable]) / np.sum(given_climb[usable] ** 2)
+        )
+        if not CLIMB_RATIO_RANGE[0] <= slope <= CLIMB_RATIO_RANGE[1]:
+            raise InputError(
+                f"gnss: the altitude changes {slope:.3g} times as fast as vel_up says (~1 "
+                "expected; 3.28 for altitude in feet, -1 for a down velocity): give the "
+                "altitude in metres and vel_up positive up"
+            )
+
+
+# Fixes that move this many times less than the velocity says do not move at all (lat/lon in
+# radians gives 1/57): a frozen output, not a unit.
+FROZEN_RATIO = 1e-3
+FROZEN_SPREAD_M = 0.01  # all fixes within this: one position repeated
+FROZEN_MIN_FIXES = 10
+TURNING_RATE_RAD_S = 0.1  # 1-s mean yaw rates this far from their median: the IMU turns
+MOVING_ACCEL_M_S2 = 1.0  # 1-s mean horizontal specific force this far: it speeds up or brakes
+
+
+def _frozen_note(gnss: GnssData) -> str:
+    return f"{len(gnss.t)} fixes over {gnss.t[-1] - gnss.t[0]:.0f} s"
+
+
+def mean_up(imu) -> np.ndarray:
+    """Up in IMU axes: the mean accelerometer reading (gravity's reaction)."""
+    up = np.mean(imu.accel, axis=0)
+    return up / max(float(np.linalg.norm(up)), 1e-9)
+
+
+def check_frozen_position(gnss: GnssData, enu: np.ndarray, imu, up: np.ndarray) -> None:
+    """Every fix at one position (to 1 cm) while the IMU turns or accelerates (1-s means, so
+    not vibration; a tilt of 6 deg would be needed at rest): a frozen receiver output or a
+    constant column. Without velocity columns an outside tester's frozen fixes passed at
+    exit 0 with advice to set the lever arm. A vehicle at rest does not turn, so a static
+    recording (or a receiver's static hold at a stop) is not caught."""
+    finite = np.all(np.isfinite(enu[:, :2]), axis=1)
+    if finite.sum() < FROZEN_MIN_FIXES:
+        return
+    xy = enu[finite, :2]
+    if float(np.max(np.ptp(xy, axis=0))) > FROZEN_SPREAD_M:
+        return
+    rate = 1.0 / float(np.median(np.diff(imu.t)))
+    n = max(round(rate), 5)
+    blocks = len(imu.t) // n
+    if blocks < 3:
+        return
+    gyro = imu.gyro[: blocks * n].reshape(blocks, n, 3).mean(axis=1)
+    accel = imu.accel[: blocks * n].reshape(blocks, n, 3).mean(axis=1)
+    yaw_rate = gyro @ up
+    turning = float(np.percentile(np.abs(yaw_rate - np.median(yaw_rate)), 95))
+    horizontal = accel - np.outer(accel @ up, up)
+    speeding = float(
+        np.percentile(np.linalg.norm(horizontal - np.median(horizontal, axis=0), axis=1), 95)
+    )
+    if turning > TURNING_RATE_RAD_S or speeding > MOVING_ACCEL_M_S2:
+        motion = (
+            f"turns (yaw rates of {np.degrees(turning):.0f} deg/s)"
+            if turning > TURNING_RATE_RAD_S
+            else f"accelerates ({speeding:.1f} m/s^2 sustained over 1 s)"
+        )
+        raise InputError(
+            f"gnss: the position never changes ({_frozen_note(gnss)}, all within "
+            f"{FROZEN_SPREAD_M * 100:g} cm) while the IMU {motion}: a frozen position output "
+            "(a receiver repeating its last fix, or a constant column); give the fixes' real "
+            "positions"
+        )
+
+
+def check_track_scale_by_turns(gnss: GnssData, enu: np.ndarray, imu, up: np.ndarray) -> None:
+    """Fixes that move far slower than the IMU's turns say, without velocity columns to
+    compare with: in a turn the horizontal specific force is at least speed x yaw rate (1-s
+    means, so not vibration), so its ratio to the yaw rate is at least the speed (more while
+    speeding up or braking, or tilted). The fixes' own speed far below it is a shrunk track
+    (lat/lon in radians: 57x; it ran 80 Levenberg-Marquardt rounds to an error blaming the
+    IMU noise). A multirotor or a walker (yaw without a turn, steps) is not judged, and
+    a banked aircraft's specific force stays along its up axis (a larger ratio, never
+    smaller)."""
+    finite = np.all(np.isfinite(enu[:, :2]), axis=1)
+    t_fix, xy = gnss.t[finite], enu[finite, :2]
+    if len(t_fix) < VELOCITY_MIN_EPOCHS or np.any(np.diff(t_fix) <= 0):
+        return
+    rate = 1.0 / float(np.median(np.diff(imu.t)))
+    n = max(round(rate), 5)
+    blocks = len(imu.t) // n
+    if blocks < SCALE_MIN_TURNS:
+        return
+    t_mid = imu.t[: blocks * n].reshape(blocks, n).mean(axis=1)
+    gyro = imu.gyro[: blocks * n].reshape(blocks, n, 3).mean(axis=1)
+    accel = imu.accel[: blocks * n].reshape(blocks, n, 3).mean(axis=1)
+    yaw_rate = np.abs(gyro @ up - np.median(gyro @ up))
+    horizontal = accel - np.outer(accel @ up, up)
+    force = np.linalg.norm(horizontal - np.median(horizontal, axis=0), axis=1)
+    inside = (t_mid > t_fix[0]) & (t_mid < t_fix[-1])
+    turns = inside & (yaw_rate > SCALE_TURN_RAD_S) & (force > SCALE_FORCE_M_S2)
+    if turns.sum() < SCALE_MIN_TURNS:
+        return
+    velocity = np.gradient(xy, t_fix, axis=0)
+    speed = np.hypot(*(np.interp(t_mid[turns], t_fix, velocity[:, i]) for i in range(2)))
+    ratio = float(np.median(speed / (force[turns] / yaw_rate[turns])))
+    if ratio < SCALE_SHRUNK_RATIO:
+        raise InputError(
+            f"gnss: the fixes move {1.0 / max(ratio, 1e-9):.3g} times slower than the IMU's "
+            f"turns say (their speed against horizontal specific force over yaw rate, median "
+            f"of {int(turns.sum())} 1-s turns; ~1 expected, lat/lon in radians gives "
+            "57): give lat/lon in degrees (and positions in metres)"
+        )
+
+
+# A turn: 1-s means of the yaw rate and the horizontal specific force above these; this
+# many of them; the fixes' speed over the speed they imply below this is a shrunk track.
+SCALE_TURN_RAD_S = 0.05
+SCALE_FORCE_M_S2 = 0.5
+SCALE_MIN_TURNS = 8
+SCALE_SHRUNK_RATIO = 0.1
+
+
+def _check_shrunk_track(gnss: GnssData, enu: np.ndarray, sigma: np.ndarray) -> None:
+    """Fixes that move far less than the receiver's own velocity says, over the shortest
+    stretch (at most 5 s) whose path length is well above the fixes' noise: positions shrunk
+    by a unit (lat/lon in radians: 57x closer together). The chord check above cannot see
+    it: its track speeds fall below the speed floor. Short stretches, so a small loop (a
+    chord much shorter than its arc) cannot trigger it: over 5 s a 25 m loop at 11 km/h
+    still gives 0.94."""
+    t = gnss.t
+    speed = np.hypot(gnss.velocity[:, 0], gnss.velocity[:, 1])
+    finite = np.isfinite(speed) & np.all(np.isfinite(enu[:, :2]), axis=1)
+    if finite.sum() < VELOCITY_MIN_EPOCHS:
+        return
+    t, speed, xy, noise = t[finite], speed[finite], enu[finite, :2], sigma[finite]
+    path = np.concatenate([[0.0], np.cumsum(0.5 * (speed[:-1] + speed[1:]) * np.diff(t))])
+    end = np.searchsorted(path, path + 3.0 * np.sqrt(2.0) * noise)
+    usable = end < len(t)
+    end = np.minimum(end, len(t) - 1)
+    usable &= (t[end] - t <= 5.0) & (path[end] > path)
+    if usable.sum() < VELOCITY_MIN_EPOCHS:
+        return
+    start = np.flatnonzero(usable)
+    chord = np.hypot(*(xy[end[start]] - xy[start]).T)
+    ratio = float(np.median(chord / (path[end[start]] - path[start])))
+    if ratio < FROZEN_RATIO:
+        raise InputError(
+            f"gnss: the position stays the same ({_frozen_note(gnss)}) while the velocity "
+            f"columns say {np.median(speed):.3g} m/s: a frozen position output (a receiver "
+            "repeating its last fix, or a constant column); give the fixes' real positions"
+        )
+    if ratio < 0.1:
+        raise InputError(
+            f"gnss: the fixes move {1 / max(ratio, 1e-12):.3g} times less than the velocity "
+            "columns say (~1 expected; lat/lon in radians gives 57): give lat/lon in degrees "
+            "(and the velocity in m/s)"
+        )
+
+
+def _gyro_at_rest(imu, gnss: GnssData, origin: Origin, window_s: float = 1.0) -> float:
+    """Median gyro-rate norm over 1-s windows where the vehicle is at rest: a steady specific
+    force of ~g (which a steady turn also shows: 8 m/s around a 30 m circle is 0.27 rad/s
+    at 10.0 m/s^2, and such test-track drives were refused as "gyro in deg/s") and fixes
+    around it that stay together (:func:`_fixes_at_rest`). That is the gyro bias plus Earth
+    rate (0.0 when the vehicle is never seen at rest)."""
+    rate = 1.0 / float(np.median(np.diff(imu.t)))
+    n = max(round(window_s * rate), 5)
+    blocks = len(imu.t) // n
+    if blocks == 0:
+        return 0.0
+    accel = imu.accel[: blocks * n].reshape(blocks, n, 3)
+    gyro = imu.gyro[: blocks * n].reshape(blocks, n, 3)
+    steady = np.all(accel.std(axis=1) < REST_ACCEL_STD_M_S2, axis=1)
+    level = np.abs(np.linalg.norm(accel.mean(axis=1), axis=1) - G) < REST_ACCEL_NORM_TOL_M_S2
+    rest = steady & level
+    if rest.any():
+        middle = imu.t[: blocks * n].reshape(blocks, n).mean(axis=1)
+        rest[rest] = _fixes_at_rest(middle[rest], gnss, origin)
+    if rest.sum() < 3:
+        return 0.0
+    return float(np.median(np.linalg.norm(gyro[rest].mean(axis=1), axis=1)))
+
+
+# Fixes within this many seconds of a moment, all within this many metres (or this many of
+# their horizontal sigmas) of their median, show the vehicle at rest then.
+REST_GNSS_WINDOW_S = 5.0
+REST_GNSS_SPREAD_M = 5.0
+REST_GNSS_SPREAD_SIGMAS = 3.5
+REST_GNSS_SPEED_M_S = 0.5
+
+
+def _fixes_at_rest(times: np.ndarray, gnss: GnssData, origin: Origin) -> np.ndarray:
+    """For each of ``times``: do at least 3 fixes lie within ``REST_GNSS_WINDOW_S`` of it,
+    all close to their median (a vehicle at rest), rather than strung along a track, and
+    their median horizontal speed (where the receiver gives velocity) below
+    ``REST_GNSS_SPEED_M_S`` (a car circling a few metres at walking pace keeps its fixes
+    together, not its velocity; a receiver at rest reads its velocity noise, ~1.2 sigma)?"""
+    from fgins.geodesy import lla_to_enu
+
+    enu = lla_to_enu(gnss.lla, origin)[:, :2]
+    speed = (
+        np.zeros(len(gnss.t))
+        if gnss.velocity is None
+        else np.nan_to_num(np.linalg.norm(gnss.velocity[:, :2], axis=1), nan=0.0)
+    )
+    speed_limit = REST_GNSS_SPEED_M_S
+    stated_v = gnss.velocity_std[:, :2] if gnss.velocity_std is not None else np.zeros((0, 2))
+    if np.isfinite(stated_v).any():
+        speed_limit = max(speed_limit, REST_GNSS_SPREAD_SIGMAS * float(np.nanmedian(stated_v)))
+    limit = REST_GNSS_SPREAD_M
+    stated = gnss.std[:, :2] if gnss.std is not None else np.zeros((0, 2))
+    if np.isfinite(stated).any():
+        limit = max(limit, REST_GNSS_SPREAD_SIGMAS * float(np.nanmedian(stated)))
+    lo = np.searchsorted(gnss.t, times - REST_GNSS_WINDOW_S)
+    hi = np.searchsorted(gnss.t, times + REST_GNSS_WINDOW_S, side="right")
+    out = np.zeros(len(times), dtype=bool)
+    for i, (a, b) in enumerate(zip(lo, hi, strict=True)):
+        if b - a >= 3 and np.median(speed[a:b]) <= speed_limit:
+            near = enu[a:b]
+            out[i] = np.linalg.norm(near - np.median(near, axis=0), axis=1).max() <= limit
+    return out
+
+
+def _gyro_turn_ratio(imu, gnss: GnssData, origin: Origin) -> tuple[float, int, float]:
+    """Median of |integrated gyro| / |GNSS course change| over windows with a clear turn,
+    their number, and the median over them of the gyro's rotation about up over the course
+    change (up: the mean accelerometer reading, the reaction to gravity; ~+1).
+
+    The course at a time comes from positions TURN_WINDOW_S/2 apart (a few metres of noise are
+    small against the tens of metres travelled); a window spans TURN_WINDOW_S seconds between
+    two such courses. Only windows whose end points lie among dense fixes (no outage) count.
+    """
+    from fgins.geodesy import lla_to_enu
+
+    t = gnss.t
+    half = TURN_WINDOW_S / 2
+    lo, hi = max(t[0], imu.t[0]) + half, min(t[-1], imu.t[-1]) - half
+    if t.size < 4 or hi - lo < TURN_WINDOW_S:
+        return math.nan, 0, math.nan
+    step = TURN_WINDOW_S / 4
+    grid = np.arange(lo, hi, step)
+    enu = lla_to_enu(gnss.lla, origin)
+    a, b = grid - half / 2, grid + half / 2
+    east = np.interp(b, t, enu[:, 0]) - np.interp(a, t, enu[:, 0])
+    north = np.interp(b, t, enu[:, 1]) - np.interp(a, t, enu[:, 1])
+    # largest fix interval around each course's baseline: an outage makes the course a guess
+    idx_a = np.clip(np.searchsorted(t, a), 1, t.size - 1)
+    idx_b = np.clip(np.searchsorted(t, b), 1, t.size - 1)
+    local_gap = np.maximum(t[idx_a] - t[idx_a - 1], t[idx_b] - t[idx_b - 1])
+    good = (np.hypot(east, north) / half > TURN_MIN_SPEED_M_PER_S) & (local_gap <= half / 2)
+    course = np.unwrap(np.arctan2(east, north))
+    dt = np.diff(imu.t)
+    cumulative = np.vstack(
+        [np.zeros(3), np.cumsum(0.5 * (imu.gyro[1:] + imu.gyro[:-1]) * dt[:, None], axis=0)]
+    )
+    span = 4  # grid steps per window
+    i0, i1 = np.arange(grid.size - span), np.arange(span, grid.size)
+    turn = np.abs(course[i1] - course[i0])
+    rotation = np.column_stack(
+        [
+            np.interp(grid[i1], imu.t, cumulative[:, k])
+            - np.interp(grid[i0], imu.t, cumulative[:, k])
+            for k in range(3)
+        ]
+    )
+    moving = good[i0] & good[i1]
+    rotated = np.linalg.norm(rotation, axis=1)
+    signed_turn = course[i1] - course[i0]  # compass course: clockwise positive
+    use = moving & (np.abs(signed_turn) > TURN_MIN_RAD)
+    if use.any():
+        up = np.mean(imu.accel, axis=0)
+        up = up / np.linalg.norm(up)
+        # A left turn (counter-clockwise from above, about up) lowers the compass course:
+        # the gyro's turn about up over the track's is ~+1 (about -1 when reversed); the
+        # median, as a few windows' courses are noise (slow driving, PDOP-biased fixes).
+        signed_ratio = (rotation[use] @ up) / -signed_turn[use]
+        return (
+            float(np.median(rotated[use] / turn[use])),
+            int(use.sum()),
+            float(np.median(signed_ratio)),
+        )
+    # No clear turn (a motorway): driving straight, the gyro must not say it rotated far.
+    if moving.sum() >= STRAIGHT_MIN_WINDOWS:
+        median_rotation = float(np.median(rotated[moving]))
+        median_turn = float(np.median(turn[moving]))
+        if median_rotation > STRAIGHT_MAX_ROTATION_RAD:
+            ratio = median_rotation / max(median_turn, median_rotation / 1e3)
+            return ratio, int(moving.sum()), math.nan
+    return math.nan, 0, math.nan
