@@ -810,6 +810,9 @@ def _imu_static(gyro: np.ndarray, accel: np.ndarray, gravity: float) -> bool:
 # integrated to at least this fraction of v since the start, or CHORD_SPEED_SEEN_M_PER_S.
 CHORD_SPEED_SEEN_FRACTION = 0.25
 CHORD_SPEED_SEEN_M_PER_S = 1.0
+# A chord of chord_s this fraction of min_chord_m long (5 m in 5 s: 1 m/s, above metre-level
+# fix noise at rest) may be a slow vehicle's first motion: it is followed along the straight.
+SLOW_CHORD_MIN_FRACTION = 0.25
 
 
 OUTLIER_WINDOW_FIXES = 3  # each side of a fix judged against its neighbours
@@ -900,6 +903,19 @@ def _heading_from_first_motion(
     # The last fix within chord_s (and within MAX_CHORD_S) of each fix (times ascending).
     chord_end = np.searchsorted(gnss_t, gnss_t + chord_s, side="right") - 1
     stretch_end = np.searchsorted(gnss_t, gnss_t + MAX_CHORD_S, side="right") - 1
+    def slow_chord_end(k: int, j: int) -> int:
+        """A vehicle pulling away slowly (a field robot, a tractor, a car creeping off at
+        2 m/s) covers less than ``min_chord_m`` in ``chord_s``: the chord from fix k goes
+        on while the gyro says straight, up to ``MAX_CHORD_S``, until it is that long (at
+        2 m/s the heading was never found; the forward EKF, started 180 deg unknown, locked
+        onto a heading 55 deg off and ran 105 m off). ``j`` when it never gets there."""
+        for m in range(j + 1, int(stretch_end[k]) + 1):
+            if abs(yaw_at(gnss_t[m]) - yaw_at(gnss_t[k])) > np.radians(STRAIGHT_TURN_DEG):
+                break
+            if np.linalg.norm(gnss_enu[m, :2] - gnss_enu[k, :2]) >= min_chord_m:
+                return m
+        return j
+
     for k in range(len(gnss_t)):
         j = int(chord_end[k])
         if j <= k:
@@ -907,7 +923,14 @@ def _heading_from_first_motion(
         chord = gnss_enu[j, :2] - gnss_enu[k, :2]
         span = gnss_t[j] - gnss_t[k]
         length = float(np.linalg.norm(chord))
-        if length >= min_chord_m and length / span >= moving_speed:
+        speed_needed = moving_speed
+        if rest_force is not None and SLOW_CHORD_MIN_FRACTION * min_chord_m <= length < min_chord_m:
+            # The accelerometer confirms the motion below, so a slower speed may count.
+            j = slow_chord_end(k, j)
+            span = gnss_t[j] - gnss_t[k]
+            length = float(np.linalg.norm(gnss_enu[j, :2] - gnss_enu[k, :2]))
+            speed_needed = min(moving_speed, min_chord_m / MAX_CHORD_S)
+        if length >= min_chord_m and length / span >= speed_needed:
             if rest_force is not None and not _imu_saw_speed(
                 imu, rest_force, t0, float(gnss_t[j]), length / span
             ):
@@ -948,7 +971,62 @@ def _heading_from_first_motion(
             return float(np.mod(heading + np.degrees(yaw_turned), 360.0)), float(
                 np.clip(sigma, 2.0, 180.0)
             )
+    if rest_force is not None:
+        found = _heading_from_straightened_track(
+            imu, gnss_t, gnss_enu, t0, yaw_at, up_body, min_chord_m, fix_sigma,
+            forward_axis, rest_force,
+        )  # fmt: skip
+        if found is not None:
+            return found
     return 0.0, 180.0
+
+
+def _heading_from_straightened_track(
+    imu,
+    gnss_t: np.ndarray,
+    gnss_enu: np.ndarray,
+    t0: float,
+    yaw_at,
+    up_body: np.ndarray,
+    min_chord_m: float,
+    fix_sigma: float,
+    forward_axis: np.ndarray | None,
+    rest_force: np.ndarray,
+) -> tuple[float, float] | None:
+    """(heading at ``t0``, its 1-sigma) in deg of a vehicle that left rest along its forward
+    axis but never went straight for ``min_chord_m``: a field robot, a tractor or a car
+    creeping at 0.5-1 m/s between turns. Each step between fixes is turned back by the yaw the
+    gyro turned since ``t0`` (``yaw_at``, counter-clockwise): the steps of a vehicle that
+    travels along its forward axis then all point along its heading at ``t0``, so the
+    straightened track is a line, whatever the turns. Its direction (a line fit; the scatter
+    about it, from fix noise, slip or gyro error, gives the sigma) over the first
+    ``STRAIGHTENED_MAX_S`` is the heading once it reaches ``min_chord_m`` and the IMU saw
+    the vehicle pick up speed. None otherwise. (Without it the heading stayed unknown, and
+    the forward EKF locked onto one 55 deg off: 33 m off in outages at 1 m/s.)"""
+    after = np.flatnonzero((gnss_t >= t0) & (gnss_t <= t0 + STRAIGHTENED_MAX_S))
+    if len(after) < 5:
+        return None
+    t, points = gnss_t[after], gnss_enu[after, :2]
+    yaw_mid = np.array([yaw_at(0.5 * (a + b)) for a, b in itertools.pairwise(t)]) - yaw_at(t0)
+    step = np.diff(points, axis=0)
+    cos, sin = np.cos(yaw_mid), np.sin(yaw_mid)
+    back = np.column_stack([cos * step[:, 0] + sin * step[:, 1], -sin * step[:, 0] + cos * step[:, 1]])
+    track = np.vstack([np.zeros(2), np.cumsum(back, axis=0)])
+    length = float(np.linalg.norm(track[-1]))
+    span = float(t[-1] - t[0])
+    if length < min_chord_m or not _imu_saw_speed(imu, rest_force, t0, float(t[-1]), length / span):
+        return None
+    direction, line_sigma = _straight_direction(track)
+    scatter = float(np.linalg.norm(track - np.outer((track - track[0]) @ direction, direction) - track[0], axis=1).max())
+    if scatter > STRAIGHTENED_MAX_SCATTER_SIGMAS * max(fix_sigma, MIN_LINE_SCATTER_M) + 0.1 * length:
+        return None  # not a line: the vehicle did not travel along its forward axis
+    if forward_axis is not None and _travels_backward(
+        imu, t, np.column_stack([track, np.zeros(len(t))]), direction, forward_axis, up_body,
+        rest_force=rest_force,
+    ):  # fmt: skip
+        direction = -direction
+    heading = float(np.degrees(np.arctan2(direction[0], direction[1])))
+    return float(np.mod(heading, 360.0)), float(np.clip(np.degrees(line_sigma), 2.0, 180.0))
 
 
 def _travel(smoother: SmootherConfig | None) -> str:
@@ -1189,3 +1267,7 @@ def _straight_direction(points: np.ndarray) -> tuple[np.ndarray, float]:
 MAX_CHORD_S = 30.0
 STRAIGHT_TURN_DEG = 2.0
 MIN_LINE_SCATTER_M = 1.0
+# A slow vehicle's track straightened by the gyro's yaw: fixes over this long from the start,
+# and no fix further off the fitted line than this many fix sigmas plus 10 % of its length.
+STRAIGHTENED_MAX_S = 60.0
+STRAIGHTENED_MAX_SCATTER_SIGMAS = 4.0

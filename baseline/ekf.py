@@ -240,7 +240,9 @@ def prepare_filter(
         white_scale[inside] = [
             inflated.accel_noise / noise.accel_noise, inflated.gyro_noise / noise.gyro_noise
         ]
-    aiding = vehicle_aiding(dataset, config, times, noise, frame.earth_rate)
+    aiding = vehicle_aiding(
+        dataset, config, times, noise, frame.earth_rate, epochs, align.steady_motion_possible
+    )
     extra, extra_variance = aiding.initial_extra(float(align.position[2]))
     rotation = np.asarray(align.rotation, dtype=float)
     attitude_sigma = configured_heading_sigma(
@@ -342,7 +344,7 @@ class FilterRecorder:
                 int(np.searchsorted(self._imu_t, t, side="right")) - 1, len(self._imu_t) - 1
             )
             state, cov = gnss_update(g, state, cov, self._gyro[sample])
-            self.setup.aiding.fix_applied(t)
+            self.setup.aiding.fix_applied(t, float(np.linalg.norm(state.velocity)))
         return self.setup.aiding.update(k, state, cov)
 
     def store_nodes(self, span: slice, nodes: NominalState) -> None:

@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fgins.baseline.measurements import kalman_update
+from fgins.baseline.measurements import GnssEpochs, kalman_update
 from fgins.baseline.mechanization import ATT, GYRO_BIAS, POS, STATE_DIM, VEL, NominalState
 from fgins.config import ImuNoise, RunConfig
 from fgins.datatypes import Dataset
@@ -85,6 +85,7 @@ class VehicleAiding:
     zupt_times: list[float] = field(default_factory=list)  # boundaries taken as stops
     _last_nhc: float = -np.inf
     _last_fix: float = -np.inf  # time of the last GNSS update (fix_applied)
+    _speed_at_fix: float = np.inf  # the filter's speed after that update
 
     @property
     def has_baro(self) -> bool:
@@ -106,9 +107,22 @@ class VehicleAiding:
         first = self.baro_height[np.isfinite(self.baro_height)][0]
         return np.array([first - up]), np.array([BARO_BIAS_PRIOR_SIGMA_M**2])
 
-    def fix_applied(self, t: float) -> None:
-        """The filter made a GNSS update at time ``t`` (its velocity sigma is anchored)."""
+    def fix_applied(self, t: float, speed: float) -> None:
+        """The filter made a GNSS update at time ``t`` (its velocity sigma is anchored) and
+        has ``speed`` (m/s) after it."""
         self._last_fix = float(t)
+        self._speed_at_fix = float(speed)
+
+    def _slowed_to_a_stop(self, t: float, speed: float) -> bool:
+        """Dead reckoning (no fix for ``FILTER_STOP_SIGMA_AIDED_S``), the speed sigma cannot
+        confirm a stop and the speed cap decides; a stop there must also follow a slow-down the
+        filter saw: a speed below half that at the last fix (or below the floor of a known
+        stop). A vehicle crawling on at 1 m/s, under the 1.5 m/s cap, with a quiet IMU was held
+        still through a whole outage (the forward EKF 24 m off, EKF+RTS 16 m); one that
+        brakes from 15 m/s to a stop is dead-reckoned to well below half its speed."""
+        if t - self._last_fix <= stationary.FILTER_STOP_SIGMA_AIDED_S:
+            return True
+        return speed < max(stationary.STOP_SPEED_FLOOR_M_PER_S, 0.5 * self._speed_at_fix)
 
     def update(
         self, k: int, state: NominalState, cov: np.ndarray
@@ -119,14 +133,16 @@ class VehicleAiding:
             state, cov = kalman_update(state, cov, *self.nhc_measurement(state, len(cov)))
             self._last_nhc = t
             self.counts["nhc_updates"] += 1
+        speed = float(np.linalg.norm(state.velocity))
         if (
             self.zupt
             and self.quiet[k]
             and stationary.speed_confirms_stop(
-                float(np.linalg.norm(state.velocity)),
+                speed,
                 stationary.filter_stop_sigma(cov[VEL, VEL], t - self._last_fix),
                 self.zupt_max_speed,
             )
+            and self._slowed_to_a_stop(t, speed)
         ):
             state, cov = kalman_update(state, cov, *self.zupt_measurement(k, state, len(cov)))
             self.counts["zupt_updates"] += 1
@@ -185,15 +201,45 @@ class VehicleAiding:
         return residual, h, np.array([self.baro_sigma**2])
 
 
+# Fixes over this long show a crawl the last seconds' chord cannot (see _fixes_moving).
+CRAWL_WINDOW_S = 12.0
+
+
+def _fixes_moving(times: np.ndarray, epochs: GnssEpochs, moving_at_start: bool) -> np.ndarray:
+    """Where the fixes before each boundary moved: the graph's test over the last seconds
+    (:func:`fgins.factors.stationary.gnss_moving`), and over ``CRAWL_WINDOW_S``. A filter
+    confirms a stop by its own speed sigma, which metre-level fixes hold at 0.2-0.3 m/s, so
+    a vehicle crawling at 0.5-1 m/s with a quiet IMU (a field robot on a straight) passed as
+    stopped: on such a drive the forward EKF froze 27 times and ran 33 m off (0.6 m without
+    those stops). A 12 s chord shows 0.4 m/s through 1 m fixes; a real stop waits at most
+    that long for its first ZUPT while the fixes aid the filter anyway."""
+    sigma = np.nan_to_num(epochs.position_sigma, nan=np.inf)
+    moving = stationary.gnss_moving(
+        times, epochs.t, epochs.position, sigma, moving_before_fixes=moving_at_start
+    )
+    return moving | stationary.gnss_moving(
+        times, epochs.t, epochs.position, sigma, window_s=CRAWL_WINDOW_S
+    )
+
+
 def vehicle_aiding(
-    dataset: Dataset, config: RunConfig, times: np.ndarray, noise: ImuNoise, earth_rate: np.ndarray
+    dataset: Dataset,
+    config: RunConfig,
+    times: np.ndarray,
+    noise: ImuNoise,
+    earth_rate: np.ndarray,
+    epochs: GnssEpochs,
+    moving_at_start: bool,
 ) -> VehicleAiding:
-    """The pseudo-measurements of ``dataset`` at the block boundaries ``times``."""
+    """The pseudo-measurements of ``dataset`` at the block boundaries ``times``; the GNSS
+    ``epochs`` the filter uses refuse stops where they move (``moving_at_start``: the
+    alignment could not rule out a steady motion before the fixes tell)."""
     smoother = config.smoother
     imu = dataset.imu
     mounting = mounting_rotation(smoother.imu_to_vehicle_rpy_deg)
     if smoother.zupt:
         quiet = stationary.quiet_imu(imu, times, noise, before_s=QUIET_WINDOW_S, after_s=0.0)
+        quiet &= ~_fixes_moving(times, epochs, moving_at_start)
         rest_gyro, n_samples = stationary.mean_gyro(imu, times, before_s=QUIET_WINDOW_S)
         window = np.maximum(n_samples, 1) / imu.rate_hz
         rest_sigma = np.hypot(noise.gyro_noise / np.sqrt(window), NO_MOTION_RATE_SIGMA)

@@ -61,8 +61,9 @@ def gnss_moving(
     gnss_enu: np.ndarray,
     gnss_sigma: np.ndarray,
     moving_before_fixes: bool = False,
+    window_s: float = GNSS_MOTION_WINDOW_S,
 ) -> np.ndarray:
-    """True (K,) where the fixes of the last ``GNSS_MOTION_WINDOW_S`` before each time moved
+    """True (K,) where the fixes of the last ``window_s`` (``GNSS_MOTION_WINDOW_S``) before each time moved
     further than their own noise can fake: the chord's horizontal speed above
     ``STOP_SPEED_SIGMAS`` sigmas (from the two fixes' sigmas) and the floor. Causal, so the
     online solvers can use it: an estimate that starts at 0 +- 3 m/s (a quiet IMU at a
@@ -76,7 +77,7 @@ def gnss_moving(
     if len(gnss_t) < 2:
         return out
     last = np.searchsorted(gnss_t, times, side="right") - 1
-    first = np.searchsorted(gnss_t, times - GNSS_MOTION_WINDOW_S, side="left")
+    first = np.searchsorted(gnss_t, times - window_s, side="left")
     ok = (last >= 0) & (last > first)
     first, last = np.clip(first, 0, len(gnss_t) - 1), np.clip(last, 0, len(gnss_t) - 1)
     span = gnss_t[last] - gnss_t[first]
