@@ -73,7 +73,8 @@ class VehicleAiding:
     zupt: bool
     zupt_sigma: float
     zupt_max_speed: float
-    quiet: np.ndarray  # (K,) IMU quiet over the last QUIET_WINDOW_S
+    quiet: np.ndarray  # (K,) IMU quiet over the last QUIET_WINDOW_S, the fixes not moving
+    crawl: np.ndarray  # (K,) the fixes moved over the last CRAWL_WINDOW_S
     rest_gyro: np.ndarray  # (K, 3) mean gyro over that window
     rest_gyro_sigma: np.ndarray  # (K,) per-axis sigma of that mean as a rate measurement
     baro_height: np.ndarray  # (K,) standard-atmosphere height, NaN where no pressure
@@ -142,6 +143,7 @@ class VehicleAiding:
                 stationary.filter_stop_sigma(cov[VEL, VEL], t - self._last_fix),
                 self.zupt_max_speed,
             )
+            and not (self.crawl[k] and speed >= stationary.STOP_SPEED_FLOOR_M_PER_S)
             and self._slowed_to_a_stop(t, speed)
         ):
             state, cov = kalman_update(state, cov, *self.zupt_measurement(k, state, len(cov)))
@@ -201,25 +203,15 @@ class VehicleAiding:
         return residual, h, np.array([self.baro_sigma**2])
 
 
-# Fixes over this long show a crawl the last seconds' chord cannot (see _fixes_moving).
+# A filter confirms a stop by its own speed sigma, which metre-level fixes hold at 0.2-0.3
+# m/s, so a vehicle crawling at 1 m/s with a quiet IMU (a field robot on a straight, which an
+# IMU reads like rest) passed as stopped: 17-27 false ZUPTs, the forward EKF 33 m off (0.6 m
+# without them). The fixes of the last 4 s cannot see such a crawl through their noise; a 12 s
+# chord can (0.4 m/s through 1 m fixes). It refuses a stop only while the filter's speed is
+# above the floor of a known stop: at a real stop, the chord still holds the braking for 12 s,
+# and the filter, which dead-reckoned the braking, is near zero (refusing those stops too made
+# EKF+RTS 7 % better than the batch on the urban car: the two must see the same stops).
 CRAWL_WINDOW_S = 12.0
-
-
-def _fixes_moving(times: np.ndarray, epochs: GnssEpochs, moving_at_start: bool) -> np.ndarray:
-    """Where the fixes before each boundary moved: the graph's test over the last seconds
-    (:func:`fgins.factors.stationary.gnss_moving`), and over ``CRAWL_WINDOW_S``. A filter
-    confirms a stop by its own speed sigma, which metre-level fixes hold at 0.2-0.3 m/s, so
-    a vehicle crawling at 0.5-1 m/s with a quiet IMU (a field robot on a straight) passed as
-    stopped: on such a drive the forward EKF froze 27 times and ran 33 m off (0.6 m without
-    those stops). A 12 s chord shows 0.4 m/s through 1 m fixes; a real stop waits at most
-    that long for its first ZUPT while the fixes aid the filter anyway."""
-    sigma = np.nan_to_num(epochs.position_sigma, nan=np.inf)
-    moving = stationary.gnss_moving(
-        times, epochs.t, epochs.position, sigma, moving_before_fixes=moving_at_start
-    )
-    return moving | stationary.gnss_moving(
-        times, epochs.t, epochs.position, sigma, window_s=CRAWL_WINDOW_S
-    )
 
 
 def vehicle_aiding(
@@ -239,12 +231,18 @@ def vehicle_aiding(
     mounting = mounting_rotation(smoother.imu_to_vehicle_rpy_deg)
     if smoother.zupt:
         quiet = stationary.quiet_imu(imu, times, noise, before_s=QUIET_WINDOW_S, after_s=0.0)
-        quiet &= ~_fixes_moving(times, epochs, moving_at_start)
+        sigma = np.nan_to_num(epochs.position_sigma, nan=np.inf)
+        quiet &= ~stationary.gnss_moving(
+            times, epochs.t, epochs.position, sigma, moving_before_fixes=moving_at_start
+        )
+        crawl = stationary.gnss_moving(
+            times, epochs.t, epochs.position, sigma, window_s=CRAWL_WINDOW_S
+        )
         rest_gyro, n_samples = stationary.mean_gyro(imu, times, before_s=QUIET_WINDOW_S)
         window = np.maximum(n_samples, 1) / imu.rate_hz
         rest_sigma = np.hypot(noise.gyro_noise / np.sqrt(window), NO_MOTION_RATE_SIGMA)
     else:
-        quiet = np.zeros(len(times), dtype=bool)
+        quiet = crawl = np.zeros(len(times), dtype=bool)
         rest_gyro, rest_sigma = np.zeros((len(times), 3)), np.ones(len(times))
     pressure = stationary.pressure_at(dataset.baro, times, before_s=BARO_WINDOW_S, after_s=0.0)
     return VehicleAiding(
@@ -259,6 +257,7 @@ def vehicle_aiding(
         zupt_sigma=smoother.zupt_sigma_m_per_s,
         zupt_max_speed=smoother.zupt_max_speed_m_per_s,
         quiet=quiet,
+        crawl=crawl,
         rest_gyro=rest_gyro,
         rest_gyro_sigma=rest_sigma,
         baro_height=np.asarray(stationary.standard_atmosphere_height(pressure), dtype=float),
