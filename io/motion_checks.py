@@ -483,21 +483,29 @@ def check_track_scale_by_turns(gnss: GnssData, enu: np.ndarray, imu, up: np.ndar
     t_mid = imu.t[: blocks * n].reshape(blocks, n).mean(axis=1)
     gyro = imu.gyro[: blocks * n].reshape(blocks, n, 3).mean(axis=1)
     accel = imu.accel[: blocks * n].reshape(blocks, n, 3).mean(axis=1)
-    yaw_rate = np.abs(gyro @ up - np.median(gyro @ up))
-    horizontal = accel - np.outer(accel @ up, up)
-    force = np.linalg.norm(horizontal - np.median(horizontal, axis=0), axis=1)
     inside = (t_mid > t_fix[0]) & (t_mid < t_fix[-1])
-    turns = inside & (yaw_rate > SCALE_TURN_RAD_S) & (force > SCALE_FORCE_M_S2)
-    if turns.sum() < SCALE_MIN_TURNS:
-        return
     velocity = np.gradient(xy, t_fix, axis=0)
-    speed = np.hypot(*(np.interp(t_mid[turns], t_fix, velocity[:, i]) for i in range(2)))
-    ratio = float(np.median(speed / (force[turns] / yaw_rate[turns])))
+    yaw_rate = gyro @ up
+    horizontal = accel - np.outer(accel @ up, up)
+    # Read as they are and less their medians (a gyro bias, a tilt): both must call the track
+    # shrunk. A car circling a skid pad from a rest has turning as its median: less it, the
+    # rest looked like a turn the fixes did not follow (a false "20 times slower" error).
+    ratios = []
+    for rate, force in (
+        (np.abs(yaw_rate - np.median(yaw_rate)), np.linalg.norm(horizontal - np.median(horizontal, axis=0), axis=1)),
+        (np.abs(yaw_rate), np.linalg.norm(horizontal, axis=1)),
+    ):  # fmt: skip
+        turns = inside & (rate > SCALE_TURN_RAD_S) & (force > SCALE_FORCE_M_S2)
+        if turns.sum() < SCALE_MIN_TURNS:
+            return
+        speed = np.hypot(*(np.interp(t_mid[turns], t_fix, velocity[:, i]) for i in range(2)))
+        ratios.append((float(np.median(speed / (force[turns] / rate[turns]))), int(turns.sum())))
+    ratio, count = max(ratios)
     if ratio < SCALE_SHRUNK_RATIO:
         raise InputError(
             f"gnss: the fixes move {1.0 / max(ratio, 1e-9):.3g} times slower than the IMU's "
             f"turns say (their speed against horizontal specific force over yaw rate, median "
-            f"of {int(turns.sum())} 1-s turns; ~1 expected, lat/lon in radians gives "
+            f"of {count} 1-s turns; ~1 expected, lat/lon in radians gives "
             "57): give lat/lon in degrees (and positions in metres)"
         )
 
