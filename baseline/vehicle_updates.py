@@ -74,7 +74,7 @@ class VehicleAiding:
     zupt_sigma: float
     zupt_max_speed: float
     quiet: np.ndarray  # (K,) IMU quiet over the last QUIET_WINDOW_S, the fixes not moving
-    crawl: np.ndarray  # (K,) the fixes moved over the last CRAWL_WINDOW_S
+    crawl: np.ndarray  # (K,) the fixes moved over the last stationary.CRAWL_WINDOW_S
     rest_gyro: np.ndarray  # (K, 3) mean gyro over that window
     rest_gyro_sigma: np.ndarray  # (K,) per-axis sigma of that mean as a rate measurement
     baro_height: np.ndarray  # (K,) standard-atmosphere height, NaN where no pressure
@@ -115,15 +115,11 @@ class VehicleAiding:
         self._speed_at_fix = float(speed)
 
     def _slowed_to_a_stop(self, t: float, speed: float) -> bool:
-        """Dead reckoning (no fix for ``FILTER_STOP_SIGMA_AIDED_S``), the speed sigma cannot
-        confirm a stop and the speed cap decides; a stop there must also follow a slow-down the
-        filter saw: a speed below half that at the last fix (or below the floor of a known
-        stop). A vehicle crawling on at 1 m/s, under the 1.5 m/s cap, with a quiet IMU was held
-        still through a whole outage (the forward EKF 24 m off, EKF+RTS 16 m); one that
-        brakes from 15 m/s to a stop is dead-reckoned to well below half its speed."""
+        """:func:`fgins.factors.stationary.slowed_to_a_stop` in dead reckoning (no fix for
+        ``FILTER_STOP_SIGMA_AIDED_S``); True while the fixes aid the filter."""
         if t - self._last_fix <= stationary.FILTER_STOP_SIGMA_AIDED_S:
             return True
-        return speed < max(stationary.STOP_SPEED_FLOOR_M_PER_S, 0.5 * self._speed_at_fix)
+        return stationary.slowed_to_a_stop(speed, self._speed_at_fix)
 
     def update(
         self, k: int, state: NominalState, cov: np.ndarray
@@ -143,7 +139,7 @@ class VehicleAiding:
                 stationary.filter_stop_sigma(cov[VEL, VEL], t - self._last_fix),
                 self.zupt_max_speed,
             )
-            and not (self.crawl[k] and speed >= stationary.STOP_SPEED_FLOOR_M_PER_S)
+            and not stationary.crawl_refuses_stop(self.crawl[k], speed)
             and self._slowed_to_a_stop(t, speed)
         ):
             state, cov = kalman_update(state, cov, *self.zupt_measurement(k, state, len(cov)))
@@ -203,15 +199,6 @@ class VehicleAiding:
         return residual, h, np.array([self.baro_sigma**2])
 
 
-# A filter confirms a stop by its own speed sigma, which metre-level fixes hold at 0.2-0.3
-# m/s, so a vehicle crawling at 1 m/s with a quiet IMU (a field robot on a straight, which an
-# IMU reads like rest) passed as stopped: 17-27 false ZUPTs, the forward EKF 33 m off (0.6 m
-# without them). The fixes of the last 4 s cannot see such a crawl through their noise; a 12 s
-# chord can (0.4 m/s through 1 m fixes). It refuses a stop only while the filter's speed is
-# above the floor of a known stop: at a real stop, the chord still holds the braking for 12 s,
-# and the filter, which dead-reckoned the braking, is near zero (refusing those stops too made
-# EKF+RTS 7 % better than the batch on the urban car: the two must see the same stops).
-CRAWL_WINDOW_S = 12.0
 
 
 def vehicle_aiding(
@@ -236,7 +223,7 @@ def vehicle_aiding(
             times, epochs.t, epochs.position, sigma, moving_before_fixes=moving_at_start
         )
         crawl = stationary.gnss_moving(
-            times, epochs.t, epochs.position, sigma, window_s=CRAWL_WINDOW_S
+            times, epochs.t, epochs.position, sigma, window_s=stationary.CRAWL_WINDOW_S
         )
         rest_gyro, n_samples = stationary.mean_gyro(imu, times, before_s=QUIET_WINDOW_S)
         window = np.maximum(n_samples, 1) / imu.rate_hz

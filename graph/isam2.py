@@ -236,6 +236,7 @@ def _run_isam2_with(
     update_s = np.zeros(n)
     preintegrate_s = np.zeros(n)
     report = SolveReport(solver="iSAM2")
+    last_fix_t, speed_at_fix = -np.inf, np.inf  # the newest keyframe with a fix, its speed
     for k in tqdm(range(n), desc="iSAM2", unit="kf", disable=not progress, leave=False):
         if k > 0:
             # Preintegrate about the newest bias estimate: what a real-time system would do,
@@ -253,9 +254,13 @@ def _run_isam2_with(
             speed_sigma = _isam2_speed_sigma(problem, isam, k, state)
             # The plane fall where the prediction is (the fixes' chord is not known online).
             problem.set_baro_fall(np.array([k]), state.position()[None])
+        predicted_speed = float(np.linalg.norm(state.velocity()))
+        dead_reckoning = times[k] - last_fix_t > stationary.FILTER_STOP_SIGMA_AIDED_S
         keyframe = problem.keyframe_factors(
-            k, float(np.linalg.norm(state.velocity())), speed_sigma=speed_sigma
-        )
+            k, predicted_speed, speed_sigma=speed_sigma,
+            slowed_to_a_stop=not dead_reckoning
+            or stationary.slowed_to_a_stop(predicted_speed, speed_at_fix),
+        )  # fmt: skip
         if k > 0:
             imu_index[k - 1] = nonlinear.size() + graph.size()  # the IMU factor comes first
         baro_index.update(pressure_factor_index(keyframe, k, nonlinear.size() + graph.size()))
@@ -298,6 +303,8 @@ def _run_isam2_with(
                 "IMU with sparse GNSS); no output written. Try --method batch"
             ) from None
         state = gtsam.NavState(pose, velocity)
+        if problem.gnss_at[k] >= 0:  # the online speed a later stop in an outage starts from
+            last_fix_t, speed_at_fix = float(times[k]), float(np.linalg.norm(velocity))
         online_states["rotation"][k] = pose.rotation().matrix()
         online_states["position"][k] = pose.translation()
         online_states["velocity"][k] = velocity

@@ -63,6 +63,8 @@ class Problem:
     quiet: np.ndarray  # (K,) the IMU is quiet around keyframe k (a stop, if the speed agrees)
     # (K,) the fixes of the last seconds before keyframe k moved (stationary.gnss_moving)
     gnss_moving: np.ndarray
+    # (K,) the fixes moved over the last stationary.CRAWL_WINDOW_S (a crawl refuses a stop)
+    crawling: np.ndarray
     baro_surface_pressure: np.ndarray  # (K,) mean pressure (Pa) around keyframe k, NaN where none
     # (K,) how far the navigation frame's tangent plane lies below the surface at keyframe k
     # (fgins.geodesy.plane_fall): from the fixes first, then from each solution
@@ -129,18 +131,22 @@ class Problem:
         predicted_speed: float | None = None,
         gnss_config: GnssConfig | None = None,
         speed_sigma: float | None = None,
+        slowed_to_a_stop: bool = True,
     ) -> gtsam.NonlinearFactorGraph:
         """Factors that arrive with keyframe k: the IMU factor from k-1, k's GNSS, land-vehicle
         constraints, odometer and barometer. ``predicted_speed`` (the current best guess of
         the speed at k, with its sigma ``speed_sigma`` when known) must confirm a stop before
-        a quiet IMU is taken as one (:meth:`speed_confirms_stop`).
+        a quiet IMU is taken as one (:meth:`speed_confirms_stop`), and fixes that moved over
+        the last seconds must not refuse it (:func:`stationary.crawl_refuses_stop`);
+        ``slowed_to_a_stop`` False (a dead-reckoning online pass that saw no slow-down,
+        :func:`stationary.slowed_to_a_stop`) refuses it too.
         ``gnss_config``: the GNSS position kernel to use instead of the run's (the initial
         guess's Huber weighting)."""
         graph = gtsam.NonlinearFactorGraph()
         if k > 0:
             graph.add(self.imu_factor(k - 1))
         self._add_gnss(graph, k, gnss_config or self.config.gnss)
-        self._add_stop(graph, k, predicted_speed, speed_sigma)
+        self._add_stop(graph, k, predicted_speed, speed_sigma, slowed_to_a_stop)
         self._add_misalignment(graph, k)
         if k == 0 and self.has_odometer:
             graph.add(odometer_model.scale_prior(self.config.smoother.odometer_scale_sigma))
@@ -406,12 +412,15 @@ class Problem:
         k: int,
         predicted_speed: float | None,
         speed_sigma: float | None = None,
+        slowed_to_a_stop: bool = True,
     ) -> None:
         smoother = self.config.smoother
         stopped = (
             smoother.zupt
             and bool(self.stop_candidates[k])
             and self.speed_confirms_stop(predicted_speed, speed_sigma)
+            and not stationary.crawl_refuses_stop(self.crawling[k], predicted_speed)
+            and slowed_to_a_stop
         )
         if stopped:
             graph.add(vehicle_model.zero_velocity_factor(V(k), smoother.zupt_sigma_m_per_s))
@@ -712,6 +721,9 @@ def build_problem(
         quiet=quiet,
         gnss_moving=stationary.gnss_moving(
             times, gnss.t, enu, sigma, moving_before_fixes=alignment.steady_motion_possible
+        ),
+        crawling=stationary.gnss_moving(
+            times, gnss.t, enu, sigma, window_s=stationary.CRAWL_WINDOW_S
         ),
         baro_surface_pressure=baro_surface_pressure,
         baro_fall=baro_fall,
