@@ -181,7 +181,9 @@ def test_unusable_fleet_arguments_are_one_line_errors(tmp_path, capsys):
 def test_ctrl_c_stops_the_fleet_and_its_workers(tmp_path):
     """SIGINT to the whole process group (what a terminal's Ctrl-C does) ends everything."""
     folders = []
-    for seed in range(8):  # about 1 s of smoothing each: the interrupt arrives mid-fleet
+    # A fraction of a second of smoothing each: with 8 drives a loaded machine once saw the
+    # whole fleet end between the first output and the interrupt (exit 0); 24 leave seconds.
+    for seed in range(24):
         folder = tmp_path / f"drive{seed}"
         write_sim_dir(SCENARIOS["highway"](seed=seed, duration_s=120), folder)
         folders.append(str(folder))
