@@ -344,7 +344,7 @@ class FilterRecorder:
                 int(np.searchsorted(self._imu_t, t, side="right")) - 1, len(self._imu_t) - 1
             )
             state, cov = gnss_update(g, state, cov, self._gyro[sample])
-            self.setup.aiding.fix_applied(t, float(np.linalg.norm(state.velocity)))
+            self.setup.aiding.fix_applied(t)
         return self.setup.aiding.update(k, state, cov)
 
     def store_nodes(self, span: slice, nodes: NominalState) -> None:

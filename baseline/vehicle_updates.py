@@ -86,7 +86,8 @@ class VehicleAiding:
     zupt_times: list[float] = field(default_factory=list)  # boundaries taken as stops
     _last_nhc: float = -np.inf
     _last_fix: float = -np.inf  # time of the last GNSS update (fix_applied)
-    _speed_at_fix: float = np.inf  # the filter's speed after that update
+    # the filter's speeds after its updates over the last seconds (a stop must follow a slow-down)
+    _recent: stationary.RecentSpeeds = field(default_factory=stationary.RecentSpeeds)
 
     @property
     def has_baro(self) -> bool:
@@ -108,18 +109,9 @@ class VehicleAiding:
         first = self.baro_height[np.isfinite(self.baro_height)][0]
         return np.array([first - up]), np.array([BARO_BIAS_PRIOR_SIGMA_M**2])
 
-    def fix_applied(self, t: float, speed: float) -> None:
-        """The filter made a GNSS update at time ``t`` (its velocity sigma is anchored) and
-        has ``speed`` (m/s) after it."""
+    def fix_applied(self, t: float) -> None:
+        """The filter made a GNSS update at time ``t`` (its velocity sigma is anchored)."""
         self._last_fix = float(t)
-        self._speed_at_fix = float(speed)
-
-    def _slowed_to_a_stop(self, t: float, speed: float) -> bool:
-        """:func:`fgins.factors.stationary.slowed_to_a_stop` in dead reckoning (no fix for
-        ``FILTER_STOP_SIGMA_AIDED_S``); True while the fixes aid the filter."""
-        if t - self._last_fix <= stationary.FILTER_STOP_SIGMA_AIDED_S:
-            return True
-        return stationary.slowed_to_a_stop(speed, self._speed_at_fix)
 
     def update(
         self, k: int, state: NominalState, cov: np.ndarray
@@ -140,7 +132,7 @@ class VehicleAiding:
                 self.zupt_max_speed,
             )
             and not stationary.crawl_refuses_stop(self.crawl[k], speed)
-            and self._slowed_to_a_stop(t, speed)
+            and stationary.slowed_to_a_stop(speed, self._recent.peak())
         ):
             state, cov = kalman_update(state, cov, *self.zupt_measurement(k, state, len(cov)))
             self.counts["zupt_updates"] += 1
@@ -148,6 +140,7 @@ class VehicleAiding:
         if np.isfinite(self.baro_height[k]):
             state, cov = kalman_update(state, cov, *self.baro_measurement(k, state, len(cov)))
             self.counts["baro_updates"] += 1
+        self._recent.add(t, float(np.linalg.norm(state.velocity)))
         return state, cov
 
     def nhc_measurement(

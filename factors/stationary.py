@@ -8,6 +8,8 @@ whole log), a causal filter only back.
 
 from __future__ import annotations
 
+from collections import deque
+
 import numpy as np
 
 from fgins.config import ImuNoise
@@ -112,13 +114,39 @@ def crawl_refuses_stop(crawling: bool, speed: float | None) -> bool:
     return bool(crawling) and speed is not None and speed >= STOP_SPEED_FLOOR_M_PER_S
 
 
-def slowed_to_a_stop(speed: float, speed_at_last_fix: float) -> bool:
-    """In dead reckoning, where no speed sigma confirms a stop and the speed cap decides
-    (:func:`filter_stop_sigma`), a stop must also follow a slow-down the estimate saw: a
-    speed below half that at the last fix, or below a known stop's floor. A vehicle
-    crawling on at 1 m/s, under the 1.5 m/s cap, with a quiet IMU was held still through a
-    whole outage; one that brakes from 15 m/s to a stop is dead-reckoned to well below half."""
-    return speed < max(STOP_SPEED_FLOOR_M_PER_S, 0.5 * speed_at_last_fix)
+# A causal estimate takes a stop only after a slow-down it saw: a speed below half its peak
+# over this many seconds before, or below a known stop's floor (see slowed_to_a_stop).
+SLOWDOWN_WINDOW_S = 10.0
+
+
+def slowed_to_a_stop(speed: float, recent_peak: float) -> bool:
+    """Did a causal estimate (the Kalman baselines, iSAM2's online pass) slow down to a
+    stop: ``speed`` below half ``recent_peak`` (its peak speed over the last
+    ``SLOWDOWN_WINDOW_S``, :class:`RecentSpeeds`), or below a known stop's floor? Its speed
+    sigma cannot refuse a steady crawl where the fixes are poor (a 2 m/s robot through 5 m
+    phone fixes: 0.5 m/s sigma, 2.5 m/s allowed; false stops after its first turn, the
+    forward EKF 24 m off) nor in dead reckoning, where the speed cap decides (a 1 m/s crawl
+    held still through a whole outage); a vehicle braking to a stop integrates the braking
+    to well below half its speed before the IMU is quiet for a second."""
+    return speed < max(STOP_SPEED_FLOOR_M_PER_S, 0.5 * recent_peak)
+
+
+class RecentSpeeds:
+    """A causal estimate's speeds over the last ``SLOWDOWN_WINDOW_S`` (for
+    :func:`slowed_to_a_stop`): :meth:`add` after each update, :meth:`peak` before the next."""
+
+    def __init__(self, window_s: float = SLOWDOWN_WINDOW_S) -> None:
+        self._window_s = window_s
+        self._items: deque[tuple[float, float]] = deque()
+
+    def add(self, t: float, speed: float) -> None:
+        self._items.append((float(t), float(speed)))
+        while self._items and self._items[-1][0] - self._items[0][0] > self._window_s:
+            self._items.popleft()
+
+    def peak(self) -> float:
+        """The largest speed kept (0 before any: at the start there is nothing to slow from)."""
+        return max((speed for _, speed in self._items), default=0.0)
 
 
 # A Kalman filter's speed sigma confirms stops only this soon after a GNSS update: dead

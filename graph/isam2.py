@@ -236,7 +236,7 @@ def _run_isam2_with(
     update_s = np.zeros(n)
     preintegrate_s = np.zeros(n)
     report = SolveReport(solver="iSAM2")
-    last_fix_t, speed_at_fix = -np.inf, np.inf  # the newest keyframe with a fix, its speed
+    recent = stationary.RecentSpeeds()  # online speeds of the last seconds (slow-downs)
     for k in tqdm(range(n), desc="iSAM2", unit="kf", disable=not progress, leave=False):
         if k > 0:
             # Preintegrate about the newest bias estimate: what a real-time system would do,
@@ -255,11 +255,9 @@ def _run_isam2_with(
             # The plane fall where the prediction is (the fixes' chord is not known online).
             problem.set_baro_fall(np.array([k]), state.position()[None])
         predicted_speed = float(np.linalg.norm(state.velocity()))
-        dead_reckoning = times[k] - last_fix_t > stationary.FILTER_STOP_SIGMA_AIDED_S
         keyframe = problem.keyframe_factors(
             k, predicted_speed, speed_sigma=speed_sigma,
-            slowed_to_a_stop=not dead_reckoning
-            or stationary.slowed_to_a_stop(predicted_speed, speed_at_fix),
+            slowed_to_a_stop=stationary.slowed_to_a_stop(predicted_speed, recent.peak()),
         )  # fmt: skip
         if k > 0:
             imu_index[k - 1] = nonlinear.size() + graph.size()  # the IMU factor comes first
@@ -303,8 +301,7 @@ def _run_isam2_with(
                 "IMU with sparse GNSS); no output written. Try --method batch"
             ) from None
         state = gtsam.NavState(pose, velocity)
-        if problem.gnss_at[k] >= 0:  # the online speed a later stop in an outage starts from
-            last_fix_t, speed_at_fix = float(times[k]), float(np.linalg.norm(velocity))
+        recent.add(float(times[k]), float(np.linalg.norm(velocity)))
         online_states["rotation"][k] = pose.rotation().matrix()
         online_states["position"][k] = pose.translation()
         online_states["velocity"][k] = velocity

@@ -138,7 +138,7 @@ class Problem:
         the speed at k, with its sigma ``speed_sigma`` when known) must confirm a stop before
         a quiet IMU is taken as one (:meth:`speed_confirms_stop`), and fixes that moved over
         the last seconds must not refuse it (:func:`stationary.crawl_refuses_stop`);
-        ``slowed_to_a_stop`` False (a dead-reckoning online pass that saw no slow-down,
+        ``slowed_to_a_stop`` False (an online pass that saw no slow-down,
         :func:`stationary.slowed_to_a_stop`) refuses it too.
         ``gnss_config``: the GNSS position kernel to use instead of the run's (the initial
         guess's Huber weighting)."""

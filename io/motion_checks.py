@@ -21,6 +21,10 @@ GYRO_TURN_RATIO_MIN = 0.25  # a right gyro gives 0.7-1.25 (median over the turns
 TURN_WINDOW_S = 10.0
 TURN_MIN_RAD = 0.5  # a turn far above the course noise of the window's end points
 TURN_MIN_SPEED_M_PER_S = 3.0
+# A course from a chord this many of its noise sigmas long (0.2 rad at most); a turn this
+# many sigmas of the two courses' noise.
+COURSE_MIN_CHORD_SIGMAS = 5.0
+TURN_MIN_SIGMAS = 3.0
 TURN_MIN_WINDOWS = 1  # ratio > 8 needs > 4 rad of gyro rotation in one window: not noise
 # Without turns: the gyro integrated over a window of straight driving stays below this
 # (biases of 1 deg/s and body oscillations give ~0.2 rad in 10 s; deg/s values give rad-sized).
@@ -645,7 +649,15 @@ def _gyro_turn_ratio(imu, gnss: GnssData, origin: Origin) -> tuple[float, int, f
     idx_a = np.clip(np.searchsorted(t, a), 1, t.size - 1)
     idx_b = np.clip(np.searchsorted(t, b), 1, t.size - 1)
     local_gap = np.maximum(t[idx_a] - t[idx_a - 1], t[idx_b] - t[idx_b - 1])
-    good = (np.hypot(east, north) / half > TURN_MIN_SPEED_M_PER_S) & (local_gap <= half / 2)
+    # The fixes' own noise on a course: its chord must stand well above it, and a turn above
+    # the two courses' noise (a robot at 2 m/s through 5 m phone fixes: 10 s "turns" of
+    # 30-60 deg that were noise, and "the gyro does not see the turns", an error on valid
+    # data). The per-axis horizontal sigma from the fixes' 3-D one (conservative).
+    chord_sigma = np.sqrt(2.0) * float(np.median(fix_sigma(gnss))) / np.sqrt(3.0)
+    length = np.hypot(east, north)
+    good = (length / half > TURN_MIN_SPEED_M_PER_S) & (local_gap <= half / 2)
+    good &= length >= COURSE_MIN_CHORD_SIGMAS * chord_sigma
+    course_sigma = chord_sigma / np.maximum(length, 1e-9)
     course = np.unwrap(np.arctan2(east, north))
     dt = np.diff(imu.t)
     cumulative = np.vstack(
@@ -664,7 +676,8 @@ def _gyro_turn_ratio(imu, gnss: GnssData, origin: Origin) -> tuple[float, int, f
     moving = good[i0] & good[i1]
     rotated = np.linalg.norm(rotation, axis=1)
     signed_turn = course[i1] - course[i0]  # compass course: clockwise positive
-    use = moving & (np.abs(signed_turn) > TURN_MIN_RAD)
+    turn_noise = np.hypot(course_sigma[i0], course_sigma[i1])
+    use = moving & (np.abs(signed_turn) > np.maximum(TURN_MIN_RAD, TURN_MIN_SIGMAS * turn_noise))
     if use.any():
         up = np.mean(imu.accel, axis=0)
         up = up / np.linalg.norm(up)

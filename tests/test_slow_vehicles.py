@@ -13,14 +13,17 @@ An independent simulator's car (tests/independent_sim.py) pulls away from a 10 s
 iSAM2's online pass took the same false stops (36 m off in the outage at 1 m/s, silent).
 
 Now the heading comes from the first motion straightened by the gyro's yaw; fixes that moved
-over 12 s refuse a causal estimate's stop while its speed is above a known stop's floor
-(:func:`fgins.factors.stationary.crawl_refuses_stop`, for every method); in dead reckoning
-a stop must follow a slow-down the estimate saw (the filters and iSAM2's online pass); the
-online pass's fit to its fixes is checked as a filter's is.
+over 12 s refuse a stop while the estimate's speed is above a known stop's floor
+(:func:`fgins.factors.stationary.crawl_refuses_stop`, every method); a causal estimate (the
+filters, iSAM2's online pass) takes a stop only after a slow-down it saw
+(:func:`fgins.factors.stationary.slowed_to_a_stop`), which its speed sigma cannot ensure
+through poor fixes or in dead reckoning; the online pass's fit to its fixes is checked as a
+filter's is.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -38,13 +41,13 @@ OUTAGE = (100.0, 140.0)
 HEADING_DEG = 60.0  # CarProfile's default: 30 deg counter-clockwise from east
 
 
-def _crawler(folder: Path, speed: float, seed: int) -> fgins.Dataset:
+def _crawler(folder: Path, speed: float, seed: int, fix_sigma: float = 1.0) -> fgins.Dataset:
     turn_rate = 0.3  # rad/s: quarter turns of ~5 s, left and right
     turns = [(30 + 40 * i, 30 + 40 * i + (np.pi / 2) / turn_rate, 2, turn_rate * (-1) ** i)
              for i in range(5)]  # fmt: skip
     profile = CarProfile(steps=[(10, 5, speed)], turns=turns, gamma=lambda t: 0.0 * t)
     write_drive(folder, profile, 200.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
-                gnss_rate=1.0, seed=seed)  # fmt: skip
+                gnss_rate=1.0, seed=seed, sigma_h=fix_sigma, sigma_u=1.5 * fix_sigma)  # fmt: skip
     return fgins.load(folder / "imu.csv", folder / "gnss.csv", config=folder / "cfg.toml",
                       vehicle="car")  # fmt: skip
 
@@ -55,9 +58,13 @@ def _outage_rms(track, folder: Path) -> float:
     return float(np.sqrt(np.mean(error[inside] ** 2)))
 
 
-@pytest.mark.parametrize(("speed", "seed"), [(2.0, 1), (1.0, 2), (1.0, 5)])
-def test_a_crawling_vehicle_is_aligned_and_the_kalman_baselines_hold(tmp_path, speed, seed):
-    dataset = _crawler(tmp_path, speed, seed)
+@pytest.mark.parametrize(("speed", "seed", "fix_sigma"),
+                         [(2.0, 1, 1.0), (1.0, 2, 1.0), (1.0, 5, 1.0), (0.5, 3, 1.0), (2.0, 1, 5.0)])  # fmt: skip
+def test_a_crawling_vehicle_is_aligned_and_every_method_holds(tmp_path, speed, seed, fix_sigma):
+    """Also at 0.5 m/s (EKF+RTS was 5.7 m off, the online pass 19 m, silent) and at 2 m/s
+    through 5 m phone fixes, where the fixes' noise made 10 s "turns" of 30-60 deg the gyro
+    did not see: the load was an error ("the gyro does not see the turns") on valid data."""
+    dataset = _crawler(tmp_path, speed, seed, fix_sigma)
     config = fgins.configure(dataset, vehicle="car")
     align = initial_alignment(dataset, smoother=config.smoother)
     found = rotation_to_roll_pitch_heading(np.asarray(align.rotation)[None])[0, 2]
@@ -69,32 +76,37 @@ def test_a_crawling_vehicle_is_aligned_and_the_kalman_baselines_hold(tmp_path, s
     ekf = fgins.smooth(dataset, "ekf")
     assert max(ekf.info["zupt_times"]) < 11.0, ekf.info["zupt_times"]
 
-    # In an outage: the filters bridge it as the batch does (were 15-105 m off).
-    batch = _outage_rms(fgins.smooth(dataset, "batch", gnss_outage=[OUTAGE]), tmp_path)
-    rts = _outage_rms(fgins.smooth(dataset, "ekf-rts", gnss_outage=[OUTAGE]), tmp_path)
-    forward = _outage_rms(fgins.smooth(dataset, "ekf", gnss_outage=[OUTAGE]), tmp_path)
-    assert batch < 1.5, batch
-    assert rts < 1.3 * batch + 0.2, (rts, batch)
-    assert forward < 4.0, forward
-    _online_accurate_or_said(dataset, tmp_path)
+    # In an outage: the causal passes bridge it, the smoothers as well as ever (were 15-105 m).
+    rms = {method: _outage_rms(fgins.smooth(dataset, method, gnss_outage=[OUTAGE]), tmp_path)
+           for method in ("batch", "isam2", "ekf-rts", "ekf", "isam2-online")}  # fmt: skip
+    assert rms["batch"] < 1.5 and rms["isam2"] < 1.5, rms
+    assert rms["ekf-rts"] < 1.3 * rms["batch"] + 0.2, rms
+    assert rms["ekf"] < 4.0, rms
+    if rms["isam2-online"] >= 4.0:
+        # Left: at 1 m/s the online pass's speed sags after a quarter turn (0.44 m/s at 40 s,
+        # stops or not; its NHC stays linearised at each prediction until the final pass),
+        # which reads as a slow-down, and a stop follows (17.6 m, seed 2). Said, not silent.
+        online = fgins.smooth(dataset, "isam2-online", gnss_outage=[OUTAGE])
+        assert any("does not fit the GNSS fixes" in w for w in online.info["fit_warnings"]), rms
 
 
-def _online_accurate_or_said(dataset: fgins.Dataset, folder: Path) -> None:
-    """iSAM2's online pass within 4 m in the outage, or its misfit said. A causal estimate
-    whose speed sags below a known stop's floor after a turn (1 m/s, 1 m fixes: 0.44 m/s
-    at 40 s with or without stops) still takes a crawl for a stop there; 17.6 m at 1 m/s
-    (seed 2), 19 m at 0.5 m/s, both silent before, now with their chi2/dof of 15-62."""
-    online = fgins.smooth(dataset, "isam2-online", gnss_outage=[OUTAGE])
+def test_an_online_pass_that_does_not_fit_its_fixes_says_so(tmp_path):
+    """iSAM2's online pass is causal like a filter, and had no check of its fit: held still
+    by false stops it ran 19 m off inside an outage and 5.6 m beside the fixes without a
+    word. Its fit to the fixes it used is now checked as a filter's: here stops are forced
+    on a 1 m/s crawl by a speed cap above it and no crawl rule (a user's zupt settings)."""
+    from fgins.factors import stationary
+
+    dataset = _crawler(tmp_path, 1.0, 2)
+    config = fgins.configure(dataset, vehicle="car")
+    smoother = dataclasses.replace(config.smoother, zupt_max_speed_m_per_s=3.0)
+    config = dataclasses.replace(config, smoother=smoother)
+    original = (stationary.crawl_refuses_stop, stationary.slowed_to_a_stop)
+    try:
+        stationary.crawl_refuses_stop = lambda crawling, speed: False
+        stationary.slowed_to_a_stop = lambda speed, peak: True
+        online = fgins.smooth(dataset, "isam2-online", gnss_outage=[OUTAGE], config=config)
+    finally:
+        stationary.crawl_refuses_stop, stationary.slowed_to_a_stop = original
     said = [w for w in online.info.get("fit_warnings", []) if "does not fit the GNSS fixes" in w]
-    assert _outage_rms(online, folder) < 4.0 or said, online.info.get("fit_warnings")
-
-
-def test_a_half_metre_per_second_crawl_online_is_accurate_or_said(tmp_path):
-    """At 0.5 m/s through 1 m fixes even a 12 s chord hardly tells a crawl from a stop: the
-    causal passes still take some false stops. The batch and the final iSAM2 see the whole
-    drive and hold; the online pass is accurate or says it does not fit its fixes."""
-    dataset = _crawler(tmp_path, 0.5, 3)
-    for method in ("batch", "isam2"):
-        rms = _outage_rms(fgins.smooth(dataset, method, gnss_outage=[OUTAGE]), tmp_path)
-        assert rms < 1.5, (method, rms)
-    _online_accurate_or_said(dataset, tmp_path)
+    assert _outage_rms(online, tmp_path) > 5.0 and said, online.info.get("fit_warnings")
