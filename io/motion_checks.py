@@ -21,10 +21,10 @@ GYRO_TURN_RATIO_MIN = 0.25  # a right gyro gives 0.7-1.25 (median over the turns
 TURN_WINDOW_S = 10.0
 TURN_MIN_RAD = 0.5  # a turn far above the course noise of the window's end points
 TURN_MIN_SPEED_M_PER_S = 3.0
-# A course from a chord this many of its noise sigmas long (0.2 rad at most); a turn this
+# A course from a chord this many of its noise sigmas long (0.33 rad at most); a turn this
 # many sigmas of the two courses' noise.
-COURSE_MIN_CHORD_SIGMAS = 5.0
-TURN_MIN_SIGMAS = 3.0
+COURSE_MIN_CHORD_SIGMAS = 3.0
+TURN_MIN_SIGMAS = 2.0
 TURN_MIN_WINDOWS = 1  # ratio > 8 needs > 4 rad of gyro rotation in one window: not noise
 # Without turns: the gyro integrated over a window of straight driving stays below this
 # (biases of 1 deg/s and body oscillations give ~0.2 rad in 10 s; deg/s values give rad-sized).
@@ -623,6 +623,16 @@ def _fixes_at_rest(times: np.ndarray, gnss: GnssData, origin: Origin) -> np.ndar
     return out
 
 
+def _horizontal_sigma(gnss: GnssData) -> float:
+    """The fixes' median per-axis horizontal sigma (m): their std east/north where given,
+    else the 3-D sigma (from DOP or the default) over sqrt(3)."""
+    std = gnss.std[:, :2]
+    given = np.all(np.isfinite(std) & (std > 0), axis=1)
+    if given.any():
+        return float(np.median(np.sqrt(np.mean(std[given] ** 2, axis=1))))
+    return float(np.median(fix_sigma(gnss))) / np.sqrt(3.0)
+
+
 def _gyro_turn_ratio(imu, gnss: GnssData, origin: Origin) -> tuple[float, int, float]:
     """Median of |integrated gyro| / |GNSS course change| over windows with a clear turn,
     their number, and the median over them of the gyro's rotation about up over the course
@@ -652,8 +662,8 @@ def _gyro_turn_ratio(imu, gnss: GnssData, origin: Origin) -> tuple[float, int, f
     # The fixes' own noise on a course: its chord must stand well above it, and a turn above
     # the two courses' noise (a robot at 2 m/s through 5 m phone fixes: 10 s "turns" of
     # 30-60 deg that were noise, and "the gyro does not see the turns", an error on valid
-    # data). The per-axis horizontal sigma from the fixes' 3-D one (conservative).
-    chord_sigma = np.sqrt(2.0) * float(np.median(fix_sigma(gnss))) / np.sqrt(3.0)
+    # data).
+    chord_sigma = np.sqrt(2.0) * _horizontal_sigma(gnss)
     length = np.hypot(east, north)
     good = (length / half > TURN_MIN_SPEED_M_PER_S) & (local_gap <= half / 2)
     good &= length >= COURSE_MIN_CHORD_SIGMAS * chord_sigma
