@@ -240,9 +240,7 @@ def prepare_filter(
         white_scale[inside] = [
             inflated.accel_noise / noise.accel_noise, inflated.gyro_noise / noise.gyro_noise
         ]
-    aiding = vehicle_aiding(
-        dataset, config, times, noise, frame.earth_rate, epochs, align.steady_motion_possible
-    )
+    aiding = vehicle_aiding(dataset, config, times, noise, frame.earth_rate, epochs)
     extra, extra_variance = aiding.initial_extra(float(align.position[2]))
     rotation = np.asarray(align.rotation, dtype=float)
     attitude_sigma = configured_heading_sigma(

@@ -140,7 +140,9 @@ class VehicleAiding:
         if np.isfinite(self.baro_height[k]):
             state, cov = kalman_update(state, cov, *self.baro_measurement(k, state, len(cov)))
             self.counts["baro_updates"] += 1
-        self._recent.add(t, float(np.linalg.norm(state.velocity)))
+        self._recent.add(
+            t, float(np.linalg.norm(state.velocity)), stationary.speed_sigma(cov[VEL, VEL])
+        )
         return state, cov
 
     def nhc_measurement(
@@ -201,22 +203,20 @@ def vehicle_aiding(
     noise: ImuNoise,
     earth_rate: np.ndarray,
     epochs: GnssEpochs,
-    moving_at_start: bool,
 ) -> VehicleAiding:
     """The pseudo-measurements of ``dataset`` at the block boundaries ``times``; the GNSS
-    ``epochs`` the filter uses refuse stops where they move (``moving_at_start``: the
-    alignment could not rule out a steady motion before the fixes tell)."""
+    ``epochs`` the filter uses refuse stops where they show a crawl."""
     smoother = config.smoother
     imu = dataset.imu
     mounting = mounting_rotation(smoother.imu_to_vehicle_rpy_deg)
     if smoother.zupt:
         quiet = stationary.quiet_imu(imu, times, noise, before_s=QUIET_WINDOW_S, after_s=0.0)
-        sigma = np.nan_to_num(epochs.position_sigma, nan=np.inf)
-        quiet &= ~stationary.gnss_moving(
-            times, epochs.t, epochs.position, sigma, moving_before_fixes=moving_at_start
-        )
+        # Not the graph's 4 s test of the fixes (stop_candidates): a filter confirms with its
+        # own speed at once, and refusing its first stop at a start that may be a steady
+        # motion let its speed run to 2.6 m/s at rest through 3 m fixes without velocity.
         crawl = stationary.gnss_moving(
-            times, epochs.t, epochs.position, sigma, window_s=stationary.CRAWL_WINDOW_S
+            times, epochs.t, epochs.position, np.nan_to_num(epochs.position_sigma, nan=np.inf),
+            window_s=stationary.CRAWL_WINDOW_S,
         )
         rest_gyro, n_samples = stationary.mean_gyro(imu, times, before_s=QUIET_WINDOW_S)
         window = np.maximum(n_samples, 1) / imu.rate_hz

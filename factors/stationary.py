@@ -122,12 +122,15 @@ SLOWDOWN_WINDOW_S = 10.0
 def slowed_to_a_stop(speed: float, recent_peak: float) -> bool:
     """Did a causal estimate (the Kalman baselines, iSAM2's online pass) slow down to a
     stop: ``speed`` below half ``recent_peak`` (its peak speed over the last
-    ``SLOWDOWN_WINDOW_S``, :class:`RecentSpeeds`), or below a known stop's floor? Its speed
+    ``SLOWDOWN_WINDOW_S`` among those it knew to be above zero, :class:`RecentSpeeds`; 0 when
+    none was: nothing to slow from), or below a known stop's floor? Its speed
     sigma cannot refuse a steady crawl where the fixes are poor (a 2 m/s robot through 5 m
     phone fixes: 0.5 m/s sigma, 2.5 m/s allowed; false stops after its first turn, the
     forward EKF 24 m off) nor in dead reckoning, where the speed cap decides (a 1 m/s crawl
     held still through a whole outage); a vehicle braking to a stop integrates the braking
     to well below half its speed before the IMU is quiet for a second."""
+    if recent_peak <= 0.0:
+        return True  # no speed it knew to be above zero: nothing to slow down from
     return speed < max(STOP_SPEED_FLOOR_M_PER_S, 0.5 * recent_peak)
 
 
@@ -139,7 +142,13 @@ class RecentSpeeds:
         self._window_s = window_s
         self._items: deque[tuple[float, float]] = deque()
 
-    def add(self, t: float, speed: float) -> None:
+    def add(self, t: float, speed: float, sigma: float | None = None) -> None:
+        """The speed after an update, with its sigma when known. A speed within
+        ``PEAK_SPEED_SIGMAS`` of its sigma of zero is kept as 0: an estimate at rest whose
+        fixes have no velocity swings to 0.3-0.6 m/s in its first seconds, and a slow-down
+        from such a "peak" refused the real stop at the start (the urban car's first 2-10 s)."""
+        if sigma is not None and np.isfinite(sigma) and speed <= PEAK_SPEED_SIGMAS * sigma:
+            speed = 0.0
         self._items.append((float(t), float(speed)))
         while self._items and self._items[-1][0] - self._items[0][0] > self._window_s:
             self._items.popleft()
@@ -147,6 +156,9 @@ class RecentSpeeds:
     def peak(self) -> float:
         """The largest speed kept (0 before any: at the start there is nothing to slow from)."""
         return max((speed for _, speed in self._items), default=0.0)
+
+
+PEAK_SPEED_SIGMAS = 3.0
 
 
 # A Kalman filter's speed sigma confirms stops only this soon after a GNSS update: dead

@@ -301,7 +301,6 @@ def _run_isam2_with(
                 "IMU with sparse GNSS); no output written. Try --method batch"
             ) from None
         state = gtsam.NavState(pose, velocity)
-        recent.add(float(times[k]), float(np.linalg.norm(velocity)))
         online_states["rotation"][k] = pose.rotation().matrix()
         online_states["position"][k] = pose.translation()
         online_states["velocity"][k] = velocity
@@ -319,6 +318,10 @@ def _run_isam2_with(
                 if factorization == "CHOLESKY":
                     raise _IndeterminateUpdate from None
                 # QR could not resolve this marginal either: left NaN (reported as unknown).
+        recent.add(
+            float(times[k]), float(np.linalg.norm(velocity)),
+            stationary.speed_sigma(online["velocity"][k]),
+        )  # fmt: skip
         if leaving:
             left.insert(isam.calculateEstimate(leaving))
             _isam2_marginalize(isam, factorization, leaving)
