@@ -14,7 +14,10 @@ configuration keys and sigmas, applied at the filter's block boundaries:
   graph's rate keeps the comparison about the estimator.
 - **ZUPT** (``config.smoother.zupt``): where the IMU has been quiet over the last second
   (:func:`fgins.factors.stationary.quiet_imu`, causal window) *and* the filter's own current
-  speed is below ``zupt_max_speed_m_per_s``: velocity = 0 (sigma ``zupt_sigma_m_per_s``) and
+  speed is below ``zupt_max_speed_m_per_s`` (within 5 sigma of zero while fixes aid it), no
+  12 s chord of fixes shows a crawl at that speed (:func:`~fgins.factors.stationary.crawl_refuses_stop`)
+  and the filter saw itself slow down (:func:`~fgins.factors.stationary.slowed_to_a_stop`):
+  velocity = 0 (sigma ``zupt_sigma_m_per_s``) and
   zero angular rate, the mean gyro over that second = gyro bias + Earth rate in the body
   (sigma: its white noise averaged over the window, plus the graph's 0.01 deg/s no-motion
   allowance). The latter is what makes a stop observe the gyro biases.
