@@ -560,7 +560,7 @@ def _check_shrunk_track(gnss: GnssData, enu: np.ndarray, sigma: np.ndarray) -> N
 
 
 def _gyro_at_rest(imu, gnss: GnssData, origin: Origin, window_s: float = 1.0) -> float:
-    """Median gyro-rate norm over 1-s windows where the vehicle is at rest: a steady specific
+    """Low-end (10 %) gyro-rate norm over 1-s windows where the vehicle is at rest: a steady specific
     force of ~g (which a steady turn also shows: 8 m/s around a 30 m circle is 0.27 rad/s
     at 10.0 m/s^2, and such test-track drives were refused as "gyro in deg/s") and fixes
     around it that stay together (:func:`_fixes_at_rest`). That is the gyro bias plus Earth
@@ -580,7 +580,15 @@ def _gyro_at_rest(imu, gnss: GnssData, origin: Origin, window_s: float = 1.0) ->
         rest[rest] = _fixes_at_rest(middle[rest], gnss, origin)
     if rest.sum() < 3:
         return 0.0
-    return float(np.median(np.linalg.norm(gyro[rest].mean(axis=1), axis=1)))
+    # The low end, not the median: a vehicle turning in place (a skid-steer robot, a tracked
+    # vehicle) also reads a steady ~g with fixes that stay together, and a field robot that
+    # spun at 0.5 rad/s for longer than it stood still was refused as "gyro in deg/s". A
+    # bias read in the wrong unit is the same in every window at rest, so also at the low end.
+    return float(np.quantile(np.linalg.norm(gyro[rest].mean(axis=1), axis=1), REST_RATE_QUANTILE))
+
+
+# The quantile of the rest windows' gyro rates taken as the rest rate (see _gyro_at_rest).
+REST_RATE_QUANTILE = 0.1
 
 
 # Fixes within this many seconds of a moment, all within this many metres (or this many of

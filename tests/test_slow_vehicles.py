@@ -110,3 +110,33 @@ def test_an_online_pass_that_does_not_fit_its_fixes_says_so(tmp_path):
         stationary.crawl_refuses_stop, stationary.slowed_to_a_stop = original
     said = [w for w in online.info.get("fit_warnings", []) if "does not fit the GNSS fixes" in w]
     assert _outage_rms(online, tmp_path) > 5.0 and said, online.info.get("fit_warnings")
+
+
+def test_a_robot_turning_in_place_is_not_a_gyro_in_deg_per_s(tmp_path):
+    """A skid-steer robot stands 10 s, spins twice in place at 0.5 rad/s (25 s), then drives.
+    Spinning in place reads like rest to the at-rest test (a steady ~g, fixes that stay
+    together), and the median rate over those windows, the spin's, was taken for the gyro's
+    bias: "the gyro looks like deg/s, not rad/s: it reads 0.48". Now the low end of the rest
+    windows' rates is (a bias read in the wrong unit is in all of them); such a gyro really
+    in deg/s is still refused."""
+    import pandas as pd
+
+    spin_end = 10.0 + 4.0 * np.pi / 0.5
+    turns = [(10.0, spin_end, 1.0, 0.5)] + [
+        (spin_end + 30 + 40 * i, spin_end + 35 + 40 * i, 2, 0.3 * (-1) ** i) for i in range(3)
+    ]
+    profile = CarProfile(steps=[(spin_end + 2, 5, 5.0)], turns=turns, gamma=lambda t: 0.0 * t)
+    write_drive(tmp_path, profile, 180.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
+                gnss_rate=1.0, seed=1)  # fmt: skip
+    paths = (tmp_path / "imu.csv", tmp_path / "gnss.csv")
+    dataset = fgins.load(*paths, config=tmp_path / "cfg.toml", vehicle="car")
+    window = (100.0, 140.0)
+    t, error = horizontal_errors(fgins.smooth(dataset, "batch", gnss_outage=[window]), tmp_path)
+    inside = (t >= window[0]) & (t < window[1])
+    assert np.sqrt(np.mean(error[inside] ** 2)) < 1.0
+
+    imu = pd.read_csv(paths[0])
+    imu[["gyro_x", "gyro_y", "gyro_z"]] *= 180.0 / np.pi
+    imu.to_csv(paths[0], index=False, float_format="%.10e")
+    with pytest.raises(fgins.InputError, match="deg/s"):
+        fgins.load(*paths, config=tmp_path / "cfg.toml", vehicle="car")
