@@ -25,6 +25,10 @@ TURN_MIN_SPEED_M_PER_S = 3.0
 # many sigmas of the two courses' noise.
 COURSE_MIN_CHORD_SIGMAS = 3.0
 TURN_MIN_SIGMAS = 2.0
+REVERSAL_TOL_RAD = math.radians(40.0)  # a window's course flip within this of 180 deg: a reversal
+# A course step between chords 2.5 s apart above this: a reversal (a car turning at 0.5 rad/s
+# steps 72 deg; reversing while turning so, 108 deg).
+REVERSAL_STEP_MIN_RAD = math.radians(100.0)
 TURN_MIN_WINDOWS = 1  # ratio > 8 needs > 4 rad of gyro rotation in one window: not noise
 # Without turns: the gyro integrated over a window of straight driving stays below this
 # (biases of 1 deg/s and body oscillations give ~0.2 rad in 10 s; deg/s values give rad-sized).
@@ -691,9 +695,25 @@ def _gyro_turn_ratio(imu, gnss: GnssData, origin: Origin) -> tuple[float, int, f
             for k in range(3)
         ]
     )
-    moving = good[i0] & good[i1]
+    # Moving at both ends, and no reversal in between: a land vehicle that reverses (a
+    # forklift, a tractor, a parking manoeuvre) flips its course by 180 deg less what it
+    # turned meanwhile from one chord to the next (2.5 s apart), more than any vehicle turns
+    # in that time at speed; its course over the window is no turn of the track.
+    # So is a window through which the vehicle slowed to less than half its speed at either
+    # end: through a reversal a chord's course is any direction in between.
+    step = np.mod(np.diff(course) + np.pi, 2.0 * np.pi) - np.pi
+    flip = np.abs(step) > REVERSAL_STEP_MIN_RAD
+    moving = good[i0] & good[i1] & ~np.any([flip[i0 + j] for j in range(span)], axis=0)
+    speed = length / half
+    slowest = np.min([speed[i0 + j] for j in range(1, span)], axis=0)
+    moving &= slowest >= 0.5 * np.minimum(speed[i0], speed[i1])
     rotated = np.linalg.norm(rotation, axis=1)
     signed_turn = course[i1] - course[i0]  # compass course: clockwise positive
+    # Nor a flip over the whole window (a vehicle shuttling back and forth was refused: "the
+    # gyro does not see the turns", 0.002 times); a U-turn within one window is lost as
+    # evidence with them, the other turns still count.
+    wrapped = np.mod(signed_turn + np.pi, 2.0 * np.pi) - np.pi
+    moving &= np.abs(wrapped) < np.pi - REVERSAL_TOL_RAD
     turn_noise = np.hypot(course_sigma[i0], course_sigma[i1])
     use = moving & (np.abs(signed_turn) > np.maximum(TURN_MIN_RAD, TURN_MIN_SIGMAS * turn_noise))
     if use.any():

@@ -140,3 +140,27 @@ def test_a_robot_turning_in_place_is_not_a_gyro_in_deg_per_s(tmp_path):
     imu.to_csv(paths[0], index=False, float_format="%.10e")
     with pytest.raises(fgins.InputError, match="deg/s"):
         fgins.load(*paths, config=tmp_path / "cfg.toml", vehicle="car")
+
+
+@pytest.mark.parametrize(("speed", "period", "turn_rate", "seed"), [(8.0, 12.0, 0.0, 2), (5.0, 15.0, 0.3, 1)])
+def test_a_vehicle_shuttling_back_and_forth_is_not_a_dead_gyro(tmp_path, speed, period, turn_rate, seed):
+    """A forklift or a tractor drives forward, reverses, drives forward... (here every 12-15
+    s, with or without turns). Each reversal flips the GNSS track's course by 180 deg while
+    the gyro turns little: the turn check read 30-54 such windows as turns the gyro did not
+    see ("the gyro does not see the turns ... 0.002 times"), an error on valid data. Windows
+    through a reversal are no turns now, and the batch bridges an outage as usual."""
+    steps = [(10.0, 3.0, speed)]
+    start = 10.0 + period
+    while start < 200.0:
+        steps += [(start, 3.0, -2.0 * speed), (start + period, 3.0, 2.0 * speed)]
+        start += 2.0 * period
+    turns = [(40 + 50 * i, 45 + 50 * i, 1.5, turn_rate * (-1) ** i) for i in range(4)] if turn_rate else []
+    profile = CarProfile(steps=steps, turns=turns, gamma=lambda t: 0.0 * t)
+    write_drive(tmp_path, profile, 220.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
+                gnss_rate=1.0, seed=seed)  # fmt: skip
+    dataset = fgins.load(tmp_path / "imu.csv", tmp_path / "gnss.csv", config=tmp_path / "cfg.toml",
+                         vehicle="car")  # fmt: skip
+    window = (120.0, 160.0)
+    t, error = horizontal_errors(fgins.smooth(dataset, "batch", gnss_outage=[window]), tmp_path)
+    inside = (t >= window[0]) & (t < window[1])
+    assert np.sqrt(np.mean(error[inside] ** 2)) < 1.0
