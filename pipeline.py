@@ -423,12 +423,13 @@ def _filter_fit_note(
             "tilt (a hill's grade or a bank is taken for acceleration: 0.8 m/s^2 at 8 %), or "
             if method == "planar-kf" else ""
         )  # fmt: skip
+        estimate = "online estimate" if method == "isam2-online" else "filter"
         return [(
             f"{method}: its track does not fit the GNSS fixes it used: horizontal residuals "
             f"chi2/dof {chi2:.3g} (about 1 or below expected from their sigmas); {planar}the "
-            f"{'online estimate' if method == 'isam2-online' else 'filter'} diverged (IMU gaps, axes or units, noise too small for this IMU, IMU and GNSS on "
-            "different clocks: --time-offset), it took a crawl for a stop, or the GNSS sigmas "
-            "are too small: compare --method batch, which checks its own fit"
+            f"{estimate} diverged (IMU gaps, axes or units, noise too small for this IMU, IMU "
+            "and GNSS on different clocks: --time-offset), it took a crawl for a stop, or the "
+            "GNSS sigmas are too small: compare --method batch, which checks its own fit"
         ), *heights_only]
     nis = float(trajectory.info.get("gnss_nis_median", math.nan))
     if np.isfinite(nis) and nis > FILTER_NIS_MAX:

@@ -76,7 +76,7 @@ class VehicleAiding:
     zupt: bool
     zupt_sigma: float
     zupt_max_speed: float
-    quiet: np.ndarray  # (K,) IMU quiet over the last QUIET_WINDOW_S, the fixes not moving
+    quiet: np.ndarray  # (K,) IMU quiet over the last QUIET_WINDOW_S
     crawl: np.ndarray  # (K,) the fixes moved over the last stationary.CRAWL_WINDOW_S
     rest_gyro: np.ndarray  # (K, 3) mean gyro over that window
     rest_gyro_sigma: np.ndarray  # (K,) per-axis sigma of that mean as a rate measurement
@@ -195,8 +195,6 @@ class VehicleAiding:
         fall = plane_fall(state.position, self.origin)[0]
         residual = np.array([self.baro_height[k] - fall - state.position[2] - state.extra[0]])
         return residual, h, np.array([self.baro_sigma**2])
-
-
 
 
 def vehicle_aiding(

@@ -645,6 +645,11 @@ def _horizontal_sigma(gnss: GnssData) -> float:
     return float(np.median(fix_sigma(gnss))) / np.sqrt(3.0)
 
 
+def _wrapped(angle: np.ndarray) -> np.ndarray:
+    """Angles (rad) wrapped into [-pi, pi)."""
+    return np.mod(angle + np.pi, 2.0 * np.pi) - np.pi
+
+
 def _gyro_turn_ratio(imu, gnss: GnssData, origin: Origin) -> tuple[float, int, float]:
     """Median of |integrated gyro| / |GNSS course change| over windows with a clear turn,
     their number, and the median over them of the gyro's rotation about up over the course
@@ -677,7 +682,8 @@ def _gyro_turn_ratio(imu, gnss: GnssData, origin: Origin) -> tuple[float, int, f
     # data).
     chord_sigma = np.sqrt(2.0) * _horizontal_sigma(gnss)
     length = np.hypot(east, north)
-    good = (length / half > TURN_MIN_SPEED_M_PER_S) & (local_gap <= half / 2)
+    speed = length / half
+    good = (speed > TURN_MIN_SPEED_M_PER_S) & (local_gap <= half / 2)
     good &= length >= COURSE_MIN_CHORD_SIGMAS * chord_sigma
     course_sigma = chord_sigma / np.maximum(length, 1e-9)
     course = np.unwrap(np.arctan2(east, north))
@@ -695,25 +701,21 @@ def _gyro_turn_ratio(imu, gnss: GnssData, origin: Origin) -> tuple[float, int, f
             for k in range(3)
         ]
     )
-    # Moving at both ends, and no reversal in between: a land vehicle that reverses (a
-    # forklift, a tractor, a parking manoeuvre) flips its course by 180 deg less what it
-    # turned meanwhile from one chord to the next (2.5 s apart), more than any vehicle turns
-    # in that time at speed; its course over the window is no turn of the track.
-    # So is a window through which the vehicle slowed to less than half its speed at either
-    # end: through a reversal a chord's course is any direction in between.
-    step = np.mod(np.diff(course) + np.pi, 2.0 * np.pi) - np.pi
-    flip = np.abs(step) > REVERSAL_STEP_MIN_RAD
-    moving = good[i0] & good[i1] & ~np.any([flip[i0 + j] for j in range(span)], axis=0)
-    speed = length / half
-    slowest = np.min([speed[i0 + j] for j in range(1, span)], axis=0)
-    moving &= slowest >= 0.5 * np.minimum(speed[i0], speed[i1])
     rotated = np.linalg.norm(rotation, axis=1)
     signed_turn = course[i1] - course[i0]  # compass course: clockwise positive
-    # Nor a flip over the whole window (a vehicle shuttling back and forth was refused: "the
-    # gyro does not see the turns", 0.002 times); a U-turn within one window is lost as
-    # evidence with them, the other turns still count.
-    wrapped = np.mod(signed_turn + np.pi, 2.0 * np.pi) - np.pi
-    moving &= np.abs(wrapped) < np.pi - REVERSAL_TOL_RAD
+    # Moving at both ends, and no reversal: a land vehicle that reverses (a forklift, a
+    # tractor, a parking manoeuvre) flips its course without turning (a vehicle shuttling
+    # back and forth was refused: "the gyro does not see the turns", 0.002 times). A window
+    # is left out when its course flips by nearly 180 deg; when it flips from one chord to
+    # the next (2.5 s apart) by 180 deg less what it turned meanwhile, more than any vehicle
+    # turns in that time at speed; or when the vehicle slowed in between to less than half
+    # its speed at either end (through a reversal a chord's course is any direction). A
+    # U-turn within one window is lost as evidence with them; the other turns still count.
+    flip = np.abs(_wrapped(np.diff(course))) > REVERSAL_STEP_MIN_RAD
+    slowest = np.min([speed[i0 + j] for j in range(1, span)], axis=0)
+    moving = good[i0] & good[i1] & ~np.any([flip[i0 + j] for j in range(span)], axis=0)
+    moving &= slowest >= 0.5 * np.minimum(speed[i0], speed[i1])
+    moving &= np.abs(_wrapped(signed_turn)) < np.pi - REVERSAL_TOL_RAD
     turn_noise = np.hypot(course_sigma[i0], course_sigma[i1])
     use = moving & (np.abs(signed_turn) > np.maximum(TURN_MIN_RAD, TURN_MIN_SIGMAS * turn_noise))
     if use.any():
