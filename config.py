@@ -288,6 +288,7 @@ IMU_KEYS = {
     "integration_sigma_m_per_s2_per_sqrt_hz",
     "rate_hz",
     "sample_timing",
+    "noise_from_data",
 }
 
 IMU_SAMPLE_TIMINGS = ("instant", "held")  # fgins.factors.imu_samples.SAMPLE_TIMINGS
@@ -326,6 +327,9 @@ IMU_SCHEMA: dict[str, Check] = {
     # What a sample stands for in time (fgins.factors.imu_samples): "instant" (a reading at
     # its time stamp, the default) or "held" (the mean over the interval to the next one).
     "sample_timing": Check("str", choices=IMU_SAMPLE_TIMINGS),
+    # false: keep the configured white noise even where the data at rest show more
+    # (fgins.noise_at_rest).
+    "noise_from_data": Check("bool"),
 }
 assert set(IMU_SCHEMA) == IMU_KEYS | {"preset"}
 

@@ -39,14 +39,61 @@ def run_method(
 ) -> Trajectory:
     check_imu_gaps(dataset, config, gnss_mask)
     dataset = integration_samples(dataset, config)
+    config, noise_note = _noise_from_data(dataset, config, gnss_mask)
     config, mounting_note = _check_mounting(dataset, config, gnss_mask, progress)
     trajectory = _run(dataset, config, method, gnss_mask, progress)
-    notes = [mounting_note, _unknown_height(dataset, trajectory), _nose_off_track(config, trajectory)]
+    notes = [noise_note, mounting_note, _unknown_height(dataset, trajectory), _nose_off_track(config, trajectory)]
     if config.smoother.initial_heading_deg is None:  # else the configured heading is known
         notes.append(unobservable_heading(dataset, trajectory))
     for note in filter(None, notes):
         trajectory.info.setdefault("fit_warnings", []).append(note)
     return trajectory
+
+
+# The densities the [imu] schema allows (fgins.config.IMU_SCHEMA): a measured one beyond them
+# is clipped there (a log that vibrates that much is refused by its unit checks first).
+MAX_GYRO_DENSITY = 1.0
+MAX_ACCEL_DENSITY = 2.0
+
+
+def _noise_from_data(
+    dataset: Dataset, config: RunConfig, gnss_mask: np.ndarray | None
+) -> tuple[RunConfig, str | None]:
+    """The configured white noise, or (a copy of ``config``, said in a warning) the noise
+    the IMU shows at rest where that is more than NOISE_EXCESS times larger
+    (:mod:`fgins.noise_at_rest`): every method then weighs the IMU by what it reads."""
+    if not config.imu.get("noise_from_data", True):
+        return config, None
+    from fgins.noise_at_rest import NOISE_EXCESS, noise_excess, white_noise_at_rest
+
+    measured = white_noise_at_rest(dataset, gnss_mask)
+    if measured is None:
+        return config, None
+    noise = config.imu_noise()
+    excess = noise_excess(measured, noise.gyro_noise, noise.accel_noise)
+    if not excess:
+        return config, None
+    imu = dict(config.imu)
+    said = []
+    for sensor, synonym, key, configured, unit, most in (
+        ("gyro", "gyro_arw_deg_per_sqrt_hr", "gyro_noise_rad_per_s_per_sqrt_hz",
+         noise.gyro_noise, "rad/s", MAX_GYRO_DENSITY),
+        ("accel", "accel_vrw_m_per_s_per_sqrt_hr", "accel_noise_m_per_s2_per_sqrt_hz",
+         noise.accel_noise, "m/s^2", MAX_ACCEL_DENSITY),
+    ):  # fmt: skip
+        if sensor in excess:
+            imu.pop(synonym, None)
+            imu[key] = min(excess[sensor], most)
+            said.append(
+                f"{sensor} {excess[sensor]:.3g} {unit}/sqrt(Hz), {excess[sensor] / configured:.1f}"
+                f" times the configured {configured:.3g}"
+            )
+    return replace(config, imu=imu), (
+        f"imu: at rest ({measured.rest_s:.0f} s of the log) the IMU reads more white noise "
+        f"than configured (over {NOISE_EXCESS:g} times): {'; '.join(said)}. Vibration or a "
+        "noisier sensor: the measured noise is used (a floor: a moving vehicle vibrates more). "
+        "[imu] noise_from_data = false keeps the configured noise"
+    )
 
 
 def _unknown_height(dataset: Dataset, trajectory: Trajectory) -> str | None:
