@@ -597,6 +597,9 @@ class SmootherConfig:
     baro_bias_walk_m_per_sqrt_s: float = 0.05
     isam2_relinearize_threshold: float = 0.1
     batch_max_iterations: int = 100
+    # The batch estimates the gyro's per-axis scale errors from its solution and corrects
+    # those both significant and above 0.2 % (fgins.graph.gyro_scale); false: never.
+    estimate_gyro_scale: bool = True
 
     def __post_init__(self) -> None:
         for name, value in check_fields(self, SMOOTHER_SCHEMA, "smoother").items():

@@ -12,6 +12,7 @@ import gtsam
 import numpy as np
 
 from fgins.datatypes import FginsError, Trajectory
+from fgins.graph.gyro_scale import correct_gyro_scale
 from fgins.graph.isam2 import run_isam2
 from fgins.graph.problem import Problem, bias_estimates
 from fgins.graph.reports import (
@@ -117,6 +118,9 @@ def smooth_batch(
         report, result, graph = _fall_back(problem, source, others, report, result, graph)
     report.start = source  # a restart says so in report.fallback
     report, result, graph = solve_with_stops(problem, report, result, graph)
+    scale_info: dict[str, object] = {}
+    if not is_suspect(report):
+        result, graph, scale_info = correct_gyro_scale(problem, report, result, graph)
     fail_if_diverged(report)
     if not report.converged:
         raise FginsError(
@@ -141,6 +145,7 @@ def smooth_batch(
         solver_report(report),
         vehicle_fit_report(problem, result),
         covariance_report(covariances),
+        scale_info,
         {
             "initial_guess": source,
             "zupt_keyframes": len(problem.zupt_keyframes),

@@ -6,7 +6,7 @@ priors from the initial alignment, and an initial guess for every keyframe.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import gtsam
@@ -604,6 +604,17 @@ class Problem:
         for i in redo:
             self.preintegrate(int(i), gtsam.imuBias.ConstantBias(estimate[i, :3], estimate[i, 3:]))
         return redo
+
+    def rescale_gyro(self, scale: np.ndarray, values: gtsam.Values) -> None:
+        """Divide the gyro's samples by ``scale`` (per axis: read over true rate) and
+        re-preintegrate every interval about its bias in ``values``
+        (:mod:`fgins.graph.gyro_scale`)."""
+        imu = self.dataset.imu
+        corrected = replace(imu, gyro=imu.gyro / np.asarray(scale, dtype=float)[None, :])
+        self.dataset = replace(self.dataset, imu=corrected)
+        estimate = bias_estimates(values, self.n_keyframes)[:-1]
+        for i in range(self.n_keyframes - 1):
+            self.preintegrate(i, gtsam.imuBias.ConstantBias(estimate[i, :3], estimate[i, 3:]))
 
     def predict(
         self, k: int, state: gtsam.NavState, bias: gtsam.imuBias.ConstantBias
