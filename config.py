@@ -502,6 +502,10 @@ class GnssConfig:
     cauchy_k: float | None = None  # redescending: rejects gross jumps (takes precedence)
     use_velocity: bool = True
     velocity_sigma_m_per_s: float | None = None
+    # Fixes that fit time stamps late or early against the IMU's (told apart from a lever
+    # arm: fgins.graph.reports.lever_arm_report) are moved and the drive solved again
+    # (batch, iSAM2); false: only said.
+    time_offset_from_data: bool = True
     course_min_speed_m_per_s: float = 3.0
 
     def __post_init__(self) -> None:

@@ -312,22 +312,53 @@ def position_factor(
 
 
 def lever_arm_key() -> int:
-    """The key of an antenna lever arm that is estimated (:func:`lever_arm_check_factor`)."""
+    """The key of an antenna lever arm that is estimated (:func:`antenna_check_factor`)."""
     import gtsam
 
     return gtsam.symbol("l", 0)
 
 
-def lever_arm_check_factor(
-    pose_key: int, position_enu: np.ndarray, sigma: np.ndarray, config: GnssConfig
-):  # -> gtsam.NonlinearFactor
-    """The GNSS position factor of :func:`position_factor` with the lever arm a variable
-    (:func:`lever_arm_key`, body axes): for the check that the configured arm fits."""
+def time_offset_key() -> int:
+    """The key of a GNSS time offset that is estimated (:func:`antenna_check_factor`)."""
     import gtsam
 
-    return gtsam.GPSFactorArmCalib(
-        pose_key, lever_arm_key(), position_enu, position_noise_model(sigma, config)
-    )
+    return gtsam.symbol("d", 0)
+
+
+def antenna_check_factor(
+    pose_key: int,
+    rotation: np.ndarray,
+    imu_position: np.ndarray,
+    velocity: np.ndarray,
+    position_enu: np.ndarray,
+    sigma: np.ndarray,
+    config: GnssConfig,
+):  # -> gtsam.JacobianFactor
+    """A GNSS position factor linearised at a solution, with the lever arm
+    (:func:`lever_arm_key`, body axes) and a time offset (:func:`time_offset_key`, s: the
+    fix stamped ``d`` late was taken where the antenna was ``d`` earlier) as variables
+    about the configured arm and no offset. Rows whitened by the fix's sigmas and the
+    configured kernel's weight at the solution's residual (GTSAM's IRLS weight)."""
+    import gtsam
+
+    arm = np.asarray(config.lever_arm_m, dtype=float)
+    residual = imu_position + rotation @ arm - np.asarray(position_enu, dtype=float)
+    whiten = 1.0 / np.asarray(sigma, dtype=float)
+    norm = float(np.linalg.norm(residual * whiten))
+    weight = 1.0
+    if config.cauchy_k is not None:
+        weight = 1.0 / (1.0 + (norm / config.cauchy_k) ** 2)
+    elif config.huber_k is not None and norm > config.huber_k:
+        weight = config.huber_k / norm
+    rows = np.sqrt(weight) * whiten[:, None]
+    skew = np.array([[0.0, -arm[2], arm[1]], [arm[2], 0.0, -arm[0]], [-arm[1], arm[0], 0.0]])
+    pose_jacobian = np.hstack([-rotation @ skew, rotation])  # Pose3: rotation, then translation
+    return gtsam.JacobianFactor(
+        pose_key, rows * pose_jacobian,
+        lever_arm_key(), rows * rotation,
+        time_offset_key(), rows * -np.asarray(velocity, dtype=float)[:, None],
+        -(rows[:, 0] * residual), gtsam.noiseModel.Unit.Create(3),
+    )  # fmt: skip
 
 
 def lever_arm_prior(config: GnssConfig, sigma_m: float):  # -> gtsam.NonlinearFactor
