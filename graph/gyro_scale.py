@@ -184,7 +184,7 @@ def _info(error: np.ndarray, sigma: np.ndarray, axes: np.ndarray) -> dict[str, o
         )
         info["fit_warnings"] = [
             f"imu: the gyro reads turns larger or smaller than the solution shows (scale "
-            f"error {found}): corrected in the batch (the Kalman baselines and iSAM2 do not "
-            "model it); [smoother] estimate_gyro_scale = false turns this off"
+            f"error {found}): corrected in the smoother (the Kalman baselines do not model "
+            "it); [smoother] estimate_gyro_scale = false turns this off"
         ]
     return info

@@ -19,6 +19,7 @@ from fgins.datatypes import FginsError, Trajectory
 from fgins.factors import odometer as odometer_model
 from fgins.factors import stationary
 from fgins.factors.values import put_bias, put_double, put_pose, put_vector
+from fgins.graph.gyro_scale import correct_gyro_scale
 from fgins.graph.output import KeyframeStates
 from fgins.graph.problem import Problem
 from fgins.graph.reports import (
@@ -516,6 +517,17 @@ def smooth_isam2(
             isam, result, online_states, online, report, update_s = retry
             report.fallback = "relinearised at every update (the default schedule diverged)"
     refined = _refined_by_lm(problem, report, result) if is_suspect(report) else None
+    scale_info: dict[str, object] = {}
+    if refined is None and not is_suspect(report):
+        final_graph = compact_graph(isam.getFactorsUnsafe())
+        scaled, scaled_graph, scale_info = correct_gyro_scale(problem, report, result, final_graph)
+        if scaled is not result:  # a scale corrected: LM from the iSAM2 estimate solved again
+            refined = (scaled, scaled_graph)
+            report.fallback = "; ".join(filter(None, [
+                report.fallback,
+                "gyro scale corrected: solved again by Levenberg-Marquardt from the iSAM2 "
+                "estimate",
+            ]))  # fmt: skip
     fail_if_diverged(report)
     incremental = time.perf_counter()
     report.notes = []
@@ -549,6 +561,7 @@ def smooth_isam2(
             solver_report(report),
             vehicle_fit_report(problem, result),
             covariance_report(covariances),
+            scale_info,
             {
                 "python_callback_factors": callback_factors(factors),
                 "zupt_keyframes": len(problem.zupt_keyframes),

@@ -53,31 +53,34 @@ def _outage_rms_and_ratio(track, folder: Path) -> tuple[float, float]:
     return rms, rms / float(np.sqrt(np.mean(sigma[inside] ** 2)))
 
 
-def _smooth(folder: Path, extra: str = ""):
+def _smooth(folder: Path, extra: str = "", method: str = "batch"):
     config = folder / "run.toml"
     config.write_text((folder / "cfg.toml").read_text() + extra)
     dataset = fgins.load(folder / "imu.csv", folder / "gnss.csv", config=config, vehicle="car")
-    return fgins.smooth(dataset, "batch", gnss_outage=OUTAGES)
+    return fgins.smooth(dataset, method, gnss_outage=OUTAGES)
 
 
 @pytest.mark.parametrize(
-    "scale, axes, rate, seed",
-    [(0.01, "z", 100.0, 1), (-0.02, "xyz", 200.0, 2), (0.03, "xyz", 50.0, 3)],
-)
-def test_a_gyro_scale_error_is_found_and_corrected(tmp_path, scale, axes, rate, seed):
+    "scale, axes, rate, seed, method",
+    [(0.01, "z", 100.0, 1, "batch"), (-0.02, "xyz", 200.0, 2, "batch"),
+     (0.03, "xyz", 50.0, 3, "isam2")],
+)  # fmt: skip
+def test_a_gyro_scale_error_is_found_and_corrected(tmp_path, scale, axes, rate, seed, method):
     _drive(tmp_path, rate, seed, scale, axes)
-    corrected = _smooth(tmp_path)
+    corrected = _smooth(tmp_path, method=method)
     error = np.array(corrected.info["gyro_scale_error"])
     sigma = np.array(corrected.info["gyro_scale_sigma"])
     assert corrected.info["gyro_scale_corrected"] == [False, False, True]  # a car turns about z
     assert abs(error[2] - scale) < max(3 * sigma[2], 0.001), (error, sigma)
     said = [w for w in corrected.info["fit_warnings"] if "scale error z" in w]
     assert len(said) == 1 and "estimate_gyro_scale = false" in said[0]
-    kept = _smooth(tmp_path, "\n[smoother]\nestimate_gyro_scale = false\n")
+    if method == "isam2":
+        assert "gyro scale corrected" in corrected.info["solver"]
+    kept = _smooth(tmp_path, "\n[smoother]\nestimate_gyro_scale = false\n", method)
     assert "gyro_scale_error" not in kept.info
     # The same drive with a true gyro, for reference.
     _drive(tmp_path, rate, seed, 0.0, "")
-    true_gyro = _smooth(tmp_path)
+    true_gyro = _smooth(tmp_path, method=method)
     assert true_gyro.info["gyro_scale_corrected"] == [False, False, False]
     rms, ratio = _outage_rms_and_ratio(corrected, tmp_path)
     rms_kept, ratio_kept = _outage_rms_and_ratio(kept, tmp_path)
