@@ -219,6 +219,23 @@ def horizontal_errors(track, folder: Path, origin=(45.0, 10.0, 100.0)) -> tuple[
     return t, error
 
 
+# Five quarter-ish turns, left and right, over a 280 s drive (start, end, ramp s, yaw rate).
+FIVE_TURNS = [(40, 50, 3, 0.12), (90, 100, 3, -0.15), (130, 145, 3, 0.1),
+              (180, 190, 3, -0.12), (230, 240, 3, 0.15)]  # fmt: skip
+
+
+def outage_rms_and_sigma(track, folder: Path, windows) -> tuple[float, float]:
+    """Horizontal RMS error inside ``windows`` against ``folder/truth.csv``, and the RMS of
+    the horizontal sigma the track reports there (their ratio: how honest the sigmas are)."""
+    t, error = horizontal_errors(track, folder)
+    frame = track.to_dataframe()
+    sigma = np.hypot(frame["std_east"], frame["std_north"]).to_numpy()
+    inside = np.zeros(len(t), bool)
+    for start, end in windows:
+        inside |= (t >= start) & (t < end)
+    return float(np.sqrt(np.mean(error[inside] ** 2))), float(np.sqrt(np.mean(sigma[inside] ** 2)))
+
+
 def turn_imu_axes(folder: Path, turn: str) -> None:
     """Rewrite ``folder/imu.csv`` as read by an IMU mounted otherwise: ``"rfu"`` x right,
     y forward, z up; ``"backward"`` x back, y right, z up (from the FLU samples)."""

@@ -13,23 +13,20 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 import pytest
 
 import fgins
 
 sys.path.insert(0, str(Path(__file__).parent))
-from independent_sim import INDUSTRIAL, CarProfile, horizontal_errors, write_drive
+from independent_sim import FIVE_TURNS, INDUSTRIAL, CarProfile, outage_rms_and_sigma, write_drive
 
-TURNS = [(40, 50, 3, 0.12), (90, 100, 3, -0.15), (130, 145, 3, 0.1),
-         (180, 190, 3, -0.12), (230, 240, 3, 0.15)]  # fmt: skip
 OUTAGES = [(60.0, 105.0), (175.0, 215.0)]
 STOP_AND_GO = [(10, 8, 12.0), (70, 6, -8.0), (110, 5, 10.0), (160, 6, -12.0), (172, 6, 9.0)]
 
 
 def _drive(folder: Path, steps, seed: int, shift_s: float = 0.0, arm=(0.0, 0.0, 0.0)) -> None:
-    profile = CarProfile(steps=steps, turns=TURNS, gamma=lambda t: 0 * t)
+    profile = CarProfile(steps=steps, turns=FIVE_TURNS, gamma=lambda t: 0 * t)
     write_drive(folder, profile, 280.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
                 gnss_rate=1.0, seed=seed, lever_arm=arm)  # fmt: skip
     if shift_s:
@@ -46,11 +43,7 @@ def _smooth(folder: Path, method: str = "batch", extra: str = "", outages=OUTAGE
 
 
 def _outage_rms(track, folder: Path) -> float:
-    t, error = horizontal_errors(track, folder)
-    inside = np.zeros(len(t), bool)
-    for start, end in OUTAGES:
-        inside |= (t >= start) & (t < end)
-    return float(np.sqrt(np.mean(error[inside] ** 2)))
+    return outage_rms_and_sigma(track, folder, OUTAGES)[0]
 
 
 @pytest.mark.parametrize(

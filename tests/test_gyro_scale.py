@@ -23,17 +23,22 @@ from fgins.graph import gyro_scale
 
 sys.path.insert(0, str(Path(__file__).parent))
 from flight_sim import FixedWing, write_flight
-from independent_sim import INDUSTRIAL, CarProfile, horizontal_errors, turn_imu_axes, write_drive
+from independent_sim import (
+    FIVE_TURNS,
+    INDUSTRIAL,
+    CarProfile,
+    outage_rms_and_sigma,
+    turn_imu_axes,
+    write_drive,
+)
 
-TURNS = [(40, 50, 3, 0.12), (90, 100, 3, -0.15), (130, 145, 3, 0.1),
-         (180, 190, 3, -0.12), (230, 240, 3, 0.15)]  # fmt: skip
 OUTAGES = [(60.0, 105.0), (175.0, 215.0)]
 
 
 def _drive(folder: Path, rate: float, seed: int, scale: float, axes: str) -> None:
     """The independent simulator's car (rest 10 s, then 15 m/s through five turns), its
     gyro's ``axes`` reading ``1 + scale`` times the true rate."""
-    profile = CarProfile(steps=[(10, 8, 15.0)], turns=TURNS, gamma=lambda t: 0 * t)
+    profile = CarProfile(steps=[(10, 8, 15.0)], turns=FIVE_TURNS, gamma=lambda t: 0 * t)
     write_drive(folder, profile, 280.0, grade=INDUSTRIAL, imu_rate=rate, jitter=0.0,
                 gnss_rate=1.0, seed=seed)  # fmt: skip
     imu = pd.read_csv(folder / "imu.csv")
@@ -43,14 +48,8 @@ def _drive(folder: Path, rate: float, seed: int, scale: float, axes: str) -> Non
 
 
 def _outage_rms_and_ratio(track, folder: Path) -> tuple[float, float]:
-    t, error = horizontal_errors(track, folder)
-    frame = track.to_dataframe()
-    sigma = np.hypot(frame["std_east"], frame["std_north"]).to_numpy()
-    inside = np.zeros(len(t), bool)
-    for start, end in OUTAGES:
-        inside |= (t >= start) & (t < end)
-    rms = float(np.sqrt(np.mean(error[inside] ** 2)))
-    return rms, rms / float(np.sqrt(np.mean(sigma[inside] ** 2)))
+    rms, sigma = outage_rms_and_sigma(track, folder, OUTAGES)
+    return rms, rms / sigma
 
 
 def _smooth(folder: Path, extra: str = "", method: str = "batch"):

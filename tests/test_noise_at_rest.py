@@ -24,7 +24,7 @@ from fgins.geodesy import enu_to_lla
 from fgins.noise_at_rest import white_noise_at_rest
 
 sys.path.insert(0, str(Path(__file__).parent))
-from independent_sim import INDUSTRIAL, CarProfile, horizontal_errors, write_drive
+from independent_sim import FIVE_TURNS, INDUSTRIAL, CarProfile, outage_rms_and_sigma, write_drive
 
 ORIGIN = Origin(45.0, 10.0, 100.0)
 GRAVITY = np.array([0.0, 0.0, 9.806])
@@ -90,9 +90,7 @@ def _vibrating_drive(folder: Path, white: float, rate: float, seed: int) -> None
     """The independent simulator's car (rest 10 s, then 15 m/s through five turns) whose
     accelerometers also read ``white`` m/s^2 of white noise per sample and a 1 m/s^2 engine
     vibration (20-26 Hz), at rest and moving; its config keeps the industrial datasheet."""
-    turns = [(40, 50, 3, 0.12), (90, 100, 3, -0.15), (130, 145, 3, 0.1),
-             (180, 190, 3, -0.12), (230, 240, 3, 0.15)]  # fmt: skip
-    profile = CarProfile(steps=[(10, 8, 15.0)], turns=turns, gamma=lambda t: 0 * t)
+    profile = CarProfile(steps=[(10, 8, 15.0)], turns=FIVE_TURNS, gamma=lambda t: 0 * t)
     write_drive(folder, profile, 280.0, grade=INDUSTRIAL, imu_rate=rate, jitter=0.0,
                 gnss_rate=1.0, seed=seed)  # fmt: skip
     imu = pd.read_csv(folder / "imu.csv")
@@ -103,16 +101,6 @@ def _vibrating_drive(folder: Path, white: float, rate: float, seed: int) -> None
         imu[f"accel_{axis}"] += [0.5, 0.3, 1.0][i] * np.sin(phase + i)
         imu[f"accel_{axis}"] += white * rng.standard_normal(len(t))
     imu.to_csv(folder / "imu.csv", index=False, float_format="%.10e")
-
-
-def _outage_error_and_sigma(track, folder: Path) -> tuple[float, float]:
-    t, error = horizontal_errors(track, folder)
-    frame = track.to_dataframe()
-    sigma = np.hypot(frame["std_east"], frame["std_north"]).to_numpy()
-    inside = np.zeros(len(t), bool)
-    for start, end in OUTAGES:
-        inside |= (t >= start) & (t < end)
-    return float(np.sqrt(np.mean(error[inside] ** 2))), float(np.sqrt(np.mean(sigma[inside] ** 2)))
 
 
 @pytest.mark.parametrize("white, rate, seed", [(0.3, 100.0, 2), (0.2, 200.0, 5)])
@@ -128,8 +116,8 @@ def test_a_vibrating_imu_gets_the_noise_it_shows(tmp_path, white, rate, seed):
     said = [w for w in measured.info.get("fit_warnings", []) if "white noise" in w]
     assert len(said) == 1 and "accel" in said[0] and "noise_from_data = false" in said[0], said
     assert not any("white noise" in w for w in datasheet.info.get("fit_warnings", []))
-    rms_datasheet, sigma_datasheet = _outage_error_and_sigma(datasheet, tmp_path)
-    rms_measured, sigma_measured = _outage_error_and_sigma(measured, tmp_path)
+    rms_datasheet, sigma_datasheet = outage_rms_and_sigma(datasheet, tmp_path, OUTAGES)
+    rms_measured, sigma_measured = outage_rms_and_sigma(measured, tmp_path, OUTAGES)
     # With the measured noise the sigmas cover the outage errors, and the solution is no
     # worse; with the datasheet's, the strongest vibration's errors are over twice the sigmas.
     assert 0.5 * sigma_measured < rms_measured < 1.3 * sigma_measured
