@@ -518,8 +518,8 @@ def smooth_isam2(
             report.fallback = "relinearised at every update (the default schedule diverged)"
     refined = _refined_by_lm(problem, report, result) if is_suspect(report) else None
     scale_info: dict[str, object] = {}
-    if refined is None and not is_suspect(report):
-        final_graph = compact_graph(isam.getFactorsUnsafe())
+    final_graph = None if refined is not None else compact_graph(isam.getFactorsUnsafe())
+    if final_graph is not None and not is_suspect(report):
         scaled, scaled_graph, scale_info = correct_gyro_scale(problem, report, result, final_graph)
         if scaled is not result:  # a scale corrected: LM from the iSAM2 estimate solved again
             refined = (scaled, scaled_graph)
@@ -534,7 +534,7 @@ def smooth_isam2(
     # Final marginals through one batch factorisation of the final graph: iSAM2's own
     # per-key marginals after the final relinearisation can walk far up the tree (O(K) each).
     if refined is None:
-        factors = compact_graph(isam.getFactorsUnsafe())
+        factors = final_graph
     else:
         result, factors = refined
     update_s, preintegrate_s = update_s
