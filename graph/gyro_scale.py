@@ -70,7 +70,7 @@ def estimate_gyro_scale(
 ) -> ScaleEstimate | None:
     """The per-axis scale error the solution ``values`` of ``graph`` points to (see the
     module docstring), about the scale the problem's samples already carry; None when the
-    graph has no IMU factor."""
+    graph has no IMU factor or its linearisation cannot be eliminated."""
     linear = graph.linearize(values)
     gradient = linear.gradientAtZero()  # -A'b, over every variable
     # keyVector, a list: iterating the KeySet that keys() returns read freed memory.
@@ -105,7 +105,14 @@ def estimate_gyro_scale(
         found += 1
     if not found:
         return None
-    bayes_net = linear.eliminateSequential()
+    # QR, as the solves: tight bias random walks make the normal equations lose every digit
+    # (Cholesky then reports an indeterminant system).
+    try:
+        bayes_net = linear.eliminateSequential(
+            gtsam.Ordering.OrderingType.COLAMD, gtsam.EliminateQR
+        )
+    except RuntimeError:
+        return None
 
     def back_transposed(column: dict[int, np.ndarray] | gtsam.VectorValues) -> gtsam.VectorValues:
         vector = gtsam.VectorValues()
