@@ -224,6 +224,41 @@ FIVE_TURNS = [(40, 50, 3, 0.12), (90, 100, 3, -0.15), (130, 145, 3, 0.1),
               (180, 190, 3, -0.12), (230, 240, 3, 0.15)]  # fmt: skip
 
 
+def add_vibration(folder: Path, white: float, seed: int) -> None:
+    """Rewrite ``folder/imu.csv`` as read by an IMU that also picks up ``white`` m/s^2 of white
+    noise per sample and a 1 m/s^2 engine vibration (20-26 Hz) on its accelerometers."""
+    import pandas as pd
+
+    imu = pd.read_csv(folder / "imu.csv")
+    t = imu["time"].to_numpy()
+    rate = 1.0 / float(np.median(np.diff(t)))
+    rng = np.random.default_rng(seed + 100)
+    phase = 2 * np.pi * np.cumsum(23.0 + 3 * np.sin(0.05 * t)) / rate
+    for i, axis in enumerate("xyz"):
+        imu[f"accel_{axis}"] += [0.5, 0.3, 1.0][i] * np.sin(phase + i)
+        imu[f"accel_{axis}"] += white * rng.standard_normal(len(t))
+    imu.to_csv(folder / "imu.csv", index=False, float_format="%.10e")
+
+
+def scale_gyro(folder: Path, scale: float, axes: str = "xyz") -> None:
+    """Rewrite ``folder/imu.csv`` as read by a gyro whose ``axes`` read ``1 + scale`` times."""
+    import pandas as pd
+
+    imu = pd.read_csv(folder / "imu.csv")
+    for axis in axes:
+        imu[f"gyro_{axis}"] *= 1.0 + scale
+    imu.to_csv(folder / "imu.csv", index=False, float_format="%.10e")
+
+
+def shift_fix_times(folder: Path, shift_s: float) -> None:
+    """Rewrite ``folder/gnss.csv`` with each fix stamped ``shift_s`` late (a latency)."""
+    import pandas as pd
+
+    gnss = pd.read_csv(folder / "gnss.csv")
+    gnss["time"] += shift_s
+    gnss.to_csv(folder / "gnss.csv", index=False, float_format="%.10f")
+
+
 def outage_rms_and_sigma(track, folder: Path, windows) -> tuple[float, float]:
     """Horizontal RMS error inside ``windows`` against ``folder/truth.csv``, and the RMS of
     the horizontal sigma the track reports there (their ratio: how honest the sigmas are)."""

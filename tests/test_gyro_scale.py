@@ -15,7 +15,6 @@ from pathlib import Path
 
 import gtsam
 import numpy as np
-import pandas as pd
 import pytest
 
 import fgins
@@ -28,6 +27,7 @@ from independent_sim import (
     INDUSTRIAL,
     CarProfile,
     outage_rms_and_sigma,
+    scale_gyro,
     turn_imu_axes,
     write_drive,
 )
@@ -41,10 +41,7 @@ def _drive(folder: Path, rate: float, seed: int, scale: float, axes: str) -> Non
     profile = CarProfile(steps=[(10, 8, 15.0)], turns=FIVE_TURNS, gamma=lambda t: 0 * t)
     write_drive(folder, profile, 280.0, grade=INDUSTRIAL, imu_rate=rate, jitter=0.0,
                 gnss_rate=1.0, seed=seed)  # fmt: skip
-    imu = pd.read_csv(folder / "imu.csv")
-    for axis in axes:
-        imu[f"gyro_{axis}"] *= 1.0 + scale
-    imu.to_csv(folder / "imu.csv", index=False, float_format="%.10e")
+    scale_gyro(folder, scale, axes)
 
 
 def _outage_rms_and_ratio(track, folder: Path) -> tuple[float, float]:
@@ -150,9 +147,7 @@ def test_the_sparse_estimate_is_the_dense_least_squares_one(tmp_path, monkeypatc
     profile = CarProfile(steps=[(10, 8, 15.0)], turns=[(40, 50, 3, 0.12)], gamma=lambda t: 0 * t)
     write_drive(tmp_path, profile, 70.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
                 gnss_rate=1.0, seed=6)  # fmt: skip
-    imu = pd.read_csv(tmp_path / "imu.csv")
-    imu["gyro_z"] *= 1.03
-    imu.to_csv(tmp_path / "imu.csv", index=False, float_format="%.10e")
+    scale_gyro(tmp_path, 0.03, "z")
     seen = []
     estimate = gyro_scale.estimate_gyro_scale
 

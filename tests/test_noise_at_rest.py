@@ -14,7 +14,6 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 import pytest
 
 import fgins
@@ -24,7 +23,14 @@ from fgins.geodesy import enu_to_lla
 from fgins.noise_at_rest import white_noise_at_rest
 
 sys.path.insert(0, str(Path(__file__).parent))
-from independent_sim import FIVE_TURNS, INDUSTRIAL, CarProfile, outage_rms_and_sigma, write_drive
+from independent_sim import (
+    FIVE_TURNS,
+    INDUSTRIAL,
+    CarProfile,
+    add_vibration,
+    outage_rms_and_sigma,
+    write_drive,
+)
 
 ORIGIN = Origin(45.0, 10.0, 100.0)
 GRAVITY = np.array([0.0, 0.0, 9.806])
@@ -89,18 +95,11 @@ OUTAGES = [(60.0, 105.0), (175.0, 215.0)]
 def _vibrating_drive(folder: Path, white: float, rate: float, seed: int) -> None:
     """The independent simulator's car (rest 10 s, then 15 m/s through five turns) whose
     accelerometers also read ``white`` m/s^2 of white noise per sample and a 1 m/s^2 engine
-    vibration (20-26 Hz), at rest and moving; its config keeps the industrial datasheet."""
+    vibration, at rest and moving; its config keeps the industrial datasheet."""
     profile = CarProfile(steps=[(10, 8, 15.0)], turns=FIVE_TURNS, gamma=lambda t: 0 * t)
     write_drive(folder, profile, 280.0, grade=INDUSTRIAL, imu_rate=rate, jitter=0.0,
                 gnss_rate=1.0, seed=seed)  # fmt: skip
-    imu = pd.read_csv(folder / "imu.csv")
-    t = imu["time"].to_numpy()
-    rng = np.random.default_rng(seed + 100)
-    phase = 2 * np.pi * np.cumsum(23.0 + 3 * np.sin(0.05 * t)) / rate
-    for i, axis in enumerate("xyz"):
-        imu[f"accel_{axis}"] += [0.5, 0.3, 1.0][i] * np.sin(phase + i)
-        imu[f"accel_{axis}"] += white * rng.standard_normal(len(t))
-    imu.to_csv(folder / "imu.csv", index=False, float_format="%.10e")
+    add_vibration(folder, white, seed)
 
 
 @pytest.mark.parametrize("white, rate, seed", [(0.3, 100.0, 2), (0.2, 200.0, 5)])
