@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgins.datatypes import Dataset
-from fgins.factors.stationary import GNSS_MOTION_MIN_SPAN_S, gnss_moving, steady_imu
+from fgins.factors.stationary import gnss_chord, gnss_moving, steady_imu
 
 # Averaging time (the triangle spans twice it): the keyframe intervals' scale, which the
 # preintegration integrates over, well above a vehicle's vibration periods, far below the
@@ -81,13 +81,8 @@ def rest_mask(dataset: Dataset, gnss_mask: np.ndarray | None = None) -> np.ndarr
     # cover the window (gnss_moving says "not moving" where it cannot tell).
     window = 2 * WINDOW_S
     still = ~gnss_moving(centres + half, fix_t, enu, sigma, window_s=window)
-    first = np.searchsorted(fix_t, centres + half - window, side="left")
-    last = np.searchsorted(fix_t, centres + half, side="right") - 1
-    covered = (last > first) & (last >= 0)
-    covered &= fix_t[np.clip(last, 0, None)] - fix_t[np.clip(first, 0, len(fix_t) - 1)] >= (
-        GNSS_MOTION_MIN_SPAN_S
-    )
-    covered &= fix_t[np.clip(first, 0, len(fix_t) - 1)] <= centres - half + 1.0
+    first, _, covered = gnss_chord(centres + half, fix_t, window)
+    covered &= fix_t[first] <= centres - half + 1.0
     rest = centres[steady & still & covered]
     lo = np.searchsorted(imu.t, rest - half)
     hi = np.searchsorted(imu.t, rest + half)

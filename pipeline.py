@@ -123,12 +123,10 @@ def _with_gnss_time_corrected(
     before, after = trajectory.info.get("chi2_per_dof"), corrected.info.get("chi2_per_dof")
     if not (isinstance(before, float) and isinstance(after, float) and after < before):
         return trajectory
-    found = next(
-        (w for w in trajectory.info.get("fit_warnings", []) if w.startswith("GNSS time:")), ""
-    )
     corrected.info["gnss_time_offset_corrected_s"] = -offset
     corrected.info["fit_warnings"] = [
-        f"{found.split(': smooth again with')[0]}: corrected, the fixes' times moved by "
+        f"{trajectory.info.get('gnss_time_offset_finding', 'GNSS time')}: corrected, the "
+        f"fixes' times moved by "
         f"{-offset:+.3f} s and the drive solved again (chi2/dof {before:.2f} -> {after:.2f}; "
         f"--time-offset {-offset:+.3f} gives the same; [gnss] time_offset_from_data = false "
         "keeps the stamps)",

@@ -57,6 +57,20 @@ GNSS_MOTION_WINDOW_S = 4.0  # fixes this far back from a keyframe show whether i
 GNSS_MOTION_MIN_SPAN_S = 2.0
 
 
+def gnss_chord(
+    times: np.ndarray, gnss_t: np.ndarray, window_s: float = GNSS_MOTION_WINDOW_S
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For each time, the first and last fix (indices, clipped into range) of the
+    ``window_s`` before it, and whether they span at least GNSS_MOTION_MIN_SPAN_S: where a
+    chord between them can judge motion (:func:`gnss_moving`)."""
+    last = np.searchsorted(gnss_t, times, side="right") - 1
+    first = np.searchsorted(gnss_t, times - window_s, side="left")
+    ok = (last >= 0) & (last > first)
+    first, last = np.clip(first, 0, len(gnss_t) - 1), np.clip(last, 0, len(gnss_t) - 1)
+    ok &= gnss_t[last] - gnss_t[first] >= GNSS_MOTION_MIN_SPAN_S
+    return first, last, ok
+
+
 def gnss_moving(
     times: np.ndarray,
     gnss_t: np.ndarray,
@@ -78,12 +92,8 @@ def gnss_moving(
     out = np.zeros(len(times), dtype=bool)
     if len(gnss_t) < 2:
         return out
-    last = np.searchsorted(gnss_t, times, side="right") - 1
-    first = np.searchsorted(gnss_t, times - window_s, side="left")
-    ok = (last >= 0) & (last > first)
-    first, last = np.clip(first, 0, len(gnss_t) - 1), np.clip(last, 0, len(gnss_t) - 1)
+    first, last, ok = gnss_chord(times, gnss_t, window_s)
     span = gnss_t[last] - gnss_t[first]
-    ok &= span >= GNSS_MOTION_MIN_SPAN_S
     with np.errstate(invalid="ignore", divide="ignore"):
         chord = np.linalg.norm(gnss_enu[last, :2] - gnss_enu[first, :2], axis=1) / span
         sigma = np.sqrt(np.sum(gnss_sigma[first, :2] ** 2 + gnss_sigma[last, :2] ** 2, axis=1)) / span

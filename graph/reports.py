@@ -204,7 +204,6 @@ def _antenna_verdict(
         )
 
     configured_arm = f"the configured {list(config.lever_arm_m)} ([gnss] lever_arm_m)"
-    fix_time = f"smooth again with --time-offset {-offset:+.3f}" if time_says(offset, offset_var) else ""
     joint_arm, joint_time = arm_says(arm, arm_cov), time_says(offset, offset_var)
     if joint_arm or joint_time:  # the drive tells them apart
         lines = []
@@ -214,11 +213,15 @@ def _antenna_verdict(
                 "measure and set it"
             )
         if joint_time:
-            out["gnss_time_offset_s"] = offset
-            lines.append(
+            # The finding alone is what fgins.pipeline says when it corrects the offset.
+            finding = (
                 f"GNSS time: the fixes fit {time_line(offset, offset_var)} (a receiver's or "
                 f"a logger's latency; the lever arm {'as found above' if joint_arm else 'as configured'})"
-                f": {fix_time} (the IMU's clock is kept)"
+            )
+            out["gnss_time_offset_s"] = offset
+            out["gnss_time_offset_finding"] = finding
+            lines.append(
+                f"{finding}: smooth again with --time-offset {-offset:+.3f} (the IMU's clock is kept)"
             )
         out["fit_warnings"] = lines
     elif arm_says(arm_alone, arm_alone_cov) or time_says(offset_alone, offset_alone_var):
