@@ -502,10 +502,11 @@ class GnssConfig:
     cauchy_k: float | None = None  # redescending: rejects gross jumps (takes precedence)
     use_velocity: bool = True
     velocity_sigma_m_per_s: float | None = None
-    # Fixes that fit time stamps late or early against the IMU's (told apart from a lever
-    # arm: fgins.graph.reports.lever_arm_report) are moved and the drive solved again
-    # (batch, iSAM2); false: only said.
+    # Fixes that fit time stamps late or early against the IMU's, or an antenna elsewhere
+    # than lever_arm_m (fgins.graph.reports.lever_arm_report): the fixes are moved, or the
+    # arm they fit is taken, and the drive solved again (batch, iSAM2); false: only said.
     time_offset_from_data: bool = True
+    lever_arm_from_data: bool = True
     course_min_speed_m_per_s: float = 3.0
 
     def __post_init__(self) -> None:

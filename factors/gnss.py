@@ -319,7 +319,9 @@ def lever_arm_key() -> int:
 
 
 def time_offset_key() -> int:
-    """The key of a GNSS time offset that is estimated (:func:`antenna_check_factor`)."""
+    """The key of a GNSS time offset that is estimated (:func:`antenna_check_factor`): two
+    numbers, the offset at the middle of the drive and its change from there to the end
+    (two clocks at different rates)."""
     import gtsam
 
     return gtsam.symbol("d", 0)
@@ -333,12 +335,15 @@ def antenna_check_factor(
     position_enu: np.ndarray,
     sigma: np.ndarray,
     config: GnssConfig,
+    along_drive: float = 0.0,
 ):  # -> gtsam.JacobianFactor
     """A GNSS position factor linearised at a solution, with the lever arm
     (:func:`lever_arm_key`, body axes) and a time offset (:func:`time_offset_key`, s: the
-    fix stamped ``d`` late was taken where the antenna was ``d`` earlier) as variables
-    about the configured arm and no offset. Rows whitened by the fix's sigmas and the
-    configured kernel's weight at the solution's residual (GTSAM's IRLS weight)."""
+    fix stamped ``d`` late was taken where the antenna was ``d`` earlier; ``d = d0 + d1 *
+    along_drive``, ``along_drive`` the fix's time from the drive's middle over half its
+    length, -1 to 1) as variables about the configured arm and no offset. Rows whitened by
+    the fix's sigmas and the configured kernel's weight at the solution's residual (GTSAM's
+    IRLS weight)."""
     import gtsam
 
     arm = np.asarray(config.lever_arm_m, dtype=float)
@@ -356,7 +361,7 @@ def antenna_check_factor(
     return gtsam.JacobianFactor(
         pose_key, rows * pose_jacobian,
         lever_arm_key(), rows * rotation,
-        time_offset_key(), rows * -np.asarray(velocity, dtype=float)[:, None],
+        time_offset_key(), rows * -np.outer(np.asarray(velocity, dtype=float), [1.0, along_drive]),
         -(rows[:, 0] * residual), gtsam.noiseModel.Unit.Create(3),
     )  # fmt: skip
 

@@ -131,17 +131,21 @@ def lever_arm_report(
     arm_key, offset_key = gnss_model.lever_arm_key(), gnss_model.time_offset_key()
     configured = np.asarray(config.lever_arm_m, dtype=float)
     point.insert(arm_key, gtsam.Point3(configured))
+    fix_times = problem.segments.times[keyframes]
+    middle = 0.5 * float(fix_times[0] + fix_times[-1])
+    half_span = max(0.5 * float(fix_times[-1] - fix_times[0]), 1e-9)
     try:
         linear = check.linearize(point)
-        for k in keyframes:
+        for k, t in zip(keyframes, fix_times, strict=True):
             g = int(problem.gnss_at[k])
             pose = values.atPose3(X(int(k)))
             linear.push_back(gnss_model.antenna_check_factor(
                 X(int(k)), pose.rotation().matrix(), pose.translation(),
                 values.atVector(V(int(k))), problem.gnss_enu[g], problem.gnss_sigma[g], config,
+                (float(t) - middle) / half_span,
             ))  # fmt: skip
         linear.push_back(gtsam.JacobianFactor(
-            offset_key, np.eye(1) / TIME_OFFSET_PRIOR_S, np.zeros(1), gtsam.noiseModel.Unit.Create(1)
+            offset_key, np.eye(2) / TIME_OFFSET_PRIOR_S, np.zeros(2), gtsam.noiseModel.Unit.Create(2)
         ))  # fmt: skip
         tree = linear.eliminateMultifrontal(gtsam.Ordering.OrderingType.COLAMD, gtsam.EliminateQR)
         solution = tree.optimize()
@@ -154,11 +158,30 @@ def lever_arm_report(
     speeds = np.array([np.linalg.norm(values.atVector(V(int(k)))) for k in keyframes])
     moving = speeds[speeds > 1.0]
     typical_speed = float(np.median(moving)) if len(moving) else 0.0
-    return _antenna_verdict(config, configured, change, covariance, typical_speed)
+    out = _antenna_verdict(config, configured, change, covariance, typical_speed)
+    if "gnss_time_drift_s" in out:
+        out["gnss_time_middle_s"], out["gnss_time_half_span_s"] = middle, half_span
+    return out
 
 
 def _significance(change: np.ndarray, covariance: np.ndarray) -> float:
     return float(change @ np.linalg.solve(covariance, change))
+
+
+# The joint estimate's parameters: the arm's change (3, body axes), the time offset at the
+# drive's middle and its change from there to the end (s).
+ARM, TIME, DRIFT = [0, 1, 2], [3], [4]
+
+
+def _held(index: list[int], change: np.ndarray, covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The estimate of the parameters ``index`` with all others held at zero (their
+    configured values): the conditional Gaussian of the joint one."""
+    others = [i for i in range(len(change)) if i not in index]
+    gain = covariance[np.ix_(index, others)] @ np.linalg.inv(covariance[np.ix_(others, others)])
+    return (
+        change[index] - gain @ change[others],
+        covariance[np.ix_(index, index)] - gain @ covariance[np.ix_(others, index)],
+    )
 
 
 def _antenna_verdict(
@@ -168,29 +191,41 @@ def _antenna_verdict(
     covariance: np.ndarray,
     typical_speed: float,
 ) -> dict[str, object]:
-    """The lever-arm and time-offset entries and warnings of :func:`lever_arm_report`, from
-    the joint change (arm 3, offset 1) and its covariance; a time offset counts when it
-    moves the fixes as far as an arm must (LEVER_ARM_MIN_M) at the drive's typical speed
-    (KITTI: 0.046 +- 0.007 s early at ~9 m/s, 0.4 m: not said)."""
-    arm, offset = change[:3], float(change[3])
-    arm_cov, offset_var, cross = covariance[:3, :3], float(covariance[3, 3]), covariance[:3, 3]
-    # Each alone, the other held at its configured value (conditional Gaussians).
-    arm_alone = arm - cross * offset / offset_var
-    arm_alone_cov = arm_cov - np.outer(cross, cross) / offset_var
-    offset_alone = offset - cross @ np.linalg.solve(arm_cov, arm)
-    offset_alone_var = offset_var - cross @ np.linalg.solve(arm_cov, cross)
+    """The lever-arm and GNSS time entries and warnings of :func:`lever_arm_report`, from
+    the joint change (:data:`ARM`, :data:`TIME`, :data:`DRIFT`) and its covariance. A time
+    offset counts when it moves the fixes as far as an arm must (LEVER_ARM_MIN_M) at the
+    drive's typical speed (KITTI: 0.046 +- 0.007 s early at ~9 m/s, 0.4 m: not said), a
+    drift when the offset's change from the middle to the ends does.
+
+    What counts is also returned as the correction fgins.pipeline makes (solved again with
+    it, kept when the fit improves): ``gnss_time_offset_s`` (the fixes' times to move back,
+    at the drive's middle), ``gnss_time_drift_s`` (and its change from there to the ends)
+    and ``gnss_lever_arm_m`` (the arm to use; components the drive does not determine to
+    ARM_CORRECTION_MAX_SIGMA_M stay as configured), with ``antenna_findings``, what is said."""
+
+    def says(name: str, shift: np.ndarray, cov: np.ndarray) -> bool:
+        size = float(np.linalg.norm(shift)) * (1.0 if name == "arm" else typical_speed)
+        chi2 = LEVER_ARM_CHI2 if name == "arm" else TIME_OFFSET_CHI2
+        return _significance(shift, cov) > chi2 and size > LEVER_ARM_MIN_M
+
+    clock, clock_cov = _held(TIME + DRIFT, change, covariance)  # the arm held as configured
+    drifting = says("drift", change[DRIFT], covariance[np.ix_(DRIFT, DRIFT)])
+    if not drifting:
+        # The sharper question with no drift: one free blurs an arm with an offset wherever
+        # the speed changes along the drive (an unconfigured 3 m arm on a stop-and-go drive
+        # fell under 5 sigma).
+        change, covariance = _held(ARM + TIME, change, covariance)
+    readings = {"arm": ARM, "time": TIME, **({"drift": DRIFT} if drifting else {})}
+    # Each reading alone, the others held as configured.
+    alone = {name: _held(index, change, covariance) for name, index in (("arm", ARM), ("time", TIME))}
     out: dict[str, object] = {
-        "gnss_lever_arm_fit_m": [float(x) for x in configured + arm_alone],
-        "gnss_lever_arm_fit_sigma_m": [float(x) for x in np.sqrt(np.diag(arm_alone_cov))],
-        "gnss_time_offset_fit_s": offset_alone,
-        "gnss_time_offset_fit_sigma_s": float(np.sqrt(max(offset_alone_var, 0.0))),
+        "gnss_lever_arm_fit_m": [float(x) for x in configured + alone["arm"][0]],
+        "gnss_lever_arm_fit_sigma_m": [float(x) for x in np.sqrt(np.diag(alone["arm"][1]))],
+        "gnss_time_offset_fit_s": float(alone["time"][0][0]),
+        "gnss_time_offset_fit_sigma_s": float(np.sqrt(max(alone["time"][1][0, 0], 0.0))),
+        "gnss_time_drift_fit_s": float(clock[1]),
+        "gnss_time_drift_fit_sigma_s": float(np.sqrt(max(clock_cov[1, 1], 0.0))),
     }
-
-    def arm_says(shift: np.ndarray, cov: np.ndarray) -> bool:
-        return _significance(shift, cov) > LEVER_ARM_CHI2 and np.linalg.norm(shift) > LEVER_ARM_MIN_M
-
-    def time_says(shift: float, var: float) -> bool:
-        return shift**2 / var > TIME_OFFSET_CHI2 and abs(shift) * typical_speed > LEVER_ARM_MIN_M
 
     def arm_line(shift: np.ndarray, cov: np.ndarray) -> str:
         shown = ", ".join(f"{x:.2f}" for x in configured + shift)
@@ -203,36 +238,88 @@ def _antenna_verdict(
             f"{'late' if shift > 0 else 'early'} against the IMU's"
         )
 
+    def drift_line(offset: float, drift: float, drift_var: float) -> str:
+        return (
+            f"time stamps {offset - drift:+.3f} s at the start and {offset + drift:+.3f} s at "
+            f"the end against the IMU's (+ late; the change +-{2 * np.sqrt(drift_var):.3f} s: "
+            "two clocks at different rates)"
+        )
+
     configured_arm = f"the configured {list(config.lever_arm_m)} ([gnss] lever_arm_m)"
-    joint_arm, joint_time = arm_says(arm, arm_cov), time_says(offset, offset_var)
-    if joint_arm or joint_time:  # the drive tells them apart
-        lines = []
-        if joint_arm:
-            lines.append(
-                f"GNSS lever arm: the fixes fit {arm_line(arm, arm_cov)}, not {configured_arm}: "
-                "measure and set it"
+    found = [name for name, index in readings.items()
+             if says(name, change[index], covariance[np.ix_(index, index)])]  # fmt: skip
+    findings, advice = [], []
+    if found:  # the drive tells them apart
+        # What is corrected, with the rest held as configured; a drift moves the offset too.
+        index = sorted({i for name in found for i in {"arm": ARM, "time": TIME, "drift": TIME + DRIFT}[name]})
+        shift, shift_cov = _held(index, change, covariance)
+        fitted = dict(zip(index, shift, strict=True))
+        variance = dict(zip(index, np.diag(shift_cov), strict=True))
+        if "arm" in found:
+            arm_cov = shift_cov[:3, :3]
+            arm = np.array([fitted[i] for i in ARM])
+            findings.append(f"GNSS lever arm: the fixes fit {arm_line(arm, arm_cov)}, not {configured_arm}")
+            advice.append("measure and set it")
+            out["gnss_lever_arm_m"] = _determined_arm(configured, arm, arm_cov)
+        if "drift" in found:
+            findings.append(f"GNSS time: the fixes fit {drift_line(fitted[3], fitted[4], variance[4])}")
+            advice.append("put both on one clock, or stamp the IMU samples with the receiver's time")
+            out["gnss_time_offset_s"], out["gnss_time_drift_s"] = fitted[3], fitted[4]
+        elif "time" in found:
+            findings.append(
+                f"GNSS time: the fixes fit {time_line(fitted[3], variance[3])} (a receiver's "
+                "or a logger's latency)"
             )
-        if joint_time:
-            # The finding alone is what fgins.pipeline says when it corrects the offset.
-            finding = (
-                f"GNSS time: the fixes fit {time_line(offset, offset_var)} (a receiver's or "
-                f"a logger's latency; the lever arm {'as found above' if joint_arm else 'as configured'})"
-            )
+            advice.append(f"smooth again with --time-offset {-fitted[3]:+.3f} (the IMU's clock is kept)")
+            out["gnss_time_offset_s"] = fitted[3]
+    else:
+        if not any(says(name, *alone[name]) for name in ("arm", "time")):
+            return out
+        # An arm along the track and a time offset look the same at one steady speed: either
+        # correction gives the same track there (they differ by at most the arm at stops);
+        # leaving both out does not (fixes 0.1 s late at 15 m/s: 1.4 m beside the fixes and
+        # 1.1-1.6 m inside outages at 2.4-5 times the sigmas; an antenna 1.5 m behind
+        # likewise; corrected 0.3-0.6 m). The one that explains more is made, with an Akaike
+        # penalty for the arm's three numbers against the offset's one (an antenna 2 m
+        # behind on a stop-and-go drive: 0.29 m as an arm, 1.11 m as a time, 1.70 m left).
+        arm, arm_cov = alone["arm"]
+        offset, offset_var = float(alone["time"][0][0]), float(alone["time"][1][0, 0])
+        findings.append(
+            f"GNSS lever arm or time: the fixes fit {arm_line(arm, arm_cov)} instead of "
+            f"{configured_arm}, or {time_line(offset, offset_var)}: the drive cannot tell the "
+            "two apart (an offset along the track at a steady speed)"
+        )
+        advice.append(f"measure the arm, check the time bases (--time-offset {-offset:+.3f} would align them)")
+        arm_merit = _significance(arm, arm_cov) - 6.0
+        time_merit = offset**2 / offset_var - 2.0
+        time_says = says("time", np.array([offset]), np.array([[offset_var]]))
+        taken = _determined_arm(configured, arm, arm_cov) if says("arm", arm, arm_cov) else None
+        if taken is not None and (arm_merit > time_merit or not time_says):
+            out["gnss_lever_arm_m"] = taken
+        elif time_says:
             out["gnss_time_offset_s"] = offset
-            out["gnss_time_offset_finding"] = finding
-            lines.append(
-                f"{finding}: smooth again with --time-offset {-offset:+.3f} (the IMU's clock is kept)"
-            )
-        out["fit_warnings"] = lines
-    elif arm_says(arm_alone, arm_alone_cov) or time_says(offset_alone, offset_alone_var):
-        out["fit_warnings"] = [
-            f"GNSS lever arm or time: the fixes fit {arm_line(arm_alone, arm_alone_cov)} "
-            f"instead of {configured_arm}, or {time_line(offset_alone, offset_alone_var)} "
-            f"(--time-offset {-offset_alone:+.3f} would align them): the drive cannot tell "
-            "the two apart (an offset along the track at a steady speed); measure the arm, "
-            "check the time bases"
-        ]
+    if out.get("gnss_lever_arm_m", 0) is None:
+        del out["gnss_lever_arm_m"]
+    out["antenna_findings"] = findings
+    out["fit_warnings"] = [f"{finding}: {then}" for finding, then in zip(findings, advice, strict=True)]
     return out
+
+
+def _determined_arm(configured: np.ndarray, shift: np.ndarray, cov: np.ndarray) -> list[float] | None:
+    """The configured arm moved by ``shift`` in the components the drive determines (sigma
+    under ARM_CORRECTION_MAX_SIGMA_M), the others held as configured and the determined ones
+    conditioned on that; None when it determines none. (A car's drive leaves the vertical
+    at +-2 m: taking its estimate would move every height by up to that.)"""
+    known = np.sqrt(np.diag(cov)) < ARM_CORRECTION_MAX_SIGMA_M
+    if not known.any():
+        return None
+    held = ~known
+    moved = shift[known]
+    if held.any():
+        moved = moved - cov[np.ix_(known, held)] @ np.linalg.solve(cov[np.ix_(held, held)], shift[held])
+    arm = configured.astype(float).copy()
+    arm[known] += moved
+    return [float(x) for x in arm]
 
 
 LEVER_ARM_PRIOR_M = 10.0
@@ -244,6 +331,7 @@ LEVER_ARM_CHI2 = 25.0
 LEVER_ARM_MIN_M = 0.5
 TIME_OFFSET_PRIOR_S = 1.0
 TIME_OFFSET_CHI2 = 25.0
+ARM_CORRECTION_MAX_SIGMA_M = 0.5
 
 
 def _dop_model_scale(problem: Problem, norms: np.ndarray) -> dict[str, object]:

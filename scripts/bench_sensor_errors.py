@@ -11,7 +11,11 @@ sensor, then with one error a real log carries:
 - gyro scale: the gyro reading 1-3 % large or small (``estimate_gyro_scale``,
   fgins.graph.gyro_scale);
 - latency: the fixes stamped late or early (``time_offset_from_data``,
-  fgins.graph.reports.lever_arm_report and fgins.pipeline).
+  fgins.graph.reports.lever_arm_report and fgins.pipeline);
+- lever arm: the antenna away from the IMU and not configured (``lever_arm_from_data``,
+  the same modules); an antenna along the track looks like latency at one steady speed;
+- clock: the IMU stamped by its own oscillator, 0.1-0.2 % off the receiver's time (the
+  offset between the two grows along the drive; truth keeps the receiver's time).
 
 For each: batch's horizontal RMS inside the outages against the simulator's truth and its
 error / reported sigma there, with the step on (the default) and off, and the ratios to the
@@ -38,6 +42,7 @@ from independent_sim import (  # noqa: E402
     CarProfile,
     add_vibration,
     outage_rms_and_sigma,
+    run_imu_clock_off,
     scale_gyro,
     shift_fix_times,
     write_drive,
@@ -46,23 +51,30 @@ from independent_sim import (  # noqa: E402
 import fgins  # noqa: E402
 
 OUTAGES = [(60.0, 105.0), (175.0, 215.0)]
-# (label, how the error is written, the config line that turns fgins's step off)
+# (label, how the error is written, the config line that turns fgins's step off); an
+# unconfigured antenna's arm is written with the drive (ARMS).
+ANTENNA_OFF = "[gnss]\ntime_offset_from_data = false\nlever_arm_from_data = false"
 CASES = [
     ("vibration 0.1 m/s^2", lambda d, s: add_vibration(d, 0.1, s), "[imu]\nnoise_from_data = false"),
     ("vibration 0.3 m/s^2", lambda d, s: add_vibration(d, 0.3, s), "[imu]\nnoise_from_data = false"),
     ("gyro scale +1 %", lambda d, s: scale_gyro(d, 0.01), "[smoother]\nestimate_gyro_scale = false"),
     ("gyro scale -2 %", lambda d, s: scale_gyro(d, -0.02), "[smoother]\nestimate_gyro_scale = false"),
     ("gyro scale +3 %", lambda d, s: scale_gyro(d, 0.03), "[smoother]\nestimate_gyro_scale = false"),
-    ("fixes 0.1 s late", lambda d, s: shift_fix_times(d, 0.1), "[gnss]\ntime_offset_from_data = false"),
-    ("fixes 0.2 s late", lambda d, s: shift_fix_times(d, 0.2), "[gnss]\ntime_offset_from_data = false"),
-    ("fixes 0.3 s early", lambda d, s: shift_fix_times(d, -0.3), "[gnss]\ntime_offset_from_data = false"),
+    ("fixes 0.1 s late", lambda d, s: shift_fix_times(d, 0.1), ANTENNA_OFF),
+    ("fixes 0.2 s late", lambda d, s: shift_fix_times(d, 0.2), ANTENNA_OFF),
+    ("fixes 0.3 s early", lambda d, s: shift_fix_times(d, -0.3), ANTENNA_OFF),
+    ("arm [-1.5, 0, 0] m", lambda d, s: None, ANTENNA_OFF),
+    ("arm [2, 0.5, 1] m", lambda d, s: None, ANTENNA_OFF),
+    ("IMU clock +2000 ppm", lambda d, s: run_imu_clock_off(d, 2000.0), ANTENNA_OFF),
+    ("IMU clock -1000 ppm", lambda d, s: run_imu_clock_off(d, -1000.0), ANTENNA_OFF),
 ]  # fmt: skip
+ARMS = {"arm [-1.5, 0, 0] m": (-1.5, 0.0, 0.0), "arm [2, 0.5, 1] m": (2.0, 0.5, 1.0)}
 
 
-def _write(folder: Path, seed: int) -> None:
+def _write(folder: Path, seed: int, arm: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> None:
     profile = CarProfile(steps=[(10, 8, 15.0)], turns=FIVE_TURNS, gamma=lambda t: 0 * t)
     write_drive(folder, profile, 280.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
-                gnss_rate=1.0, seed=seed)  # fmt: skip
+                gnss_rate=1.0, seed=seed, lever_arm=arm)  # fmt: skip
 
 
 def _run(folder: Path, method: str, off: str = "") -> tuple[float, float, list[str]]:
@@ -99,7 +111,7 @@ def main() -> None:
             true_rms, true_ratio, _ = _run(folder, args.method)
             print(f"{'true sensors':<20} {seed:>4} {true_rms:7.2f} {'':>6} {'':>7} {true_ratio:10.2f}")
             for label, make, off in CASES:
-                _write(folder, seed)
+                _write(folder, seed, ARMS.get(label, (0.0, 0.0, 0.0)))
                 make(folder, seed)
                 on_rms, on_ratio, said = _run(folder, args.method)
                 off_rms, off_ratio, _ = _run(folder, args.method, off)

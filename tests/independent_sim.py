@@ -259,6 +259,18 @@ def shift_fix_times(folder: Path, shift_s: float) -> None:
     gnss.to_csv(folder / "gnss.csv", index=False, float_format="%.10f")
 
 
+def run_imu_clock_off(folder: Path, ppm: float) -> None:
+    """Rewrite ``folder/imu.csv`` stamped by a clock running ``ppm`` parts per million fast
+    (slow if negative) from the first sample on: an IMU's or a logger's own oscillator,
+    while the fixes and ``truth.csv`` keep the receiver's (true) time."""
+    import pandas as pd
+
+    imu = pd.read_csv(folder / "imu.csv")
+    start = imu["time"].iloc[0]
+    imu["time"] = start + (imu["time"] - start) * (1.0 + ppm * 1e-6)
+    imu.to_csv(folder / "imu.csv", index=False, float_format="%.10e")
+
+
 def outage_rms_and_sigma(track, folder: Path, windows) -> tuple[float, float]:
     """Horizontal RMS error inside ``windows`` against ``folder/truth.csv``, and the RMS of
     the horizontal sigma the track reports there (their ratio: how honest the sigmas are)."""
