@@ -284,17 +284,27 @@ def _antenna_verdict(
         # behind on a stop-and-go drive: 0.29 m as an arm, 1.11 m as a time, 1.70 m left).
         arm, arm_cov = alone["arm"]
         offset, offset_var = float(alone["time"][0][0]), float(alone["time"][1][0, 0])
+        # The offset still changing along the drive once it is taken as a time: two clocks,
+        # which no arm or latency gives (an IMU clock 0.1 % slow, its drift under 5 sigma
+        # with the arm free and at 6.6 with the offset, was taken as an antenna 2.3 m ahead:
+        # 1.95 m inside outages, 0.51 m left alone).
+        two_clocks = bool(clock[1] ** 2 / clock_cov[1, 1] > CLOCK_CHI2) and abs(clock[1]) * typical_speed > LEVER_ARM_MIN_M
+        readings = f"{arm_line(arm, arm_cov)} instead of {configured_arm}, or {time_line(offset, offset_var)}"
+        if two_clocks:
+            readings += f", or {drift_line(float(clock[0]), float(clock[1]), float(clock_cov[1, 1]))}"
         findings.append(
-            f"GNSS lever arm or time: the fixes fit {arm_line(arm, arm_cov)} instead of "
-            f"{configured_arm}, or {time_line(offset, offset_var)}: the drive cannot tell the "
-            "two apart (an offset along the track at a steady speed)"
+            f"GNSS lever arm or time: the fixes fit {readings}: the drive cannot tell the two "
+            "apart (an offset along the track at a steady speed)"
+            + ("; the offset changes along the drive" if two_clocks else "")
         )
         advice.append(f"measure the arm, check the time bases (--time-offset {-offset:+.3f} would align them)")
         arm_merit = _significance(arm, arm_cov) - 6.0
         time_merit = offset**2 / offset_var - 2.0
         time_says = says("time", np.array([offset]), np.array([[offset_var]]))
         taken = _determined_arm(configured, arm, arm_cov) if says("arm", arm, arm_cov) else None
-        if taken is not None and (arm_merit > time_merit or not time_says):
+        if two_clocks:
+            out["gnss_time_offset_s"], out["gnss_time_drift_s"] = float(clock[0]), float(clock[1])
+        elif taken is not None and (arm_merit > time_merit or not time_says):
             out["gnss_lever_arm_m"] = taken
         elif time_says:
             out["gnss_time_offset_s"] = offset
@@ -331,6 +341,9 @@ LEVER_ARM_CHI2 = 25.0
 LEVER_ARM_MIN_M = 0.5
 TIME_OFFSET_PRIOR_S = 1.0
 TIME_OFFSET_CHI2 = 25.0
+# Where an offset is there (5 sigma) but the drive cannot tell an arm from a time: the drift
+# with the time taken, at 4 sigma, makes it two clocks (no arm or offset keeps changing so).
+CLOCK_CHI2 = 16.0
 ARM_CORRECTION_MAX_SIGMA_M = 0.5
 
 

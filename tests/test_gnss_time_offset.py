@@ -126,32 +126,36 @@ def test_at_one_steady_speed_an_arm_or_a_time_offset_is_named_as_both_and_correc
 @pytest.mark.parametrize(
     "ppm, steps, seed, method",
     [(2000.0, [(10, 8, 15.0)], 1, "batch"), (-2000.0, STOP_AND_GO, 2, "batch"),
-     (1500.0, STOP_AND_GO, 3, "isam2")],
+     (1500.0, STOP_AND_GO, 3, "isam2"), (1000.0, [(10, 8, 15.0)], 1, "batch"),
+     (-1000.0, [(10, 8, 15.0)], 2, "batch")],
 )  # fmt: skip
 def test_an_imu_clock_at_another_rate_is_found_and_the_output_is_on_the_receivers(
     tmp_path, ppm, steps, seed, method
 ):
-    """The IMU stamped by its own oscillator, 0.15-0.2 % off the receiver's (GNSS) time: the
-    offset grows to 0.4-0.6 s over the drive. A constant offset cannot fit it (it was
-    read as an antenna 3.7 m ahead, "measure and set it"); the offset and its drift are
-    found, the fixes moved onto the IMU's clock, and the solution stamped back on the
-    receiver's, which ``truth.csv`` keeps (before: 1.0 m inside outages, 0.43 m with one
-    clock)."""
+    """The IMU stamped by its own oscillator, 0.1-0.2 % off the receiver's (GNSS) time: the
+    offset grows to 0.3-0.6 s over the drive. A constant offset cannot fit it (0.2 % was
+    read as an antenna 3.7 m ahead, "measure and set it"; 1.0 m inside outages against
+    0.43 m with one clock); the offset and its drift are found and the IMU stamped onto
+    the receiver's clock, which ``truth.csv`` keeps. At 0.1 % on one steady speed the
+    drift is under 5 sigma and the offset looks like an arm too (taken as an antenna
+    2.3 m ahead: 1.95 m); it is two clocks because the offset, taken as a time, still
+    changes along the drive."""
     _drive(tmp_path, steps, seed)
     one_clock = _outage_rms(_smooth(tmp_path, method), tmp_path)
     run_imu_clock_off(tmp_path, ppm)
     track = _smooth(tmp_path, method)
     said = [w for w in track.info["fit_warnings"] if w.startswith("GNSS")]
-    assert len(said) == 1 and said[0].startswith("GNSS time:") and "two clocks" in said[0], said
+    assert len(said) == 1 and "two clocks" in said[0], said
     assert "corrected" in said[0] and "receiver's clock" in said[0]
     end_offset = ppm * 1e-6 * 280.0  # the IMU's stamp minus the receiver's at the end
     found = track.info["gnss_time_offset_corrected_s"] + track.info["gnss_time_drift_corrected_s"]
     assert abs(found - end_offset) < 0.1, (found, end_offset)
     assert abs(track.t[-1] - 280.0) < 0.1, track.t[-1]
-    assert _outage_rms(track, tmp_path) < 1.3 * one_clock + 0.1
+    corrected = _outage_rms(track, tmp_path)
+    assert corrected < 1.3 * one_clock + 0.1
     kept = _smooth(tmp_path, method, "\n[gnss]\ntime_offset_from_data = false\n")
     assert "gnss_time_drift_corrected_s" not in kept.info
-    assert _outage_rms(kept, tmp_path) > 1.5 * one_clock
+    assert _outage_rms(kept, tmp_path) > 1.2 * corrected
 
 
 def test_true_stamps_and_arm_are_left_alone(tmp_path):
