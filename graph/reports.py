@@ -159,8 +159,7 @@ def lever_arm_report(
     moving = speeds[speeds > 1.0]
     typical_speed = float(np.median(moving)) if len(moving) else 0.0
     out = _antenna_verdict(config, configured, change, covariance, typical_speed)
-    if "gnss_time_drift_s" in out:
-        out["gnss_time_middle_s"], out["gnss_time_half_span_s"] = middle, half_span
+    out["gnss_time_middle_s"], out["gnss_time_half_span_s"] = middle, half_span
     return out
 
 
@@ -225,6 +224,10 @@ def _antenna_verdict(
         "gnss_time_offset_fit_sigma_s": float(np.sqrt(max(alone["time"][1][0, 0], 0.0))),
         "gnss_time_drift_fit_s": float(clock[1]),
         "gnss_time_drift_fit_sigma_s": float(np.sqrt(max(clock_cov[1, 1], 0.0))),
+        # The offset at the middle with the drift (both with the arm as configured) and the
+        # drive's middle and half length the drift is counted over.
+        "gnss_time_clock_offset_fit_s": float(clock[0]),
+        "gnss_time_clock_offset_fit_sigma_s": float(np.sqrt(max(clock_cov[0, 0], 0.0))),
     }
 
     def arm_line(shift: np.ndarray, cov: np.ndarray) -> str:

@@ -13,6 +13,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import fgins
@@ -164,3 +165,47 @@ def test_true_stamps_and_arm_are_left_alone(tmp_path):
     assert not [w for w in track.info.get("fit_warnings", []) if w.startswith("GNSS")]
     assert abs(track.info["gnss_time_offset_fit_s"]) < 5 * track.info["gnss_time_offset_fit_sigma_s"]
     assert abs(track.info["gnss_time_drift_fit_s"]) < 5 * track.info["gnss_time_drift_fit_sigma_s"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "ppm",
+    [300.0, pytest.param(-300.0, marks=pytest.mark.xfail(strict=True, reason=(
+        "known: the IMU clock also scales the integration (a 2k acceleration, k gyro "
+        "scale) and the check models only the time stamps; here the drift shows at 3 "
+        "sigma and the offset is read as an arm (12.4 m; 11.7 m left alone)")))],
+)  # fmt: skip
+def test_an_aircraft_imu_clock_off_is_corrected_over_rounds(tmp_path, ppm):
+    """fgins's aircraft (720 s at ~100 m/s, tactical IMU, one 60 s outage) with its IMU on a
+    clock 300 ppm off the receiver's. Its biases absorb most of the drift, so one round
+    found 30 % of it (outage 8.3 m against 1.0 m with one clock); rounds that take the
+    rest of a geometric series of findings at once bring it to 1.7 m."""
+    import pandas as pd
+    import pymap3d
+
+    from fgins.sim.scenarios import SCENARIOS
+    from fgins.sim.writer import write_sim_dir
+
+    run = SCENARIOS["aircraft-ekf"](seed=0)
+    write_sim_dir(run, tmp_path)
+    truth = pd.read_csv(tmp_path / "truth.csv")
+    outage = [(500.0, 560.0)]
+
+    def outage_rms() -> tuple[float, dict]:
+        track = fgins.smooth(fgins.load(tmp_path), "batch", gnss_outage=outage, progress=False)
+        frame = track.to_dataframe()
+        t = frame["time"].to_numpy()
+        reference = [np.interp(t, truth["time"], truth[c]) for c in ("lat", "lon", "alt")]
+        east, north, _ = pymap3d.geodetic2enu(frame["lat"], frame["lon"], frame["alt"], *reference)
+        inside = (t >= outage[0][0]) & (t < outage[0][1])
+        return float(np.sqrt(np.mean(np.hypot(east, north)[inside] ** 2))), track.info
+
+    one_clock, _ = outage_rms()
+    run_imu_clock_off(tmp_path, ppm)
+    corrected, info = outage_rms()
+    said = [w for w in info["fit_warnings"] if w.startswith("GNSS")]
+    assert len(said) == 1 and "two clocks" in said[0] and "corrected" in said[0], said
+    end_offset = ppm * 1e-6 * 720.0
+    found = info["gnss_time_offset_corrected_s"] + info["gnss_time_drift_corrected_s"]
+    assert abs(found - end_offset) < 0.3 * abs(end_offset), (found, end_offset)
+    assert corrected < 2.0 * one_clock, (corrected, one_clock)
