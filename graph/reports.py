@@ -102,9 +102,9 @@ def lever_arm_report(
     problem: Problem, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
 ) -> dict[str, object]:
     """Do the configured GNSS lever arm and the time bases fit? One Gauss-Newton step from
-    the solution with the arm and a GNSS time offset free (:func:`antenna_check_factor`:
-    loose priors, 10 m at the configured arm, 1 s at none) gives what the data want and
-    their joint covariance. (The sigmas take the fixes' errors as white; real ones are
+    the solution with the arm, a GNSS time offset and its drift free
+    (:func:`antenna_check_factor`: loose priors, 10 m at the configured arm, 1 s at none)
+    gives what the data want and their joint covariance. (The sigmas take the fixes' errors as white; real ones are
     correlated over seconds, and a correctly configured drive can sit at 4-5 sigma: KITTI's
     arm fits 0.23 +- 0.06 m forward of the configured zero.)
 
@@ -116,7 +116,10 @@ def lever_arm_report(
     serial line) lie ``speed x d`` behind: at one steady speed exactly what an arm along the
     forward axis gives, so only speed changes and stops tell the two apart. The joint
     estimate says which one the drive shows, or that it cannot tell (0.2 s late at 15 m/s
-    was reported as an antenna 3.2 m behind the IMU, with outage errors of 2.9 m)."""
+    was reported as an antenna 3.2 m behind the IMU, with outage errors of 2.9 m). An IMU
+    stamped by its own oscillator drifts against the receiver's clock: the offset changes
+    linearly along the drive (``gnss_time_middle_s``, ``gnss_time_half_span_s``: where the
+    drift is counted from and over), which no arm gives."""
     keyframes = np.flatnonzero(problem.gnss_at >= 0)
     if len(keyframes) < MIN_FIXES_FOR_SCALE:
         return {}
@@ -224,8 +227,8 @@ def _antenna_verdict(
         "gnss_time_offset_fit_sigma_s": float(np.sqrt(max(alone["time"][1][0, 0], 0.0))),
         "gnss_time_drift_fit_s": float(clock[1]),
         "gnss_time_drift_fit_sigma_s": float(np.sqrt(max(clock_cov[1, 1], 0.0))),
-        # The offset at the middle with the drift (both with the arm as configured) and the
-        # drive's middle and half length the drift is counted over.
+        # The offset at the drive's middle that goes with the drift (both with the arm as
+        # configured): what fgins.pipeline refines once two clocks are found.
         "gnss_time_clock_offset_fit_s": float(clock[0]),
         "gnss_time_clock_offset_fit_sigma_s": float(np.sqrt(max(clock_cov[0, 0], 0.0))),
     }
