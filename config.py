@@ -507,6 +507,10 @@ class GnssConfig:
     # arm they fit is taken, and the drive solved again (batch, iSAM2); false: only said.
     time_offset_from_data: bool = True
     lever_arm_from_data: bool = True
+    # Fixes that scatter more than twice their sigmas about the solution (fgins.gnss_scatter):
+    # the sigmas scaled by that scatter and the drive solved again (batch, iSAM2); false:
+    # only said.
+    sigma_from_fit: bool = True
     course_min_speed_m_per_s: float = 3.0
 
     def __post_init__(self) -> None:

@@ -371,5 +371,63 @@ def test_fixes_scattering_beyond_their_sigmas_are_reported(tmp_path, change, see
             # A filter's own chi-square note, which names too-small sigmas, may come first.
             notes = summary.get("fit_warnings", [])
             assert any(warned in w or "GNSS sigmas are too small" in w for w in notes), notes
+        elif method in ("batch", "isam2"):
+            # The graph scales the sigmas by the scatter and solves again (the next test).
+            why = "feet" if change == "feet" else "too small for this receiver"
+            assert len(found) == 1 and "corrected" in found[0] and why in found[0], found
+            assert max(summary["gnss_sigma_scale"]) > 2.0 and max(scales) < 1.5, summary
         else:
             assert len(found) == 1 and warned in found[0], (scales, found)
+
+
+@pytest.mark.parametrize(("factor", "seed", "method"), [(0.25, 1, "batch"), (0.4, 2, "isam2"), (0.3, 3, "batch")])
+def test_sigmas_too_small_are_scaled_to_the_scatter_and_the_uncertainty_is_honest(
+    tmp_path, factor, seed, method
+):
+    """An independent simulator's car whose std columns are 2.5-4x too small (a receiver's
+    optimistic GST): said alone, every reported uncertainty stayed that much too small
+    (errors 2.8-4.1 times the sigmas) and the fixes were weighted 6-16x too much (0.64 m
+    inside outages, 0.43 m with the right sigmas). Scaled by the fixes' own scatter about
+    the solution and solved again: the errors against the reported sigmas about 1, the
+    outages bridged as with the right sigmas."""
+    import sys
+    from pathlib import Path
+
+    import pandas as pd
+
+    import fgins
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from independent_sim import (
+        FIVE_TURNS,
+        INDUSTRIAL,
+        CarProfile,
+        outage_rms_and_sigma,
+        write_drive,
+    )
+
+    outages = [(60.0, 105.0), (175.0, 215.0)]
+    profile = CarProfile(steps=[(10, 8, 15.0)], turns=FIVE_TURNS, gamma=lambda t: 0 * t)
+    write_drive(tmp_path, profile, 280.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
+                gnss_rate=1.0, seed=seed)  # fmt: skip
+
+    def run(extra: str = ""):
+        config = tmp_path / "run.toml"
+        config.write_text((tmp_path / "cfg.toml").read_text() + extra)
+        dataset = fgins.load(tmp_path / "imu.csv", tmp_path / "gnss.csv", config=config, vehicle="car")
+        track = fgins.smooth(dataset, method, gnss_outage=outages)
+        return track, *outage_rms_and_sigma(track, tmp_path, outages)
+
+    _, right, _ = run()
+    fixes = pd.read_csv(tmp_path / "gnss.csv")
+    fixes[["std_east", "std_north", "std_up"]] *= factor
+    fixes.to_csv(tmp_path / "gnss.csv", index=False, float_format="%.10f")
+    track, rms, sigma = run()
+    said = [w for w in track.info["fit_warnings"] if "scatter" in w]
+    assert len(said) == 1 and "corrected" in said[0], track.info["fit_warnings"]
+    scale = track.info["gnss_sigma_scale"]
+    assert 0.6 / factor < scale[0] < 1.4 / factor, scale
+    assert rms < 1.2 * right + 0.05 and 0.5 < rms / sigma < 1.6, (rms, right, sigma)
+    kept, kept_rms, kept_sigma = run("\n[gnss]\nsigma_from_fit = false\n")
+    assert "gnss_sigma_scale" not in kept.info
+    assert kept_rms / kept_sigma > 1.15 * rms / sigma, (kept_rms, kept_sigma, rms, sigma)
