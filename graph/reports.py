@@ -266,7 +266,8 @@ def _antenna_verdict(
             arm = np.array([fitted[i] for i in ARM])
             findings.append(f"GNSS lever arm: the fixes fit {arm_line(arm, arm_cov)}, not {configured_arm}")
             advice.append("measure and set it")
-            out["gnss_lever_arm_m"] = _determined_arm(configured, arm, arm_cov)
+            if (taken := _determined_arm(configured, arm, arm_cov)) is not None:
+                out["gnss_lever_arm_m"] = taken
         if "drift" in found:
             findings.append(f"GNSS time: the fixes fit {drift_line(fitted[3], fitted[4], variance[4])}")
             advice.append("put both on one clock, or stamp the IMU samples with the receiver's time")
@@ -314,8 +315,6 @@ def _antenna_verdict(
             out["gnss_lever_arm_m"] = taken
         elif time_says:
             out["gnss_time_offset_s"] = offset
-    if out.get("gnss_lever_arm_m", 0) is None:
-        del out["gnss_lever_arm_m"]
     out["antenna_findings"] = findings
     out["fit_warnings"] = [f"{finding}: {then}" for finding, then in zip(findings, advice, strict=True)]
     return out
