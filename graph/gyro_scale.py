@@ -11,9 +11,8 @@ Over one keyframe interval a scale error ``s`` (per axis) reads like a bias of `
 the interval's mean rate, so its effect on the IMU factor's whitened error is the factor's
 bias Jacobian times ``diag(mean rate)``. At the solution (where the gradient in every state
 vanishes) the scale's Gauss-Newton estimate, with all states free to move with it, is the
-Schur complement of the linearised graph: information ``J'J - U' S U`` and gradient
-``J'r - U' S A'r``, with ``U = A'J`` and ``S = (A'A)^-1``, applied to a few columns by one
-elimination and back-substitution (``S = R^-1 R^-T``): O(K), no Python callback in a solve.
+Schur complement of the linearised graph (:mod:`fgins.graph.parameter_step`): O(K), no
+Python callback in a solve.
 A weak prior (:data:`SCALE_PRIOR`) keeps an axis that never turns at zero. An axis whose
 estimate is both significant and above the floor is corrected: the gyro's samples are
 rescaled, every interval re-preintegrated and the solve repeated from its solution (a turn
@@ -26,8 +25,8 @@ from dataclasses import dataclass
 
 import gtsam
 import numpy as np
-from gtsam.symbol_shorthand import B
 
+from fgins.graph.parameter_step import imu_bias_jacobians, interval_mean, parameter_step
 from fgins.graph.problem import Problem
 from fgins.graph.solve import SolveReport, is_suspect, solve_from, solve_with_stops
 
@@ -37,7 +36,6 @@ MIN_SCALE_ERROR = 0.002
 MIN_SCALE_SIGMAS = 5.0
 MAX_ROUNDS = 3
 _BIAS_GYRO = slice(3, 6)  # ConstantBias's vector: accelerometer, then gyro
-_WALK_ROWS = slice(9, 15)  # CombinedImuFactor's error: rotation, position, velocity, bias walk
 
 
 @dataclass(frozen=True)
@@ -55,14 +53,7 @@ class ScaleEstimate:
 
 def interval_mean_rates(problem: Problem) -> np.ndarray:
     """(K-1, 3) mean gyro reading over each keyframe interval (time-weighted)."""
-    segments = problem.segments
-    gyro = problem.dataset.imu.gyro[segments.sample] * segments.dt[:, None]
-    sums = np.add.reduceat(gyro, segments.bounds[:-1], axis=0)
-    span = np.add.reduceat(segments.dt, segments.bounds[:-1])
-    empty = segments.bounds[1:] == segments.bounds[:-1]
-    sums[empty] = 0.0
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(span[:, None] > 0, sums / span[:, None], 0.0)
+    return interval_mean(problem, problem.dataset.imu.gyro)
 
 
 def estimate_gyro_scale(
@@ -72,65 +63,17 @@ def estimate_gyro_scale(
     module docstring), about the scale the problem's samples already carry; None when the
     graph has no IMU factor or its linearisation cannot be eliminated."""
     linear = graph.linearize(values)
-    gradient = linear.gradientAtZero()  # -A'b, over every variable
-    # keyVector, a list: iterating the KeySet that keys() returns read freed memory.
-    all_keys = [int(key) for key in linear.keyVector()]
-    dims = {key: gradient.at(key).shape[0] for key in all_keys}
     rates = interval_mean_rates(problem)
-    first_bias = {int(B(i)): i for i in range(problem.n_keyframes - 1)}
-    jtj = np.zeros((3, 3))
-    jtr = np.zeros(3)
-    u: dict[int, np.ndarray] = {}
-    found = 0
-    for index in range(graph.size()):
-        if not graph.exists(index) or not isinstance(graph.at(index), gtsam.CombinedImuFactor):
-            continue
-        factor = linear.at(index)
-        keys = list(factor.keys())
-        matrix, rhs = factor.jacobian()  # whitened [A_1 ... A_n], b (error = A dx - b)
-        offsets = np.concatenate([[0], np.cumsum([dims[key] for key in keys])])
-        interval = first_bias[keys[4]]  # keys: X(i), V(i), X(j), V(j), B(i), B(j)
-        bias_cols = offsets[4] + np.arange(6)[_BIAS_GYRO]
-        # The bias Jacobian less its random-walk rows (a scale error does not move the bias
-        # from one keyframe to the next): un-whiten, drop them, whiten again.
-        root = graph.at(index).noiseModel().R()
-        plain = np.linalg.solve(root, matrix[:, bias_cols])
-        plain[_WALK_ROWS] = 0.0
-        jacobian = (root @ plain) * rates[interval][None, :]  # (rows, 3)
-        jtj += jacobian.T @ jacobian
-        jtr += jacobian.T @ rhs
-        for position, key in enumerate(keys):
-            block = matrix[:, offsets[position] : offsets[position + 1]].T @ jacobian
-            u[key] = u[key] + block if key in u else block
-        found += 1
-    if not found:
+    columns = {
+        index: bias_jacobian[:, _BIAS_GYRO] * rates[interval][None, :]
+        for index, interval, bias_jacobian in imu_bias_jacobians(graph, linear)
+    }
+    if not columns:
         return None
-    # QR, as the solves: tight bias random walks make the normal equations lose every digit
-    # (Cholesky then reports an indeterminant system).
-    try:
-        bayes_net = linear.eliminateSequential(
-            gtsam.Ordering.OrderingType.COLAMD, gtsam.EliminateQR
-        )
-    except RuntimeError:
+    estimate = parameter_step(linear, columns, np.eye(3) / SCALE_PRIOR**2)
+    if estimate is None:
         return None
-
-    def back_transposed(column: dict[int, np.ndarray] | gtsam.VectorValues) -> gtsam.VectorValues:
-        vector = gtsam.VectorValues()
-        for key in all_keys:
-            if isinstance(column, gtsam.VectorValues):
-                vector.insert(key, -column.at(key))
-            else:
-                vector.insert(key, column.get(key, np.zeros(dims[key])))
-        return bayes_net.backSubstituteTranspose(vector)
-
-    w = [back_transposed({key: block[:, c] for key, block in u.items()}) for c in range(3)]
-    w_r = back_transposed(gradient)
-    schur = np.array([[w[a].dot(w[b]) for b in range(3)] for a in range(3)])
-    information = jtj - schur + np.eye(3) / SCALE_PRIOR**2
-    rhs = jtr - np.array([w[a].dot(w_r) for a in range(3)])
-    covariance = np.linalg.inv(information)
-    step = covariance @ rhs
-    return ScaleEstimate(error=step, sigma=np.sqrt(np.diag(covariance)))
+    return ScaleEstimate(error=estimate.step, sigma=estimate.sigma)
 
 
 def correct_gyro_scale(

@@ -1,0 +1,129 @@
+"""A few global parameters estimated with the whole solution, every state free.
+
+The gyro's scale factors (:mod:`fgins.graph.gyro_scale`), the GNSS lever arm, time offset
+and clock drift (:func:`fgins.graph.reports.lever_arm_report`) each add a column or a few to
+some factors' rows of the linearised graph (the factor's whitened error as the parameter
+moves). GTSAM's Python factors hold at most three keys, and an IMU factor has six, so the
+columns are not put into the graph: at the solution (where the gradient in every state
+vanishes) the parameters' Gauss-Newton step with all states free to move with them is the
+Schur complement of the linearised graph, information ``C'C - U' S U`` and gradient ``C'b -
+U' S A'b``, with ``U = A'C`` and ``S = (A'A)^-1``, applied to the few columns by one
+elimination and back-substitution (``S = R^-1 R^-T``): O(K), no Python callback in a solve.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+from fgins.graph.problem import Problem
+
+_WALK_ROWS = slice(9, 15)  # CombinedImuFactor's error: rotation, position, velocity, bias walk
+# Its columns: X(i) 6, V(i) 3, X(j) 6, V(j) 3, then B(i) (accelerometer, gyro) and B(j).
+_FIRST_BIAS_COLUMNS = slice(18, 24)
+
+
+@dataclass(frozen=True)
+class ParameterStep:
+    """The parameters' Gauss-Newton step from where the columns were taken, and its
+    covariance (the prior's information included)."""
+
+    step: np.ndarray
+    covariance: np.ndarray
+
+    @property
+    def sigma(self) -> np.ndarray:
+        return np.sqrt(np.diag(self.covariance))
+
+
+def imu_bias_jacobians(
+    graph: gtsam.NonlinearFactorGraph, linear: gtsam.GaussianFactorGraph
+) -> Iterator[tuple[int, int, np.ndarray]]:
+    """For each ``CombinedImuFactor`` of ``graph``: its index (in ``graph`` and in
+    ``linear``, its linearisation), its interval i (from its first bias key B(i)) and the
+    whitened Jacobian of its error in the interval's bias (accelerometer, then gyro), less
+    the random-walk rows: an error in the samples (a scale, a clock rate) reads over one
+    interval like a bias of its size there, but does not move the bias from one keyframe to
+    the next."""
+    for index in range(graph.size()):
+        if not graph.exists(index) or not isinstance(graph.at(index), gtsam.CombinedImuFactor):
+            continue
+        factor = linear.at(index)
+        keys = [int(key) for key in factor.keys()]  # X(i), V(i), X(j), V(j), B(i), B(j)
+        matrix, _ = factor.jacobian()
+        # Un-whiten, drop the walk rows, whiten again.
+        root = graph.at(index).noiseModel().R()
+        plain = np.linalg.solve(root, matrix[:, _FIRST_BIAS_COLUMNS])
+        plain[_WALK_ROWS] = 0.0
+        yield index, gtsam.Symbol(keys[4]).index(), root @ plain
+
+
+def interval_mean(problem: Problem, samples: np.ndarray) -> np.ndarray:
+    """(K-1, n) the time-weighted mean of the IMU's ``samples`` (N, n) over each keyframe
+    interval (zero over an empty one)."""
+    segments = problem.segments
+    weighted = samples[segments.sample] * segments.dt[:, None]
+    sums = np.add.reduceat(weighted, segments.bounds[:-1], axis=0)
+    span = np.add.reduceat(segments.dt, segments.bounds[:-1])
+    empty = segments.bounds[1:] == segments.bounds[:-1]
+    sums[empty] = 0.0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(span[:, None] > 0, sums / span[:, None], 0.0)
+
+
+def parameter_step(
+    linear: gtsam.GaussianFactorGraph, columns: dict[int, np.ndarray], prior_information: np.ndarray
+) -> ParameterStep | None:
+    """The step of p parameters whose whitened columns ``columns`` (factor index in
+    ``linear`` -> (rows, p)) add to those factors' rows, every state of ``linear`` free (see
+    the module docstring), with a zero-mean prior of information ``prior_information``
+    (p, p). None when the graph cannot be eliminated."""
+    gradient = linear.gradientAtZero()  # -A'b, over every variable
+    # keyVector, a list: iterating the KeySet that keys() returns read freed memory.
+    all_keys = [int(key) for key in linear.keyVector()]
+    dims = {key: gradient.at(key).shape[0] for key in all_keys}
+    information = np.array(prior_information, dtype=float)
+    count = information.shape[0]
+    rhs = np.zeros(count)
+    u: dict[int, np.ndarray] = {}
+    for index, column in columns.items():
+        factor = linear.at(index)
+        keys = [int(key) for key in factor.keys()]
+        matrix, b = factor.jacobian()  # whitened [A_1 ... A_n], b (error = A dx - b)
+        information += column.T @ column
+        rhs += column.T @ b
+        start = 0
+        for key in keys:
+            block = matrix[:, start : start + dims[key]].T @ column
+            start += dims[key]
+            u[key] = u[key] + block if key in u else block
+    # QR, as the solves: tight bias random walks make the normal equations lose every digit
+    # (Cholesky then reports an indeterminant system).
+    try:
+        bayes_net = linear.eliminateSequential(
+            gtsam.Ordering.OrderingType.COLAMD, gtsam.EliminateQR
+        )
+    except RuntimeError:
+        return None
+
+    def back_transposed(column: dict[int, np.ndarray] | gtsam.VectorValues) -> gtsam.VectorValues:
+        vector = gtsam.VectorValues()
+        for key in all_keys:
+            if isinstance(column, gtsam.VectorValues):
+                vector.insert(key, -column.at(key))
+            else:
+                vector.insert(key, column.get(key, np.zeros(dims[key])))
+        return bayes_net.backSubstituteTranspose(vector)
+
+    w = [back_transposed({key: block[:, c] for key, block in u.items()}) for c in range(count)]
+    w_r = back_transposed(gradient)
+    information -= np.array([[w[a].dot(w[b]) for b in range(count)] for a in range(count)])
+    rhs -= np.array([w[a].dot(w_r) for a in range(count)])
+    try:
+        covariance = np.linalg.inv(information)
+    except np.linalg.LinAlgError:
+        return None
+    return ParameterStep(step=covariance @ rhs, covariance=covariance)
