@@ -311,23 +311,7 @@ def position_factor(
     return gtsam.GPSFactor(pose_key, position_enu, noise)
 
 
-def lever_arm_key() -> int:
-    """The key of an antenna lever arm that is estimated (:func:`antenna_check_factor`)."""
-    import gtsam
-
-    return gtsam.symbol("l", 0)
-
-
-def time_offset_key() -> int:
-    """The key of a GNSS time offset that is estimated (:func:`antenna_check_factor`): two
-    numbers, the offset at the middle of the drive and its change from there to the end
-    (two clocks at different rates)."""
-    import gtsam
-
-    return gtsam.symbol("d", 0)
-
-
-def antenna_check_factor(
+def antenna_check_rows(
     pose_key: int,
     rotation: np.ndarray,
     imu_position: np.ndarray,
@@ -336,14 +320,14 @@ def antenna_check_factor(
     sigma: np.ndarray,
     config: GnssConfig,
     along_drive: float = 0.0,
-):  # -> gtsam.JacobianFactor
-    """A GNSS position factor linearised at a solution, with the lever arm
-    (:func:`lever_arm_key`, body axes) and a time offset (:func:`time_offset_key`, s: the
-    fix stamped ``d`` late was taken where the antenna was ``d`` earlier; ``d = d0 + d1 *
-    along_drive``, ``along_drive`` the fix's time from the drive's middle over half its
-    length, -1 to 1) as variables about the configured arm and no offset. Rows whitened by
-    the fix's sigmas and the configured kernel's weight at the solution's residual (GTSAM's
-    IRLS weight)."""
+):  # -> tuple[gtsam.JacobianFactor, np.ndarray]
+    """A GNSS position factor linearised at a solution, and its columns (3, 5) in the lever
+    arm's change (body axes, about the configured arm) and in a time offset (s, about none:
+    the fix stamped ``d`` late was taken where the antenna was ``d`` earlier; ``d = d0 + d1
+    * along_drive``, ``along_drive`` the fix's time from the drive's middle over half its
+    length, -1 to 1), for :mod:`fgins.graph.parameter_step`. Rows whitened by the fix's
+    sigmas and the configured kernel's weight at the solution's residual (GTSAM's IRLS
+    weight)."""
     import gtsam
 
     arm = np.asarray(config.lever_arm_m, dtype=float)
@@ -358,22 +342,11 @@ def antenna_check_factor(
     rows = np.sqrt(weight) * whiten[:, None]
     skew = np.array([[0.0, -arm[2], arm[1]], [arm[2], 0.0, -arm[0]], [-arm[1], arm[0], 0.0]])
     pose_jacobian = np.hstack([-rotation @ skew, rotation])  # Pose3: rotation, then translation
-    return gtsam.JacobianFactor(
-        pose_key, rows * pose_jacobian,
-        lever_arm_key(), rows * rotation,
-        time_offset_key(), rows * -np.outer(np.asarray(velocity, dtype=float), [1.0, along_drive]),
-        -(rows[:, 0] * residual), gtsam.noiseModel.Unit.Create(3),
-    )  # fmt: skip
-
-
-def lever_arm_prior(config: GnssConfig, sigma_m: float):  # -> gtsam.NonlinearFactor
-    """A loose prior holding the estimated lever arm at the configured one."""
-    import gtsam
-
-    return gtsam.PriorFactorPoint3(
-        lever_arm_key(), np.asarray(config.lever_arm_m, dtype=float),
-        gtsam.noiseModel.Isotropic.Sigma(3, sigma_m),
-    )  # fmt: skip
+    factor = gtsam.JacobianFactor(
+        pose_key, rows * pose_jacobian, -(rows[:, 0] * residual), gtsam.noiseModel.Unit.Create(3)
+    )
+    time = -np.outer(np.asarray(velocity, dtype=float), [1.0, along_drive])
+    return factor, rows * np.hstack([rotation, time])
 
 
 def velocity_factor(velocity_key: int, velocity_enu: np.ndarray, sigma: np.ndarray):

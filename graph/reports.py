@@ -9,14 +9,17 @@ from collections.abc import Callable
 
 import gtsam
 import numpy as np
-from gtsam.symbol_shorthand import V, X
+from gtsam.symbol_shorthand import B, V, X
 
 from fgins.config import GnssConfig
 from fgins.datatypes import Trajectory
 from fgins.factors import gnss as gnss_model
 from fgins.factors import odometer as odometer_model
 from fgins.factors import vehicle as vehicle_model
+from fgins.geodesy import skew
 from fgins.gnss_scatter import gnss_scatter
+from fgins.graph.gyro_scale import SCALE_PRIOR
+from fgins.graph.parameter_step import imu_bias_jacobians, interval_mean, parameter_step
 from fgins.graph.problem import Problem
 from fgins.graph.solve import CHI2_FAR_TOO_GOOD, CHI2_WARN, SolveReport
 
@@ -102,11 +105,14 @@ def lever_arm_report(
     problem: Problem, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
 ) -> dict[str, object]:
     """Do the configured GNSS lever arm and the time bases fit? One Gauss-Newton step from
-    the solution with the arm, a GNSS time offset and its drift free
-    (:func:`antenna_check_factor`: loose priors, 10 m at the configured arm, 1 s at none)
-    gives what the data want and their joint covariance. (The sigmas take the fixes' errors as white; real ones are
-    correlated over seconds, and a correctly configured drive can sit at 4-5 sigma: KITTI's
-    arm fits 0.23 +- 0.06 m forward of the configured zero.)
+    the solution with the arm, a GNSS time offset and its drift free (loose priors, 10 m at
+    the configured arm, 1 s at none), every state free with them
+    (:mod:`fgins.graph.parameter_step`), gives what the data want and their joint
+    covariance. Both what the fixes' positions (:func:`antenna_check_rows`) and their
+    velocities (:func:`_velocity_columns`) say count: a velocity stamped late is off by the
+    acceleration times the delay. (The sigmas take the fixes' errors as white; real ones
+    are correlated over seconds, and a correctly configured drive can sit at 4-5 sigma:
+    KITTI's arm fits 0.23 +- 0.06 m forward of the configured zero.)
 
     An arm left out (or wrong) is a body-fixed offset between the IMU and the antenna: on
     straights the trajectory absorbs it, in turns, banks and climbs it turns with the body
@@ -129,33 +135,32 @@ def lever_arm_report(
         if graph.exists(i) and not isinstance(graph.at(i), position_types):
             check.add(graph.at(i))
     config = problem.config.gnss
-    check.add(gnss_model.lever_arm_prior(config, LEVER_ARM_PRIOR_M))
-    point = gtsam.Values(values)
-    arm_key, offset_key = gnss_model.lever_arm_key(), gnss_model.time_offset_key()
     configured = np.asarray(config.lever_arm_m, dtype=float)
-    point.insert(arm_key, gtsam.Point3(configured))
     fix_times = problem.segments.times[keyframes]
     middle = 0.5 * float(fix_times[0] + fix_times[-1])
     half_span = max(0.5 * float(fix_times[-1] - fix_times[0]), 1e-9)
     try:
-        linear = check.linearize(point)
+        linear = check.linearize(values)
+        columns = _velocity_columns(problem, check, values, middle, half_span)
+        columns.update(_imu_columns(problem, check, linear, values, half_span))
         for k, t in zip(keyframes, fix_times, strict=True):
             g = int(problem.gnss_at[k])
             pose = values.atPose3(X(int(k)))
-            linear.push_back(gnss_model.antenna_check_factor(
+            factor, column = gnss_model.antenna_check_rows(
                 X(int(k)), pose.rotation().matrix(), pose.translation(),
                 values.atVector(V(int(k))), problem.gnss_enu[g], problem.gnss_sigma[g], config,
                 (float(t) - middle) / half_span,
-            ))  # fmt: skip
-        linear.push_back(gtsam.JacobianFactor(
-            offset_key, np.eye(2) / TIME_OFFSET_PRIOR_S, np.zeros(2), gtsam.noiseModel.Unit.Create(2)
-        ))  # fmt: skip
-        tree = linear.eliminateMultifrontal(gtsam.Ordering.OrderingType.COLAMD, gtsam.EliminateQR)
-        solution = tree.optimize()
-        change = np.concatenate([solution.at(arm_key), solution.at(offset_key)])
-        covariance = np.asarray(tree.jointMarginalCovariance([arm_key, offset_key]).fullMatrix())
+            )  # fmt: skip
+            columns[linear.size()] = np.hstack([column, np.zeros((3, N_PARAMETERS - 5))])
+            linear.push_back(factor)
+        estimate = parameter_step(linear, columns, np.diag(PARAMETER_PRIOR_SIGMAS**-2.0))
     except (RuntimeError, np.linalg.LinAlgError):
         return {}
+    if estimate is None:
+        return {}
+    # The arm and the clocks; the IMU's scales are there to take their own errors.
+    reported = ARM + TIME + DRIFT
+    change, covariance = estimate.step[reported], estimate.covariance[np.ix_(reported, reported)]
     if not (np.all(np.isfinite(change)) and np.all(np.isfinite(covariance))):
         return {}
     speeds = np.array([np.linalg.norm(values.atVector(V(int(k)))) for k in keyframes])
@@ -166,13 +171,105 @@ def lever_arm_report(
     return out
 
 
+def _imu_columns(
+    problem: Problem,
+    check: gtsam.NonlinearFactorGraph,
+    linear: gtsam.GaussianFactorGraph,
+    values: gtsam.Values,
+    half_span: float,
+) -> dict[int, np.ndarray]:
+    """The IMU factors' columns (15, :data:`N_PARAMETERS`): in the gyro's and the
+    accelerometer's scale errors (per axis: the interval's mean reading), and in the
+    drift. An IMU whose clock runs ``r`` fast (``r = -drift / half_span``: the fixes come
+    stamped ever earlier against it) integrates each interval over ``1 + r`` times its
+    length: in its time the same motion is slower, so its samples read like a gyro ``r``
+    large and a kinematic acceleration ``2 r`` large. Without the scales, a gyro 1 % large
+    on fgins's aircraft read as two clocks at 27 sigma and an accelerometer 1 % off as an
+    antenna 1.5 m below the IMU at 14 sigma; with them neither shows (2.7 sigma and less)."""
+    rates = interval_mean(problem, problem.dataset.imu.gyro)
+    forces = interval_mean(problem, problem.dataset.imu.accel)
+    columns: dict[int, np.ndarray] = {}
+    for index, interval, bias_jacobian in imu_bias_jacobians(check, linear):
+        bias = values.atConstantBias(B(interval))
+        rate = rates[interval] - bias.gyroscope()
+        force = forces[interval] - bias.accelerometer()
+        rotation = values.atPose3(X(interval)).rotation().matrix()
+        kinematic = force + rotation.T @ problem.interval_gravity[interval]
+        column = np.zeros((bias_jacobian.shape[0], N_PARAMETERS))
+        # ConstantBias's vector: accelerometer, then gyro.
+        column[:, DRIFT[0]] = -(bias_jacobian @ np.concatenate([2.0 * kinematic, rate])) / half_span
+        column[:, GYRO_SCALE] = bias_jacobian[:, 3:] * rate[None, :]
+        column[:, ACCEL_SCALE] = bias_jacobian[:, :3] * force[None, :]
+        columns[index] = column
+    return columns
+
+
+def _velocity_columns(
+    problem: Problem,
+    check: gtsam.NonlinearFactorGraph,
+    values: gtsam.Values,
+    middle: float,
+    half_span: float,
+) -> dict[int, np.ndarray]:
+    """The GNSS velocity factors' columns (3, 5) in the arm and the time offset: the
+    antenna moves at ``v + R (w x l)`` (so ``R [w]x`` in the arm), and a velocity stamped
+    ``d`` late is the one of ``d`` earlier (``-a`` in the offset, ``a`` the acceleration
+    there). Without them the fixes' velocities, sharper than their positions, held the
+    solution where the stamps put them: fgins's aircraft with its IMU on a clock 300 ppm
+    fast showed 30 % of the drift (0.032 of 0.108 s), 300 ppm slow 15 % (read as an arm:
+    12.4 m inside its outage against 1.0 m), 100 ppm slow none; with them 0.104 of 0.108
+    s, and 0.037 of 0.036 s at 100 ppm."""
+    times = problem.segments.times
+    velocity = np.array([values.atVector(V(k)) for k in range(problem.n_keyframes)])
+    acceleration = np.gradient(velocity, times, axis=0) if len(times) > 1 else np.zeros_like(velocity)
+    columns: dict[int, np.ndarray] = {}
+    for index in range(check.size()):
+        factor = check.at(index)
+        keys = [int(key) for key in factor.keys()]
+        if isinstance(factor, gtsam.PriorFactorVector):
+            k = gtsam.Symbol(keys[0]).index()
+            if gtsam.Symbol(keys[0]).chr() != ord("v"):
+                continue
+            measured = problem.gnss_velocity_at(k)
+            # A GNSS velocity, not a stop's zero or the alignment's prior.
+            if measured is None or not (
+                np.array_equal(factor.prior(), measured[0])
+                and np.array_equal(factor.noiseModel().sigmas(), measured[1])
+            ):
+                continue
+        elif isinstance(factor, gtsam.LinearContainerFactor) and len(keys) == 3 and (
+            gtsam.Symbol(keys[2]).chr() == ord("b")
+        ):  # an antenna velocity (Problem.linear_factors): X(k), V(k), B(k)
+            k = gtsam.Symbol(keys[0]).index()
+            measured = problem.gnss_velocity_at(k)
+            if measured is None:
+                continue
+        else:
+            continue
+        g = int(problem.gnss_at[k])
+        rotation = values.atPose3(X(k)).rotation().matrix()
+        rate = problem.gnss_gyro[g] - values.atConstantBias(B(k)).gyroscope()
+        along = (float(times[k]) - middle) / half_span
+        column = np.zeros((3, N_PARAMETERS))
+        column[:, ARM] = rotation @ skew(rate)
+        column[:, TIME + DRIFT] = -np.outer(acceleration[k], [1.0, along])
+        # Against an IMU clock running r fast the velocity reads 1 + r times the solution's.
+        column[:, DRIFT[0]] -= velocity[k] / half_span
+        columns[index] = column / measured[1][:, None]
+    return columns
+
+
 def _significance(change: np.ndarray, covariance: np.ndarray) -> float:
     return float(change @ np.linalg.solve(covariance, change))
 
 
 # The joint estimate's parameters: the arm's change (3, body axes), the time offset at the
-# drive's middle and its change from there to the end (s).
+# drive's middle and its change from there to the end (s), and the IMU's scale errors (gyro,
+# accelerometer, per axis), which are not reported: they keep a sensor's own scale error
+# from reading as an arm or a clock.
 ARM, TIME, DRIFT = [0, 1, 2], [3], [4]
+GYRO_SCALE, ACCEL_SCALE = [5, 6, 7], [8, 9, 10]
+N_PARAMETERS = 11
 
 
 def _held(index: list[int], change: np.ndarray, covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -345,6 +442,12 @@ LEVER_ARM_PRIOR_M = 10.0
 LEVER_ARM_CHI2 = 25.0
 LEVER_ARM_MIN_M = 0.5
 TIME_OFFSET_PRIOR_S = 1.0
+# The IMU's scale errors before the data: the gyro's as fgins.graph.gyro_scale's prior, the
+# accelerometer's 3 % (consumer MEMS datasheets: 1-3 %).
+ACCEL_SCALE_PRIOR = 0.03
+PARAMETER_PRIOR_SIGMAS = np.array(
+    [LEVER_ARM_PRIOR_M] * 3 + [TIME_OFFSET_PRIOR_S] * 2 + [SCALE_PRIOR] * 3 + [ACCEL_SCALE_PRIOR] * 3
+)
 TIME_OFFSET_CHI2 = 25.0
 # Where an offset is there (5 sigma) but the drive cannot tell an arm from a time: the drift
 # with the time taken, at 4 sigma, makes it two clocks (no arm or offset keeps changing so).
