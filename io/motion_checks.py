@@ -63,6 +63,7 @@ VELOCITY_SPEED_RATIO_RANGE = (0.7, 1.4)
 VELOCITY_MAX_ANGLE_DEG = 25.0
 CLIMB_MIN_STD_M_S = 1.0
 CLIMB_RATIO_RANGE = (0.6, 1.6)
+CLIMB_MIN_CORRELATION = 0.5
 
 
 # --------------------------------------------------------------------------------------------
@@ -400,16 +401,33 @@ def check_gnss_velocity(gnss: GnssData, origin: Origin) -> None:
     climb = track[:, 2]
     given_climb = given[:, 2]
     usable = np.isfinite(given_climb)
-    if usable.sum() >= VELOCITY_MIN_EPOCHS and np.std(given_climb[usable]) >= CLIMB_MIN_STD_M_S:
-        slope = float(
-            np.sum(climb[usable] * given_climb[usable]) / np.sum(given_climb[usable] ** 2)
+    if usable.sum() < VELOCITY_MIN_EPOCHS or np.std(given_climb[usable]) < CLIMB_MIN_STD_M_S:
+        return
+    bounds = _climb_ratio_bounds(climb[usable], given_climb[usable])
+    if bounds is None:  # the two do not follow each other: noise, not a unit
+        return
+    low, high = bounds
+    if high < CLIMB_RATIO_RANGE[0] or low > CLIMB_RATIO_RANGE[1]:
+        ratio = float(np.sign(low) * np.sqrt(low * high))
+        raise InputError(
+            f"gnss: the altitude changes {ratio:.3g} times as fast as vel_up says (~1 "
+            "expected; 3.28 for altitude in feet, -1 for a down velocity): give the "
+            "altitude in metres and vel_up positive up"
         )
-        if not CLIMB_RATIO_RANGE[0] <= slope <= CLIMB_RATIO_RANGE[1]:
-            raise InputError(
-                f"gnss: the altitude changes {slope:.3g} times as fast as vel_up says (~1 "
-                "expected; 3.28 for altitude in feet, -1 for a down velocity): give the "
-                "altitude in metres and vel_up positive up"
-            )
+
+
+def _climb_ratio_bounds(climb: np.ndarray, given: np.ndarray) -> tuple[float, float] | None:
+    """Where the ratio of the fixes' climb rate to the receiver's vel_up lies: between the
+    slope of one on the other and the inverse of the reverse one, as noise in either pulls
+    its own regression towards zero (vel_up scattering 1 m/s on a level drive gave 0.12,
+    "altitude in feet?"; the reverse slope there puts it at 8). None when the two are too
+    weakly related (CLIMB_MIN_CORRELATION) to tell a unit."""
+    both = float(np.sum(climb * given))
+    norm = float(np.sqrt(np.sum(climb**2) * np.sum(given**2)))
+    if norm == 0.0 or abs(both) < CLIMB_MIN_CORRELATION * norm:
+        return None
+    low, high = sorted((both / float(np.sum(given**2)), float(np.sum(climb**2)) / both))
+    return low, high
 
 
 # Fixes that move this many times less than the velocity says do not move at all (lat/lon in

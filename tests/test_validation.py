@@ -319,6 +319,33 @@ def test_aircraft_altitude_in_feet_or_a_down_velocity_is_an_error(tmp_path, chan
         load_dataset(_pair(tmp_path / "bad", replace(run.dataset, gnss=gnss)))
 
 
+@pytest.mark.parametrize(
+    ("name", "seed", "noise", "feet"),
+    [("car-urban", 2, 1.0, False), ("highway", 3, 0.7, False), ("aircraft-ekf", 4, 1.0, True)],
+)
+def test_a_noisy_vertical_velocity_is_not_taken_for_a_unit(tmp_path, name, seed, noise, feet):
+    """A receiver whose vel_up scatters 0.7-1 m/s (a city's Doppler) on a level drive: the
+    climb check regressed the altitude's rate on vel_up, which the noise pulls towards zero
+    (0.12: "altitude in feet?"), and refused the log. Noise in either pulls its own
+    regression down, so the ratio lies between the two slopes; only a ratio outside the
+    range either way is a unit: altitude in feet on an aircraft is still found through the
+    same noise."""
+    from dataclasses import replace
+
+    run = _run(name, seed, 300)
+    gnss = run.dataset.gnss
+    velocity = gnss.velocity.copy()
+    velocity[:, 2] += np.random.default_rng(seed).normal(0.0, noise, len(velocity))
+    gnss = replace(gnss, velocity=velocity)
+    if not feet:
+        assert load_dataset(_pair(tmp_path, replace(run.dataset, gnss=gnss))).imu is not None
+        return
+    lla = gnss.lla.copy()
+    lla[:, 2] *= 3.28084
+    with pytest.raises(InputError, match=r"altitude changes 3\.[0-9]+ times as fast as vel_up"):
+        load_dataset(_pair(tmp_path, replace(run.dataset, gnss=replace(gnss, lla=lla))))
+
+
 def test_real_receiver_velocities_agree_with_their_fixes():
     """Every shared gpsd NMEA and UBX log with enough motion passes the velocity check (a
     3-satellite start scatters its fixes by tens of metres: the chords' noise is allowed)."""
