@@ -34,6 +34,7 @@ SCALE_PRIOR = 0.05  # 1-sigma of a scale error before the data (5 %: beyond any 
 # An axis's scale error is corrected when it is at least this large and this many sigmas.
 MIN_SCALE_ERROR = 0.002
 MIN_SCALE_SIGMAS = 5.0
+MAX_SCALE_ERROR = 0.1  # 10 %: three times a consumer MEMS datasheet's worst
 MAX_ROUNDS = 3
 _BIAS_GYRO = slice(3, 6)  # ConstantBias's vector: accelerometer, then gyro
 
@@ -47,7 +48,12 @@ class ScaleEstimate:
 
     @property
     def significant(self) -> np.ndarray:
+        """Axes to correct; none when any axis is beyond what a gyro's scale can be: the
+        solution, not the gyro, is then wrong (a start heading 120 deg off, its first fit
+        at chi2/dof 19, read as scale errors of +398 % and -44 %)."""
         size = np.abs(self.error)
+        if np.any(size > MAX_SCALE_ERROR):
+            return np.zeros(3, dtype=bool)
         return (size >= MIN_SCALE_ERROR) & (size >= MIN_SCALE_SIGMAS * self.sigma)
 
 
@@ -95,7 +101,9 @@ def correct_gyro_scale(
                   set(problem.zupt_keyframes))  # fmt: skip
         problem.rescale_gyro(factor, result)
         again, corrected, corrected_graph = solve_with_stops(problem, *solve_from(problem, result))
-        if is_suspect(again):  # the corrected gyro does not fit: keep the solution before
+        # The corrected gyro does not fit (or fits worse than the solution it came from,
+        # whose misfit may be the scale's): keep the solution before.
+        if not again.converged or (is_suspect(again) and again.chi2_per_dof >= report.chi2_per_dof):
             problem.dataset, problem.pims, problem.pim_bias, problem.zupt_keyframes = before
             break
         total = total * factor

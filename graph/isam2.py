@@ -519,9 +519,10 @@ def smooth_isam2(
     refined = _refined_by_lm(problem, report, result) if is_suspect(report) else None
     scale_info: dict[str, object] = {}
     final_graph = None if refined is not None else compact_graph(isam.getFactorsUnsafe())
-    if final_graph is not None and not is_suspect(report):
-        scaled, scaled_graph, scale_info = correct_gyro_scale(problem, report, result, final_graph)
-        if scaled is not result:  # a scale corrected: LM from the iSAM2 estimate solved again
+    if report.converged:  # a poor fit may be poor for the scale (as in the batch)
+        solution, graph = refined if refined is not None else (result, final_graph)
+        scaled, scaled_graph, scale_info = correct_gyro_scale(problem, report, solution, graph)
+        if scaled is not solution:  # a scale corrected: LM from the iSAM2 estimate solved again
             refined = (scaled, scaled_graph)
             report.fallback = "; ".join(filter(None, [
                 report.fallback,

@@ -165,3 +165,14 @@ def test_the_sparse_estimate_is_the_dense_least_squares_one(tmp_path, monkeypatc
     np.testing.assert_allclose(sparse.error, dense, atol=1e-6)
     np.testing.assert_allclose(sparse.sigma, dense_sigma, atol=1e-6)
     assert abs(sparse.error[2] - 0.03) < 3 * sparse.sigma[2]
+
+
+def test_an_implausible_scale_on_any_axis_corrects_nothing():
+    """A scale estimate beyond 10 % on any axis says the solution is wrong, not the gyro (a
+    start heading 120 deg off, its fit at chi2/dof 16, read as +398 % and -44 %): no axis
+    is corrected, while plausible ones are."""
+    sigma = np.full(3, 1e-4)
+    assert not gyro_scale.ScaleEstimate(np.array([3.98, 0.01, -0.44]), sigma).significant.any()
+    assert not gyro_scale.ScaleEstimate(np.array([0.011, 0.01, 0.2]), sigma).significant.any()
+    found = gyro_scale.ScaleEstimate(np.array([0.011, 0.001, -0.03]), sigma).significant
+    assert found.tolist() == [True, False, True]
