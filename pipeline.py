@@ -27,6 +27,11 @@ from fgins.initial_guess import KeyframeGuess
 SensorData = TypeVar("SensorData", BaroData, OdometerData, AccelArrayData)
 
 GRAPH_METHODS = ("batch", "isam2", "isam2-online")
+# What a correction step (a solve again with something the data showed) said, kept in the
+# run's info so that the next step's solve again says it too; and its entries.
+CORRECTIONS_SAID = "corrections_said"
+CARRIED_KEYS = ("gnss_sigma_scale", "gnss_velocity_sigma_scale")
+SCATTER_AFTER_MIN = 0.5
 # Kalman baselines: method name -> "module:function" taking (dataset, config, gnss_mask=...,
 # progress=...) and returning a Trajectory. Modules are imported only when asked for.
 BASELINE_METHODS = {
@@ -54,13 +59,18 @@ def run_method(
     config, noise_note = _noise_from_data(dataset, config, gnss_mask)
     config, mounting_note = _check_mounting(dataset, config, gnss_mask, progress)
     trajectory = _run(dataset, config, method, gnss_mask, progress)
+    # The sigmas first: sigmas a few times too small make any offset look significant to
+    # the antenna check (velocities scattering 5x their sigma were read as an antenna or a
+    # latency), while an arm or a latency hardly moves the robust scatter (1.0-1.24 with
+    # 2-3 m arms and 0.15-0.3 s latencies).
+    trajectory, dataset, config = _with_gnss_sigmas_scaled(dataset, config, method, gnss_mask, progress, trajectory)
     trajectory, dataset, config = _with_antenna_corrected(dataset, config, method, gnss_mask, progress, trajectory)
-    trajectory = _with_gnss_sigmas_scaled(dataset, config, method, gnss_mask, progress, trajectory)
     notes = [noise_note, mounting_note, _unknown_height(dataset, trajectory), _nose_off_track(config, trajectory)]
     if config.smoother.initial_heading_deg is None:  # else the configured heading is known
         notes.append(unobservable_heading(dataset, trajectory))
     for note in filter(None, notes):
         trajectory.info.setdefault("fit_warnings", []).append(note)
+    trajectory.info.pop(CORRECTIONS_SAID, None)  # said in fit_warnings
     return trajectory
 
 
@@ -214,10 +224,15 @@ def _with_antenna_corrected(
         f"{', '.join(switches)})"
     )
     findings = first.info.get("antenna_findings") or ["GNSS antenna"]
-    best.info["fit_warnings"] = [
+    said = [
+        *first.info.get(CORRECTIONS_SAID, []),  # type: ignore[list-item]
         *(f"{finding}: corrected, {how}" for finding in findings),  # type: ignore[union-attr]
-        *best.info.get("fit_warnings", []),
     ]
+    for key in CARRIED_KEYS:
+        if key in first.info and key not in best.info:
+            best.info[key] = first.info[key]
+    best.info[CORRECTIONS_SAID] = said
+    best.info["fit_warnings"] = [*said, *best.info.get("fit_warnings", [])]
     return best, dataset, config
 
 
@@ -228,50 +243,92 @@ def _with_gnss_sigmas_scaled(
     gnss_mask: np.ndarray | None,
     progress: bool,
     trajectory: Trajectory,
-) -> Trajectory:
-    """A graph solution whose fixes scatter more than SIGMA_TOO_SMALL times their own
-    sigmas about it (fgins.gnss_scatter: robust, per horizontal and vertical) solved again
-    with the sigmas scaled by that scatter, and said; the first when ``[gnss]
-    sigma_from_fit`` is false or the second does not scatter less. Said alone, every
-    reported uncertainty stayed that much too small (an independent simulator's car whose
-    std columns were 4x too small: errors 2.8-4.1 times the reported sigmas, and the fixes
-    weighted 16x too much: 0.64 m inside outages, 0.43 m with the right sigmas)."""
+) -> tuple[Trajectory, Dataset, RunConfig]:
+    """A graph solution whose fixes' positions or velocities scatter more than
+    SIGMA_TOO_SMALL times their own sigmas about it (fgins.gnss_scatter: robust, per
+    horizontal and vertical) solved again with those sigmas scaled by that scatter, and
+    said; the first when ``[gnss] sigma_from_fit`` is false or the second does not scatter
+    less; with the dataset and configuration that gave it. Said alone, every reported
+    uncertainty stayed that much too small (an independent
+    simulator's car whose std columns were 4x too small: errors 2.8-4.1 times the reported
+    sigmas, and the fixes weighted 16x too much: 0.64 m inside outages, 0.43 m with the
+    right sigmas; an urban car whose velocities scattered 0.5 m/s against 0.2 configured:
+    2.16 m against 1.09 m)."""
     info = trajectory.info
-    horizontal, vertical = info.get("gnss_whitened_scale_horizontal"), info.get("gnss_whitened_scale_vertical")
-    if (
-        method not in ("batch", "isam2")
-        or not config.gnss.sigma_from_fit
-        or not (isinstance(horizontal, float) and isinstance(vertical, float))
-        or max(horizontal, vertical) <= SIGMA_TOO_SMALL
-    ):
-        return trajectory
-    scale = np.array([max(horizontal, 1.0), max(horizontal, 1.0), max(vertical, 1.0)])
-    sigma = gnss_model.position_sigmas(dataset.gnss, config.gnss) * scale
-    scaled = replace(dataset, gnss=replace(dataset.gnss, std=sigma))
+    before = {what: _scatter(info, what) for what in ("position", "velocity")}
+    scaled = {what: scale for what, scale in before.items() if scale is not None and max(scale) > SIGMA_TOO_SMALL}
+    if method not in ("batch", "isam2") or not config.gnss.sigma_from_fit or not scaled:
+        return trajectory, dataset, config
+    gnss, gnss_config = dataset.gnss, config.gnss
+    if "position" in scaled:
+        horizontal, vertical = scaled["position"]
+        scale = np.array([max(horizontal, 1.0), max(horizontal, 1.0), max(vertical, 1.0)])
+        gnss = replace(gnss, std=gnss_model.position_sigmas(dataset.gnss, config.gnss) * scale)
+        gnss_config = replace(gnss_config, sigma_m=None)
+    if "velocity" in scaled:
+        horizontal, vertical = scaled["velocity"]
+        vertical = horizontal if not math.isfinite(vertical) else vertical
+        speed_scale = np.array([max(horizontal, 1.0), max(horizontal, 1.0), max(vertical, 1.0)])
+        sigma = gnss_model.velocity_sigmas(dataset.gnss, config.gnss) * speed_scale
+        gnss = replace(gnss, velocity_std=sigma)
+        gnss_config = replace(gnss_config, velocity_sigma_m_per_s=None)
+    trial, trial_config = replace(dataset, gnss=gnss), replace(config, gnss=gnss_config)
     try:
-        corrected = _run(scaled, replace(config, gnss=replace(config.gnss, sigma_m=None)), method, gnss_mask, progress)
+        corrected = _run(trial, trial_config, method, gnss_mask, progress)
     except FginsError:
-        return trajectory
-    after = corrected.info.get("gnss_whitened_scale_horizontal"), corrected.info.get("gnss_whitened_scale_vertical")
-    if not all(isinstance(x, float) for x in after) or max(after) >= max(horizontal, vertical):  # type: ignore[type-var]
-        return trajectory
-    corrected.info["gnss_sigma_scale"] = [float(x) for x in scale]
-    heights = vertical > SIGMA_AXIS_RATIO * horizontal  # gnss_scatter's reading
-    why = (
-        "an altitude in feet (3.3x), heights of two datums mixed, or a vertical sigma too small"
-        if heights
-        else "the sigmas (std columns, GST, covariance, [gnss] sigma_m or UERE x DOP) too small "
-        "for this receiver, or the IMU's noise set too small"
-    )
-    corrected.info["fit_warnings"] = [
-        f"GNSS: the fixes scatter {horizontal:.1f}x their horizontal and {vertical:.1f}x their "
-        f"vertical sigma about the solution (robust whitened RMS, ~1 expected: {why}): "
-        f"corrected, every fix's sigma scaled by {scale[0]:.1f} horizontally and "
-        f"{scale[2]:.1f} vertically and the drive solved again (now {after[0]:.1f}x / "
-        f"{after[1]:.1f}x; [gnss] sigma_from_fit = false keeps them)",
-        *corrected.info.get("fit_warnings", []),
-    ]
-    return corrected
+        return trajectory, dataset, config
+    after = {what: _scatter(corrected.info, what) for what in scaled}
+    # Kept when the scatter falls to about its sigmas: far below them, the first solve's
+    # scatter was not the receiver's noise but a model error the second solve took
+    # elsewhere (an aircraft's gyro 1 % large: velocities 2.8x, then 0.3x).
+    if any(
+        after[what] is None or not SCATTER_AFTER_MIN <= max(after[what]) < max(scaled[what])  # type: ignore[arg-type]
+        for what in scaled
+    ):
+        return trajectory, dataset, config
+    said = []
+    if "position" in scaled:
+        (horizontal, vertical), now = scaled["position"], after["position"]
+        corrected.info["gnss_sigma_scale"] = [float(x) for x in scale]
+        heights = vertical > SIGMA_AXIS_RATIO * horizontal  # gnss_scatter's reading
+        why = (
+            "an altitude in feet (3.3x), heights of two datums mixed, or a vertical sigma too small"
+            if heights
+            else "the sigmas (std columns, GST, covariance, [gnss] sigma_m or UERE x DOP) too small "
+            "for this receiver, or the IMU's noise set too small"
+        )
+        said.append(
+            f"GNSS: the fixes scatter {horizontal:.1f}x their horizontal and {vertical:.1f}x their "
+            f"vertical sigma about the solution (robust whitened RMS, ~1 expected: {why}): "
+            f"corrected, every fix's sigma scaled by {scale[0]:.1f} horizontally and "
+            f"{scale[2]:.1f} vertically and the drive solved again (now {now[0]:.1f}x / "  # type: ignore[index]
+            f"{now[1]:.1f}x; [gnss] sigma_from_fit = false keeps them)"  # type: ignore[index]
+        )
+    if "velocity" in scaled:
+        (horizontal, _), now = scaled["velocity"], after["velocity"]
+        corrected.info["gnss_velocity_sigma_scale"] = [float(x) for x in speed_scale]
+        said.append(
+            f"GNSS: the fixes' velocities scatter {horizontal:.1f}x their horizontal sigma about "
+            "the solution (robust whitened RMS, ~1 expected: the velocity sigmas, from the data, "
+            "[gnss] velocity_sigma_m_per_s or 0.1 m/s x HDOP, too small for this receiver): "
+            f"corrected, every velocity's sigma scaled by {speed_scale[0]:.1f} horizontally and "
+            f"{speed_scale[2]:.1f} vertically and the drive solved again (now {now[0]:.1f}x; "  # type: ignore[index]
+            "[gnss] sigma_from_fit = false keeps them)"
+        )
+    corrected.info[CORRECTIONS_SAID] = said
+    corrected.info["fit_warnings"] = [*said, *corrected.info.get("fit_warnings", [])]
+    return corrected, trial, trial_config
+
+
+def _scatter(info: dict[str, object], what: str) -> tuple[float, float] | None:
+    """The robust whitened scatter (horizontal, vertical) of the fixes' positions or
+    velocities about a graph solution (fgins.graph.reports.gnss_report), None without
+    one; a velocity without a vertical has NaN there."""
+    prefix = "gnss_whitened_scale" if what == "position" else "gnss_velocity_whitened_scale"
+    horizontal, vertical = info.get(f"{prefix}_horizontal"), info.get(f"{prefix}_vertical")
+    if not (isinstance(horizontal, float) and isinstance(vertical, float)):
+        return None
+    return horizontal, vertical
 
 
 def _clock_fit(info: dict[str, object]) -> tuple[float, float]:

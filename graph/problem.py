@@ -293,6 +293,7 @@ class Problem:
             for factor in gnss_model.antenna_velocity_factors(
                 _keys(X, ks), _keys(V, ks), _keys(B, ks), rotation, velocity, gyro[chosen],
                 gyro_bias, self._lever_arm, measured[chosen], sigma[chosen], values,
+                self.config.gnss,
             ):  # fmt: skip
                 graph.add(factor)
         odo_k = all_k[np.isfinite(self.odometer_speed[all_k])] if self.has_odometer else all_k[:0]
@@ -325,7 +326,7 @@ class Problem:
                 )
                 measured = self.gnss_velocity_at(k)
                 if measured is not None and not self.has_antenna_velocity:
-                    factors.append(gnss_model.velocity_factor(V(k), *measured))
+                    factors.append(gnss_model.velocity_factor(V(k), *measured, config))
             if run_config:
                 self._gnss_factors[k] = factors
         for factor in factors:
@@ -537,6 +538,27 @@ class Problem:
             antenna = pose.translation() + pose.rotation().matrix() @ lever
             whitened[i] = (antenna - self.gnss_enu[g]) / self.gnss_sigma[g]
         return self.segments.times[keyframes], whitened
+
+    def gnss_velocity_whitened_residuals(self, values: gtsam.Values) -> np.ndarray:
+        """(n, 3) whitened residual east/north/up of every GNSS velocity factor at an
+        estimate (the antenna's velocity ``v + R (w x l)`` less the measured), NaN up where
+        the velocity has no vertical (speed and course)."""
+        rows = []
+        lever = self._lever_arm
+        for k in np.flatnonzero(self.gnss_at >= 0):
+            measured = self.gnss_velocity_at(int(k))
+            if measured is None:
+                continue
+            velocity, sigma = measured
+            g = int(self.gnss_at[k])
+            rotation = values.atPose3(X(int(k))).rotation().matrix()
+            rate = self.gnss_gyro[g] - values.atConstantBias(B(int(k))).gyroscope()
+            antenna = gnss_model.antenna_velocity(rotation, values.atVector(V(int(k))), rate, lever)
+            row = (antenna - velocity) / sigma
+            if not np.isfinite(self.gnss_velocity[g, 2] + self.gnss_velocity_sigma[g, 2]):
+                row[2] = np.nan  # gnss_velocity_at's placeholder: no vertical
+            rows.append(row)
+        return np.array(rows).reshape(-1, 3)
 
     @property
     def gnss_used(self) -> np.ndarray:

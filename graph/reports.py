@@ -16,8 +16,7 @@ from fgins.datatypes import Trajectory
 from fgins.factors import gnss as gnss_model
 from fgins.factors import odometer as odometer_model
 from fgins.factors import vehicle as vehicle_model
-from fgins.geodesy import skew
-from fgins.gnss_scatter import gnss_scatter
+from fgins.gnss_scatter import gnss_scatter, velocity_scatter
 from fgins.graph.gyro_scale import SCALE_PRIOR
 from fgins.graph.parameter_step import imu_bias_jacobians, interval_mean, parameter_step
 from fgins.graph.problem import Problem
@@ -97,7 +96,11 @@ def gnss_report(problem: Problem, values: gtsam.Values) -> dict[str, object]:
         "gnss_rejected_times": [float(t) for t in large] if kernel == "Cauchy" else [],
         "gnss_large_residual_times": [float(t) for t in large],
         "gnss_rejected": text + listed,
-        **_merged_warnings(_dop_model_scale(problem, norms), gnss_scatter(whitened)),
+        **_merged_warnings(
+            _dop_model_scale(problem, norms),
+            gnss_scatter(whitened),
+            velocity_scatter(problem.gnss_velocity_whitened_residuals(values)),
+        ),
     }
 
 
@@ -109,7 +112,7 @@ def lever_arm_report(
     the configured arm, 1 s at none), every state free with them
     (:mod:`fgins.graph.parameter_step`), gives what the data want and their joint
     covariance. Both what the fixes' positions (:func:`antenna_check_rows`) and their
-    velocities (:func:`_velocity_columns`) say count: a velocity stamped late is off by the
+    velocities (:func:`_velocity_rows`) say count: a velocity stamped late is off by the
     acceleration times the delay. (The sigmas take the fixes' errors as white; real ones
     are correlated over seconds, and a correctly configured drive can sit at 4-5 sigma:
     KITTI's arm fits 0.23 +- 0.06 m forward of the configured zero.)
@@ -129,11 +132,18 @@ def lever_arm_report(
     keyframes = np.flatnonzero(problem.gnss_at >= 0)
     if len(keyframes) < MIN_FIXES_FOR_SCALE:
         return {}
+    # The GNSS factors are linearised here, with their columns; the rest as they are.
     position_types = (gtsam.GPSFactor, gtsam.GPSFactorArm)
     check = gtsam.NonlinearFactorGraph()
+    velocity_keyframes = []
     for i in range(graph.size()):
-        if graph.exists(i) and not isinstance(graph.at(i), position_types):
+        if not graph.exists(i) or isinstance(graph.at(i), position_types):
+            continue
+        k = _gnss_velocity_keyframe(problem, graph.at(i))
+        if k is None:
             check.add(graph.at(i))
+        else:
+            velocity_keyframes.append(k)
     config = problem.config.gnss
     configured = np.asarray(config.lever_arm_m, dtype=float)
     fix_times = problem.segments.times[keyframes]
@@ -141,8 +151,10 @@ def lever_arm_report(
     half_span = max(0.5 * float(fix_times[-1] - fix_times[0]), 1e-9)
     try:
         linear = check.linearize(values)
-        columns = _velocity_columns(problem, check, values, middle, half_span)
-        columns.update(_imu_columns(problem, check, linear, values, half_span))
+        columns = _imu_columns(problem, check, linear, values, half_span)
+        for factor, column in _velocity_rows(problem, velocity_keyframes, values, middle, half_span):
+            columns[linear.size()] = column
+            linear.push_back(factor)
         for k, t in zip(keyframes, fix_times, strict=True):
             g = int(problem.gnss_at[k])
             pose = values.atPose3(X(int(k)))
@@ -204,59 +216,59 @@ def _imu_columns(
     return columns
 
 
-def _velocity_columns(
-    problem: Problem,
-    check: gtsam.NonlinearFactorGraph,
-    values: gtsam.Values,
-    middle: float,
-    half_span: float,
-) -> dict[int, np.ndarray]:
-    """The GNSS velocity factors' columns (3, 5) in the arm and the time offset: the
-    antenna moves at ``v + R (w x l)`` (so ``R [w]x`` in the arm), and a velocity stamped
-    ``d`` late is the one of ``d`` earlier (``-a`` in the offset, ``a`` the acceleration
-    there). Without them the fixes' velocities, sharper than their positions, held the
-    solution where the stamps put them: fgins's aircraft with its IMU on a clock 300 ppm
-    fast showed 30 % of the drift (0.032 of 0.108 s), 300 ppm slow 15 % (read as an arm:
-    12.4 m inside its outage against 1.0 m), 100 ppm slow none; with them 0.104 of 0.108
-    s, and 0.037 of 0.036 s at 100 ppm."""
+def _gnss_velocity_keyframe(problem: Problem, factor: gtsam.NonlinearFactor) -> int | None:
+    """The keyframe of a GNSS velocity factor of the problem's graph (a prior on V(k), or
+    the linearised antenna velocity on X(k), V(k), B(k)); None for any other factor (a
+    stop's zero velocity, the alignment's prior)."""
+    keys = [int(key) for key in factor.keys()]
+    if isinstance(factor, gtsam.PriorFactorVector) and gtsam.Symbol(keys[0]).chr() == ord("v"):
+        k = gtsam.Symbol(keys[0]).index()
+        measured = problem.gnss_velocity_at(k)
+        if measured is not None and np.array_equal(factor.prior(), measured[0]) and np.array_equal(
+            _base_sigmas(factor.noiseModel()), measured[1]
+        ):
+            return k
+    elif isinstance(factor, gtsam.LinearContainerFactor) and len(keys) == 3 and (
+        gtsam.Symbol(keys[2]).chr() == ord("b")
+    ):  # Problem.linear_factors' antenna velocity
+        return gtsam.Symbol(keys[0]).index()
+    return None
+
+
+def _velocity_rows(
+    problem: Problem, keyframes: list[int], values: gtsam.Values, middle: float, half_span: float
+) -> list[tuple[gtsam.JacobianFactor, np.ndarray]]:
+    """The GNSS velocities of ``keyframes`` linearised at ``values`` and their columns
+    (:func:`fgins.factors.gnss.antenna_velocity_check_rows`). Without them the fixes'
+    velocities, sharper than their positions, held the solution where the stamps put them:
+    fgins's aircraft with its IMU on a clock 300 ppm fast showed 30 % of the drift (0.032
+    of 0.108 s), 300 ppm slow 15 % (read as an arm: 12.4 m inside its outage against 1.0
+    m), 100 ppm slow none; with them 0.104 of 0.108 s, and 0.037 of 0.036 s at 100 ppm."""
     times = problem.segments.times
     velocity = np.array([values.atVector(V(k)) for k in range(problem.n_keyframes)])
     acceleration = np.gradient(velocity, times, axis=0) if len(times) > 1 else np.zeros_like(velocity)
-    columns: dict[int, np.ndarray] = {}
-    for index in range(check.size()):
-        factor = check.at(index)
-        keys = [int(key) for key in factor.keys()]
-        if isinstance(factor, gtsam.PriorFactorVector):
-            k = gtsam.Symbol(keys[0]).index()
-            if gtsam.Symbol(keys[0]).chr() != ord("v"):
-                continue
-            measured = problem.gnss_velocity_at(k)
-            # A GNSS velocity, not a stop's zero or the alignment's prior.
-            if measured is None or not (
-                np.array_equal(factor.prior(), measured[0])
-                and np.array_equal(factor.noiseModel().sigmas(), measured[1])
-            ):
-                continue
-        elif isinstance(factor, gtsam.LinearContainerFactor) and len(keys) == 3 and (
-            gtsam.Symbol(keys[2]).chr() == ord("b")
-        ):  # an antenna velocity (Problem.linear_factors): X(k), V(k), B(k)
-            k = gtsam.Symbol(keys[0]).index()
-            measured = problem.gnss_velocity_at(k)
-            if measured is None:
-                continue
-        else:
-            continue
+    lever = np.asarray(problem.config.gnss.lever_arm_m, dtype=float)
+    rows = []
+    for k in keyframes:
+        measured, sigma = problem.gnss_velocity_at(k)  # type: ignore[misc]
         g = int(problem.gnss_at[k])
         rotation = values.atPose3(X(k)).rotation().matrix()
-        rate = problem.gnss_gyro[g] - values.atConstantBias(B(k)).gyroscope()
-        along = (float(times[k]) - middle) / half_span
-        column = np.zeros((3, N_PARAMETERS))
-        column[:, ARM] = rotation @ skew(rate)
-        column[:, TIME + DRIFT] = -np.outer(acceleration[k], [1.0, along])
-        # Against an IMU clock running r fast the velocity reads 1 + r times the solution's.
-        column[:, DRIFT[0]] -= velocity[k] / half_span
-        columns[index] = column / measured[1][:, None]
-    return columns
+        factor, column = gnss_model.antenna_velocity_check_rows(
+            X(k), V(k), B(k), rotation, velocity[k],
+            problem.gnss_gyro[g] - values.atConstantBias(B(k)).gyroscope(), lever, measured,
+            sigma, problem.config.gnss, acceleration[k], (float(times[k]) - middle) / half_span,
+            half_span,
+        )  # fmt: skip
+        rows.append((factor, np.hstack([column, np.zeros((3, N_PARAMETERS - 5))])))
+    return rows
+
+
+def _base_sigmas(noise_model) -> np.ndarray:  # gtsam.noiseModel.Base
+    """A diagonal noise model's sigmas, also under a robust kernel (whose own sigmas()
+    raises)."""
+    if isinstance(noise_model, gtsam.noiseModel.Robust):
+        noise_model = noise_model.noise()
+    return noise_model.sigmas()
 
 
 def _significance(change: np.ndarray, covariance: np.ndarray) -> float:

@@ -268,6 +268,33 @@ def test_an_imus_own_scale_error_is_not_read_as_an_arm_or_a_clock(
     info = fgins.smooth(fgins.load(tmp_path), "batch", progress=False).info
     said = [w for w in info.get("fit_warnings", []) if w.startswith("GNSS")]
     assert not said, said
+    if sensor == "gyro":  # the batch's own gyro-scale step takes it, though the first fit is
+        # poor for it (chi2/dof 10 with a gyro 1 % large: it used to be skipped there)
+        assert all(info["gyro_scale_corrected"]) and info["chi2_per_dof"] < 2.0, info["gyro_scale_error"]
     configured = np.array(fgins.load(tmp_path).gnss_config["lever_arm_m"])
     change = np.array(info["gnss_lever_arm_fit_m"]) - configured
     assert np.all(np.abs(change) < 3 * np.array(info["gnss_lever_arm_fit_sigma_m"])), change
+
+
+def test_sigmas_scaled_and_a_latency_corrected_are_both_said(tmp_path):
+    """Fixes 0.2 s late whose std columns are 3x too small: the sigmas are scaled first
+    (too-small sigmas make any offset look significant to the antenna check), then the
+    latency corrected on top. Each correction solves again; the second's solve must still
+    say the first (the sigma scaling, once after the antenna step, dropped what that step
+    had corrected from the summary)."""
+    import pandas as pd
+
+    _drive(tmp_path, [(10, 8, 15.0)], 2)
+    right = _outage_rms(_smooth(tmp_path), tmp_path)
+    _drive(tmp_path, [(10, 8, 15.0)], 2, shift_s=0.2)
+    fixes = pd.read_csv(tmp_path / "gnss.csv")
+    fixes[["std_east", "std_north", "std_up"]] *= 1.0 / 3.0
+    fixes.to_csv(tmp_path / "gnss.csv", index=False, float_format="%.10f")
+    track = _smooth(tmp_path)
+    said = [w for w in track.info["fit_warnings"] if w.startswith("GNSS")]
+    assert len(said) == 2 and all("corrected" in w for w in said), said
+    assert "scatter" in said[0] and said[1].startswith("GNSS time:"), said
+    assert 2.0 < track.info["gnss_sigma_scale"][0] < 4.5, track.info["gnss_sigma_scale"]
+    assert abs(track.info["gnss_time_offset_corrected_s"] + 0.2) < 0.05
+    assert _outage_rms(track, tmp_path) < 1.3 * right + 0.1
+
