@@ -433,6 +433,24 @@ def test_sigmas_too_small_are_scaled_to_the_scatter_and_the_uncertainty_is_hones
     assert kept_rms / kept_sigma > 1.15 * rms / sigma, (kept_rms, kept_sigma, rms, sigma)
 
 
+def _sim_outage_rms(track, folder, outages) -> tuple[float, float]:
+    """Horizontal RMS error inside ``outages`` against an fgins sim folder's truth.csv, and
+    the RMS of the horizontal sigma the track reports there."""
+    import pandas as pd
+    import pymap3d
+
+    truth = pd.read_csv(folder / "truth.csv")
+    frame = track.to_dataframe()
+    t = frame["time"].to_numpy()
+    reference = [np.interp(t, truth["time"], truth[c]) for c in ("lat", "lon", "alt")]
+    east, north, _ = pymap3d.geodetic2enu(frame["lat"], frame["lon"], frame["alt"], *reference)
+    inside = np.zeros(len(t), bool)
+    for start, end in outages:
+        inside |= (t >= start) & (t < end)
+    sigma = np.hypot(frame["std_east"], frame["std_north"]).to_numpy()
+    return float(np.sqrt(np.mean(np.hypot(east, north)[inside] ** 2))), float(np.sqrt(np.mean(sigma[inside] ** 2)))
+
+
 @pytest.mark.parametrize(
     ("scenario", "noise", "seed", "method", "outages"),
     [("car-urban", 0.6, 1, "batch", [(90.0, 120.0), (195.0, 255.0)]),
@@ -452,7 +470,6 @@ def test_velocities_noisier_than_their_sigma_are_scaled_and_the_uncertainty_is_h
     import re
 
     import pandas as pd
-    import pymap3d
 
     import fgins
     from fgins.sim.writer import write_sim_dir
@@ -466,21 +483,11 @@ def test_velocities_noisier_than_their_sigma_are_scaled_and_the_uncertainty_is_h
     fixes.to_csv(tmp_path / "gnss.csv", index=False, float_format="%.6f")
     config = (tmp_path / "config.toml").read_text()
     configured = float(re.search(r"velocity_sigma_m_per_s = ([0-9.e-]+)", config).group(1))
-    truth = pd.read_csv(tmp_path / "truth.csv")
 
     def run(text: str):
         (tmp_path / "config.toml").write_text(text)
         track = fgins.smooth(fgins.load(tmp_path), method, gnss_outage=outages, progress=False)
-        frame = track.to_dataframe()
-        t = frame["time"].to_numpy()
-        reference = [np.interp(t, truth["time"], truth[c]) for c in ("lat", "lon", "alt")]
-        east, north, _ = pymap3d.geodetic2enu(frame["lat"], frame["lon"], frame["alt"], *reference)
-        inside = np.zeros(len(t), bool)
-        for start, end in outages:
-            inside |= (t >= start) & (t < end)
-        sigma = np.hypot(frame["std_east"], frame["std_north"]).to_numpy()
-        rms = float(np.sqrt(np.mean(np.hypot(east, north)[inside] ** 2)))
-        return track, rms, float(np.sqrt(np.mean(sigma[inside] ** 2)))
+        return track, *_sim_outage_rms(track, tmp_path, outages)
 
     actual = float(np.hypot(configured, noise))
     _, right, _ = run(config.replace(f"velocity_sigma_m_per_s = {configured:g}", f"velocity_sigma_m_per_s = {actual}"))
@@ -516,20 +523,10 @@ def test_velocity_outliers_are_bounded_by_the_kernel(tmp_path, scenario, fractio
 
     outages = [(90.0, 120.0), (195.0, 255.0)] if scenario == "car-urban" else [(70.0, 100.0), (150.0, 200.0)]
     write_sim_dir(SCENARIOS[scenario](seed=seed), tmp_path)
-    truth = pd.read_csv(tmp_path / "truth.csv")
 
     def outage_rms():
         track = fgins.smooth(fgins.load(tmp_path), method, gnss_outage=outages, progress=False)
-        frame = track.to_dataframe()
-        t = frame["time"].to_numpy()
-        reference = [np.interp(t, truth["time"], truth[c]) for c in ("lat", "lon", "alt")]
-        import pymap3d
-
-        east, north, _ = pymap3d.geodetic2enu(frame["lat"], frame["lon"], frame["alt"], *reference)
-        inside = np.zeros(len(t), bool)
-        for start, end in outages:
-            inside |= (t >= start) & (t < end)
-        return float(np.sqrt(np.mean(np.hypot(east, north)[inside] ** 2))), track.info
+        return _sim_outage_rms(track, tmp_path, outages)[0], track.info
 
     clean, _ = outage_rms()
     fixes = pd.read_csv(tmp_path / "gnss.csv")
