@@ -243,7 +243,8 @@ def _velocity_rows(
     velocities, sharper than their positions, held the solution where the stamps put them:
     fgins's aircraft with its IMU on a clock 300 ppm fast showed 30 % of the drift (0.032
     of 0.108 s), 300 ppm slow 15 % (read as an arm: 12.4 m inside its outage against 1.0
-    m), 100 ppm slow none; with them 0.104 of 0.108 s, and 0.037 of 0.036 s at 100 ppm."""
+    m), 100 ppm slow none; with them 0.109 and 0.103 of 0.108 s, 0.038 and 0.032 of
+    0.036 s at 100 ppm."""
     times = problem.segments.times
     velocity = np.array([values.atVector(V(k)) for k in range(problem.n_keyframes)])
     acceleration = np.gradient(velocity, times, axis=0) if len(times) > 1 else np.zeros_like(velocity)
