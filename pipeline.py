@@ -16,6 +16,7 @@ from fgins.datatypes import (
     BaroData,
     Dataset,
     FginsError,
+    GnssData,
     InputError,
     OdometerData,
     Trajectory,
@@ -147,13 +148,20 @@ def _with_antenna_corrected(
     if method not in ("batch", "isam2"):
         return trajectory, dataset, config
     first, best = trajectory, trajectory
-    fixes_moved = 0.0
+    fixes_moved = velocity_lag = 0.0
     imu_t0, imu_t1 = float(dataset.imu.t[0]), float(dataset.imu.t[-1])
     drifting, last, arm_taken = False, (0.0, 0.0), None
     for _ in range(ANTENNA_ROUNDS):
         info = best.info
         offset = info.get("gnss_time_offset_s") if config.gnss.time_offset_from_data else None
         arm = info.get("gnss_lever_arm_m") if config.gnss.lever_arm_from_data else None
+        lag = info.get("gnss_velocity_lag_s") if config.gnss.time_offset_from_data else None
+        if velocity_lag and lag is None:
+            # Velocities moved back once: a 1 s delay is found at 0.8 (the linear step); the
+            # rest is taken while it shows at 2 sigma and the fit improves.
+            rest, rest_sigma = info.get("gnss_velocity_lag_fit_s"), info.get("gnss_velocity_lag_fit_sigma_s")
+            if isinstance(rest, float) and isinstance(rest_sigma, float) and abs(rest) > 2.0 * rest_sigma:
+                lag = rest
         drift = float(info.get("gnss_time_drift_s", 0.0))  # type: ignore[arg-type]
         if drifting and offset is None and _still_drifting(info):
             # Two clocks found: what is left of the drift is taken at 2 sigma. The biases
@@ -164,10 +172,13 @@ def _with_antenna_corrected(
                 value / (1.0 - min(max(value / before, 0.0), 0.8)) if before else value
                 for value, before in zip(_clock_fit(info), last, strict=True)
             )
-        if offset is None and arm is None:
+        if offset is None and arm is None and lag is None:
             break
         drifting, last = drifting or bool(drift), (offset or 0.0, drift)
-        trial, trial_config, trial_moved = dataset, config, fixes_moved
+        trial, trial_config, trial_moved, trial_lag = dataset, config, fixes_moved, velocity_lag
+        if lag is not None:
+            trial = replace(trial, gnss=_velocities_retimed(trial.gnss, float(lag)))  # type: ignore[arg-type]
+            trial_lag += float(lag)  # type: ignore[arg-type]
         if offset is not None:
             offset = float(offset)  # type: ignore[arg-type]
             if drift:
@@ -196,7 +207,7 @@ def _with_antenna_corrected(
         before, after = best.info.get("chi2_per_dof"), corrected.info.get("chi2_per_dof")
         if not (isinstance(before, float) and isinstance(after, float) and after < before):
             break
-        best, dataset, config, fixes_moved = corrected, trial, trial_config, trial_moved
+        best, dataset, config, fixes_moved, velocity_lag = corrected, trial, trial_config, trial_moved, trial_lag
         arm_taken = arm if arm is not None else arm_taken
     if best is first:
         return first, dataset, config
@@ -212,6 +223,9 @@ def _with_antenna_corrected(
             f"the IMU's times moved by {start:+.3f} s at the start to {end:+.3f} s at the end, "
             "onto the receiver's clock (the output's times are the receiver's)"
         )
+    if velocity_lag:
+        best.info["gnss_velocity_lag_corrected_s"] = velocity_lag
+        done.append(f"each velocity taken as the one {velocity_lag:+.3f} s after its stamp")
     if done:
         switches.append("[gnss] time_offset_from_data = false keeps the stamps")
     if arm_taken is not None:
@@ -329,6 +343,21 @@ def _scatter(info: dict[str, object], what: str) -> tuple[float, float] | None:
     if not (isinstance(horizontal, float) and isinstance(vertical, float)):
         return None
     return horizontal, vertical
+
+
+def _velocities_retimed(gnss: GnssData, lag: float) -> GnssData:
+    """The receiver's velocities stamped ``lag`` s late moved back onto their stamps: each
+    epoch takes the velocity reported ``lag`` later (linear between epochs; the last ones,
+    with none that late, keep theirs)."""
+    if gnss.velocity is None:
+        return gnss
+    velocity = np.array(gnss.velocity, dtype=float, copy=True)
+    for axis in range(velocity.shape[1]):
+        known = np.isfinite(velocity[:, axis])
+        if known.sum() >= 2:
+            later = np.interp(gnss.t[known] + lag, gnss.t[known], velocity[known, axis])
+            velocity[known, axis] = later
+    return replace(gnss, velocity=velocity)
 
 
 def _clock_fit(info: dict[str, object]) -> tuple[float, float]:
