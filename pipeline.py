@@ -31,7 +31,14 @@ GRAPH_METHODS = ("batch", "isam2", "isam2-online")
 # What a correction step (a solve again with something the data showed) said, kept in the
 # run's info so that the next step's solve again says it too; and its entries.
 CORRECTIONS_SAID = "corrections_said"
-CARRIED_KEYS = ("gnss_sigma_scale", "gnss_velocity_sigma_scale")
+CARRIED_KEYS = (
+    "gnss_sigma_scale",
+    "gnss_velocity_sigma_scale",
+    "gnss_time_offset_corrected_s",
+    "gnss_time_drift_corrected_s",
+    "gnss_velocity_lag_corrected_s",
+    "gnss_lever_arm_corrected_m",
+)
 SCATTER_AFTER_MIN = 0.5
 # Kalman baselines: method name -> "module:function" taking (dataset, config, gnss_mask=...,
 # progress=...) and returning a Trajectory. Modules are imported only when asked for.
@@ -64,8 +71,19 @@ def run_method(
     # the antenna check (velocities scattering 5x their sigma were read as an antenna or a
     # latency), while an arm or a latency hardly moves the robust scatter (1.0-1.24 with
     # 2-3 m arms and 0.15-0.3 s latencies).
-    trajectory, dataset, config = _with_gnss_sigmas_scaled(dataset, config, method, gnss_mask, progress, trajectory)
+    # Velocities late against their positions scatter by the acceleration times the delay
+    # (an aircraft's 0.5 s: 2x their sigma, scaled so, 1.34 m beside the fixes against 0.94
+    # on time): their sigmas are judged once the delay is corrected.
+    lagging = "gnss_velocity_lag_s" in trajectory.info
+    first_scaled = ("position",) if lagging else ("position", "velocity")
+    trajectory, dataset, config = _with_gnss_sigmas_scaled(
+        dataset, config, method, gnss_mask, progress, trajectory, first_scaled
+    )
     trajectory, dataset, config = _with_antenna_corrected(dataset, config, method, gnss_mask, progress, trajectory)
+    if lagging:
+        trajectory, dataset, config = _with_gnss_sigmas_scaled(
+            dataset, config, method, gnss_mask, progress, trajectory, ("velocity",)
+        )
     notes = [noise_note, mounting_note, _unknown_height(dataset, trajectory), _nose_off_track(config, trajectory)]
     if config.smoother.initial_heading_deg is None:  # else the configured heading is known
         notes.append(unobservable_heading(dataset, trajectory))
@@ -174,10 +192,17 @@ def _with_antenna_corrected(
             )
         if offset is None and arm is None and lag is None:
             break
+        if lag is not None:
+            # The velocities' delay alone first: the check models it to first order (the
+            # acceleration times the delay), and what is left, the second derivative times
+            # half its square, lies along the track in turns as a vertical arm's velocity
+            # does (an aircraft's velocities 0.5 s late read as an antenna 2 m above the
+            # IMU); the next round asks again with the velocities on time.
+            offset = arm = None
         drifting, last = drifting or bool(drift), (offset or 0.0, drift)
         trial, trial_config, trial_moved, trial_lag = dataset, config, fixes_moved, velocity_lag
         if lag is not None:
-            trial = replace(trial, gnss=_velocities_retimed(trial.gnss, float(lag)))  # type: ignore[arg-type]
+            trial = replace(trial, gnss=_velocities_retimed(trial.gnss, float(lag), best))  # type: ignore[arg-type]
             trial_lag += float(lag)  # type: ignore[arg-type]
         if offset is not None:
             offset = float(offset)  # type: ignore[arg-type]
@@ -257,8 +282,9 @@ def _with_gnss_sigmas_scaled(
     gnss_mask: np.ndarray | None,
     progress: bool,
     trajectory: Trajectory,
+    kinds: tuple[str, ...] = ("position", "velocity"),
 ) -> tuple[Trajectory, Dataset, RunConfig]:
-    """A graph solution whose fixes' positions or velocities scatter more than
+    """A graph solution whose fixes' positions or velocities (``kinds``) scatter more than
     SIGMA_TOO_SMALL times their own sigmas about it (fgins.gnss_scatter: robust, per
     horizontal and vertical) solved again with those sigmas scaled by that scatter, and
     said; the first when ``[gnss] sigma_from_fit`` is false or the second does not scatter
@@ -269,7 +295,7 @@ def _with_gnss_sigmas_scaled(
     right sigmas; an urban car whose velocities scattered 0.5 m/s against 0.2 configured:
     2.16 m against 1.09 m)."""
     info = trajectory.info
-    before = {what: _scatter(info, what) for what in ("position", "velocity")}
+    before = {what: _scatter(info, what) for what in kinds}
     scaled = {what: scale for what, scale in before.items() if scale is not None and max(scale) > SIGMA_TOO_SMALL}
     if method not in ("batch", "isam2") or not config.gnss.sigma_from_fit or not scaled:
         return trajectory, dataset, config
@@ -329,6 +355,10 @@ def _with_gnss_sigmas_scaled(
             f"{speed_scale[2]:.1f} vertically and the drive solved again (now {now[0]:.1f}x; "  # type: ignore[index]
             "[gnss] sigma_from_fit = false keeps them)"
         )
+    said = [*info.get(CORRECTIONS_SAID, []), *said]  # type: ignore[list-item]
+    for key in CARRIED_KEYS:
+        if key in info and key not in corrected.info:
+            corrected.info[key] = info[key]
     corrected.info[CORRECTIONS_SAID] = said
     corrected.info["fit_warnings"] = [*said, *corrected.info.get("fit_warnings", [])]
     return corrected, trial, trial_config
@@ -345,18 +375,21 @@ def _scatter(info: dict[str, object], what: str) -> tuple[float, float] | None:
     return horizontal, vertical
 
 
-def _velocities_retimed(gnss: GnssData, lag: float) -> GnssData:
+def _velocities_retimed(gnss: GnssData, lag: float, solution: Trajectory) -> GnssData:
     """The receiver's velocities stamped ``lag`` s late moved back onto their stamps: each
-    epoch takes the velocity reported ``lag`` later (linear between epochs; the last ones,
-    with none that late, keep theirs)."""
+    takes the solution's change of velocity over the ``lag`` before its stamp (what the IMU
+    says the vehicle did then). Interpolating the 1 Hz velocities ``lag`` later instead
+    misses their curvature in turns (half an epoch: the second derivative / 8, 0.03 m/s
+    along the track of an aircraft in a 3 deg/s turn, which the next check read as an
+    antenna 3 m above the IMU)."""
     if gnss.velocity is None:
         return gnss
     velocity = np.array(gnss.velocity, dtype=float, copy=True)
     for axis in range(velocity.shape[1]):
-        known = np.isfinite(velocity[:, axis])
-        if known.sum() >= 2:
-            later = np.interp(gnss.t[known] + lag, gnss.t[known], velocity[known, axis])
-            velocity[known, axis] = later
+        change = np.interp(gnss.t, solution.t, solution.velocity[:, axis]) - np.interp(
+            gnss.t - lag, solution.t, solution.velocity[:, axis]
+        )
+        velocity[:, axis] += change  # NaN (no velocity on this axis) stays NaN
     return replace(gnss, velocity=velocity)
 
 
