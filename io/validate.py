@@ -51,6 +51,7 @@ from dataclasses import replace
 import numpy as np
 
 from fgins.datatypes import Dataset, GnssData, InputError, Origin
+from fgins.io.axes_handedness import check_accel_handedness
 from fgins.io.baro_checks import (
     check_baro_scale,
     check_pressure_unit,
@@ -134,6 +135,7 @@ def _validated(dataset: Dataset, vehicle: str | None) -> Dataset:
         check_clock_offset(
             imu, gnss, enu, up, checks, given_offset, banks=vehicle == "aircraft"
         )  # fmt: skip
+        check_accel_handedness(imu, gnss, enu)
     check_gnss_velocity(gnss, origin)
     if dataset.odometer is not None and len(dataset.odometer.t):
         check_wheel_speed(dataset.odometer, gnss, enu)
