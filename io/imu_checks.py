@@ -111,8 +111,14 @@ def drop_out_of_range(imu: ImuData, warnings: list[str], *, label: str = "imu") 
 # vehicle can turn or change speed within one sample: 0.1 rad (5.7 deg) of rotation or 0.5
 # m/s of velocity (a 1.5 m/s jump in 10 ms is 15 g; a pothole's 3 g for 3 ms is 0.09 m/s),
 # while the neighbours themselves agree to a quarter of that. One or two samples in a row.
+# In a slow IMU's long sample a vehicle turns and brakes that much for real (1 Hz: braking at
+# 1.9 m/s^2 was "repaired"): never less than SPIKE_MIN_RATE_RAD_S / SPIKE_MIN_ACCEL_M_S2
+# apart from the neighbours' line, beyond any road vehicle's rate and acceleration (a
+# logger's bit error is tens of rad/s or g).
 SPIKE_ANGLE_RAD = 0.1
 SPIKE_VELOCITY_M_S = 0.5
+SPIKE_MIN_RATE_RAD_S = 2.0
+SPIKE_MIN_ACCEL_M_S2 = 30.0
 
 
 def repair_spikes(imu: ImuData, warnings: list[str], *, label: str = "imu") -> ImuData:
@@ -129,8 +135,8 @@ def repair_spikes(imu: ImuData, warnings: list[str], *, label: str = "imu") -> I
     gyro, accel = imu.gyro.copy(), imu.accel.copy()
     found: list[tuple[int, str, float, float]] = []  # (sample, channel, size, size / limit)
     for data, names, limit in (
-        (gyro, ("gyro_x", "gyro_y", "gyro_z"), SPIKE_ANGLE_RAD / nominal),
-        (accel, ("accel_x", "accel_y", "accel_z"), SPIKE_VELOCITY_M_S / nominal),
+        (gyro, ("gyro_x", "gyro_y", "gyro_z"), max(SPIKE_ANGLE_RAD / nominal, SPIKE_MIN_RATE_RAD_S)),
+        (accel, ("accel_x", "accel_y", "accel_z"), max(SPIKE_VELOCITY_M_S / nominal, SPIKE_MIN_ACCEL_M_S2)),
     ):
         for width in (1, 2):  # spikes of one sample, then of two in a row
             before, after = data[: -width - 1], data[width + 1 :]
