@@ -109,14 +109,17 @@ class _Epoch:
         "positions",
         "repeat_distance",
         "repeat_talker",
+        "resolution_ms",
         "speed",
         "std",
         "tod",
         "untrusted_date",
     )
 
-    def __init__(self, tod: float) -> None:
+    def __init__(self, tod: float, resolution_ms: int = 1) -> None:
         self.tod = tod
+        # the coarsest step of the time fields that named this epoch (see _Reader._epoch_at)
+        self.resolution_ms = resolution_ms
         # source -> (lat, lon, alt_msl, geoid_sep, quality, valid); the latest of any talker
         self.positions: dict[str, _Position] = {}
         # talker -> source -> position: which receiver stream said what (see _resolve)
@@ -157,6 +160,18 @@ def _time_of_day(text: str) -> float:
     if hours > 23 or minutes > 59 or not 0 <= seconds < 61:
         raise ValueError(f"bad time field {text!r}")
     return hours * 3600 + minutes * 60 + seconds
+
+
+def _time_resolution_ms(text: str) -> int:
+    """The step of a 'hhmmss[.sss]' field in ms: 1000 without decimals, 10 with two."""
+    decimals = len(text) - text.index(".") - 1 if "." in text else 0
+    return 10 ** (3 - min(decimals, 3))
+
+
+# Sentences of one epoch whose time fields differ by less than the coarser field's step are
+# one epoch when that step is at most this (0.1 s: a 10 Hz receiver's next epoch is a full
+# step later; a whole-second field is never matched to a fractional one).
+EPOCH_MERGE_MAX_MS = 100
 
 
 def _angle(text: str, hemisphere: str, degree_digits: int) -> float:
@@ -322,10 +337,22 @@ class _Reader:
             self.backward_jumps += self.stamped_back
             self.last_tod = max(self.last_tod, tod)
         key = day * 86_400_000 + round(tod * 1000)
+        resolution = _time_resolution_ms(tod_text)
         epoch = self.epochs.get(key)
+        if epoch is None and (current := self.current) is not None:
+            # One epoch's sentences with time fields of different resolutions (Magellan: GLL
+            # 200619.295, GGA and RMC 200619.30) are one fix, not two 5 ms apart (each
+            # position counted twice, "200 Hz" with gaps): the latest epoch within the
+            # coarser field's step, at most EPOCH_MERGE_MAX_MS, is this one, at the finer time.
+            step = max(resolution, current.resolution_ms)
+            apart = abs((day * 86400.0 + tod) - current.tod) * 1000.0
+            if step <= EPOCH_MERGE_MAX_MS and apart < step - 1e-6:
+                epoch = current
+                if resolution < current.resolution_ms:
+                    epoch.tod, epoch.resolution_ms = day * 86400.0 + tod, resolution
         self.stamped_back = self.stamped_back and epoch is not None
         if epoch is None:
-            epoch = self.epochs[key] = _Epoch(day * 86400.0 + tod)
+            epoch = self.epochs[key] = _Epoch(day * 86400.0 + tod, resolution)
         self.current = epoch
         return epoch
 

@@ -182,6 +182,30 @@ def _gpsd_only_fix(log: str, fix: GpsdFix, problem: str) -> bool:
     return False
 
 
+# One epoch's sentences may carry its time to different resolutions (Magellan: GLL to the
+# millisecond, GGA/RMC to 10 ms): the reader keeps one epoch at the finer time, gpsd reports
+# at the time of the sentence it just read.
+EPOCH_MATCH_MS = 10
+
+
+def _row_at(row_of: dict[int, int], key: int) -> int | None:
+    """The reader's row at ``key`` ms of the day, else one within EPOCH_MATCH_MS."""
+    if key in row_of:
+        return row_of[key]
+    near = [ms for ms in range(key - EPOCH_MATCH_MS + 1, key + EPOCH_MATCH_MS) if ms in row_of]
+    return row_of[min(near, key=lambda ms: abs(ms - key))] if near else None
+
+
+@pytest.mark.parametrize(("log", "epochs"), [("eXplorist210.log", 4), ("magellan315.log", 3)])
+def test_one_epoch_whose_time_fields_differ_in_resolution_is_one_fix(log: str, epochs: int) -> None:
+    """GLL at 200619.295, GGA and RMC at 200619.30: one fix with the GGA's height, not two
+    5 ms apart (one without a height) that count the position twice."""
+    result = read_nmea(EXTRA_DIR / log)
+    assert len(result.gnss) == epochs
+    assert np.all(np.diff(result.gnss.t) > 0.9)
+    assert np.all(np.isfinite(result.gnss.lla[:, 2]))
+
+
 @pytest.mark.skipif(not LOGS, reason=f"gpsd logs not found under {GPSD_DIR}")
 def test_all_fifty_logs_present() -> None:
     assert len(LOGS) == 50
@@ -208,7 +232,7 @@ def test_reader_matches_gpsd(log: Path) -> None:
     rounding_deg = 1e-4 / 60 + LATLON_TOL_DEG
     for fix in fixes:
         key = round(fix.tod * 1000)
-        row = row_of.get(key)
+        row = _row_at(row_of, key)
         if row is None:
             assert _gpsd_only_fix(log.name, fix, "missing"), f"{log.name}: no epoch at {fix}"
             continue
@@ -237,7 +261,7 @@ def test_reader_matches_gpsd(log: Path) -> None:
         if key in precise_tods and key in row_of and not _gpsd_only_fix(log.name, fix, "position"):
             assert key in matched_tods, f"{log.name}: no gpsd report matches to 1e-7 at {fix}"
     for tod, dops in sky_dops.items():
-        row = row_of.get(round(tod * 1000))
+        row = _row_at(row_of, round(tod * 1000))
         if row is None:
             continue  # DOPs of an epoch without a usable position
         for name, value in dops.items():
@@ -302,7 +326,8 @@ def test_geoid_known_values_and_api() -> None:
 # The time of day matches gpsd, the date does not: gpsd moves the receiver's date by its GPS
 # week-rollover heuristic (rst39: 2014 -> 2033, tcp-torture: 2007 -> 2027, neo-m8n:
 # 2015-03-18 -> 2034-11-02, 1024 weeks); this reader uses dates as logged.
-_GPSD_DATE_HEURISTIC = {"rst39.log", "tcp-torture.log", "neo-m8n.log"}
+# (gpsd redates the 2005-2006 Magellan logs 1024 weeks later, to 2024 and 2026.)
+_GPSD_DATE_HEURISTIC = {"rst39.log", "tcp-torture.log", "neo-m8n.log", "eXplorist210.log", "magellan315.log"}
 
 
 def _gpsd_dated_fixes(chk: Path) -> dict[int, float]:
