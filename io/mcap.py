@@ -424,6 +424,12 @@ def assemble_gnss(scan: TopicScan, need_imu: bool) -> tuple[GnssData, Any]:
         assert isinstance(gnss_acc, FixAccumulator)
         if gnss_acc.no_fix:
             warnings.append(f"gnss {gnss_acc.topic}: {gnss_acc.no_fix} no-fix messages dropped")
+        if gnss_acc.malformed_covariance:
+            warnings.append(
+                f"gnss {gnss_acc.topic}: {gnss_acc.malformed_covariance} fix message(s) with a "
+                "position covariance said to be known that is not 9 values (a 3x3 matrix): "
+                "their sigmas are taken as unknown"
+            )
         gnss = build_fixes(gnss_acc, warnings)
     if len(gnss) == 0:
         no_fix = getattr(gnss_acc, "no_fix", 0)

@@ -233,7 +233,16 @@ def _std_from_covariance(covariance: Any, covariance_type: Any) -> tuple[float, 
     if covariance is None or len(covariance) != 9 or int(covariance_type or 0) == 0:
         return (math.nan, math.nan, math.nan)
     diag = (float(covariance[0]), float(covariance[4]), float(covariance[8]))
-    return tuple(math.sqrt(v) if v > 0 else math.nan for v in diag)  # type: ignore[return-value]
+    # A variance given as known but not positive goes on as such: the validation layer
+    # counts it and ignores it (fgins.io.gnss_checks), as a CSV's std column of zeros.
+    return tuple(math.sqrt(v) if v > 0 else v for v in diag)  # type: ignore[return-value]
+
+
+def _malformed_covariance(covariance: Any, covariance_type: Any) -> bool:
+    """A covariance said to be known whose length is not the 3x3 matrix's 9."""
+    if isinstance(covariance_type, str):
+        covariance_type = 0 if covariance_type.upper() == "UNKNOWN" else 1
+    return int(covariance_type or 0) != 0 and covariance is not None and len(covariance) != 9
 
 
 # --------------------------------------------------------------------------------------------
@@ -320,6 +329,7 @@ class FixAccumulator(Accumulator):
         super().__init__(topic, schema_name)
         self.rows = array("d")
         self.no_fix = 0
+        self.malformed_covariance = 0  # said known, not 9 values: sigmas unknown, counted
         self.first_t = math.inf  # of any message, with a fix or not (the t0 of outages)
 
     def add(self, msg: Any, log_time: int, use_header_stamp: bool) -> None:
@@ -349,15 +359,18 @@ class FixAccumulator(Accumulator):
                 speed, course = float(msg.speed), float(msg.track)
                 track = math.radians(course)
                 velocity = (speed * math.sin(track), speed * math.cos(track), float(msg.climb))
-        std = _std_from_covariance(
-            _get(msg, "position_covariance"), _get(msg, "position_covariance_type", 0)
-        )
+        covariance = _get(msg, "position_covariance")
+        covariance_type = _get(msg, "position_covariance_type", 0)
+        std = _std_from_covariance(covariance, covariance_type)
+        self.malformed_covariance += _malformed_covariance(covariance, covariance_type)
         lat = float(_get(msg, "latitude", nan))
         lon = float(_get(msg, "longitude", nan))
+        # NaN (or no) altitude: a 2-D fix (NavSatFix's documented "no altitude"), kept; the
+        # validation layer gives it the height of the 3-D fixes around it, as for a CSV.
         alt = float(_get(msg, "altitude", nan))
         t = self.time(stamp, log_time, use_header_stamp)
         self.first_t = min(self.first_t, t)
-        if not (math.isfinite(lat) and math.isfinite(lon) and math.isfinite(alt)):
+        if not (math.isfinite(lat) and math.isfinite(lon)):
             self.no_fix += 1
             return
         self.t.append(t)

@@ -481,12 +481,18 @@ LOCATION_FIX_JSON_SCHEMA = {
 
 
 def write_foxglove_json(
-    path: Path, drive: Drive, *, chunk_size: int = 1024 * 1024, imu_keep: np.ndarray | None = None
+    path: Path,
+    drive: Drive,
+    *,
+    chunk_size: int = 1024 * 1024,
+    imu_keep: np.ndarray | None = None,
+    covariance_length: int = 9,
 ) -> Path:
     """LocationFix in JSON + CDR Imu with the plain mcap writer.
 
     ``chunk_size`` small gives many chunks (a truncated copy keeps some); ``imu_keep`` is a
-    mask of the IMU samples to write (to make gaps).
+    mask of the IMU samples to write (to make gaps); ``covariance_length`` < 9 writes a
+    malformed position covariance (its first values only).
     """
     from mcap.writer import Writer
 
@@ -517,7 +523,7 @@ def write_foxglove_json(
                 "latitude": float(drive.lla[k, 0]),
                 "longitude": float(drive.lla[k, 1]),
                 "altitude": float(drive.lla[k, 2]),
-                "position_covariance": cov.tolist(),
+                "position_covariance": cov[:covariance_length].tolist(),
                 "position_covariance_type": 2,
             }
             events.append((ns, "fix", json.dumps(fix).encode()))

@@ -64,6 +64,42 @@ def test_ros2_bag_values_are_read_exactly(ros2_bag: Path, drive: Drive) -> None:
     assert data.t0 == drive.gnss_ns.min() / 1e9
 
 
+def test_navsatfix_without_altitude_or_with_zero_variances_is_read_as_a_csv_would_be(
+    drive: Drive, tmp_path: Path
+) -> None:
+    """NavSatFix says "altitude NaN if no altitude": such a 2-D fix was dropped as "no fix"
+    (every third fix; all of them: "no valid fix", an error), while the same fixes as a CSV
+    with an empty alt are kept and given the height of the 3-D fixes around them. A
+    covariance said to be known (DIAGONAL_KNOWN) of zeros was ignored without a word; the
+    validation layer now counts it, as a CSV's zero std column."""
+    from dataclasses import replace as dc_replace
+
+    from fgins.io.validate import validate_dataset
+
+    lla, std = drive.lla.copy(), drive.std.copy()
+    lla[::3, 2] = np.nan
+    std[1::4] = 0.0
+    path = write_ros2_bag(tmp_path / "bag", dc_replace(drive, lla=lla, std=std), with_unknown=False)
+    result = read_mcap(path, progress=False)
+    valid = drive.valid
+    np.testing.assert_array_equal(result.dataset.gnss.t, drive.gnss_ns[valid] / 1e9)
+    checked = validate_dataset(result.dataset)
+    heightless = int(np.sum(np.isnan(lla[valid, 2])))
+    assert any(f"{heightless} of {int(valid.sum())} fix(es) without a height" in w for w in checked.warnings)
+    assert np.all(np.isfinite(checked.gnss.lla[:, 2]))
+    zero = int(np.sum(np.all(std[valid] == 0.0, axis=1)))
+    assert any(f"{zero} fix(es) with a zero, negative or infinite sigma" in w for w in checked.warnings)
+
+
+def test_a_malformed_location_fix_covariance_is_counted_not_silently_ignored(drive: Drive, tmp_path: Path) -> None:
+    path = write_foxglove_json(tmp_path / "fix.mcap", drive, covariance_length=3)
+    result = read_mcap(path, progress=False)
+    assert np.all(np.isnan(result.dataset.gnss.std))
+    fixes = int(drive.valid.sum())
+    assert any(f"{fixes} fix message(s) with a position covariance said to be known that is not 9 values" in w
+               for w in result.warnings), result.warnings  # fmt: skip
+
+
 def test_log_time_is_used_when_asked(ros2_bag: Path, drive: Drive) -> None:
     data = read_mcap(ros2_bag, use_header_stamp=False, progress=False).dataset
     np.testing.assert_array_equal(data.imu.t, (drive.imu_ns + LOG_LATENCY_NS) / 1e9)
