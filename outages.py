@@ -47,10 +47,19 @@ def empty_windows(dataset: Dataset, windows: list[tuple[float, float]]) -> list[
     lines = []
     for start, end in windows:
         if not np.any(in_windows(dataset.gnss.t, dataset.t0, [(start, end)])):
-            lines.append(
-                f"--gnss-outage window {start:g}:{end:g} s withholds no GNSS epoch (the epochs "
-                f"span {relative.min():.1f} .. {relative.max():.1f} s after t0): no outage there"
+            line = (
+                f"--gnss-outage window {start:.10g}:{end:.10g} s withholds no GNSS epoch (the "
+                f"epochs span {relative.min():.1f} .. {relative.max():.1f} s after t0): no outage there"
             )
+            absolute = in_windows(dataset.gnss.t, 0.0, [(start, end)])
+            if np.any(absolute) and dataset.t0:
+                # A window in the log's own time base (POSIX or GPS seconds): say which one
+                # it would be after t0.
+                line += (
+                    f"; windows count from the first GNSS epoch (t0 = {dataset.t0:.10g}): as the "
+                    f"log's own times, it is {start - dataset.t0:.1f}:{end - dataset.t0:.1f}"
+                )
+            lines.append(line)
     return lines
 
 

@@ -395,7 +395,7 @@ def report_gnss_time_gaps(t: np.ndarray, checks: list[str]) -> None:
         largest = int(jumps[int(np.argmax(dt[jumps]))])
         checks.append(
             f"gnss: {jumps.size} gap(s) in the fixes longer than {limit:.0f} s (largest "
-            f"{dt[largest]:.1f} s at t={t[largest]:.1f}): outages or a time jump"
+            f"{dt[largest]:.1f} s, {t[largest] - t[0]:.1f} s after the first fix): outages or a time jump"
         )
 
 

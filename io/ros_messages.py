@@ -7,9 +7,11 @@ the :class:`ImuData` / :class:`GnssData` they build.
 
 from __future__ import annotations
 
+import datetime
 import json
 import math
 import os
+import re
 import struct
 import tempfile
 from array import array
@@ -223,7 +225,23 @@ def _foxglove_stamp_ns(msg: Any) -> int:
         return 0
     if isinstance(stamp, dict):  # JSON: {"sec": .., "nsec": ..}
         return int(stamp.get("sec", 0)) * 1_000_000_000 + int(stamp.get("nsec", 0))
+    if isinstance(stamp, str):  # protobuf's JSON mapping of a Timestamp
+        return _rfc3339_ns(stamp)
     return int(stamp.seconds) * 1_000_000_000 + int(stamp.nanos)
+
+
+_RFC3339 = re.compile(r"(\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d)(?:\.(\d{1,9}))?(Z|[+-]\d\d:\d\d)")
+
+
+def _rfc3339_ns(text: str) -> int:
+    """'2024-05-01T12:00:00.123456789Z' (0-9 fraction digits, Z or an offset) -> POSIX ns, as
+    protobuf's JSON mapping writes a google.protobuf.Timestamp (a LocationFix written from a
+    protobuf message's JSON); ValueError otherwise (counted as undecodable)."""
+    match = _RFC3339.fullmatch(text.strip())
+    if match is None:
+        raise ValueError(f"timestamp {text!r} is neither {{sec, nsec}} nor RFC 3339")
+    whole = datetime.datetime.fromisoformat(match[1] + ("+00:00" if match[3] == "Z" else match[3]))
+    return int(whole.timestamp()) * 1_000_000_000 + int((match[2] or "0").ljust(9, "0"))
 
 
 def _std_from_covariance(covariance: Any, covariance_type: Any) -> tuple[float, float, float]:

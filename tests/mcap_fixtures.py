@@ -487,12 +487,14 @@ def write_foxglove_json(
     chunk_size: int = 1024 * 1024,
     imu_keep: np.ndarray | None = None,
     covariance_length: int = 9,
+    rfc3339_stamps: bool = False,
 ) -> Path:
     """LocationFix in JSON + CDR Imu with the plain mcap writer.
 
     ``chunk_size`` small gives many chunks (a truncated copy keeps some); ``imu_keep`` is a
     mask of the IMU samples to write (to make gaps); ``covariance_length`` < 9 writes a
-    malformed position covariance (its first values only).
+    malformed position covariance (its first values only); ``rfc3339_stamps`` writes the
+    fixes' timestamps as protobuf's JSON mapping does ("2024-05-01T12:00:00.200000000Z").
     """
     from mcap.writer import Writer
 
@@ -517,8 +519,14 @@ def write_foxglove_json(
                 continue
             cov = np.zeros(9)
             cov[[0, 4, 8]] = drive.std[k] ** 2
+            stamp: object = {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}
+            if rfc3339_stamps:
+                import datetime
+
+                whole = datetime.datetime.fromtimestamp(ns // 1_000_000_000, datetime.UTC)
+                stamp = whole.strftime("%Y-%m-%dT%H:%M:%S") + f".{ns % 1_000_000_000:09d}Z"
             fix = {
-                "timestamp": {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000},
+                "timestamp": stamp,
                 "frame_id": "antenna",
                 "latitude": float(drive.lla[k, 0]),
                 "longitude": float(drive.lla[k, 1]),

@@ -78,6 +78,16 @@ def test_smooth_summary_counts_add_up(sim_drive):
     assert "gnss_gating" in summary and summary["wall_s"] > 0
 
 
+def test_an_outage_window_in_the_logs_own_times_is_named_relative_to_t0(tmp_path):
+    """Windows count from the first GNSS epoch; given as the log's POSIX times, the warning
+    printed both bounds as 1.71456e+09, and not what was meant."""
+    t0 = 1_714_564_800.0
+    dataset = fgins.load(fgins.simulate("car-urban", tmp_path / "posix", duration=60, start_time_s=t0))
+    with pytest.warns(fgins.FginsWarning, match=r"window 1714564820:1714564835 s withholds no GNSS epoch.*"
+                      r"as the log's own times, it is 20\.0:35\.0"):  # fmt: skip
+        fgins.smooth(dataset, "ekf", gnss_outage=[(t0 + 20, t0 + 35)])
+
+
 def test_an_outage_window_that_withholds_nothing_is_said(sim_drive):
     """A window past the drive (a typo, another drive's windows) makes no outage test."""
     dataset = fgins.load(sim_drive)

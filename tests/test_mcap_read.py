@@ -100,6 +100,14 @@ def test_a_malformed_location_fix_covariance_is_counted_not_silently_ignored(dri
                for w in result.warnings), result.warnings  # fmt: skip
 
 
+def test_location_fix_stamps_in_protobufs_json_mapping_are_read(drive: Drive, tmp_path: Path) -> None:
+    """protobuf's JSON mapping writes a Timestamp as an RFC 3339 string: every fix was an
+    "undecodable message" while ``inspect`` listed the channel as fine."""
+    path = write_foxglove_json(tmp_path / "fix.mcap", drive, rfc3339_stamps=True)
+    data = read_mcap(path, progress=False).dataset
+    np.testing.assert_array_equal(data.gnss.t, drive.gnss_ns[drive.valid] / 1e9)
+
+
 def test_log_time_is_used_when_asked(ros2_bag: Path, drive: Drive) -> None:
     data = read_mcap(ros2_bag, use_header_stamp=False, progress=False).dataset
     np.testing.assert_array_equal(data.imu.t, (drive.imu_ns + LOG_LATENCY_NS) / 1e9)
