@@ -1204,6 +1204,9 @@ def write_ubx_imu_csv(result: UbxResult, path: str | Path) -> int:
     from fgins.io.csv_pair import write_imu_csv
 
     if result.imu is None:
+        why = next((w for w in result.warnings if "IMU not used" in w), None)
+        if why is not None:  # IMU messages there, refused for a reason: that reason
+            raise InputError(f"{result.path}: the receiver's IMU is not usable: {why}; nothing to convert")
         raise InputError(
             f"{result.path}: no usable IMU (ESF-RAW/ESF-MEAS with gyro and accelerometer) in the "
             "log; nothing to convert"
@@ -1240,7 +1243,7 @@ def summarize_ubx(path: str | Path) -> str:
         f"{result.noise_bytes}, RTCM3 frames skipped: {result.rtcm_frames}"
     )
     lines.append(
-        f"  navigation epochs: {result.epochs} ({result.epochs_without_fix} without a fix, "
+        f"  UBX navigation epochs: {result.epochs} ({result.epochs_without_fix} without a fix, "
         f"{result.epochs_without_time} without a valid time)"
     )
     gnss = result.gnss
@@ -1253,7 +1256,10 @@ def summarize_ubx(path: str | Path) -> str:
             f"  fixes: {len(gnss)} ({result.nmea_fixes_added} from NMEA sentences), rate "
             f"{rate:.2f} Hz, time {t[0]:.3f} .. {t[-1]:.3f} POSIX UTC ({t[-1] - t[0]:.1f} s)"
         )
-        histogram = ", ".join(f"{q}: {n}" for q, n in sorted(result.fix_histogram.items()))
+        # Over the fixes as kept, the ones from NMEA sentences among them (the UBX epochs'
+        # own histogram left those out: an empty line for a log of NMEA fixes in UBX).
+        qualities, counts = np.unique(gnss.fix_quality.astype(int), return_counts=True)
+        histogram = ", ".join(f"{q}: {n}" for q, n in zip(qualities, counts, strict=True))
         lines.append(f"  fix quality of the fixes (GGA codes; 0 = flagged invalid): {histogram}")
         lines.append(f"  hAcc: {_stats(gnss.std[:, 0], 'm')}")
         lines.append(f"  vAcc: {_stats(gnss.std[:, 2], 'm')}")

@@ -267,6 +267,18 @@ def test_esf_meas_pairing_and_wheel_speed(tmp_path):
 # -- framing, mixed streams, detection ------------------------------------------------------------
 
 
+def test_inspect_counts_the_fix_quality_of_fixes_from_nmea_sentences_too(tmp_path):
+    """A UBX log whose fixes come from its NMEA sentences (gpsd's ZED-F9P log: 655 of 655)
+    printed an empty fix-quality histogram; one with a UBX and an NMEA-only epoch counted one."""
+    stream = bytearray()
+    for k in range(3):
+        stream += nav_pvt(T0 + k, LAT, LON, H)
+    stream += _gga(T0 + 10, LAT + 1e-4, LON, 400.0)  # only in NMEA
+    text = summarize_ubx(_write(tmp_path, bytes(stream), "mixed.ubx"))
+    assert "fixes: 4 (1 from NMEA sentences)" in text
+    assert "fix quality of the fixes (GGA codes; 0 = flagged invalid): 1: 4" in text, text
+
+
 def test_corrupt_and_cut_frames_counted_never_fatal(tmp_path):
     frames = [nav_pvt(T0 + k, LAT, LON, H) for k in range(6)]
     bad = bytearray(frames[2])
@@ -440,6 +452,12 @@ def test_sensor_clock_restart_is_refused_not_interleaved(tmp_path):
     result = read_ubx(_write(tmp_path, data))
     assert result.imu is None and len(result.gnss) == 10
     assert any("jump back" in w for w in result.warnings)
+    # convert --imu names that reason, not "no usable IMU in the log"
+    from fgins.io.ubx import write_ubx_imu_csv
+
+    with pytest.raises(InputError, match=r"IMU is not usable: ESF-.*jump back.*split the log there") as refused:
+        write_ubx_imu_csv(result, tmp_path / "imu.csv")
+    assert "\n" not in str(refused.value) and not (tmp_path / "imu.csv").exists()
 
 
 def test_epochs_without_a_valid_time_are_named_as_the_cause(tmp_path):
