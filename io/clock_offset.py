@@ -41,6 +41,9 @@ ERROR_MIN_IMPROVEMENT = 10.0
 # 7 s at 1.5-2.0x, found to 0.05-0.3 s). At 3-7 s it was a warning, and the run went on to
 # chi2/dof 12-40 and an antenna "41-84 m ahead" of the IMU.
 ERROR_MIN_IMPROVEMENT_MANY_WINDOWS = 2.0
+# From the receiver's velocities (their course, fgins.io.motion_checks): an offset of at least
+# this many seconds, beyond the 0.5-2.5 s a receiver's velocity may lag its own positions.
+CLOCK_VELOCITY_MIN_LAG_S = 3.0
 
 
 @dataclass
@@ -55,11 +58,18 @@ class ClockOffset:
 
 
 def estimate_clock_offset(
-    t_imu: np.ndarray, yaw_rate: np.ndarray, t_gnss: np.ndarray, east_north: np.ndarray
+    t_imu: np.ndarray,
+    yaw_rate: np.ndarray,
+    t_gnss: np.ndarray,
+    east_north: np.ndarray,
+    velocity_en: np.ndarray | None = None,
 ) -> ClockOffset | None:
     """The lag between the GNSS track's course changes and the gyro's rotation about up
     (``yaw_rate``, counter-clockwise positive, rad/s), or None when the drive has too few
-    turns while moving among dense fixes to tell."""
+    turns while moving among dense fixes to tell. With ``velocity_en`` (the receiver's east
+    and north velocity at the fixes) the course is the velocity's, far sharper than a 2-s
+    chord of 3 m fixes (0.02 against 0.25 rad at 10 m/s), though a receiver's velocity may
+    lag its positions by a fraction of a second: for offsets of seconds only."""
     if len(t_gnss) < 10 or len(t_imu) < 10:
         return None
     interval = float(np.median(np.diff(t_gnss)))
@@ -69,7 +79,7 @@ def estimate_clock_offset(
     if hi - lo < 10 * WINDOW_S:
         return None
     start = np.arange(lo, hi, GRID_S)
-    course = [_course(t, t_gnss, east_north, interval) for t in (start, start + WINDOW_S)]
+    course = [_course(t, t_gnss, east_north, interval, velocity_en) for t in (start, start + WINDOW_S)]
     good = course[0][1] & course[1][1]
     change = np.angle(np.exp(1j * (course[1][0] - course[0][0])))  # counter-clockwise
     turning = good & (np.abs(change) > MIN_TURN_RAD)
@@ -118,14 +128,27 @@ def estimate_clock_offset(
     return ClockOffset(lag_s=lag, improvement=float(improvement), windows=int(turns))
 
 
-def _course(t: np.ndarray, t_gnss: np.ndarray, east_north: np.ndarray, interval: float):
-    """Course (rad, counter-clockwise from east, as a yaw) of the chord t +- CHORD_HALF_S, and
-    whether it is usable (moving, fixes dense around both ends)."""
+def _course(
+    t: np.ndarray,
+    t_gnss: np.ndarray,
+    east_north: np.ndarray,
+    interval: float,
+    velocity_en: np.ndarray | None = None,
+):
+    """Course (rad, counter-clockwise from east, as a yaw) of the chord t +- CHORD_HALF_S (or
+    of the receiver's velocity at t), and whether it is usable (moving, fixes dense around
+    both ends)."""
     a, b = t - CHORD_HALF_S, t + CHORD_HALF_S
-    d = np.column_stack([
-        np.interp(b, t_gnss, east_north[:, i]) - np.interp(a, t_gnss, east_north[:, i])
-        for i in range(2)
-    ])  # fmt: skip
+    if velocity_en is not None:
+        known = np.all(np.isfinite(velocity_en), axis=1)
+        d = 2 * CHORD_HALF_S * np.column_stack([
+            np.interp(t, t_gnss[known], velocity_en[known, i]) for i in range(2)
+        ])  # fmt: skip
+    else:
+        d = np.column_stack([
+            np.interp(b, t_gnss, east_north[:, i]) - np.interp(a, t_gnss, east_north[:, i])
+            for i in range(2)
+        ])  # fmt: skip
     ia = np.clip(np.searchsorted(t_gnss, a), 1, len(t_gnss) - 1)
     ib = np.clip(np.searchsorted(t_gnss, b), 1, len(t_gnss) - 1)
     gap = np.maximum(t_gnss[ia] - t_gnss[ia - 1], t_gnss[ib] - t_gnss[ib - 1])

@@ -133,7 +133,7 @@ def _validated(dataset: Dataset, vehicle: str | None) -> Dataset:
         raise
     if vehicle not in FREE_BODY_VEHICLES and dataset.accel_array is None:
         check_clock_offset(
-            imu, gnss, enu, up, checks, given_offset, banks=vehicle == "aircraft"
+            imu, gnss, enu, up, origin, checks, given_offset, banks=vehicle == "aircraft"
         )  # fmt: skip
         check_accel_handedness(imu, gnss, enu)
     check_gnss_velocity(gnss, origin)
