@@ -80,6 +80,7 @@ class VehicleAiding:
     crawl: np.ndarray  # (K,) the fixes moved over the last stationary.CRAWL_WINDOW_S
     rest_gyro: np.ndarray  # (K, 3) mean gyro over that window
     rest_gyro_sigma: np.ndarray  # (K,) per-axis sigma of that mean as a rate measurement
+    rest_accel: np.ndarray  # (K, 3) mean accelerometer over that window (a stop is level-free)
     baro_height: np.ndarray  # (K,) standard-atmosphere height, NaN where no pressure
     origin: Origin  # the navigation frame's (a barometer's height is taken down to its plane)
     baro_sigma: float
@@ -136,6 +137,7 @@ class VehicleAiding:
             )
             and not stationary.crawl_refuses_stop(self.crawl[k], speed)
             and stationary.slowed_to_a_stop(speed, self._recent.peak())
+            and stationary.level_force_allows_stop(state.rotation, self.rest_accel[k] - state.accel_bias)
         ):
             state, cov = kalman_update(state, cov, *self.zupt_measurement(k, state, len(cov)))
             self.counts["zupt_updates"] += 1
@@ -220,11 +222,13 @@ def vehicle_aiding(
             window_s=stationary.CRAWL_WINDOW_S,
         )
         rest_gyro, n_samples = stationary.mean_gyro(imu, times, before_s=QUIET_WINDOW_S)
+        rest_accel, _ = stationary.mean_accel(imu, times, before_s=QUIET_WINDOW_S)
         window = np.maximum(n_samples, 1) / imu.rate_hz
         rest_sigma = np.hypot(noise.gyro_noise / np.sqrt(window), NO_MOTION_RATE_SIGMA)
     else:
         quiet = crawl = np.zeros(len(times), dtype=bool)
         rest_gyro, rest_sigma = np.zeros((len(times), 3)), np.ones(len(times))
+        rest_accel = np.zeros((len(times), 3))
     pressure = stationary.pressure_at(dataset.baro, times, before_s=BARO_WINDOW_S, after_s=0.0)
     return VehicleAiding(
         times=np.asarray(times, dtype=float),
@@ -241,6 +245,7 @@ def vehicle_aiding(
         crawl=crawl,
         rest_gyro=rest_gyro,
         rest_gyro_sigma=rest_sigma,
+        rest_accel=rest_accel,
         baro_height=np.asarray(stationary.standard_atmosphere_height(pressure), dtype=float),
         origin=dataset.origin,
         baro_sigma=smoother.baro_sigma_m,
