@@ -168,11 +168,17 @@ def test_the_sparse_estimate_is_the_dense_least_squares_one(tmp_path, monkeypatc
 
 
 def test_an_implausible_scale_on_any_axis_corrects_nothing():
-    """A scale estimate beyond 10 % on any axis says the solution is wrong, not the gyro (a
-    start heading 120 deg off, its fit at chi2/dof 16, read as +398 % and -44 %): no axis
-    is corrected, while plausible ones are."""
+    """A scale estimate beyond 5 % on any axis says the solution is wrong, not the gyro (a
+    start heading 120 deg off, its fit at chi2/dof 16, read as +398 % and -44 %; a car's
+    pitch axis +6.0 % where its mounting was configured 4 deg off): no axis is corrected,
+    while plausible ones are."""
     sigma = np.full(3, 1e-4)
     assert not gyro_scale.ScaleEstimate(np.array([3.98, 0.01, -0.44]), sigma).significant.any()
     assert not gyro_scale.ScaleEstimate(np.array([0.011, 0.01, 0.2]), sigma).significant.any()
+    assert not gyro_scale.ScaleEstimate(np.array([0.0, 0.0602, 0.0]), sigma).significant.any()
+    # an axis far beyond 5 % but poorly determined (a car's roll axis) does not veto the rest
+    loose = np.array([0.03, 1e-4, 1e-4])
+    assert gyro_scale.ScaleEstimate(np.array([0.07, 0.0, 0.03]), loose).significant.tolist() == [False, False, True]
     found = gyro_scale.ScaleEstimate(np.array([0.011, 0.001, -0.03]), sigma).significant
     assert found.tolist() == [True, False, True]
+
