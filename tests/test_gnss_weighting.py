@@ -35,6 +35,32 @@ def test_sigmas_follow_data_then_uere_times_dop():
     np.testing.assert_allclose(sigma[3], [0.4, 0.5, 0.9])  # the receiver's own (GST) sigmas
 
 
+@pytest.mark.parametrize(
+    ("columns", "config_text", "said"),
+    [(["time", "lat", "lon", "alt"], "", True),
+     (["time", "lat", "lon", "alt", "hdop"], "", False),
+     (["time", "lat", "lon", "alt", "std_east", "std_north", "std_up"], "", False),
+     (["time", "lat", "lon", "alt"], "[gnss]\nsigma_m = [1.5, 1.5, 2.5]\n", False)],
+)  # fmt: skip
+def test_fixes_without_any_sigma_say_which_one_is_guessed(tmp_path, columns, config_text, said):
+    """Fixes with neither a sigma nor a DOP were smoothed at default_sigma_m (3 m) without a
+    word: an independent simulator's 1.5 m fixes came out with outage NEES 0.25."""
+    import pandas as pd
+
+    import fgins
+    from fgins.sim.writer import write_sim_dir
+
+    write_sim_dir(SCENARIOS["highway"](seed=1, duration_s=60.0), tmp_path)
+    fixes = pd.read_csv(tmp_path / "gnss.csv")
+    fixes[columns].to_csv(tmp_path / "fixes.csv", index=False, float_format="%.9f")
+    (tmp_path / "run.toml").write_text(config_text)
+    dataset = fgins.load(tmp_path / "imu.csv", tmp_path / "fixes.csv", config=tmp_path / "run.toml")
+    lines = [w for w in dataset.warnings if "carry no sigma" in w]
+    assert len(lines) == int(said), dataset.warnings
+    if said:
+        assert "[3, 3, 5] m" in lines[0] and "[gnss] sigma_m" in lines[0]
+
+
 def test_pdop_and_quality_gates_count_what_they_reject():
     gnss = _gnss(pdop=np.array([1.0, 6.0, 4.9, np.nan]), fix_quality=np.array([1, 1, 0, 6]))
     gate = gate_epochs(gnss, GnssConfig(pdop_max=5.0))
