@@ -37,11 +37,11 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-import pymap3d
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "tests"))
 
+from drive_fixtures import add_velocity_outliers, sim_outage_rms_and_sigma  # noqa: E402
 from independent_sim import run_imu_clock_off  # noqa: E402
 
 import fgins  # noqa: E402
@@ -67,16 +67,7 @@ def _noise(size: float) -> Callable[[Path, int], None]:
 
 
 def _outliers(fraction: float, size: float) -> Callable[[Path, int], None]:
-    def apply(folder: Path, seed: int) -> None:
-        fixes = pd.read_csv(folder / "gnss.csv")
-        rng = np.random.default_rng(seed)
-        rows = rng.choice(len(fixes), int(fraction * len(fixes)), replace=False)
-        angle = rng.uniform(0.0, 2.0 * np.pi, len(rows))
-        fixes.loc[rows, "vel_east"] += size * np.cos(angle)
-        fixes.loc[rows, "vel_north"] += size * np.sin(angle)
-        fixes.to_csv(folder / "gnss.csv", index=False, float_format="%.6f")
-
-    return apply
+    return lambda folder, seed: add_velocity_outliers(folder, fraction, size, seed)
 
 
 def _delay(lag: float, smoothed: bool) -> Callable[[Path, int], None]:
@@ -133,16 +124,8 @@ def _outage_rms(folder: Path, scenario: str, method: str, switch: str = "") -> t
         track = fgins.smooth(fgins.load(folder), method, gnss_outage=window, progress=False)
     finally:
         config.write_text(text)
-    truth = pd.read_csv(folder / "truth.csv")
-    frame = track.to_dataframe()
-    t = frame["time"].to_numpy()
-    reference = [np.interp(t, truth["time"], truth[c]) for c in ("lat", "lon", "alt")]
-    east, north, _ = pymap3d.geodetic2enu(frame["lat"], frame["lon"], frame["alt"], *reference)
-    inside = np.zeros(len(t), bool)
-    for start, end in outages:
-        inside |= (t >= start) & (t < end)
     said = [w for w in track.info.get("fit_warnings", []) if w.startswith("GNSS")]
-    return float(np.sqrt(np.mean(np.hypot(east, north)[inside] ** 2))), said
+    return sim_outage_rms_and_sigma(track, folder, outages)[0], said
 
 
 def main() -> None:

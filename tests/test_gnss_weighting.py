@@ -10,6 +10,7 @@ from fgins.datatypes import GnssData
 from fgins.factors.gnss import gate_epochs, position_sigmas, velocity_sigmas
 from fgins.graph.smoother import smooth
 from fgins.sim.scenarios import SCENARIOS
+from fgins.tests.drive_fixtures import add_velocity_outliers, sim_outage_rms_and_sigma
 
 
 def _gnss(**columns) -> GnssData:
@@ -459,24 +460,6 @@ def test_sigmas_too_small_are_scaled_to_the_scatter_and_the_uncertainty_is_hones
     assert kept_rms / kept_sigma > 1.15 * rms / sigma, (kept_rms, kept_sigma, rms, sigma)
 
 
-def _sim_outage_rms(track, folder, outages) -> tuple[float, float]:
-    """Horizontal RMS error inside ``outages`` against an fgins sim folder's truth.csv, and
-    the RMS of the horizontal sigma the track reports there."""
-    import pandas as pd
-    import pymap3d
-
-    truth = pd.read_csv(folder / "truth.csv")
-    frame = track.to_dataframe()
-    t = frame["time"].to_numpy()
-    reference = [np.interp(t, truth["time"], truth[c]) for c in ("lat", "lon", "alt")]
-    east, north, _ = pymap3d.geodetic2enu(frame["lat"], frame["lon"], frame["alt"], *reference)
-    inside = np.zeros(len(t), bool)
-    for start, end in outages:
-        inside |= (t >= start) & (t < end)
-    sigma = np.hypot(frame["std_east"], frame["std_north"]).to_numpy()
-    return float(np.sqrt(np.mean(np.hypot(east, north)[inside] ** 2))), float(np.sqrt(np.mean(sigma[inside] ** 2)))
-
-
 @pytest.mark.parametrize(
     ("scenario", "noise", "seed", "method", "outages"),
     [("car-urban", 0.6, 1, "batch", [(90.0, 120.0), (195.0, 255.0)]),
@@ -513,7 +496,7 @@ def test_velocities_noisier_than_their_sigma_are_scaled_and_the_uncertainty_is_h
     def run(text: str):
         (tmp_path / "config.toml").write_text(text)
         track = fgins.smooth(fgins.load(tmp_path), method, gnss_outage=outages, progress=False)
-        return track, *_sim_outage_rms(track, tmp_path, outages)
+        return track, *sim_outage_rms_and_sigma(track, tmp_path, outages)
 
     actual = float(np.hypot(configured, noise))
     _, right, _ = run(config.replace(f"velocity_sigma_m_per_s = {configured:g}", f"velocity_sigma_m_per_s = {actual}"))
@@ -542,7 +525,6 @@ def test_velocity_outliers_are_bounded_by_the_kernel(tmp_path, scenario, fractio
     velocities 5 m/s off took it from 0.71 to 1.32 m inside outages with nothing said, 5 %
     of 10 m/s made the antenna check name an antenna and a latency. Under the fixes'
     kernel (Huber 4 by default) the outages are bridged about as with clean velocities."""
-    import pandas as pd
 
     import fgins
     from fgins.sim.writer import write_sim_dir
@@ -552,16 +534,10 @@ def test_velocity_outliers_are_bounded_by_the_kernel(tmp_path, scenario, fractio
 
     def outage_rms():
         track = fgins.smooth(fgins.load(tmp_path), method, gnss_outage=outages, progress=False)
-        return _sim_outage_rms(track, tmp_path, outages)[0], track.info
+        return sim_outage_rms_and_sigma(track, tmp_path, outages)[0], track.info
 
     clean, _ = outage_rms()
-    fixes = pd.read_csv(tmp_path / "gnss.csv")
-    rng = np.random.default_rng(seed)
-    rows = rng.choice(len(fixes), int(fraction * len(fixes)), replace=False)
-    angle = rng.uniform(0.0, 2.0 * np.pi, len(rows))
-    fixes.loc[rows, "vel_east"] += size * np.cos(angle)
-    fixes.loc[rows, "vel_north"] += size * np.sin(angle)
-    fixes.to_csv(tmp_path / "gnss.csv", index=False, float_format="%.6f")
+    add_velocity_outliers(tmp_path, fraction, size, seed)
     rms, info = outage_rms()
     assert rms < 1.25 * clean + 0.1, (rms, clean)
     assert not [w for w in info.get("fit_warnings", []) if w.startswith(("GNSS lever", "GNSS time"))]
@@ -591,7 +567,7 @@ def test_velocities_lagging_their_positions_are_found_and_moved_back(tmp_path, s
         config.write_text(config.read_text().replace("[gnss]\n", "[gnss]\n" + extra, 1))
         track = fgins.smooth(fgins.load(tmp_path), method, gnss_outage=outages, progress=False)
         config.write_text(config.read_text().replace(extra, "", 1) if extra else config.read_text())
-        return track, _sim_outage_rms(track, tmp_path, outages)[0]
+        return track, sim_outage_rms_and_sigma(track, tmp_path, outages)[0]
 
     _, on_time = run()
     fixes = pd.read_csv(tmp_path / "gnss.csv")
@@ -639,7 +615,7 @@ def test_doppler_velocities_reported_late_are_moved_back_without_a_false_arm(
 
     def run():
         track = fgins.smooth(fgins.load(tmp_path), method, gnss_outage=outages, progress=False)
-        return track, _sim_outage_rms(track, tmp_path, outages)[0]
+        return track, sim_outage_rms_and_sigma(track, tmp_path, outages)[0]
 
     _, on_time = run()
     fixes, truth = pd.read_csv(tmp_path / "gnss.csv"), pd.read_csv(tmp_path / "truth.csv")
