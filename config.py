@@ -598,6 +598,11 @@ class SmootherConfig:
     # velocity at the IMU. KITTI: 0 fits best (0.3 m either way is worse in the sweep).
     nhc_lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     imu_to_vehicle_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # A car's mounting (given or the default) whose forward axis the drive's turns put more
+    # than 0.5 deg off is refined by a batch solve with a constant misalignment state and
+    # replaced where that turns it significantly (fgins.pipeline._check_mounting); false
+    # keeps a given mounting as it is (the checks still warn, and refuse > 10 deg).
+    mounting_from_data: bool = True
     zupt_sigma_m_per_s: float = 0.02
     zupt_max_speed_m_per_s: float = 1.5  # the predicted speed must agree that it is a stop
     odometer_sigma_m_per_s: float = 0.1

@@ -615,12 +615,16 @@ def check_imu_gaps(dataset: Dataset, config: RunConfig, gnss_mask: np.ndarray | 
 
 # The sigma of the misalignment state that refines a mounting taken from the drive's turns.
 ADOPTED_MOUNTING_SIGMA_DEG = 3.0
-# A default the turns put this far off is refined (see _check_mounting); a refined mounting
-# within DEFAULT_HOLDS_DEG (or 3 sigmas of the misalignment estimate) of the default leaves
-# the default (and says nothing): the simulated highway's rough turn fit (-1 deg) came back
-# to 0.26 deg, within the estimate's noise.
+# A mounting (the default or a given one) the turns put this far off is refined (see
+# _check_mounting); a refined mounting within DEFAULT_HOLDS_DEG (a given one: GIVEN_HOLDS_DEG)
+# or 3 sigmas of the misalignment estimate of the one it started from leaves that one (and
+# says nothing): the simulated highway's rough turn fit (-1 deg) came back to 0.26 deg,
+# within the estimate's noise.
 MOUNTING_REFINE_DEG = 0.5
 DEFAULT_HOLDS_DEG = 0.2
+# Someone measured a given mounting: the data replace it only where they show it off by more
+# than this as well (the refining solve is good to ~0.3 deg on simulated drives).
+GIVEN_HOLDS_DEG = 0.5
 MISALIGNMENT_SIGNIFICANT = 3.0  # sigmas of its estimate before a misalignment turns it
 
 
@@ -628,35 +632,46 @@ def _check_mounting(
     dataset: Dataset, config: RunConfig, gnss_mask: np.ndarray | None, progress: bool
 ) -> tuple[RunConfig, str | None]:
     """A car's IMU mounting against the one its turns show (fgins.mounting): the
-    constraints every method applies in the vehicle frame depend on it. A mounting someone
-    gave (config file, sim folder, API) that the data contradict is an error; the default,
-    given by nobody, is replaced by the one the data show (a copy of ``config``, said in a
-    warning): an IMU with x right and y forward is a convention, not a mistake. A default
-    whose forward axis the turns put more than MOUNTING_REFINE_DEG off (below the check's
-    5 deg) is refined the same way: on the urban car 2 deg of yaw cost 32 % inside an
-    outage, half a degree 48 % (or, by chance, helped: the NHC's white noise cannot hold a
-    constant error, so the outage's drift follows it)."""
+    constraints every method applies in the vehicle frame depend on it.
+
+    A given mounting (config file, sim folder, API) more than MOUNTING_ERROR_DEG off is an
+    error (a mistake to fix, such as inverted angles). Otherwise a mounting whose forward
+    axis the turns put more than MOUNTING_REFINE_DEG off about up (or whose roll and pitch
+    gravity contradicts) is refined by a batch solve with a constant misalignment state and
+    replaced by the refined one (a copy of ``config``, said in a warning) where that turns
+    it beyond DEFAULT_HOLDS_DEG (the default, given by nobody: an IMU with x right and y
+    forward is a convention, not a mistake) or GIVEN_HOLDS_DEG (a given one, unless ``[smoother]
+    mounting_from_data = false``) and beyond 3 sigmas of its estimate. On the urban car 2
+    deg of yaw cost 32 % inside an outage, half a degree 48 % (or, by chance, helped: the
+    NHC's white noise cannot hold a constant error, so the outage's drift follows it); an
+    independent simulator's car given a yaw 4 deg off ran 3.8 m inside a 40 s outage (NEES
+    24) where the true mounting gives 0.5 m."""
     if not config.smoother.nhc or dataset.accel_array is not None:
         return config, None  # no vehicle-frame constraint (or derived rates: too noisy)
     from fgins.mounting import adopted_mounting, check_mounting
 
     rpy = config.smoother.imu_to_vehicle_rpy_deg
     given = "imu_to_vehicle_rpy_deg" in config.explicit_smoother_keys or any(rpy)
+    finding = None
     if given:
-        return config, check_mounting(dataset, rpy)
+        finding = check_mounting(dataset, rpy)  # raises beyond MOUNTING_ERROR_DEG
+        if not config.smoother.mounting_from_data:
+            return config, finding
     adopted = adopted_mounting(dataset, rpy, refine_beyond_deg=MOUNTING_REFINE_DEG)
     if adopted is None:
-        return config, None
+        return config, finding if given else None
     original = config
     angles, evidence = adopted
     smoother = replace(config.smoother, imu_to_vehicle_rpy_deg=tuple(float(a) for a in angles))
     config = replace(config, smoother=smoother)
     refined = None
-    holds_deg = DEFAULT_HOLDS_DEG
+    holds_deg = GIVEN_HOLDS_DEG if given else DEFAULT_HOLDS_DEG
     if smoother.nhc_misalignment_prior_deg == 0.0:  # else the run estimates one itself
         refined = _refined_mounting(dataset, config, gnss_mask, progress)
         if refined is None:  # the refining solve failed: judged as a given mounting is
-            return original, check_mounting(dataset, rpy)
+            return original, finding if given else check_mounting(dataset, rpy)
+    elif given:
+        return original, finding  # the run's own misalignment state takes up the rest
     if refined is not None:
         angles, turned_deg, sigma_deg = refined
         holds_deg = max(holds_deg, MISALIGNMENT_SIGNIFICANT * sigma_deg)
@@ -666,9 +681,17 @@ def _check_mounting(
             f"; a batch solve with a constant misalignment state turned that by "
             f"{turned_deg:.2f} deg"
         )
-    if _forward_angle_deg(smoother.imu_to_vehicle_rpy_deg, rpy) <= holds_deg:
-        return original, None  # the default holds after all (a rough fit, refined back)
+    moved_deg = _forward_angle_deg(smoother.imu_to_vehicle_rpy_deg, rpy)
+    if moved_deg <= holds_deg:
+        return original, finding if given else None  # it holds after all (a rough fit)
     shown = ", ".join(f"{a:.2f}" for a in smoother.imu_to_vehicle_rpy_deg)
+    if given:
+        return config, (
+            f"imu: the configured mounting imu_to_vehicle_rpy_deg = {list(rpy)} does not fit "
+            f"the drive (its forward axis {moved_deg:.1f} deg off): using "
+            f"imu_to_vehicle_rpy_deg = [{shown}] ({evidence}); [smoother] mounting_from_data "
+            "= false keeps the configured one"
+        )
     return config, (
         f"imu: no IMU mounting was given, and the default {list(rpy)} does not fit the drive: "
         f"using imu_to_vehicle_rpy_deg = [{shown}] ({evidence}); set it in [smoother] to "
