@@ -410,6 +410,7 @@ def _antenna_verdict(
             advice.append("measure and set it")
             if (taken := _determined_arm(configured, arm, arm_cov)) is not None:
                 out["gnss_lever_arm_m"] = taken
+                out["gnss_lever_arm_cov_m2"] = _determined_arm_covariance(arm_cov)
         if "drift" in found:
             findings.append(f"GNSS time: the fixes fit {drift_line(fitted[3], fitted[4], variance[4])}")
             advice.append("put both on one clock, or stamp the IMU samples with the receiver's time")
@@ -455,6 +456,7 @@ def _antenna_verdict(
             out["gnss_time_offset_s"], out["gnss_time_drift_s"] = float(clock[0]), float(clock[1])
         elif taken is not None and (arm_merit > time_merit or not time_says):
             out["gnss_lever_arm_m"] = taken
+            out["gnss_lever_arm_cov_m2"] = _determined_arm_covariance(arm_cov)
         elif time_says:
             out["gnss_time_offset_s"] = offset
     out["antenna_findings"] = findings
@@ -477,6 +479,21 @@ def _determined_arm(configured: np.ndarray, shift: np.ndarray, cov: np.ndarray) 
     arm = configured.astype(float).copy()
     arm[known] += moved
     return [float(x) for x in arm]
+
+
+def _determined_arm_covariance(cov: np.ndarray) -> list[list[float]]:
+    """The covariance (m^2, IMU axes) of the arm :func:`_determined_arm` takes: its
+    determined components conditioned on the held ones, zero where it holds them."""
+    known = np.sqrt(np.diag(cov)) < ARM_CORRECTION_MAX_SIGMA_M
+    held = ~known
+    block = cov[np.ix_(known, known)]
+    if held.any() and known.any():
+        block = block - cov[np.ix_(known, held)] @ np.linalg.solve(
+            cov[np.ix_(held, held)], cov[np.ix_(held, known)]
+        )
+    out = np.zeros((3, 3))
+    out[np.ix_(known, known)] = block
+    return [[float(x) for x in row] for row in out]
 
 
 LEVER_ARM_PRIOR_M = 10.0
