@@ -289,6 +289,7 @@ IMU_KEYS = {
     "rate_hz",
     "sample_timing",
     "noise_from_data",
+    "turn_on_bias_from_data",
 }
 
 IMU_SAMPLE_TIMINGS = ("instant", "held")  # fgins.factors.imu_samples.SAMPLE_TIMINGS
@@ -330,6 +331,9 @@ IMU_SCHEMA: dict[str, Check] = {
     # false: keep the configured white noise even where the data at rest show more
     # (fgins.noise_at_rest).
     "noise_from_data": Check("bool"),
+    # false: keep the configured turn-on bias sigmas even where the solved biases lie far
+    # beyond them (fgins.pipeline._with_turn_on_bias_widened).
+    "turn_on_bias_from_data": Check("bool"),
 }
 assert set(IMU_SCHEMA) == IMU_KEYS | {"preset"}
 

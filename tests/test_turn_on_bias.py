@@ -1,0 +1,68 @@
+"""Turn-on bias sigmas configured far too small for the IMU (fgins.pipeline
+._with_turn_on_bias_widened).
+
+An independent simulator's consumer car whose biases are drawn with 0.3 deg/s and 10 mg
+sigmas, configured with a twentieth of one of them (a datasheet's typical value taken for
+its worst case, or a tactical preset on a consumer IMU). The prior then pulls the biases
+toward zero where the data are weaker than it: the solved biases sit tens of prior sigmas
+out, which a right prior gives once in ~600,000 drives. The drive must be solved again with
+a prior that holds them, said in one warning, and bridge its outage as with the right
+sigmas; the right sigmas draw nothing.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+import fgins
+
+sys.path.insert(0, str(Path(__file__).parent))
+from independent_sim import FIVE_TURNS, CarProfile, outage_rms_and_sigma, write_drive
+
+CONSUMER = dict(preset="consumer-mems", gyro_arw=0.3, gyro_bi=0.0, gyro_on=1080.0,
+                accel_vrw=0.1, accel_bi=0.0, accel_on=10.0)  # fmt: skip
+OUTAGES = [(60.0, 100.0), (175.0, 215.0)]
+STEPS = [(10, 8, 12.0), (110, 5, 6.0), (160, 6, -8.0)]
+
+
+def _smooth(folder: Path, method: str, imu: dict[str, object] | None = None):
+    """Smooth with the drive's [imu] table (the simulator's true sigmas), ``imu`` replacing
+    some of its keys."""
+    lines = [line for line in (folder / "cfg.toml").read_text().splitlines()
+             if line.split(" = ")[0] not in (imu or {})]  # fmt: skip
+    lines += [f"{k} = {str(v).lower() if isinstance(v, bool) else v}" for k, v in (imu or {}).items()]
+    config = folder / "run.toml"
+    config.write_text("\n".join(lines) + "\n")
+    dataset = fgins.load(folder / "imu.csv", folder / "gnss.csv", config=config, vehicle="car")
+    return fgins.smooth(dataset, method, gnss_outage=OUTAGES)
+
+
+def _said(track) -> list[str]:
+    return [w for w in track.info.get("fit_warnings", []) if "turn-on" in w]
+
+
+@pytest.mark.parametrize(
+    "key, value, sensor, seed, method",
+    [("accel_turn_on_bias_mg", 0.5, "accelerometer", 3, "batch"),
+     ("accel_turn_on_bias_mg", 0.5, "accelerometer", 4, "ekf-rts"),
+     ("gyro_turn_on_bias_deg_per_s", 0.015, "gyro", 5, "batch"),
+     ("gyro_turn_on_bias_deg_per_s", 0.015, "gyro", 6, "isam2")],
+)  # fmt: skip
+def test_a_turn_on_sigma_far_too_small_is_widened_and_said(tmp_path, key, value, sensor, seed, method):
+    profile = CarProfile(steps=STEPS, turns=FIVE_TURNS, gamma=lambda t: 0 * t)
+    write_drive(tmp_path, profile, 260.0, grade=CONSUMER, imu_rate=100.0, jitter=0.0,
+                gnss_rate=1.0, seed=seed)  # fmt: skip
+    right = _smooth(tmp_path, method)
+    assert not _said(right), right.info.get("fit_warnings")
+    widened = _smooth(tmp_path, method, {key: value})
+    said = _said(widened)
+    assert len(said) == 1 and f"the {sensor} bias came out at" in said[0], widened.info
+    assert f"solved again with {key}" in said[0] and "turn_on_bias_from_data = false" in said[0]
+    expected = outage_rms_and_sigma(right, tmp_path, OUTAGES)[0]
+    got = outage_rms_and_sigma(widened, tmp_path, OUTAGES)[0]
+    assert got <= 1.15 * expected + 0.05, (expected, got)
+    kept = _smooth(tmp_path, method, {key: value, "turn_on_bias_from_data": False})
+    assert not _said(kept)
