@@ -317,6 +317,36 @@ def test_fixes_far_better_than_their_uere_times_dop_sigmas_are_reported(tmp_path
     assert (scale < 0.4) == warned
 
 
+@pytest.mark.parametrize(
+    "sigma_m, seed, warned", [(8.0, 4, True), (6.0, 5, True), (1.0, 4, False), (2.0, 5, False)]
+)
+def test_a_configured_sigma_far_above_the_fixes_scatter_is_reported(tmp_path, sigma_m, seed, warned):
+    """A constant ``[gnss] sigma_m`` someone typed 6-8x what the receiver does (1 m fixes):
+    the fixes weighted 36-64x too little, every outage bridged worse and every reported
+    sigma pessimistic, with nothing said (the check held only UERE x DOP sigmas to a line).
+    Now a warning below a whitened RMS of 0.25 (KITTI's tuned 0.3 m fits at 0.28); a right
+    or twice-right sigma draws nothing."""
+    import sys
+    from pathlib import Path
+
+    import fgins
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from independent_sim import INDUSTRIAL, hilly_drive, write_drive
+
+    write_drive(tmp_path, hilly_drive(), 120.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
+                gnss_rate=1.0, seed=seed, sigma_h=1.0, sigma_u=1.0)  # fmt: skip
+    config = (tmp_path / "cfg.toml").read_text() + f"\n[gnss]\nsigma_m = {sigma_m}\n"
+    (tmp_path / "cfg.toml").write_text(config)
+    dataset = fgins.load(tmp_path / "imu.csv", tmp_path / "gnss.csv", config=tmp_path / "cfg.toml",
+                         vehicle="car")  # fmt: skip
+    summary = fgins.smooth(dataset, "batch").summary()
+    scale = summary["gnss_configured_sigma_whitened_rms"]
+    messages = [w for w in summary.get("fit_warnings", []) if "configured [gnss] sigma_m" in w]
+    assert bool(messages) == warned, (scale, messages)
+    assert abs(scale * sigma_m - 1.0) < 0.3, scale  # the fixes' own scatter, about 1 m
+
+
 @pytest.mark.parametrize("seed, jump_m", [(1, (30.0, 0.0, 0.0)), (2, (0.0, -20.0, 10.0))])
 def test_the_default_kernel_bounds_a_multipath_fix(tmp_path, seed, jump_m):
     """Three consecutive fixes 20-30 m off (a multipath stretch) in the middle of an aided
