@@ -499,3 +499,19 @@ def _tilt_note(dataset, rpy_deg, forward: np.ndarray, up: np.ndarray) -> str | N
 def _angles(rpy_deg, digits: int) -> str:
     rounded = np.round(np.asarray(rpy_deg, dtype=float), digits) + 0.0  # no "-0"
     return "[" + ", ".join(f"{value:g}" for value in rounded) + "]"
+
+
+def nhc_point_velocity(imu, times: np.ndarray, imu_to_vehicle: np.ndarray, lever_vehicle_m) -> np.ndarray:
+    """Lateral and vertical velocity (K, 2), vehicle axes, of the non-holonomic point
+    (``[smoother] nhc_lever_arm_m``, vehicle axes) relative to the IMU at each time:
+    ``S (w x r)`` with ``r`` the point's position from the IMU in IMU axes and ``w`` the
+    mean gyro over +-0.05 s (its bias, ~1e-4 rad/s, is negligible against yaw rates times a
+    lever). The factor graph and the Kalman baselines add it to the IMU's own."""
+    from fgins.factors.stationary import mean_gyro
+
+    lever = np.asarray(lever_vehicle_m, dtype=float)
+    if not np.any(lever):
+        return np.zeros((len(times), 2))
+    gyro, _ = mean_gyro(imu, times, before_s=0.05, after_s=0.05)
+    rotation = np.asarray(imu_to_vehicle, dtype=float)
+    return np.cross(np.nan_to_num(gyro), rotation.T @ lever) @ rotation[1:3].T

@@ -53,7 +53,7 @@ from fgins.config import ImuNoise, RunConfig
 from fgins.datatypes import Dataset
 from fgins.factors import stationary
 from fgins.geodesy import Origin, plane_fall, plane_fall_gradient, skew
-from fgins.mounting import mounting_rotation
+from fgins.mounting import mounting_rotation, nhc_point_velocity
 
 BARO_BIAS = STATE_DIM  # index of the barometer bias in the augmented error state
 BARO_BIAS_PRIOR_SIGMA_M = 100.0  # as the graph's prior on its first bias key
@@ -73,6 +73,9 @@ class VehicleAiding:
     nhc_sigma: np.ndarray  # (2,) lateral, vertical
     nhc_rows: np.ndarray  # (2, 3) vehicle y, z axes in IMU axes
     nhc_min_interval_s: float
+    # (K, 2) the constraint point's lateral/vertical velocity relative to the IMU (a lever
+    # arm nhc_lever_arm_m times the angular rate; fgins.mounting.nhc_point_velocity)
+    nhc_offset: np.ndarray
     zupt: bool
     zupt_sigma: float
     zupt_max_speed: float
@@ -123,7 +126,7 @@ class VehicleAiding:
         """Apply the pseudo-measurements due at boundary ``k`` (after any GNSS update)."""
         t = float(self.times[k])
         if self.nhc and t >= self._last_nhc + self.nhc_min_interval_s - 1e-9:
-            state, cov = kalman_update(state, cov, *self.nhc_measurement(state, len(cov)))
+            state, cov = kalman_update(state, cov, *self.nhc_measurement(k, state, len(cov)))
             self._last_nhc = t
             self.counts["nhc_updates"] += 1
         speed = float(np.linalg.norm(state.velocity))
@@ -151,9 +154,10 @@ class VehicleAiding:
         return state, cov
 
     def nhc_measurement(
-        self, state: NominalState, dim: int
+        self, k: int, state: NominalState, dim: int
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Residual, Jacobian, variance of ``S R^T v = 0``.
+        """Residual, Jacobian, variance of ``S R^T v + o_k = 0`` (``o_k``: the constraint
+        point's velocity relative to the IMU at boundary ``k``, as the graph's).
 
         With R_true = Exp(phi) R and v_true = v + dv: R_true^T v_true ~ R^T v + R^T dv +
         R^T [v]x phi, so H_v = S R^T and H_phi = S R^T [v]x.
@@ -162,7 +166,7 @@ class VehicleAiding:
         h = np.zeros((2, dim))
         h[:, VEL] = self.nhc_rows @ rt
         h[:, ATT] = self.nhc_rows @ rt @ skew(state.velocity)
-        residual = -(self.nhc_rows @ rt @ state.velocity)
+        residual = -(self.nhc_rows @ rt @ state.velocity + self.nhc_offset[k])
         return residual, h, self.nhc_sigma**2
 
     def zupt_measurement(
@@ -238,6 +242,7 @@ def vehicle_aiding(
         ),
         nhc_rows=mounting[1:3],  # R_vi rows: the vehicle's left and up axes in IMU axes
         nhc_min_interval_s=smoother.vehicle_constraint_interval_s,
+        nhc_offset=nhc_point_velocity(imu, times, mounting, smoother.nhc_lever_arm_m),
         zupt=smoother.zupt,
         zupt_sigma=smoother.zupt_sigma_m_per_s,
         zupt_max_speed=smoother.zupt_max_speed_m_per_s,

@@ -25,7 +25,7 @@ from fgins.factors import vehicle as vehicle_model
 from fgins.factors.values import put_double, put_vector
 from fgins.geodesy import earth_rate_enu, gravity_enu, normal_gravity, plane_fall
 from fgins.graph.keyframes import Segments, build_segments, keyframe_times
-from fgins.mounting import mounting_rotation
+from fgins.mounting import mounting_rotation, nhc_point_velocity
 
 # Between two stopped keyframes: rotation and position walk per sqrt(second) of standstill
 # (rad, m), the Kalman baselines' zero-angular-rate sigma (baseline.vehicle_updates).
@@ -728,7 +728,7 @@ def build_problem(
         [smoother.nhc_sigma_lateral_m_per_s, smoother.nhc_sigma_vertical_m_per_s],
         (len(times), 1),
     )
-    nhc_offset = _nhc_lever_velocity(
+    nhc_offset = nhc_point_velocity(
         imu, times, imu_to_vehicle, smoother.nhc_lever_arm_m
     ) if smoother.nhc else np.zeros((len(times), 2))  # fmt: skip
     return Problem(
@@ -826,21 +826,6 @@ def _suspect_params(
             )
             out.update({int(i): params for i in inside})
     return out
-
-
-def _nhc_lever_velocity(
-    imu, times: np.ndarray, imu_to_vehicle: np.ndarray, lever_vehicle_m
-) -> np.ndarray:
-    """Lateral and vertical velocity (K, 2), vehicle axes, of the non-holonomic point
-    relative to the IMU at each keyframe: ``S (w x r)`` with ``r`` the point's position from
-    the IMU (given in vehicle axes, here in IMU axes) and ``w`` the mean gyro over +-0.05 s
-    (its bias, ~1e-4 rad/s, is negligible against yaw rates times a lever)."""
-    lever = np.asarray(lever_vehicle_m, dtype=float)
-    if not np.any(lever):
-        return np.zeros((len(times), 2))
-    gyro, _ = stationary.mean_gyro(imu, times, before_s=0.05, after_s=0.05)
-    lever_imu = np.asarray(imu_to_vehicle, dtype=float).T @ lever
-    return np.cross(np.nan_to_num(gyro), lever_imu) @ vehicle_model.nhc_rows(imu_to_vehicle).T
 
 
 def _decimate(t: np.ndarray, min_interval: float) -> np.ndarray:
