@@ -51,7 +51,7 @@ from dataclasses import replace
 import numpy as np
 
 from fgins.datatypes import Dataset, GnssData, InputError, Origin
-from fgins.io.axes_handedness import check_accel_handedness
+from fgins.io.axes_handedness import check_accel_handedness, handedness_note_3d
 from fgins.io.baro_checks import (
     check_baro_scale,
     check_pressure_unit,
@@ -136,6 +136,15 @@ def _validated(dataset: Dataset, vehicle: str | None) -> Dataset:
             imu, gnss, enu, up, origin, checks, given_offset, banks=vehicle == "aircraft"
         )  # fmt: skip
         check_accel_handedness(imu, gnss, enu)
+    if vehicle != "car" and dataset.accel_array is None:
+        # Aircraft (banked turns put no force across the body), vehicles that need not
+        # follow their track, and any vehicle not known to be a car, which the track test
+        # may not judge: the 3-D fit, said as a warning (~0.1 s on a 10 min flight).
+        from fgins.geodesy import normal_gravity
+
+        note = handedness_note_3d(imu, gnss, enu, normal_gravity(origin.lat, origin.alt))
+        if note:
+            checks.append(note)
     check_gnss_velocity(gnss, origin)
     if dataset.odometer is not None and len(dataset.odometer.t):
         check_wheel_speed(dataset.odometer, gnss, enu)
