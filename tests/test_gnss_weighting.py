@@ -283,34 +283,42 @@ def test_course_velocity_below_the_speed_threshold_adds_no_factor():
     assert _horizontal_rms(trajectory, run.truth) < 2.0
 
 
-@pytest.mark.parametrize("uere,warned", [(None, True), (1.0, False)])
-def test_fixes_far_better_than_their_uere_times_dop_sigmas_are_reported(tmp_path, uere, warned):
-    """Fixes without sigmas of their own (NMEA without GST) get UERE x HDOP, 3 m for an
-    autonomous fix. A receiver scattering by 1 m then makes every reported sigma ~3x too large
-    (an independent simulator's car: position z 0.3) while the overall chi-square (0.06,
-    diluted by the IMU's) raised nothing. Told the right UERE, the warning goes."""
+def _hilly_drive_summary(folder, seed: int, extra_config: str, edit_fixes=None) -> dict:
+    """The batch run summary of the independent simulator's 120 s hilly drive (1 m fixes),
+    its config file with ``extra_config`` appended and its fixes edited by ``edit_fixes``."""
     import sys
     from pathlib import Path
-
-    import pandas as pd
 
     import fgins
 
     sys.path.insert(0, str(Path(__file__).parent))
     from independent_sim import INDUSTRIAL, hilly_drive, write_drive
 
-    write_drive(tmp_path, hilly_drive(), 120.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
-                gnss_rate=1.0, seed=4, sigma_h=1.0, sigma_u=1.0)  # fmt: skip
-    fixes = pd.read_csv(tmp_path / "gnss.csv").drop(columns=["std_east", "std_north", "std_up"])
-    fixes["hdop"], fixes["vdop"] = 1.0, 1.0
-    fixes.to_csv(tmp_path / "gnss.csv", index=False, float_format="%.10f")
-    config = (tmp_path / "cfg.toml").read_text()
-    if uere is not None:
-        config += f"\n[gnss.uere_m]\nautonomous = {uere}\n"
-    (tmp_path / "cfg.toml").write_text(config)
-    dataset = fgins.load(tmp_path / "imu.csv", tmp_path / "gnss.csv", config=tmp_path / "cfg.toml",
+    write_drive(folder, hilly_drive(), 120.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
+                gnss_rate=1.0, seed=seed, sigma_h=1.0, sigma_u=1.0)  # fmt: skip
+    if edit_fixes is not None:
+        edit_fixes(folder)
+    (folder / "cfg.toml").write_text((folder / "cfg.toml").read_text() + extra_config)
+    dataset = fgins.load(folder / "imu.csv", folder / "gnss.csv", config=folder / "cfg.toml",
                          vehicle="car")  # fmt: skip
-    summary = fgins.smooth(dataset, "batch").summary()
+    return fgins.smooth(dataset, "batch").summary()
+
+
+@pytest.mark.parametrize("uere,warned", [(None, True), (1.0, False)])
+def test_fixes_far_better_than_their_uere_times_dop_sigmas_are_reported(tmp_path, uere, warned):
+    """Fixes without sigmas of their own (NMEA without GST) get UERE x HDOP, 3 m for an
+    autonomous fix. A receiver scattering by 1 m then makes every reported sigma ~3x too large
+    (an independent simulator's car: position z 0.3) while the overall chi-square (0.06,
+    diluted by the IMU's) raised nothing. Told the right UERE, the warning goes."""
+    import pandas as pd
+
+    def hdop_instead_of_sigmas(folder):
+        fixes = pd.read_csv(folder / "gnss.csv").drop(columns=["std_east", "std_north", "std_up"])
+        fixes["hdop"], fixes["vdop"] = 1.0, 1.0
+        fixes.to_csv(folder / "gnss.csv", index=False, float_format="%.10f")
+
+    extra = "" if uere is None else f"\n[gnss.uere_m]\nautonomous = {uere}\n"
+    summary = _hilly_drive_summary(tmp_path, 4, extra, hdop_instead_of_sigmas)
     scale = summary["gnss_dop_model_whitened_rms"]
     messages = [w for w in summary.get("fit_warnings", []) if "UERE x DOP" in w]
     assert bool(messages) == warned, (scale, messages)
@@ -326,21 +334,7 @@ def test_a_configured_sigma_far_above_the_fixes_scatter_is_reported(tmp_path, si
     sigma pessimistic, with nothing said (the check held only UERE x DOP sigmas to a line).
     Now a warning below a whitened RMS of 0.25 (KITTI's tuned 0.3 m fits at 0.28); a right
     or twice-right sigma draws nothing."""
-    import sys
-    from pathlib import Path
-
-    import fgins
-
-    sys.path.insert(0, str(Path(__file__).parent))
-    from independent_sim import INDUSTRIAL, hilly_drive, write_drive
-
-    write_drive(tmp_path, hilly_drive(), 120.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
-                gnss_rate=1.0, seed=seed, sigma_h=1.0, sigma_u=1.0)  # fmt: skip
-    config = (tmp_path / "cfg.toml").read_text() + f"\n[gnss]\nsigma_m = {sigma_m}\n"
-    (tmp_path / "cfg.toml").write_text(config)
-    dataset = fgins.load(tmp_path / "imu.csv", tmp_path / "gnss.csv", config=tmp_path / "cfg.toml",
-                         vehicle="car")  # fmt: skip
-    summary = fgins.smooth(dataset, "batch").summary()
+    summary = _hilly_drive_summary(tmp_path, seed, f"\n[gnss]\nsigma_m = {sigma_m}\n")
     scale = summary["gnss_configured_sigma_whitened_rms"]
     messages = [w for w in summary.get("fit_warnings", []) if "configured [gnss] sigma_m" in w]
     assert bool(messages) == warned, (scale, messages)
