@@ -182,10 +182,13 @@ def test_ctrl_c_stops_the_fleet_and_its_workers(tmp_path):
     """SIGINT to the whole process group (what a terminal's Ctrl-C does) ends everything."""
     folders = []
     # A fraction of a second of smoothing each: with 8 drives a loaded machine once saw the
-    # whole fleet end between the first output and the interrupt (exit 0); 24 leave seconds.
-    for seed in range(24):
+    # whole fleet end between the first output and the interrupt (exit 0), and once with 24
+    # (two test suites beside it on two cores); the last ones are long enough (10 min
+    # drives, several seconds each) that the fleet is still at work when the signal comes.
+    for seed in range(16):
         folder = tmp_path / f"drive{seed}"
-        write_sim_dir(SCENARIOS["highway"](seed=seed, duration_s=120), folder)
+        minutes = 10 if seed >= 12 else 2
+        write_sim_dir(SCENARIOS["highway"](seed=seed, duration_s=60 * minutes), folder)
         folders.append(str(folder))
     out = tmp_path / "out"
     command = [sys.executable, "-m", "fgins", "fleet", *folders, "-o", str(out), "--workers", "2"]
