@@ -332,7 +332,7 @@ IMU_SCHEMA: dict[str, Check] = {
     # (fgins.noise_at_rest).
     "noise_from_data": Check("bool"),
     # false: keep the configured turn-on bias sigmas even where the solved biases lie far
-    # beyond them (fgins.pipeline._with_turn_on_bias_widened).
+    # beyond them (fgins.corrections.with_turn_on_bias_widened).
     "turn_on_bias_from_data": Check("bool"),
 }
 assert set(IMU_SCHEMA) == IMU_KEYS | {"preset"}
@@ -604,7 +604,7 @@ class SmootherConfig:
     imu_to_vehicle_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
     # A car's mounting (given or the default) whose forward axis the drive's turns put more
     # than 0.5 deg off is refined by a batch solve with a constant misalignment state and
-    # replaced where that turns it significantly (fgins.pipeline._check_mounting); false
+    # replaced where that turns it significantly (fgins.corrections.mounting_from_drive); false
     # keeps a given mounting as it is (the checks still warn, and refuse > 10 deg).
     mounting_from_data: bool = True
     zupt_sigma_m_per_s: float = 0.02

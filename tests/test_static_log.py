@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 import fgins
-from fgins.pipeline import never_moved
+from fgins.solution_checks import never_moved
 
 sys.path.insert(0, str(Path(__file__).parent))
 from independent_sim import INDUSTRIAL, CarProfile, horizontal_errors, write_drive

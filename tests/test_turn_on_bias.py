@@ -1,5 +1,5 @@
-"""Turn-on bias sigmas configured far too small for the IMU (fgins.pipeline
-._with_turn_on_bias_widened).
+"""Turn-on bias sigmas configured far too small for the IMU
+(fgins.corrections.with_turn_on_bias_widened).
 
 An independent simulator's consumer car whose biases are drawn with 0.3 deg/s and 10 mg
 sigmas, configured with a twentieth of one of them (a datasheet's typical value taken for

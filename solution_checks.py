@@ -1,0 +1,141 @@
+"""What a finished solution cannot show by itself, said beside it: a log without heights, a
+vehicle that never moved (no observable heading), an aircraft's IMU turned in the airframe.
+
+Each takes the dataset and the solution, adjusts the reported uncertainty where the solver's
+is meaningless (in place), and returns a warning line or None.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from fgins.config import RunConfig
+from fgins.datatypes import Dataset, Trajectory
+
+
+def unknown_height(dataset: Dataset, trajectory: Trajectory) -> str | None:
+    """A log without any height (NMEA RMC only): the heights are the validation's invented
+    0 m, and nothing in the data fixes the vertical. Its sigma is said to be at least the
+    invented height's, whatever the solver's covariance gives: the batch said 2.7 m (the
+    start's 2 m position prior holds the invented height) with the height 85 m off, and
+    43.7 m with that prior widened (QR marginals of a near-singular system: numerical
+    noise)."""
+    if not dataset.metadata.get("gnss_without_height"):
+        return None
+    from fgins.io.gnss_checks import NO_HEIGHT_SIGMA_M
+
+    cov = trajectory.position_cov
+    cov[:, 2, 2] = np.fmax(np.nan_to_num(cov[:, 2, 2], nan=0.0), NO_HEIGHT_SIGMA_M**2)
+    return (
+        "GNSS: the log has no height at all (2-D fixes): alt and up are the invented 0 m "
+        f"carried by the IMU, std_up at least {NO_HEIGHT_SIGMA_M:g} m; add GGA sentences or an "
+        "altitude column for a vertical solution"
+    )
+
+
+# Fixes whose running median (over this many) never leaves this many metres of the log's
+# median, over a log they cover almost end to end, and an IMU whose 1-s means of rate and
+# specific force stay this close to their medians (idle vibration averages out; a vehicle
+# circling a small courtyard turns and accelerates far more) show a vehicle that never moved.
+STATIC_SPAN_M = 10.0
+STATIC_MEDIAN_FIXES = 9
+STATIC_COVERAGE = 0.8
+STATIC_RATE_RAD_S = 0.02
+STATIC_FORCE_M_S2 = 0.3
+
+
+def never_moved(dataset: Dataset) -> float | None:
+    """How far (m) the fixes' running median strays from their median when the vehicle
+    never moved, else None (it moved, or the fixes do not cover the log to tell)."""
+    if not _imu_at_rest(dataset.imu):
+        return None
+    t, enu = dataset.gnss.t, dataset.gnss_enu()[:, :2]
+    span_imu = float(dataset.imu.t[-1] - dataset.imu.t[0])
+    good = np.all(np.isfinite(enu), axis=1)
+    t, enu = t[good], enu[good]
+    if len(t) < STATIC_MEDIAN_FIXES or (t[-1] - t[0]) < STATIC_COVERAGE * span_imu:
+        return None
+    windows = np.lib.stride_tricks.sliding_window_view(enu, STATIC_MEDIAN_FIXES, axis=0)
+    running = np.median(windows, axis=-1)  # (n - w + 1, 2): one outlier cannot move it
+    span = float(np.max(np.linalg.norm(running - np.median(enu, axis=0), axis=1)))
+    return span if span <= STATIC_SPAN_M else None
+
+
+def _imu_at_rest(imu) -> bool:
+    """Do 99 % of the IMU's 1-s means of rate and specific force stay within
+    ``STATIC_RATE_RAD_S`` and ``STATIC_FORCE_M_S2`` of their medians?"""
+    per_second = max(1, round(imu.rate_hz))
+    blocks = len(imu.t) // per_second
+    if blocks < 2:
+        return False
+    for samples, limit in ((imu.gyro, STATIC_RATE_RAD_S), (imu.accel, STATIC_FORCE_M_S2)):
+        means = samples[: blocks * per_second].reshape(blocks, per_second, 3).mean(axis=1)
+        spread = np.linalg.norm(means - np.median(means, axis=0), axis=1)
+        if float(np.percentile(spread, 99)) > limit:
+            return False
+    return True
+
+
+# An aircraft's nose points along its velocity to within its angle of attack and sideslip
+# (and a crab in wind): a few degrees, 15-20 at most. Its configured forward axis this far
+# from the solved velocity, over most of the flight, is an IMU whose x axis is not forward.
+NOSE_OFF_TRACK_DEG = 45.0
+NOSE_MIN_SPEED_M_S = 10.0
+
+
+def nose_off_track(config: RunConfig, trajectory: Trajectory) -> str | None:
+    """A warning when an aircraft's forward axis (IMU x, turned by the mounting) lies more
+    than NOSE_OFF_TRACK_DEG from its solved velocity (median over the flight above
+    NOSE_MIN_SPEED_M_S). The in-motion alignment takes that axis for the direction of
+    travel: an IMU with x right and y forward went unsaid (the graph recovered; EKF+RTS
+    1.24 m inside an outage instead of 0.36 m), one facing backwards only as a diverged
+    filter."""
+    if config.smoother.vehicle != "aircraft" or len(trajectory.t) < 10:
+        return None
+    from fgins.mounting import mounting_rotation
+
+    forward = mounting_rotation(config.smoother.imu_to_vehicle_rpy_deg)[0]  # IMU axes
+    velocity = trajectory.velocity
+    speed = np.linalg.norm(velocity, axis=1)
+    flying = np.isfinite(speed) & (speed > NOSE_MIN_SPEED_M_S)
+    if flying.sum() < 10:
+        return None
+    nose = trajectory.rotation[flying] @ forward  # ENU
+    cosine = np.einsum("ni,ni->n", nose, velocity[flying]) / speed[flying]
+    angle = float(np.degrees(np.arccos(np.clip(np.median(cosine), -1.0, 1.0))))
+    if angle <= NOSE_OFF_TRACK_DEG:
+        return None
+    return (
+        f"imu: the aircraft's forward axis (IMU x, turned by imu_to_vehicle_rpy_deg = "
+        f"{list(config.smoother.imu_to_vehicle_rpy_deg)}) lies {angle:.0f} deg from its "
+        "velocity over the flight (an aircraft flies along its nose to within 15-20 deg): the "
+        "IMU's axes are turned in the airframe; set [smoother] imu_to_vehicle_rpy_deg (the "
+        "in-motion alignment and the Kalman baselines take that axis for the direction of "
+        "travel)"
+    )
+
+
+def unobservable_heading(dataset: Dataset, trajectory: Trajectory) -> str | None:
+    """A vehicle that never moved has no observable heading: only the Earth's rate would
+    show it (15 deg/h at most, far below a MEMS gyro's bias), and every solver's linearised
+    covariance claimed 5-60 deg where the errors were up to 160 deg (their Gauss-Newton
+    curvature takes the noise-level wiggles of the track for motion). The heading's
+    variance is then set to (180 deg)^2, uncorrelated with the rest, and said; None when
+    the vehicle moved."""
+    span = never_moved(dataset)
+    if span is None:
+        return None
+    cov = trajectory.attitude_cov
+    if cov is not None:
+        cov[:, 2, :] = 0.0
+        cov[:, :, 2] = 0.0
+        cov[:, 2, 2] = math.pi**2
+    trajectory.info["heading_observable"] = False
+    return (
+        f"heading: the vehicle never moved (the fixes' running median stays within {span:.1f} "
+        "m): nothing shows its heading, so heading_deg is arbitrary and std_heading_deg is "
+        "180; position, velocity, roll and pitch are not affected ([smoother] "
+        "initial_heading_deg gives a known heading)"
+    )
