@@ -601,6 +601,10 @@ class SmootherConfig:
     # IMU, vehicle axes (forward, left, up), m: yaw rate x forward offset is lateral
     # velocity at the IMU. KITTI: 0 fits best (0.3 m either way is worse in the sweep).
     nhc_lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # A forward offset the drive's turns put significantly elsewhere (5 sigma and 0.5 m) is
+    # taken from them and the drive solved again (fgins.corrections.with_nhc_lever_corrected);
+    # false keeps the configured one (a warning still says it does not fit).
+    nhc_lever_from_data: bool = True
     imu_to_vehicle_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
     # A car's mounting (given or the default) whose forward axis the drive's turns put more
     # than 0.5 deg off is refined by a batch solve with a constant misalignment state and

@@ -22,6 +22,7 @@ from fgins.corrections import (
     noise_from_data,
     with_antenna_corrected,
     with_gnss_sigmas_scaled,
+    with_nhc_lever_corrected,
     with_turn_on_bias_widened,
 )
 from fgins.datatypes import Dataset, FginsError, InputError, Trajectory
@@ -59,6 +60,10 @@ def run_method(
     config, mounting_note = mounting_from_drive(dataset, config, run)
     trajectory = run.solve(dataset, config)
     trajectory, config, bias_note = with_turn_on_bias_widened(dataset, config, run, trajectory)
+    # The car's constraint point before the antenna: a lever left out (an IMU 2 m ahead of the
+    # rear axle) bends the track in every turn, which the antenna check read as an antenna
+    # 1.4 m ahead of the IMU and "corrected".
+    trajectory, config, lever_note = with_nhc_lever_corrected(dataset, config, run, trajectory)
     # The sigmas first: sigmas a few times too small make any offset look significant to
     # the antenna check (velocities scattering 5x their sigma were read as an antenna or a
     # latency), while an arm or a latency hardly moves the robust scatter (1.0-1.24 with
@@ -75,7 +80,7 @@ def run_method(
     # Last: the solves above hold a taken arm fixed, the output's uncertainty must not.
     add_arm_uncertainty(trajectory, trajectory.info.pop("gnss_lever_arm_corrected_cov_m2", None))
     notes = [
-        noise_note, bias_note, mounting_note, unknown_height(dataset, trajectory),
+        noise_note, bias_note, mounting_note, lever_note, unknown_height(dataset, trajectory),
         nose_off_track(config, trajectory),
     ]  # fmt: skip
     if config.smoother.initial_heading_deg is None:  # else the configured heading is known

@@ -33,10 +33,26 @@ class ParameterStep:
 
     step: np.ndarray
     covariance: np.ndarray
+    # The reduced normal equations the step solves (information @ step = rhs).
+    information: np.ndarray
+    rhs: np.ndarray
 
     @property
     def sigma(self) -> np.ndarray:
         return np.sqrt(np.diag(self.covariance))
+
+    def held(self, index: list[int]) -> ParameterStep:
+        """The step of the other parameters with those at ``index`` held where they are
+        (conditioned on a zero step): what a step without them would have given, from the
+        same elimination. None of the returned parameters is dropped: the held ones keep a
+        zero step and zero variance."""
+        free = np.setdiff1d(np.arange(len(self.step)), index)
+        information = self.information[np.ix_(free, free)]
+        covariance = np.zeros_like(self.covariance)
+        covariance[np.ix_(free, free)] = np.linalg.inv(information)
+        step = np.zeros_like(self.step)
+        step[free] = covariance[np.ix_(free, free)] @ self.rhs[free]
+        return ParameterStep(step=step, covariance=covariance, information=self.information, rhs=self.rhs)
 
 
 def imu_bias_jacobians(
@@ -126,4 +142,4 @@ def parameter_step(
         covariance = np.linalg.inv(information)
     except np.linalg.LinAlgError:
         return None
-    return ParameterStep(step=covariance @ rhs, covariance=covariance)
+    return ParameterStep(step=covariance @ rhs, covariance=covariance, information=information, rhs=rhs)

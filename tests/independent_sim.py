@@ -134,10 +134,13 @@ def write_drive(folder: Path, profile: CarProfile, duration_s: float, *, grade: 
                 lat0: float = 45.0, lon0: float = 10.0, alt0: float = 100.0,
                 sigma_h: float = 1.0, sigma_u: float = 1.5,
                 lever_arm: tuple[float, float, float] = (0.0, 0.0, 0.0),
-                gnss_t0: float = 0.0) -> None:  # fmt: skip
+                gnss_t0: float = 0.0,
+                imu_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> None:  # fmt: skip
     """imu.csv, gnss.csv, truth.csv and cfg.toml of ``profile`` in ``folder``; the fixes
     are those of an antenna ``lever_arm`` (body axes) from the IMU (cfg.toml leaves it out),
-    the first at ``gnss_t0`` (off the IMU's sample grid when not a multiple of its period)."""
+    the first at ``gnss_t0`` (off the IMU's sample grid when not a multiple of its period).
+    The profile moves the car's non-slip point (its velocity along the body's x); the IMU
+    sits ``imu_offset`` (body axes) from it, and truth.csv is the IMU's."""
     folder.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
     w_ie = EARTH_RATE * np.array([0, np.cos(np.radians(lat0)), np.sin(np.radians(lat0))])
@@ -147,8 +150,20 @@ def write_drive(folder: Path, profile: CarProfile, duration_s: float, *, grade: 
     if jitter:
         t = t + rng.uniform(-jitter, jitter, n) / imu_rate
         t[0] = 0.0
-    p, v = profile.position(t), profile.velocity(t)
-    a = _d1(profile.velocity, t)
+    if any(imu_offset):
+        offset = np.asarray(imu_offset, float)
+
+        def imu_position(u):
+            return profile.position(u) + profile.rotation(u) @ offset
+
+        def imu_velocity(u):
+            return _d1(imu_position, u)
+
+        p, v, a = imu_position(t), imu_velocity(t), _d1(imu_velocity, t)
+    else:
+        imu_position = profile.position
+        p, v = profile.position(t), profile.velocity(t)
+        a = _d1(profile.velocity, t)
     rot, rot_dot = profile.rotation(t), _d1(profile.rotation, t)
     gyro = _vee_of_skew(np.einsum("nji,njk->nik", rot, rot_dot)) + np.einsum("nji,j->ni", rot, w_ie)
     gravity = round_earth.gravity(p, lat0, lon0, alt0)
@@ -171,7 +186,7 @@ def write_drive(folder: Path, profile: CarProfile, duration_s: float, *, grade: 
                header="time,east,north,up,vel_east,vel_north,vel_up", comments="")  # fmt: skip
     n_gnss = int(np.floor((duration_s - gnss_t0) * gnss_rate + 1e-9)) + 1
     t_gnss = gnss_t0 + np.arange(n_gnss) / gnss_rate
-    antenna = profile.position(t_gnss) + profile.rotation(t_gnss) @ np.asarray(lever_arm, float)
+    antenna = imu_position(t_gnss) + profile.rotation(t_gnss) @ np.asarray(lever_arm, float)
     fixes = antenna + np.column_stack([
         rng.normal(0, sigma_h, n_gnss), rng.normal(0, sigma_h, n_gnss), rng.normal(0, sigma_u, n_gnss)
     ])  # fmt: skip

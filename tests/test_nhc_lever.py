@@ -1,0 +1,85 @@
+"""The car's non-holonomic point against its turns (fgins.graph.reports.nhc_lever_report,
+fgins.corrections.with_nhc_lever_corrected).
+
+The NHC holds at the car's non-slip point (the rear axle's centre), ``[smoother]
+nhc_lever_arm_m`` from the IMU; in a turn the IMU ahead of that point moves sideways at yaw
+rate x the offset. An independent simulator's town drive moves the non-slip point along the
+body's x and puts the IMU ``imu_offset`` from it (truth.csv is the IMU's): with the offset
+left out or given wrong, the constraint insists on a lateral velocity the car does not have.
+The drive's turns must show where the point is, the run must take it and say so, and bridge
+the outage as with the right lever; a right one (or an IMU at the point) must pass unsaid.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+import fgins
+
+sys.path.insert(0, str(Path(__file__).parent))
+from independent_sim import INDUSTRIAL, CarProfile, outage_rms_and_sigma, write_drive
+
+OUTAGE = [(95.0, 135.0)]
+# Town turns at 9 m/s: 0.2-0.3 rad/s (one of them inside the outage).
+TOWN_TURNS = [(30, 36, 1.5, 0.26), (60, 66, 1.5, -0.26), (100, 108, 2, 0.2), (150, 160, 2, -0.2),
+              (190, 196, 1.5, 0.26)]  # fmt: skip
+SAID = "the non-holonomic point"
+
+
+def _drive(folder: Path, seed: int, imu_ahead_m: float) -> Path:
+    profile = CarProfile(steps=[(5, 6, 9.0)], turns=TOWN_TURNS, gamma=lambda t: 0 * t)
+    write_drive(folder, profile, 220.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
+                gnss_rate=1.0, seed=seed, imu_offset=(imu_ahead_m, 0.0, 0.0))  # fmt: skip
+    return folder
+
+
+def _smooth(folder: Path, lever: tuple[float, float, float], method: str = "batch", extra: str = ""):
+    config = folder / "run.toml"
+    config.write_text(
+        (folder / "cfg.toml").read_text()
+        + f"[smoother]\nnhc_lever_arm_m = {list(lever)}\n{extra}"
+    )
+    dataset = fgins.load(folder / "imu.csv", folder / "gnss.csv", config=config, vehicle="car")
+    track = fgins.smooth(dataset, method, gnss_outage=OUTAGE)
+    return track, outage_rms_and_sigma(track, folder, OUTAGE)[0]
+
+
+def _said(track) -> list[str]:
+    return [note for note in track.info.get("fit_warnings", []) if SAID in note]
+
+
+@pytest.mark.parametrize(
+    "seed, imu_ahead, given, method",
+    [(1, 2.0, (0.0, 0.0, 0.0), "batch"), (2, 1.2, (0.0, 0.0, 0.0), "batch"),
+     (3, 0.0, (-2.5, 0.0, 0.0), "batch"), (4, 2.0, (0.0, 0.0, 0.0), "isam2")],
+)  # fmt: skip
+def test_a_wrong_or_missing_nhc_lever_is_taken_from_the_turns(tmp_path, seed, imu_ahead, given, method):
+    folder = _drive(tmp_path, seed, imu_ahead)
+    right = (-imu_ahead, 0.0, 0.0)  # the point from the IMU, vehicle axes
+    track, rms = _smooth(folder, given, method)
+    reference, right_rms = _smooth(folder, right, method)
+    plain, plain_rms = _smooth(folder, given, method, "nhc_lever_from_data = false\n")
+    said = _said(track)
+    assert len(said) == 1 and "corrected" in said[0], track.info.get("fit_warnings")
+    taken = track.info["nhc_lever_arm_corrected_m"][0]
+    assert abs(taken - right[0]) < 0.3, (taken, right)
+    # As good as the right lever inside the outage, and far better than the wrong one.
+    assert rms < 1.15 * right_rms + 0.05, (rms, right_rms, plain_rms)
+    assert plain_rms > 1.5 * right_rms, (plain_rms, right_rms)
+    # Switched off: the configured lever is kept, and the misfit is still said.
+    assert "nhc_lever_arm_corrected_m" not in plain.info
+    kept = _said(plain)
+    assert len(kept) == 1 and "corrected" not in kept[0], plain.info.get("fit_warnings")
+    assert not _said(reference), reference.info.get("fit_warnings")
+
+
+@pytest.mark.parametrize("seed, imu_ahead", [(5, 0.0), (6, 1.5), (7, 0.0)])
+def test_a_right_nhc_lever_passes_unsaid(tmp_path, seed, imu_ahead):
+    folder = _drive(tmp_path, seed, imu_ahead)
+    track, _ = _smooth(folder, (-imu_ahead, 0.0, 0.0))
+    assert not _said(track), track.info.get("fit_warnings")
+    fit, sigma = track.info["nhc_lever_forward_fit_m"], track.info["nhc_lever_forward_fit_sigma_m"]
+    assert abs(fit) < 4.0 * sigma + 0.1, (fit, sigma)
