@@ -94,6 +94,11 @@ def _is_real(value: Any) -> bool:
     return isinstance(value, numbers.Real) and not isinstance(value, bool)
 
 
+def _is_bool(value: Any) -> bool:
+    """A bool, numpy's too (a mask's element, ``np.True_``, is one)."""
+    return isinstance(value, bool) or (type(value).__name__ in ("bool_", "bool") and hasattr(value, "dtype"))
+
+
 def _is_number(value: Any) -> bool:
     return _is_real(value) and math.isfinite(float(value))
 
@@ -110,7 +115,7 @@ def _is_config(value: Any) -> bool:
 
 #: Argument kinds of :func:`_check_arguments`: kind -> (test, what a value must be).
 _ARGUMENT_KINDS: dict[str, tuple[Callable[[Any], bool], str]] = {
-    "bool": (lambda v: isinstance(v, bool), "True or False"),
+    "bool": (_is_bool, "True or False"),
     "number": (_is_number, "a finite real number"),
     "real": (_is_real, "a real number"),  # finite or not: the callee says which are usable
     "seed": (
@@ -293,6 +298,14 @@ def load(
     dataset.metadata["run_config"] = configure(
         dataset, config, imu_preset=imu_preset, vehicle=vehicle, robust=robust
     )
+    # The explicit choices, kept so that a TOML file given to smooth() later is layered under
+    # them as the CLI's --config is under its flags (they were dropped: the Huber kernel came
+    # back after robust="none").
+    dataset.metadata["run_choices"] = {
+        key: value
+        for key, value in (("imu_preset", imu_preset), ("vehicle", vehicle), ("robust", robust))
+        if value is not None
+    }
     for message in dataset.warnings:
         warnings.warn(message, FginsWarning, stacklevel=2)
     return dataset
@@ -439,7 +452,10 @@ def smooth(
         ``batch`` (Levenberg-Marquardt over the whole drive), ``isam2`` (incremental, final
         estimate), or a baseline: ``ekf``, ``ekf-rts``, ``ukf``, ``planar-kf``, ``ekf18``.
     config : path or RunConfig, optional
-        Overrides the configuration chosen by :func:`load` (see :func:`configure`).
+        Overrides the configuration chosen by :func:`load` (see :func:`configure`): a TOML
+        file replaces load's file, with load's explicit ``imu_preset``, ``vehicle`` and
+        ``robust`` still applied over it (as the CLI's flags are over ``--config``); a
+        RunConfig is used as it is (checked again).
     gnss_outage : list of (start, end), optional
         Seconds after t0, the first GNSS epoch of the input. GNSS epochs with
         ``start <= t - t0 < end`` are withheld (the IMU is untouched). A string
@@ -472,6 +488,7 @@ def smooth(
     >>> track.to_dataframe()[["east", "north", "up"]].shape
     (46968, 3)
     """
+    from fgins.config import RunConfig
     from fgins.outages import empty_windows, outage_mask
     from fgins.pipeline import METHODS, run_method
 
@@ -486,8 +503,14 @@ def smooth(
     windows = _windows(gnss_outage)
     if config is None:
         run_config = dataset.metadata.get("run_config") or configure(dataset)
+    elif isinstance(config, RunConfig):
+        run_config = config  # used as is
     else:
-        run_config = configure(dataset, config)
+        choices = dataset.metadata.get("run_choices") or {}
+        run_config = configure(dataset, config, **choices)  # type: ignore[arg-type]
+    # A RunConfig is mutable: one changed in code since it was made is checked again here.
+    run_config = run_config.checked()
+    dataset = _checked_input(dataset, run_config.smoother.vehicle)
     run_method_name = "isam2-online" if online else method
     mask = outage_mask(dataset, windows)
     started = time.perf_counter()
@@ -515,6 +538,20 @@ def smooth(
     for message in trajectory.info.get("fit_warnings", []):
         warnings.warn(message, FginsWarning, stacklevel=2)
     return trajectory
+
+
+def _checked_input(dataset: Dataset, vehicle: str) -> Dataset:
+    """``dataset`` through the input checks every reader's goes through (fgins.io.validate),
+    unless it already was: a Dataset made in code from arrays had skipped them, and an
+    accelerometer in g was smoothed 45 m off without a word. Their findings are warned."""
+    if dataset.metadata.get("input_checks") is not None:
+        return dataset
+    from fgins.io.validate import validate_dataset
+
+    checked = validate_dataset(dataset, vehicle=vehicle)
+    for message in checked.warnings[len(dataset.warnings) :]:
+        warnings.warn(message, FginsWarning, stacklevel=3)
+    return checked
 
 
 # ---------------------------------------------------------------------------------------------
@@ -578,9 +615,16 @@ def check_output(
     names of an input folder (:data:`INPUT_FOLDER_FILES`), which would turn it into input;
     no name in it may be longer than the file system allows.
 
-    Returns the path as given. Raises :class:`OutputError` with a one-line message.
+    ``inputs`` may be one path or several; ``suffixes`` one extension or several. Returns the
+    path with a leading ``~`` expanded: the place checked, to write to (the checks expanded it
+    and the writers did not: ``~/x.csv`` was checked at $HOME and written to ``./~/``). Raises
+    :class:`OutputError` with a one-line message.
     """
     _check_arguments("check_output", path=(path, "path"), what=(what, "text"))
+    if "\x00" in os.fspath(path):
+        raise OutputError(f"{_shortened(repr(os.fspath(path)))}: a path cannot hold a NUL character")
+    inputs = _as_paths(inputs)
+    suffixes = (suffixes,) if isinstance(suffixes, str) else tuple(suffixes)
     target = Path(path).expanduser()
     suffix = target.suffix.lower()
     if suffix not in suffixes:
@@ -595,7 +639,17 @@ def check_output(
         raise OutputError(
             f"{_shortened(path)}: cannot write there ({exc.strerror or type(exc).__name__})"
         ) from None
-    return Path(path)
+    return target
+
+
+def _as_paths(inputs: object) -> list[str | os.PathLike[str]]:
+    """``check_output``'s inputs as a list: one path given alone (a str was iterated by
+    character, so the input itself passed the check), or none."""
+    if inputs is None:
+        return []
+    if isinstance(inputs, (str, os.PathLike)):
+        return [inputs]
+    return list(inputs)  # type: ignore[call-overload]
 
 
 def _check_output_place(
@@ -668,10 +722,10 @@ def write(
     )  # fmt: skip
     run = trajectory.info.get("run", {})
     inputs = run.get("inputs", []) if isinstance(run, dict) else []
-    check_output(path, inputs)
+    path = check_output(path, inputs)
     if with_input:
         _check_with_input(inputs, path, option="with_input=True")
-    suffix = Path(path).suffix.lower()
+    suffix = path.suffix.lower()
     if suffix == ".csv":
         from fgins.io.trajectory_csv import write_trajectory_csv
 
@@ -798,15 +852,41 @@ def summary(trajectory: Trajectory) -> dict[str, Any]:
 def _truth_for(dataset: Dataset, truth: Any) -> Trajectory | None:
     from fgins.io.trajectory_csv import read_trajectory_csv
 
-    if truth is None or isinstance(truth, Trajectory):
-        return truth
-    if isinstance(truth, str) and truth == "auto":
+    if truth is None:
+        return None
+    if isinstance(truth, Trajectory):
+        # Another drive's trajectory scored as this one's truth gives numbers, silently (as
+        # plot() refuses to draw one against another drive's fixes).
+        run = truth.info.get("run", {})
+        if isinstance(run, dict) and run and (
+            run.get("dataset") != dataset.name or run.get("imu_samples") != len(dataset.imu)
+        ):
+            raise ConfigError(
+                f"bench(): truth was smoothed from {run.get('dataset')!r}, not from this "
+                f"dataset ({dataset.name!r}); give this drive's reference"
+            )
+        reference = truth
+    elif isinstance(truth, str) and truth == "auto":
         # A simulator folder holds its exact truth beside the sensor files.
         inputs = dataset.metadata.get("inputs", [])
         if len(inputs) == 1 and (Path(inputs[0]) / "truth.csv").is_file():
             return read_trajectory_csv(Path(inputs[0]) / "truth.csv", dataset.origin)
         return None
-    return read_trajectory_csv(truth, dataset.origin)
+    elif isinstance(truth, (str, os.PathLike)):
+        reference = read_trajectory_csv(truth, dataset.origin)
+    else:
+        raise ConfigError(
+            f"bench(): truth must be a Trajectory, a trajectory CSV's path, \"auto\" or None, "
+            f"not {type(truth).__name__}"
+        )
+    span = (float(dataset.imu.t[0]), float(dataset.imu.t[-1]))
+    covered = min(span[1], float(reference.t[-1])) - max(span[0], float(reference.t[0]))
+    if len(reference.t) < 2 or covered < 0.5 * (span[1] - span[0]):
+        raise InputError(
+            f"bench(): the truth covers {reference.t[0]:.1f}-{reference.t[-1]:.1f} s, less than "
+            f"half of this drive's {span[0]:.1f}-{span[1]:.1f} s: not its reference"
+        )
+    return reference
 
 
 def check_methods(methods: str | Iterable[str], baseline: str | None = None) -> list[str]:
@@ -995,7 +1075,7 @@ def plot(
     if path is not None:
         run = items[0].info.get("run", {})
         inputs = run.get("inputs", []) if isinstance(run, dict) else []
-        check_output(path, inputs, suffixes=PLOT_SUFFIXES, what="plot")
+        path = check_output(path, inputs, suffixes=PLOT_SUFFIXES, what="plot")
     if gnss_outage is None:
         run = items[0].info.get("run", {}) if items else {}
         windows = list(run.get("gnss_outage", [])) if isinstance(run, dict) else []

@@ -223,11 +223,11 @@ def _report(dataset: Dataset, trajectory: Trajectory) -> None:
 
 def cmd_smooth(args: argparse.Namespace) -> int:
     # Every output is checked before any work (a bad path is not found after the solve).
-    api.check_output(args.output, args.inputs)
+    args.output = api.check_output(args.output, args.inputs)
     if args.with_input:
         api._check_with_input(args.inputs, args.output)
     if args.plot:
-        api.check_output(
+        args.plot = api.check_output(
             args.plot, [*args.inputs, args.output], suffixes=PLOT_SUFFIXES, what="plot"
         )
     windows = parse_windows(args.gnss_outage)
@@ -440,10 +440,10 @@ def cmd_convert(args: argparse.Namespace) -> int:
     if args.imu:
         from fgins.io.ubx import convert_ubx_imu
 
-        api.check_output(args.output, [args.input], suffixes=(".csv",), what="IMU output")
+        args.output = api.check_output(args.output, [args.input], suffixes=(".csv",), what="IMU output")
         print(convert_ubx_imu(args.input, args.output), file=sys.stderr)
         return 0
-    api.check_output(args.output, [args.input], suffixes=GNSS_OUTPUT_SUFFIXES, what="GNSS output")
+    args.output = api.check_output(args.output, [args.input], suffixes=GNSS_OUTPUT_SUFFIXES, what="GNSS output")
     gnss, warnings = _read_gnss_only(args.input, check_time_offset(args.time_offset))
     from fgins.io.gnss_checks import check_gnss_records
 

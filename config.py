@@ -521,6 +521,8 @@ class GnssConfig:
         # Values set in code (not through from_dict) are checked too, then normalised.
         for name, value in check_fields(self, GNSS_SCHEMA, "gnss").items():
             setattr(self, name, value)
+        if isinstance(self.uere_m, dict):  # the missing fix types from the defaults, as a file's
+            self.uere_m = {**DEFAULT_UERE_M, **self.uere_m}
         if self.huber_k == 0.0:  # TOML has no null: 0 turns the default kernel off
             self.huber_k = None
 
@@ -707,6 +709,22 @@ class RunConfig:
     def imu_sample_timing(self) -> str:
         """"instant" or "held" (:mod:`fgins.factors.imu_samples`)."""
         return str(self.imu.get("sample_timing", "instant"))
+
+    def checked(self) -> RunConfig:
+        """A copy with every value checked again, as a file's would be: a RunConfig is
+        mutable, and one changed in code after it was made (``config.gnss.huber_k = -1``)
+        reached the solver unchecked (GTSAM's own RuntimeError, or ``vehicle = "boat"``
+        taken). A :class:`ConfigError` names the key."""
+        if not isinstance(self.imu, dict):
+            raise ConfigError(f"[imu]: must be a table (dict), not {type(self.imu).__name__}")
+        if not isinstance(self.gnss, GnssConfig) or not isinstance(self.smoother, SmootherConfig):
+            raise ConfigError("RunConfig.gnss / .smoother must be GnssConfig / SmootherConfig")
+        imu_noise_from_config(self.imu)
+        gnss = GnssConfig(**{f.name: getattr(self.gnss, f.name) for f in fields(GnssConfig)})
+        smoother = _checked_smoother(
+            "", {f.name: getattr(self.smoother, f.name) for f in fields(SmootherConfig)}
+        )
+        return replace(self, imu=dict(self.imu), gnss=gnss, smoother=smoother)
 
 
 def read_config_table(path: str | Path) -> dict[str, Any]:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from fgins.datatypes import Dataset, FginsError
+from fgins.datatypes import ConfigError, Dataset, FginsError
 
 
 def parse_windows(text: str | None) -> list[tuple[float, float]]:
@@ -48,7 +48,7 @@ def empty_windows(dataset: Dataset, windows: list[tuple[float, float]]) -> list[
     for start, end in windows:
         if not np.any(in_windows(dataset.gnss.t, dataset.t0, [(start, end)])):
             line = (
-                f"--gnss-outage window {start:.10g}:{end:.10g} s withholds no GNSS epoch (the "
+                f"GNSS outage window {start:.10g}:{end:.10g} s withholds no GNSS epoch (the "
                 f"epochs span {relative.min():.1f} .. {relative.max():.1f} s after t0): no outage there"
             )
             absolute = in_windows(dataset.gnss.t, 0.0, [(start, end)])
@@ -77,7 +77,10 @@ def periodic_windows(
 ) -> list[tuple[float, float]]:
     """Outages of ``duration_s`` every ``period_s`` from ``start_s`` while they fit in ``span_s``."""
     if duration_s <= 0 or period_s < duration_s:
-        raise FginsError("outage protocol: need 0 < duration <= period")
+        raise ConfigError(
+            f"outage protocol: need 0 < duration <= period (outage duration {duration_s:g} s, "
+            f"period {period_s:g} s)"
+        )
     windows = []
     start = start_s
     while start + duration_s <= span_s:

@@ -1,0 +1,138 @@
+"""The Python API as programs use it: objects made or changed in code, not only files.
+
+An outside tester's findings, each a silently wrong result or a raw exception: a Dataset made
+from arrays skipped every input check (an accelerometer in g smoothed 45 m off); a RunConfig
+changed after it was made reached the solver unchecked (GTSAM's RuntimeError, ``vehicle =
+"boat"`` taken); ``smooth(config=FILE)`` dropped load's ``robust="none"``; ``bench`` scored
+another drive's trajectory as truth; ``check_output`` iterated a single input path by
+character (so the input passed), and checked ``~/x.csv`` at $HOME while the writers wrote
+``./~/x.csv``.
+"""
+
+from __future__ import annotations
+
+import copy
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import fgins
+from fgins.config import GnssConfig
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory) -> Path:
+    return fgins.simulate("car-urban", tmp_path_factory.mktemp("api_programs") / "drive", duration=60, seed=1)
+
+
+@pytest.fixture(scope="module")
+def dataset(drive):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", fgins.FginsWarning)
+        return fgins.load(drive)
+
+
+def _from_arrays(source, accel_scale: float = 1.0, name: str = "arrays") -> fgins.Dataset:
+    imu = fgins.ImuData(source.imu.t, source.imu.gyro, source.imu.accel * accel_scale)
+    gnss = fgins.GnssData(source.gnss.t, source.gnss.lla)
+    return fgins.Dataset(imu=imu, gnss=gnss, origin=source.origin, name=name)
+
+
+def _quiet_smooth(*args, **kwargs):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", fgins.FginsWarning)
+        return fgins.smooth(*args, **kwargs)
+
+
+@pytest.mark.parametrize("scale, unit", [(1.0 / 9.80665, "in g"), (1.0, None)])
+def test_a_dataset_made_from_arrays_passes_the_same_input_checks(dataset, scale, unit):
+    built = _from_arrays(dataset, scale)
+    if unit is not None:
+        with pytest.raises(fgins.InputError, match=unit):
+            _quiet_smooth(built, "ekf")
+        return
+    track = _quiet_smooth(built, "ekf")
+    assert len(track) == len(built.imu) and np.all(np.isfinite(track.position))
+    assert built.metadata.get("input_checks") is None  # the caller's dataset is not changed
+
+
+@pytest.mark.parametrize(
+    "section, key, value, words",
+    [("gnss", "huber_k", -1.0, ["[gnss].huber_k", ">= 0"]),
+     ("gnss", "sigma_m", "x", ["[gnss].sigma_m"]),
+     ("smoother", "max_keyframe_interval_s", 0.0, ["max_keyframe_interval_s", "> 0"]),
+     ("smoother", "vehicle", "boat", ["[smoother].vehicle", "car"]),
+     ("smoother", "batch_max_iterations", 0, ["batch_max_iterations", ">= 1"])],
+)  # fmt: skip
+def test_a_run_config_changed_in_code_is_checked_again(dataset, section, key, value, words):
+    config = copy.deepcopy(fgins.configure(dataset))
+    setattr(getattr(config, section), key, value)
+    with pytest.raises(fgins.ConfigError) as error:
+        _quiet_smooth(dataset, "ekf", config=config)
+    assert all(word in str(error.value) for word in words), str(error.value)
+    assert "\n" not in str(error.value)
+
+
+def test_a_uere_table_made_in_code_keeps_the_other_fix_types():
+    config = GnssConfig(uere_m={"rtk_fixed": 0.05})
+    assert config.uere_m["rtk_fixed"] == 0.05 and config.uere_m["autonomous"] > 0.0
+    assert GnssConfig(uere_m={}).uere_m["autonomous"] > 0.0
+
+
+def test_a_config_file_given_to_smooth_keeps_loads_explicit_choices(drive, tmp_path):
+    empty = tmp_path / "empty.toml"
+    empty.write_text("")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", fgins.FginsWarning)
+        no_kernel = fgins.load(drive, robust="none")
+        plain = fgins.load(drive)
+    with_file = _quiet_smooth(no_kernel, "batch", config=empty)
+    without = _quiet_smooth(no_kernel, "batch")
+    huber = _quiet_smooth(plain, "batch", config=empty)
+    assert np.array_equal(with_file.position, without.position)
+    assert not np.array_equal(with_file.position, huber.position)
+
+
+def test_bench_refuses_another_drives_trajectory_as_truth(dataset, tmp_path):
+    other = fgins.simulate("car-urban", tmp_path / "other", duration=40, seed=2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", fgins.FginsWarning)
+        other_track = fgins.smooth(fgins.load(other), "ekf")
+    with pytest.raises(fgins.ConfigError, match="truth was smoothed from"):
+        fgins.bench(dataset, methods=["ekf"], outages=[(20, 35)], truth=other_track)
+    with pytest.raises(fgins.ConfigError, match="truth must be"):
+        fgins.bench(dataset, methods=["ekf"], outages=[(20, 35)], truth=5)
+
+
+@pytest.mark.parametrize("given", ["str", "path"])
+def test_check_output_takes_one_input_path_as_it_is(tmp_path, given):
+    source = tmp_path / "in.csv"
+    source.write_text("x\n")
+    inputs = str(source) if given == "str" else source
+    with pytest.raises(fgins.OutputError, match="is an input of this run"):
+        fgins.check_output(source, inputs)
+    assert fgins.check_output(tmp_path / "out.csv", None) == tmp_path / "out.csv"
+    with pytest.raises(fgins.OutputError, match=r"one of \.json"):
+        fgins.check_output(tmp_path / "out.csv", suffixes=".json")
+
+
+def test_a_home_path_is_checked_and_written_at_home(dataset, tmp_path, monkeypatch):
+    home = tmp_path / "home"
+    home.mkdir()
+    monkeypatch.setenv("HOME", str(home))
+    monkeypatch.chdir(tmp_path)
+    track = _quiet_smooth(dataset, "ekf")
+    written = fgins.write(track, "~/track.csv")
+    assert written == home / "track.csv" and written.is_file()
+    assert not (tmp_path / "~").exists()
+
+
+def test_small_argument_mistakes_are_one_line_errors(dataset, tmp_path):
+    track = _quiet_smooth(dataset, "ekf", online=False)
+    with pytest.raises(fgins.OutputError, match="NUL"):
+        fgins.write(track, str(tmp_path / "x\0.csv"))
+    with pytest.raises(fgins.ConfigError, match="outage duration -5 s"):
+        fgins.bench(dataset, methods=["ekf"], outage_duration=-5)
+    assert _quiet_smooth(dataset, "isam2", online=np.True_).info["run"]["method"] == "isam2-online"
