@@ -703,7 +703,8 @@ def write(
     """Write ``trajectory`` to ``path``; the format follows the extension.
 
     ``.csv``: the trajectory CSV (``time,lat,lon,alt,east,north,up,vel_east,vel_north,vel_up,
-    roll_deg,pitch_deg,heading_deg,std_east,std_north,std_up`` then the biases), one row per
+    roll_deg,pitch_deg,heading_deg,std_east,std_north,std_up`` then the biases and the
+    attitude's sigmas, as :func:`to_dataframe`), one row per
     state. ``.geojson`` / ``.kml``: the track for map viewers. ``.mcap``: Foxglove
     LocationFix / PoseInFrame / FrameTransform (plus the raw fixes; ``with_input=True`` copies
     the input MCAP's channels in). ``.tum``: ``timestamp tx ty tz qx qy qz qw`` in ENU at the
@@ -776,8 +777,10 @@ def to_dataframe(trajectory: Trajectory) -> pd.DataFrame:
     Columns, in order: ``time`` (s), ``lat``, ``lon`` (deg), ``alt`` (ellipsoidal m),
     ``east``, ``north``, ``up`` (m), ``vel_east``, ``vel_north``, ``vel_up`` (m/s),
     ``roll_deg``, ``pitch_deg``, ``heading_deg`` (deg, heading from north clockwise),
-    ``std_east``, ``std_north``, ``std_up`` (1-sigma m), then ``gyro_bias_x..z`` (rad/s) and
-    ``accel_bias_x..z`` (m/s^2). Full float64 values (the CSV rounds them when printing).
+    ``std_east``, ``std_north``, ``std_up`` (1-sigma m), then ``gyro_bias_x..z`` (rad/s),
+    ``accel_bias_x..z`` (m/s^2) and ``std_roll_deg``, ``std_pitch_deg``, ``std_heading_deg``
+    (1-sigma deg). A method that does not estimate some of them (planar-kf: biases, attitude
+    sigmas) gives NaN there. Full float64 values (the CSV rounds them when printing).
     """
     import pandas as pd
 

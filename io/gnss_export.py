@@ -18,6 +18,7 @@ import numpy as np
 
 from fgins.datatypes import GnssData, InputError
 from fgins.io.atomic import atomic_path
+from fgins.io.trajectory_geo import KML_HEIGHTS
 
 GNSS_CSV_COLUMNS = (
     "time",
@@ -136,7 +137,8 @@ def _write_kml(gnss: GnssData, path: Path) -> None:
     parts = [
         '<?xml version="1.0" encoding="UTF-8"?>',
         '<kml xmlns="http://www.opengis.net/kml/2.2"><Document><name>GNSS fixes</name>',
-        "<Placemark><name>GNSS track</name><LineString><altitudeMode>absolute</altitudeMode>",
+        f"<Placemark><name>GNSS track</name><description>{KML_HEIGHTS}</description>"
+        "<LineString><altitudeMode>absolute</altitudeMode>",
         f"<coordinates>{track}</coordinates></LineString></Placemark>",
     ]
     for i in range(len(gnss)):

@@ -24,6 +24,16 @@ def _decimated_lla(
     return trajectory.t[index], enu_to_lla(trajectory.position[index], trajectory.origin)
 
 
+# KML's "absolute" altitudes are above sea level; fgins's are above the WGS84 ellipsoid (what
+# GNSS gives and GeoJSON assumes), and no geoid model ships with it: said in the file, not
+# silently drawn tens of metres off.
+KML_HEIGHTS = (
+    "Heights are WGS84 ellipsoidal (m), as fgins outputs them; KML's absolute mode takes them as "
+    "above mean sea level, so a viewer draws the track off by the local geoid height "
+    "(-107 to +85 m; e.g. +47 m in central Europe)."
+)
+
+
 def write_trajectory_geo(trajectory: Trajectory, path: str | Path) -> None:
     path = Path(path)
     t, lla = _decimated_lla(trajectory)
@@ -47,6 +57,7 @@ def write_trajectory_geo(trajectory: Trajectory, path: str | Path) -> None:
             '<?xml version="1.0" encoding="UTF-8"?>\n'
             '<kml xmlns="http://www.opengis.net/kml/2.2"><Document>'
             f"<name>{escape(trajectory.method)}</name><Placemark><name>trajectory</name>"
+            f"<description>{KML_HEIGHTS}</description>"
             "<LineString><altitudeMode>absolute</altitudeMode>"
             f"<coordinates>{coordinates}</coordinates></LineString></Placemark></Document></kml>\n"
         )

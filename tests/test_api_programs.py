@@ -136,3 +136,14 @@ def test_small_argument_mistakes_are_one_line_errors(dataset, tmp_path):
     with pytest.raises(fgins.ConfigError, match="outage duration -5 s"):
         fgins.bench(dataset, methods=["ekf"], outage_duration=-5)
     assert _quiet_smooth(dataset, "isam2", online=np.True_).info["run"]["method"] == "isam2-online"
+
+
+def test_a_kml_says_its_heights_are_ellipsoidal(dataset, tmp_path):
+    """KML's absolute altitudes are above sea level; fgins's are ellipsoidal and it has no
+    geoid model: the file says so rather than being drawn tens of metres off unsaid."""
+    import xml.etree.ElementTree as ElementTree
+
+    track = _quiet_smooth(dataset, "ekf")
+    root = ElementTree.parse(fgins.write(track, tmp_path / "track.kml")).getroot()
+    descriptions = [e.text or "" for e in root.iter("{http://www.opengis.net/kml/2.2}description")]
+    assert any("ellipsoidal" in text and "geoid" in text for text in descriptions), descriptions
