@@ -912,6 +912,7 @@ def check_methods(methods: str | Iterable[str], baseline: str | None = None) -> 
         raise ConfigError(
             f"--methods: unknown {', '.join(unknown)}; choose from {', '.join(METHODS)}"
         )
+    methods = list(dict.fromkeys(methods))  # a method named twice is one row, not two
     if baseline is not None:
         rows = [*methods, *(["isam2-online"] if "isam2" in methods else [])]
         if baseline not in rows:

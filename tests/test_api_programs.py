@@ -147,3 +147,10 @@ def test_a_kml_says_its_heights_are_ellipsoidal(dataset, tmp_path):
     root = ElementTree.parse(fgins.write(track, tmp_path / "track.kml")).getroot()
     descriptions = [e.text or "" for e in root.iter("{http://www.opengis.net/kml/2.2}description")]
     assert any("ellipsoidal" in text and "geoid" in text for text in descriptions), descriptions
+
+
+def test_a_method_named_twice_is_one_row():
+    from fgins.api import check_methods
+
+    assert check_methods(["ekf", "ekf", "batch"]) == ["ekf", "batch"]
+    assert check_methods("ekf-rts,ekf,ekf-rts") == ["ekf-rts", "ekf"]
