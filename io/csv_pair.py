@@ -610,6 +610,8 @@ def read_csv_dataset(paths: list[Path]) -> Dataset:
                 "time,baro_height) or wheel.csv (time,wheel_speed)"
             )
         if kind in by_kind:
+            if Path(by_kind[kind]).resolve() == Path(path).resolve():
+                raise InputError(f"{path}: given twice (once is enough)")
             raise InputError(f"two {kind} files given: {by_kind[kind]} and {path}")
         by_kind[kind] = path
     if "imu" in by_kind and "accel_array" in by_kind:

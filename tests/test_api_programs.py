@@ -154,3 +154,10 @@ def test_a_method_named_twice_is_one_row():
 
     assert check_methods(["ekf", "ekf", "batch"]) == ["ekf", "batch"]
     assert check_methods("ekf-rts,ekf,ekf-rts") == ["ekf-rts", "ekf"]
+
+
+def test_the_same_input_given_twice_is_named_once(drive):
+    with pytest.raises(fgins.InputError, match="given twice"):
+        fgins.load(drive, drive)
+    with pytest.raises(fgins.InputError, match="given twice"):
+        fgins.load(drive / "imu.csv", drive / "gnss.csv", drive / "imu.csv")
