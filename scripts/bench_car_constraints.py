@@ -52,6 +52,13 @@ the car constraints). That is not what makes them hurt: with ``--time-offset 0.0
 has 31 windows > 10 % worse (mean ratio 0.83), because the no-car runs gain more (mean RMS
 2.20 -> 1.82 m; car 0.75 -> 0.76 m).
 
+Session 36 (the mounting refined from the drive, the lever arm, turn-on and clock
+corrections of the sessions since): 9 of 124 worse (median 0.51, mean 0.56, max 1.44 at
+40-70 s: two low-speed junction turns, lateral and vertical NHC each costing about the same);
+with the Gauss-Markov crab above 3 (max 1.51 at 40-70 s); a vertical sigma of 1 m/s changes
+nothing (9); the NHC point 0.15 / 0.25 m forward (the no-car solution's lateral velocity
+against yaw rate fits 0.24-0.27 m in turns): 7 / 9 worse but mean 0.59 / 0.67, worse overall.
+
 Examples::
 
     python scripts/bench_car_constraints.py --quick --out out/carcon
