@@ -83,3 +83,22 @@ def test_a_right_nhc_lever_passes_unsaid(tmp_path, seed, imu_ahead):
     assert not _said(track), track.info.get("fit_warnings")
     fit, sigma = track.info["nhc_lever_forward_fit_m"], track.info["nhc_lever_forward_fit_sigma_m"]
     assert abs(fit) < 4.0 * sigma + 0.1, (fit, sigma)
+
+
+def test_the_nhc_lever_is_found_in_vehicle_axes_whatever_the_imus_axes(tmp_path):
+    """fgins's own urban car, its IMU in FRD axes turned by roll 20, pitch -10, yaw 35 deg
+    (the mounting given): the lever is in vehicle axes, so a 2 m mistake is found as such."""
+    import tomllib
+
+    folder = fgins.simulate(
+        "car-urban", tmp_path / "drive", seed=2,
+        body_frame="frd", mounting_rpy_deg=[20, -10, 35], write_mounting=True,
+    )  # fmt: skip
+    mounting = tomllib.loads((folder / "config.toml").read_text())["smoother"]["imu_to_vehicle_rpy_deg"]
+    config = tmp_path / "run.toml"
+    config.write_text(f"[smoother]\nimu_to_vehicle_rpy_deg = {mounting}\nnhc_lever_arm_m = [-2.0, 0.0, 0.0]\n")
+    with pytest.warns(fgins.FginsWarning):
+        track = fgins.smooth(fgins.load(folder, config=config), "batch", gnss_outage=[(100, 140)])
+    said = _said(track)
+    assert len(said) == 1 and "corrected" in said[0], track.info.get("fit_warnings")
+    assert abs(track.info["nhc_lever_arm_corrected_m"][0]) < 0.3, track.info["nhc_lever_arm_corrected_m"]
