@@ -977,6 +977,7 @@ def bench(
     >>> table = fgins.bench(fgins.load("demo:kitti"), methods=["ekf", "ekf-rts"])  # doctest: +SKIP
     """
     from fgins.bench.outages import BenchCase, results_frame, run_case, write_results
+    from fgins.config import RunConfig
     from fgins.outages import periodic_windows
 
     _check_arguments(
@@ -990,11 +991,14 @@ def bench(
         baseline = "ekf" if "ekf" in methods else methods[0]
     if output_dir is not None and Path(output_dir).exists() and not Path(output_dir).is_dir():
         raise OutputError(f"{output_dir}: exists and is not a folder")
-    run_config = (
-        configure(dataset, config)
-        if config is not None
-        else dataset.metadata.get("run_config") or configure(dataset)
-    )
+    if config is None:
+        run_config = dataset.metadata.get("run_config") or configure(dataset)
+    elif isinstance(config, RunConfig):
+        run_config = config
+    else:  # as smooth(): load's explicit choices over a file
+        run_config = configure(dataset, config, **(dataset.metadata.get("run_choices") or {}))
+    run_config = run_config.checked()  # a RunConfig changed in code is checked again
+    dataset = _checked_input(dataset, run_config.smoother.vehicle)
     windows = _windows(outages)
     if not windows:
         span = float(dataset.gnss.t[-1] - dataset.t0)

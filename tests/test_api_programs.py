@@ -52,6 +52,8 @@ def test_a_dataset_made_from_arrays_passes_the_same_input_checks(dataset, scale,
     if unit is not None:
         with pytest.raises(fgins.InputError, match=unit):
             _quiet_smooth(built, "ekf")
+        with pytest.raises(fgins.InputError, match=unit):
+            fgins.bench(built, methods=["ekf"], outages=[(20, 35)])
         return
     track = _quiet_smooth(built, "ekf")
     assert len(track) == len(built.imu) and np.all(np.isfinite(track.position))
