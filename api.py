@@ -852,22 +852,28 @@ def summary(trajectory: Trajectory) -> dict[str, Any]:
 # Benchmark and plots
 
 
+def _check_same_drive(trajectory: Trajectory, dataset: Dataset, what: str) -> None:
+    """A :class:`ConfigError` when ``trajectory`` was smoothed from another dataset than
+    ``dataset`` (by its name and IMU sample count); one without a run record passes."""
+    run = trajectory.info.get("run", {})
+    if isinstance(run, dict) and run and (
+        run.get("dataset") != dataset.name or run.get("imu_samples") != len(dataset.imu)
+    ):
+        raise ConfigError(
+            f"{what} was smoothed from {run.get('dataset')!r} ({run.get('imu_samples')} IMU "
+            f"samples), not from this dataset {dataset.name!r} ({len(dataset.imu)}): give the "
+            "dataset it came from"
+        )
+
+
 def _truth_for(dataset: Dataset, truth: Any) -> Trajectory | None:
     from fgins.io.trajectory_csv import read_trajectory_csv
 
     if truth is None:
         return None
     if isinstance(truth, Trajectory):
-        # Another drive's trajectory scored as this one's truth gives numbers, silently (as
-        # plot() refuses to draw one against another drive's fixes).
-        run = truth.info.get("run", {})
-        if isinstance(run, dict) and run and (
-            run.get("dataset") != dataset.name or run.get("imu_samples") != len(dataset.imu)
-        ):
-            raise ConfigError(
-                f"bench(): truth was smoothed from {run.get('dataset')!r}, not from this "
-                f"dataset ({dataset.name!r}); give this drive's reference"
-            )
+        # Another drive's trajectory scored as this one's truth gives numbers, silently.
+        _check_same_drive(truth, dataset, "bench(): truth")
         reference = truth
     elif isinstance(truth, str) and truth == "auto":
         # A simulator folder holds its exact truth beside the sensor files.
@@ -1071,15 +1077,7 @@ def plot(
     )
     for i, item in enumerate(items):
         # A trajectory drawn against another drive's fixes is a plot of nonsense, silently.
-        run = item.info.get("run", {})
-        if isinstance(run, dict) and run and (
-            run.get("dataset") != dataset.name or run.get("imu_samples") != len(dataset.imu)
-        ):
-            raise ConfigError(
-                f"plot(): trajectories[{i}] was smoothed from {run.get('dataset')!r} "
-                f"({run.get('imu_samples')} IMU samples), not from this dataset "
-                f"{dataset.name!r} ({len(dataset.imu)}): give the dataset it came from"
-            )
+        _check_same_drive(item, dataset, f"plot(): trajectories[{i}]")
     if path is not None:
         run = items[0].info.get("run", {})
         inputs = run.get("inputs", []) if isinstance(run, dict) else []
