@@ -355,6 +355,14 @@ def _simulate(
         run = SCENARIOS[scenario](seed=seed, **options)
     except TypeError as exc:
         raise ConfigError(f"scenario {scenario}: {exc}") from None
+    epochs = len(run.dataset.gnss)
+    if epochs < 2:
+        # A folder load() would refuse (one fix anchors neither position nor heading): said
+        # now, not when it is read.
+        raise ConfigError(
+            f"scenario {scenario}: {epochs} GNSS epoch in {float(run.dataset.imu.t[-1] - run.dataset.imu.t[0]):.1f} s; a run "
+            "needs at least 2: give a longer duration or a higher gnss_rate_hz"
+        )
     folder = Path(output_dir)
     if folder.exists() and not folder.is_dir():
         raise OutputError(f"{folder}: exists and is not a folder")
@@ -489,7 +497,7 @@ def smooth(
     (46968, 3)
     """
     from fgins.config import RunConfig
-    from fgins.outages import empty_windows, outage_mask
+    from fgins.outages import empty_windows, outage_mask, overlapping_windows
     from fgins.pipeline import METHODS, run_method
 
     _check_arguments(
@@ -530,7 +538,7 @@ def smooth(
     # The raw fixes, for outputs that carry them beside the trajectory (MCAP).
     trajectory.info["source_gnss"] = dataset.gnss
     # A window that withholds nothing makes the run no outage test: said with the rest.
-    unused = empty_windows(dataset, windows)
+    unused = empty_windows(dataset, windows) + overlapping_windows(windows)
     if unused:
         trajectory.info["fit_warnings"] = unused + list(trajectory.info.get("fit_warnings", []))
     # What the solver found doubtful (an inconsistent fit, a mounting the vehicle constraints
@@ -1009,8 +1017,13 @@ def bench(
     if not windows:
         span = float(dataset.gnss.t[-1] - dataset.t0)
         windows = periodic_windows(outage_duration, outage_period, outage_start, span)
-    from fgins.outages import empty_windows
+    from fgins.outages import empty_windows, overlapping_windows
 
+    overlaps = overlapping_windows(windows)
+    if overlaps:
+        # Each window is scored as its own outage: two that run into each other would score
+        # parts of one longer outage (twice where they overlap).
+        raise ConfigError(overlaps[0] + "; benchmark windows must be apart")
     empty = empty_windows(dataset, windows)
     if empty or not windows:
         # A benchmark of outages with no outage in it measures nothing (outside tester:

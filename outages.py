@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 
 from fgins.datatypes import ConfigError, Dataset, FginsError
@@ -60,6 +62,21 @@ def empty_windows(dataset: Dataset, windows: list[tuple[float, float]]) -> list[
                     f"log's own times, it is {start - dataset.t0:.1f}:{end - dataset.t0:.1f}"
                 )
             lines.append(line)
+    return lines
+
+
+def overlapping_windows(windows: list[tuple[float, float]]) -> list[str]:
+    """One line per pair of windows that overlap or touch: withheld together they are one
+    longer outage, which the user may not have meant (a typo in a list of windows)."""
+    ordered = sorted(windows)
+    lines = []
+    for (start_a, end_a), (start_b, end_b) in itertools.pairwise(ordered):
+        if start_b <= end_a:
+            lines.append(
+                f"GNSS outage windows {start_a:.10g}:{end_a:.10g} and {start_b:.10g}:{end_b:.10g} s "
+                f"{'touch' if start_b == end_a else 'overlap'}: together they withhold one outage "
+                f"of {max(end_a, end_b) - start_a:.10g} s"
+            )
     return lines
 
 

@@ -419,7 +419,7 @@ def _setup_description(setup: ImuSetup) -> str:
 def aircraft_ekf(seed: int = 0, **options: Any) -> SimRun:
     """Aircraft at ~100 m/s, tactical IMU with large constant biases, 60 s outage at 500 s."""
     _check_options("aircraft-ekf", options, IMU_OPTIONS | {"outage_start_s"})
-    duration = _option_float("duration_s", options.get("duration_s", 720.0), 1.0, 86400.0)
+    duration = _option_float("duration_s", options.get("duration_s", 720.0), MIN_DURATION_S, 86400.0)
     # At or beyond the run's end: no outage (the scenario matrix flies without one).
     outage_start = _option_float("outage_start_s", options.get("outage_start_s", 500.0), 0.0, 1e9)
     grade = _grade("aircraft-ekf", options, default="tactical")
@@ -548,7 +548,7 @@ def car_urban(seed: int = 0, **options: Any) -> SimRun:
     _check_options("car-urban", options, IMU_OPTIONS)
     grade = _grade("car-urban", options)
     setup = ImuSetup.from_options(options)
-    duration = _option_float("duration_s", options.get("duration_s", 300.0), 1.0, 86400.0)
+    duration = _option_float("duration_s", options.get("duration_s", 300.0), MIN_DURATION_S, 86400.0)
     gnss_model = GnssModel(
         rate_hz=1.0,
         uere_m=3.0,
@@ -580,7 +580,7 @@ def highway(seed: int = 0, **options: Any) -> SimRun:
     _check_options("highway", options, IMU_OPTIONS)
     grade = _grade("highway", options)
     setup = ImuSetup.from_options(options)
-    duration = _option_float("duration_s", options.get("duration_s", 240.0), 1.0, 86400.0)
+    duration = _option_float("duration_s", options.get("duration_s", 240.0), MIN_DURATION_S, 86400.0)
     gnss_model = GnssModel(
         rate_hz=1.0,
         uere_m=2.5,

@@ -163,3 +163,31 @@ def test_the_same_input_given_twice_is_named_once(drive):
         fgins.load(drive, drive)
     with pytest.raises(fgins.InputError, match="given twice"):
         fgins.load(drive / "imu.csv", drive / "gnss.csv", drive / "imu.csv")
+
+
+@pytest.mark.parametrize(
+    "scenario, duration, options",
+    [("car-urban", 1.0, {}), ("gyrofree-cube", 5.0, {"gnss_rate_hz": 0.2}), ("highway", 4.9, {})],
+)
+def test_a_simulation_too_short_to_load_is_refused_before_writing(tmp_path, scenario, duration, options):
+    # A folder with one GNSS fix was written and then refused by load(): said at once now.
+    folder = tmp_path / "short"
+    with pytest.raises(fgins.FginsError, match=r"duration_s|at least 2"):
+        fgins.simulate(scenario, folder, duration=duration, **options)
+    assert not folder.exists()
+
+
+def test_overlapping_outage_windows_are_said_and_refused_by_the_benchmark(dataset):
+    # Withheld together they are one longer outage: smooth() says so; bench() scores each
+    # window on its own, so it refuses them.
+    with pytest.warns(fgins.FginsWarning, match="20:35 and 30:45 s overlap.*25 s"):
+        track = fgins.smooth(dataset, "ekf", gnss_outage=[(30, 45), (20, 35)])
+    assert track.info["run"]["gnss_withheld"] == 25
+    with pytest.raises(fgins.ConfigError, match="touch.*must be apart"):
+        fgins.bench(dataset, methods=["ekf"], outages=[(20, 35), (35, 45)])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", fgins.FginsWarning)  # apart: no such warning
+        try:
+            fgins.smooth(dataset, "ekf", gnss_outage=[(20, 30), (31, 40)])
+        except fgins.FginsWarning as caught:
+            assert "overlap" not in str(caught) and "touch" not in str(caught)
