@@ -180,10 +180,10 @@ def test_a_simulation_too_short_to_load_is_refused_before_writing(tmp_path, scen
 def test_overlapping_outage_windows_are_said_and_refused_by_the_benchmark(dataset):
     # Withheld together they are one longer outage: smooth() says so; bench() scores each
     # window on its own, so it refuses them.
-    with pytest.warns(fgins.FginsWarning, match="20:35 and 30:45 s overlap.*25 s"):
+    with pytest.warns(fgins.FginsWarning, match=r"20:35 and 30:45 s overlap.*25 s"):
         track = fgins.smooth(dataset, "ekf", gnss_outage=[(30, 45), (20, 35)])
     assert track.info["run"]["gnss_withheld"] == 25
-    with pytest.raises(fgins.ConfigError, match="touch.*must be apart"):
+    with pytest.raises(fgins.ConfigError, match=r"touch.*must be apart"):
         fgins.bench(dataset, methods=["ekf"], outages=[(20, 35), (35, 45)])
     with warnings.catch_warnings():
         warnings.simplefilter("error", fgins.FginsWarning)  # apart: no such warning
