@@ -39,7 +39,10 @@ class ParameterStep:
 
     @property
     def sigma(self) -> np.ndarray:
-        return np.sqrt(np.diag(self.covariance))
+        variance = np.diag(self.covariance)
+        # A negative variance is round-off of an ill-conditioned inverse: that parameter's
+        # step is not known at all (infinite sigma, never significant), not known exactly.
+        return np.sqrt(np.where(variance < 0, np.inf, variance))
 
     def held(self, index: list[int]) -> ParameterStep:
         """The step of the other parameters with those at ``index`` held where they are

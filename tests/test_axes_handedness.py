@@ -109,3 +109,29 @@ def test_a_flight_with_accel_x_negated_is_said_and_the_original_is_not(tmp_path,
     as_given, mistakes = handedness_fit_3d(flipped.imu, flipped.gnss, enu, gravity)
     assert as_given > MIRRORED_3D_RATIO * mistakes["accel_x negated"]
     assert mistakes["accel_x negated"] == min(mistakes.values())
+
+
+def test_the_rotation_fit_never_ends_above_its_kabsch_start():
+    """A window of steady flight or a taxi (the specific force barely turning) leaves the
+    rotation and the gyro-drift term nearly inseparable: the undamped Gauss-Newton stepped
+    from 0.36 to 12 m/s^2 there, and right-handed flights were called mirrored (an outside
+    tester: 2 of 6 taxi-and-takeoff seeds, a 720 deg roll). Here 300 such windows, random
+    rotations and noise: the refined fit is never worse than the closed-form start (54 of
+    300 were before)."""
+    from fgins.geodesy import skew_batch, so3_exp
+    from fgins.io.axes_handedness import _rotation_fit
+
+    tau = np.linspace(-15, 15, 30)
+    for seed in range(300):
+        rng = np.random.default_rng(seed)
+        force = np.array([0.3, -0.2, 9.8]) + rng.normal(0, 0.05, (30, 3)) * rng.uniform(0.1, 3)
+        specific = force @ so3_exp(rng.normal(0, 1, 3)).T + rng.normal(0, 0.3, (30, 3))
+        start = _rotation_fit(specific, force, tau, so3_exp, skew_batch, iterations=0)
+        assert _rotation_fit(specific, force, tau, so3_exp, skew_batch) <= start * (1 + 1e-9)
+    # Where the force does turn, the refinement still fits the drift Kabsch cannot.
+    rng = np.random.default_rng(1)
+    force = np.column_stack([3 * np.sin(tau / 4), 3 * np.cos(tau / 3), 9.8 + np.sin(tau / 5)])
+    drifted = np.einsum("nij,nj->ni", so3_exp(np.outer(tau, [0.0, 0.0, 0.004])), force)
+    specific = drifted + rng.normal(0, 0.01, drifted.shape)
+    start = _rotation_fit(specific, force, tau, so3_exp, skew_batch, iterations=0)
+    assert _rotation_fit(specific, force, tau, so3_exp, skew_batch) < 0.1 * start
