@@ -130,6 +130,8 @@ class FilterRun:
     counts: dict[str, int] = field(default_factory=dict)
     rejected_times: list[float] = field(default_factory=list)  # GNSS epochs failing the gate
     zupt_times: list[float] = field(default_factory=list)  # boundaries taken as stops
+    # rts_smooth's result, kept: iterated_forward's check of the last pass is the output's.
+    smoothed: tuple[np.ndarray, np.ndarray, np.ndarray] | None = field(default=None, repr=False)
 
 
 def initial_covariance(
@@ -838,8 +840,10 @@ def rts_smooth(run: FilterRun) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
     Returns per boundary k: the smoothed correction relative to the forward a-posteriori
     state (the start of block k), the smoothed correction relative to the forward a-priori
-    state (the end of block k-1), and the smoothed covariance.
+    state (the end of block k-1), and the smoothed covariance (computed once per run).
     """
+    if run.smoothed is not None:
+        return run.smoothed
     n, dim = len(run.posterior), run.cov_posterior.shape[1]
     from_posterior = np.zeros((n, dim))
     from_prior = np.zeros((n, dim))
@@ -856,7 +860,8 @@ def rts_smooth(run: FilterRun) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         delta = cov_smoothed[k + 1] - run.cov_prior[k + 1]
         cov = run.cov_posterior[k] + gain @ delta @ gain.T
         cov_smoothed[k] = 0.5 * (cov + cov.T)
-    return from_posterior, from_prior, cov_smoothed
+    run.smoothed = (from_posterior, from_prior, cov_smoothed)
+    return run.smoothed
 
 
 def smoothed_output(dataset: Dataset, run: FilterRun) -> tuple[NominalState, NavCovariance]:
@@ -947,15 +952,12 @@ def run_ekf_rts(
     """The EKF of :func:`run_ekf` followed by a Rauch-Tung-Striebel smoother (``"ekf-rts"``),
     the forward pass repeated from the smoothed start attitude while that turns it far
     (:func:`iterated_forward`)."""
-    passes: list[int] = []
-    trajectory = kalman_trajectory(
+    return kalman_trajectory(
         dataset,
         "ekf-rts",
-        lambda: iterated_forward(dataset, config, gnss_mask, options or EkfOptions(), progress, passes),
+        lambda: iterated_forward(dataset, config, gnss_mask, options or EkfOptions(), progress),
         smooth=True,
     )
-    trajectory.info["forward_passes"] = passes[0]
-    return trajectory
 
 
 # A smoothed start attitude this far from the forward pass's (rad) is beyond what one
@@ -972,7 +974,6 @@ def iterated_forward(
     gnss_mask: np.ndarray | None,
     options: EkfOptions,
     progress: bool,
-    passes: list[int],
 ) -> tuple[FilterRun, GnssEpochs]:
     """Forward passes, each from the previous pass's RTS-smoothed start, when the smoother
     turned the first pass's start attitude by more than :data:`START_TURNED_RAD`. The RTS
@@ -985,11 +986,12 @@ def iterated_forward(
     an aircraft's vertical settled 21 m off with a 2.4 m sigma). P0 stays: the start's prior
     is counted twice only where the first pass found it far off, so broad; the passes then
     reach the batch's start (the same 2-12 m, sigmas within 1 %). A start the first pass
-    barely turns (KITTI: 0.6 deg) takes one pass. ``passes`` receives the count."""
+    barely turns (KITTI: 0.6 deg) takes one pass. The count is ``counts["forward_passes"]``
+    (``info["forward_passes"]`` of the trajectory)."""
     run, epochs = run_filter(dataset, config, gnss_mask, options, progress)
     count = 1
     while count < MAX_FORWARD_PASSES:
-        moved = rts_smooth(run)[0][0]
+        moved = rts_smooth(run)[0][0].copy()
         turned = np.linalg.norm(moved[ATT])
         far = (
             turned > START_TURNED_RAD
@@ -1008,7 +1010,7 @@ def iterated_forward(
             dataset, config, gnss_mask, options, progress, run.posterior[0].boxplus(moved)
         )
         count += 1
-    passes.append(count)
+    run.counts["forward_passes"] = count
     return run, epochs
 
 
