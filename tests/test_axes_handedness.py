@@ -135,3 +135,44 @@ def test_the_rotation_fit_never_ends_above_its_kabsch_start():
     specific = drifted + rng.normal(0, 0.01, drifted.shape)
     start = _rotation_fit(specific, force, tau, so3_exp, skew_batch, iterations=0)
     assert _rotation_fit(specific, force, tau, so3_exp, skew_batch) < 0.1 * start
+
+
+# A drive that reverses with turns: the track's direction is the body's opposite there, so a
+# turn taken reversing reads as a mirrored one in track axes (an outside red team's car: 30 s
+# forward, 90 s reversing at 4.5 m/s round three bends, then forward; refused as "a mirror
+# image", 0.08, by every method). Each stretch between stops has its own fitted sign now.
+REVERSING = {
+    "reverse round bends": CarProfile(
+        steps=[(10, 4, 8.0), (40, 4, -8.0), (50, 4, -4.5), (140, 4, 4.5), (150, 5, 8.0)],
+        turns=[(20, 30, 2, 0.1), (60, 72, 2, 0.15), (85, 97, 2, -0.15), (110, 122, 2, 0.15), (200, 208, 2, -0.1)],
+        gamma=lambda t: 0 * t,
+    ),
+    "reverse out of a driveway": CarProfile(
+        steps=[(10, 3, -4.0), (35, 3, 4.0), (45, 15, 20.0)],
+        turns=[(15, 27, 2, 0.15), (120, 160, 10, 0.01), (220, 260, 10, -0.01)],
+        gamma=lambda t: 0 * t,
+    ),
+    "reverse 15 s in a town drive": CarProfile(
+        steps=[(10, 5, 8.0), (60, 5, -8.0), (75, 3, -3.0), (90, 3, 3.0), (105, 5, 8.0)],
+        turns=[(30, 40, 3, 0.1), (140, 150, 3, -0.12), (200, 210, 3, 0.1)],
+        gamma=lambda t: 0 * t,
+    ),
+}
+
+
+@pytest.mark.parametrize("seed", [1, 3])
+@pytest.mark.parametrize("name", list(REVERSING))
+def test_a_drive_that_reverses_round_bends_is_read_and_its_mirror_not_passed_as_right(tmp_path, name, seed):
+    """Right-handed: read, whatever the share of reversing. Mirrored: refused wherever the
+    drive's stretches can tell (a forward stretch with both turns and speed changes); a drive
+    whose reversing alone holds the turns cannot tell, and is not judged either way."""
+    write_drive(tmp_path, REVERSING[name], 300.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0, gnss_rate=1.0,
+                seed=seed)  # fmt: skip
+    (tmp_path / "cfg.toml").unlink()
+    fgins.load(tmp_path, vehicle="car")
+    if name != "reverse 15 s in a town drive":
+        return
+    original = pd.read_csv(tmp_path / "imu.csv")
+    MIRRORS["accel_y negated"](original).to_csv(tmp_path / "imu.csv", index=False, float_format="%.10e")
+    with pytest.raises(fgins.InputError, match="accelerometer's axes are a mirror image"):
+        fgins.load(tmp_path, vehicle="car")
