@@ -14,6 +14,8 @@ here, so they cannot disagree about the convention.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from fgins.datatypes import InputError
@@ -60,8 +62,38 @@ CLIMB_CHORD_S = 10.0  # and the climb (grades change slowly; heights are noisier
 
 
 def forward_axis_from_motion(dataset) -> tuple[np.ndarray, int] | None:
-    """The vehicle's forward axis in IMU axes as the motion shows it, or None when the drive
-    has too few turns or straight speed changes to tell; with the seconds used.
+    """The vehicle's forward axis in IMU axes as the motion shows it (the turns, else the
+    straight speed changes, else the IMU's heading against the direction of travel), or
+    None when the drive cannot tell; with the seconds used."""
+    found = _forward_axis(dataset)
+    return None if found is None else (found.forward, found.seconds)
+
+
+@dataclass(frozen=True)
+class ForwardAxis:
+    """The vehicle's forward axis in IMU axes as the drive shows it, the seconds used, what
+    shows it (words for a message) and, from the heading match, its standard error (deg;
+    None for the turns' and speed changes' fits, good to ~0.1-1 deg)."""
+
+    forward: np.ndarray
+    seconds: int
+    evidence: str
+    sigma_deg: float | None = None
+
+
+def _forward_axis(dataset) -> ForwardAxis | None:
+    found = _forward_axis_from_turns(dataset)
+    if found is not None:
+        return ForwardAxis(found[0], found[1], "turns or speed changes")
+    heading = forward_axis_from_heading(dataset)
+    if heading is None:
+        return None
+    return ForwardAxis(heading[0], heading[1], "travel against the IMU's heading", heading[2])
+
+
+def _forward_axis_from_turns(dataset) -> tuple[np.ndarray, int] | None:
+    """The vehicle's forward axis in IMU axes from the turns or straight speed changes, or
+    None when the drive has too few of them to tell; with the seconds used.
 
     A ground vehicle turning at rate ``w`` (about up) with speed ``v`` accelerates toward the
     turn's centre, ``v w`` along its left axis; the IMU's specific force shows it in the
@@ -231,6 +263,176 @@ def _rigid_fit(accel: np.ndarray, motion: np.ndarray, up: np.ndarray) -> np.ndar
     return c * e1 + s * e2
 
 
+# Without turns or speed changes strong enough to fit (a crawl, a parking garage, gentle
+# curves), the IMU's heading still follows from matching its horizontal specific force,
+# carried into one frame by the gyro, to the fixes' acceleration in the navigation frame
+# (an in-motion coarse alignment; no track direction, so reversing and slip do not enter),
+# and the forward axis is then the direction of travel in IMU axes. An independent
+# simulator's car with its IMU turned 90 deg and no mounting given ran to 17-40 m inside a
+# 40 s outage (NEES 485-4663) at 2-7 m/s, the turns' fit "cannot tell".
+HEADING_BOX_S = 2.0  # accelerations: means over +-this (velocities), second differences over +-2x (fixes)
+HEADING_MIN_SPEED_M_S = 1.0  # the direction of travel taken above this
+HEADING_MAX_SIGMA_DEG = 6.0
+HEADING_MIN_WINDOWS = 30
+# A configured mounting the heading match puts off by more than these many of its standard
+# errors (and MOUNTING_WARN_DEG / MOUNTING_ERROR_DEG) is said / refused.
+HEADING_WARN_SIGMAS = 3.0
+HEADING_HALVES_SIGMAS = 3.0
+HEADING_ERROR_SIGMAS = 5.0
+
+
+def forward_axis_from_heading(dataset) -> tuple[np.ndarray, int, float] | None:
+    """The vehicle's forward axis in IMU axes from the IMU's heading (see HEADING_BOX_S),
+    the seconds of travel it is taken over and the heading's standard error (deg); None when
+    the drive's accelerations do not fix the heading to HEADING_MAX_SIGMA_DEG. Accelerations
+    are taken over windows of 1, 2 and 4 times HEADING_BOX_S, the one that fixes the heading
+    best kept: metre-level fixes' second differences need long windows, sharp turns short."""
+    found = [_forward_from_heading(dataset, HEADING_BOX_S * scale) for scale in (1.0, 2.0, 4.0)]
+    found = [item for item in found if item is not None]
+    if not found:
+        return None
+    best = min(found, key=lambda item: item[2])
+    return best if best[2] <= HEADING_MAX_SIGMA_DEG else None
+
+
+def _forward_from_heading(dataset, box_s: float) -> tuple[np.ndarray, int, float] | None:
+    imu, gnss = dataset.imu, dataset.gnss
+    t, enu = gnss.t, dataset.gnss_enu()
+    if len(t) < HEADING_MIN_WINDOWS or len(imu.t) < 10:
+        return None
+    velocity = None
+    if gnss.velocity is not None and np.mean(np.isfinite(gnss.velocity[:, 0])) > 0.8:
+        known = np.isfinite(gnss.velocity[:, 0]) & np.isfinite(gnss.velocity[:, 1])
+        velocity = (t[known], gnss.velocity[known, 0] + 1j * gnss.velocity[known, 1])
+    half = box_s if velocity is not None else 2.0 * box_s
+    grid = np.arange(max(t[0], imu.t[0]) + 2 * half, min(t[-1], imu.t[-1]) - 2 * half, 1.0)
+    if grid.size < HEADING_MIN_WINDOWS:
+        return None
+    ends = np.clip(np.searchsorted(t, grid + np.array([[-half], [0.0], [half]])), 1, len(t) - 1)
+    dense = np.max(t[ends] - t[ends - 1], axis=0) <= half
+    position = enu[:, 0] + 1j * enu[:, 1]
+    if velocity is not None:
+        fixes = (_complex_at(grid + half, *velocity) - _complex_at(grid - half, *velocity)) / (2 * half)
+    else:
+        fixes = (_complex_at(grid + half, t, position) - 2 * _complex_at(grid, t, position)
+                 + _complex_at(grid - half, t, position)) / half**2  # fmt: skip
+    # A grade leans the IMU's horizontal plane (normal to the mean specific force) and
+    # gravity's share g sin(grade) acts along the direction of travel, either way of
+    # driving: fitted with it (its coefficient ~g).
+    epoch_speed = _speed(t, enu, gnss.velocity)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        slope = np.where(epoch_speed > HEADING_MIN_SPEED_M_S, _climb(t, enu, gnss.velocity) / epoch_speed, 0.0)
+    travel_direction = np.gradient(position, t)
+    travel_direction /= np.maximum(np.abs(travel_direction), 1e-9)
+    grade_lean = _complex_at(grid, t, np.nan_to_num(slope) * travel_direction)
+    up = _up_axis(imu)
+    first = np.cross(up, np.eye(3)[int(np.argmin(np.abs(up)))])
+    first /= np.linalg.norm(first)
+    second = np.cross(up, first)
+    force = imu.accel @ first + 1j * (imu.accel @ second)
+    dt = np.diff(imu.t)
+    measured_yaw = np.concatenate([[0.0], np.cumsum(0.5 * (imu.gyro[1:] + imu.gyro[:-1]) @ up * dt)])
+    middle = 0.5 * (imu.t[0] + imu.t[-1])
+    use, drift, fit = dense.copy(), 0.0, None
+    for _ in range(4):  # the gyro's bias about up turns the carried frame: fitted, removed
+        yaw = measured_yaw - drift * (imu.t - middle)
+        carried = _window_means(imu.t, force * np.exp(1j * yaw), grid, half, velocity is not None)
+        bias_turn = _window_means(imu.t, np.exp(1j * yaw), grid, half, velocity is not None)
+        # The fixes' acceleration (the noisy side: metre-level fixes' second differences)
+        # regressed on the IMU's: fixes = W carried, W = e^{i heading} at the middle time,
+        # turning with the gyro's bias (the second column) and less the accelerometer's
+        # bias turned with the IMU (the third).
+        design = np.column_stack([carried, (grid - middle) * carried, bias_turn, grade_lean])
+        fit = _complex_fit(design, fixes, use)
+        if fit is None:
+            return None
+        coefficients, residual = fit
+        misfit = np.abs(residual)
+        use = dense & (misfit <= 3.0 * np.median(misfit[use]) + 0.05)
+        drift -= float(np.imag(coefficients[1] / coefficients[0]))
+    heading = _heading_fit(design, fixes, use, half)
+    if heading is None:
+        return None
+    w, sigma_deg = heading
+    # Each half of the drive on its own must agree with the other within their errors: a
+    # drive with too little acceleration (a short motorway stretch) fitted the model's
+    # leftovers instead, 10 deg off at a standard error of 3.
+    middle_window = np.median(grid[use])
+    halves = [_heading_fit(design, fixes, use & part, half) for part in (grid < middle_window, grid >= middle_window)]
+    if any(item is None for item in halves):
+        return None
+    (first_w, first_sigma), (second_w, second_sigma) = halves
+    apart = abs(float(np.degrees(np.angle(first_w / second_w))))
+    if apart > HEADING_HALVES_SIGMAS * float(np.hypot(first_sigma, second_sigma)):
+        return None
+    # The travel direction in IMU axes at each fix: e^{-i heading} v, heading = arg W + yaw.
+    travel = velocity[1] if velocity is not None else np.gradient(position, t)
+    travel_t = velocity[0] if velocity is not None else t
+    speed = np.abs(travel)
+    moving = speed > HEADING_MIN_SPEED_M_S
+    if moving.sum() < HEADING_MIN_WINDOWS:
+        return None
+    heading = np.angle(w) + np.interp(travel_t[moving], imu.t, yaw)
+    along = travel[moving] / speed[moving] * np.exp(-1j * heading)
+    # One axis, either way along it (reversing): the doubled angles' mean, then its median
+    # refinement; the way it points is the one most of the distance goes.
+    axis = np.angle(np.sum(speed[moving] * along**2)) / 2.0
+    axis += float(np.median(np.angle(along**2 * np.exp(-2j * axis)))) / 2.0
+    if np.sum(speed[moving] * np.real(along * np.exp(-1j * axis))) < 0.0:
+        axis += np.pi
+    forward = np.cos(axis) * first + np.sin(axis) * second
+    seconds = round(float(np.sum(moving)) * float(np.median(np.diff(travel_t))))
+    return forward / np.linalg.norm(forward), seconds, sigma_deg
+
+
+def _heading_fit(design: np.ndarray, fixes: np.ndarray, use: np.ndarray, half: float) -> tuple[complex, float] | None:
+    """W (the first column's coefficient: e^{i heading}) and its angle's standard error
+    (deg) over the windows ``use``; None when too few, or its scale is not ~1."""
+    fit = _complex_fit(design, fixes, use)
+    if fit is None:
+        return None
+    coefficients, residual = fit
+    w = complex(coefficients[0])
+    if not MOTION_SCALE_RANGE[0] <= abs(w) <= MOTION_SCALE_RANGE[1]:
+        return None
+    used = design[use]
+    dof = max(int(use.sum()) - used.shape[1], 1)
+    noise = float(np.sum(np.abs(residual[use]) ** 2)) / dof * (2 * half)  # overlapping windows
+    try:
+        spread = float(np.real(np.linalg.inv(used.conj().T @ used)[0, 0]))
+    except np.linalg.LinAlgError:
+        return None
+    sigma_deg = float(np.degrees(np.sqrt(max(noise * spread / 2.0, 0.0)) / abs(w)))
+    return (w, sigma_deg) if np.isfinite(sigma_deg) else None
+
+
+def _complex_at(x: np.ndarray, t: np.ndarray, values: np.ndarray) -> np.ndarray:
+    return np.interp(x, t, values.real) + 1j * np.interp(x, t, values.imag)
+
+
+def _window_means(times: np.ndarray, values: np.ndarray, grid: np.ndarray, half: float, box: bool) -> np.ndarray:
+    """Means of complex ``values`` over +-half about ``grid`` (box: what velocities
+    differenced over the window measure), or the triangle over +-half a second difference
+    of positions weighs them by."""
+    dt = np.diff(times)
+    once = np.concatenate([[0.0], np.cumsum(0.5 * (values[1:] + values[:-1]) * dt)])
+    if box:
+        return (_complex_at(grid + half, times, once) - _complex_at(grid - half, times, once)) / (2 * half)
+    twice = np.concatenate([[0.0], np.cumsum(0.5 * (once[1:] + once[:-1]) * dt)])
+    return (_complex_at(grid + half, times, twice) - 2 * _complex_at(grid, times, twice)
+            + _complex_at(grid - half, times, twice)) / half**2  # fmt: skip
+
+
+def _complex_fit(design: np.ndarray, target: np.ndarray, use: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """Complex least squares over the rows ``use``: (coefficients, residual at every row)."""
+    if use.sum() < HEADING_MIN_WINDOWS:
+        return None
+    coefficients, *_ = np.linalg.lstsq(design[use], target[use], rcond=None)
+    if not np.all(np.isfinite(coefficients)) or abs(coefficients[0]) == 0.0:
+        return None
+    return coefficients, target - design @ coefficients
+
+
 def _residual_variance(residual: np.ndarray, parameters: int) -> float:
     """Per-axis residual variance, counted once per averaging window (grid points inside
     one window share their IMU samples, so they are not independent)."""
@@ -364,26 +566,40 @@ def check_mounting(dataset, rpy_deg) -> str | None:
     centripetal acceleration). Raises InputError when the forward axes are more than
     MOUNTING_ERROR_DEG apart; returns a warning line when more than MOUNTING_WARN_DEG; None
     when they agree or the drive cannot tell."""
-    found = forward_axis_from_motion(dataset)
+    found = _forward_axis(dataset)
     if found is None:
         return None
-    forward, turning_s = found
+    forward = found.forward
     up = _gravity_axis(dataset, forward)
     _check_forward_level(rpy_deg, forward, up)
     angle = _yaw_error_deg(forward, up, rpy_deg)
     if angle is None:
         return None
-    if abs(angle) <= MOUNTING_WARN_DEG:
+    warn_deg, error_deg = MOUNTING_WARN_DEG, MOUNTING_ERROR_DEG
+    if found.sigma_deg is not None:  # the heading match: its own standard error
+        warn_deg = max(warn_deg, HEADING_WARN_SIGMAS * found.sigma_deg)
+        error_deg = max(error_deg, HEADING_ERROR_SIGMAS * found.sigma_deg)
+    if abs(angle) <= warn_deg:
         return _tilt_note(dataset, rpy_deg, forward, up)
     message = (
-        f"imu: the vehicle's forward axis, from the horizontal specific force over {turning_s} s "
-        f"of turns or speed changes, lies {angle:+.0f} deg about up from the configured mounting's "
-        f"(imu_to_vehicle_rpy_deg = {_angles(rpy_deg, 2)}); a mounting that fits the data: "
-        f"imu_to_vehicle_rpy_deg = {_angles(_mounting_rpy_deg(forward, up), 0)}"
+        f"imu: the vehicle's forward axis, from {_evidence(found)}, lies {angle:+.0f} deg about "
+        f"up from the configured mounting's (imu_to_vehicle_rpy_deg = {_angles(rpy_deg, 2)}); a "
+        f"mounting that fits the data: imu_to_vehicle_rpy_deg = "
+        f"{_angles(_mounting_rpy_deg(forward, up), 0)}"
     )
-    if abs(angle) > MOUNTING_ERROR_DEG:
+    if abs(angle) > error_deg:
         raise InputError(message + "; the car constraints would fight the data")
     return message
+
+
+def _evidence(found: ForwardAxis) -> str:
+    """What shows the forward axis, for a message."""
+    if found.sigma_deg is None:
+        return f"the horizontal specific force over {found.seconds} s of turns or speed changes"
+    return (
+        f"the direction of travel over {found.seconds} s against the IMU's heading (its "
+        f"specific force matched to the fixes' acceleration, +-{found.sigma_deg:.1f} deg)"
+    )
 
 
 def _check_forward_level(rpy_deg, forward: np.ndarray, up: np.ndarray) -> None:
@@ -416,10 +632,10 @@ def adopted_mounting(
     default's own (the turns' fit is good to ~0.1-1 deg, no better than a right default);
     the up axis from gravity's mean direction over the drive, pitched by the drive's mean
     grade (a drive mostly uphill leans gravity backward in the vehicle)."""
-    found = forward_axis_from_motion(dataset)
+    found = _forward_axis(dataset)
     if found is None:
         return None
-    forward, turning_s = found
+    forward = found.forward
     up = _gravity_axis(dataset, forward)
     try:
         finding = check_mounting(dataset, rpy_deg)
@@ -427,6 +643,8 @@ def adopted_mounting(
         finding = str(error)
     configured = mounting_rotation(rpy_deg)[0]
     yaw_error = _yaw_error_deg(forward, up, rpy_deg)
+    if found.sigma_deg is not None:
+        refine_beyond_deg = max(refine_beyond_deg, HEADING_WARN_SIGMAS * found.sigma_deg)
     yaw_agrees = yaw_error is not None and abs(yaw_error) <= refine_beyond_deg
     if finding is None and yaw_agrees:
         return None
@@ -439,7 +657,7 @@ def adopted_mounting(
     vehicle_up = np.cos(grade) * up + np.sin(grade) * forward
     rpy = _mounting_rpy_deg(vehicle_forward, vehicle_up)
     return rpy, (
-        f"the drive's {turning_s} s of turns or speed changes and gravity show {_angles(rpy, 1)}"
+        f"{_evidence(found)} and gravity show {_angles(rpy, 1)}"
     )
 
 

@@ -158,7 +158,7 @@ def test_forward_axis_from_motion_across_vehicles_and_mountings():
     gentle curves (no turn above 3 deg/s) or too few turns: no verdict at all."""
     from fgins.config import config_for_dataset
     from fgins.io.kitti import read_kitti
-    from fgins.mounting import forward_axis_from_motion, mounting_yaw_error_deg
+    from fgins.mounting import _forward_axis_from_turns, mounting_yaw_error_deg
 
     for name, seed in (("car-urban", 3), ("mems-car-pdop", 5)):
         run = SCENARIOS[name](seed=seed, duration_s=200)
@@ -172,7 +172,11 @@ def test_forward_axis_from_motion_across_vehicles_and_mountings():
     assert abs(error) < 2.0
     for seed, duration in ((1, 50.0), (4, 200.0), (6, 60.0)):  # 4 and 6 fooled a curve fit
         highway = SCENARIOS["highway"](seed=seed, duration_s=duration)
-        assert forward_axis_from_motion(highway.dataset) is None
+        assert _forward_axis_from_turns(highway.dataset) is None
+        # The heading match (travel against the IMU's heading) gives the right axis or none
+        # (the 50-60 s stretches: 10 deg off at 3 sigma before each half had to agree).
+        found = mounting_yaw_error_deg(highway.dataset, (0.0, 0.0, 0.0))
+        assert found is None or abs(found[0]) < 2.0, (seed, found)
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
