@@ -142,7 +142,12 @@ def _forward_axis_from_turns(dataset) -> tuple[np.ndarray, int] | None:
         bias = np.median(gyro[straight] @ up) if straight.sum() >= 5 else 0.0
         return _forward_from_speed_changes(imu.t, summed_accel, summed_gyro, t, speed, up, bias)
     motion = np.column_stack([centripetal[turning], along[turning]])
-    forward = _free_fit(accel[turning], motion, up)
+    # An IMU a lever l ahead of the non-slipping point (the rear axle) feels -l w^2 along
+    # the forward axis and l dw/dt along the left one as well: regressed out, or a
+    # roundabout's steady turn tilts the fitted axis by atan(l w / v) (2 m ahead at 8 m/s
+    # and 0.3 rad/s: 3 deg).
+    lever_terms = np.column_stack([rate**2, np.gradient(rate, t)])[turning]
+    forward = _free_fit(accel[turning], np.column_stack([motion, lever_terms]), up)
     if forward is None:
         forward = _rigid_fit(accel[turning], motion, up)
     if forward is None:

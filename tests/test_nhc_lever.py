@@ -102,3 +102,30 @@ def test_the_nhc_lever_is_found_in_vehicle_axes_whatever_the_imus_axes(tmp_path)
     said = _said(track)
     assert len(said) == 1 and "corrected" in said[0], track.info.get("fit_warnings")
     assert abs(track.info["nhc_lever_arm_corrected_m"][0]) < 0.3, track.info["nhc_lever_arm_corrected_m"]
+
+
+ROUNDABOUT = CarProfile(steps=[(10, 5, 8.0)], turns=[(100, 160, 3, 0.3), (200, 210, 3, -0.1)], gamma=lambda t: 0 * t)
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_a_roundabout_with_the_imu_ahead_of_the_axle_keeps_the_right_mounting(tmp_path, seed):
+    """60 s of steady turning at 8 m/s with the IMU 2 m ahead of the rear axle (an outside
+    red team's drive). The IMU there feels -l w^2 along the forward axis, which the turns'
+    forward-axis fit took as part of the centripetal term: 3 deg off, so the run "refined" the
+    right default mounting to -1.9 deg, the lever then came out -1.2 m (truth -2), and batch
+    ran 0.93 m inside the outage against 0.42 m. Given the right lever, the vehicle fit report
+    read yaw rate x lever as lateral velocity (0.28 m/s) and blamed the mounting."""
+    from fgins.mounting import mounting_yaw_error_deg
+
+    write_drive(tmp_path, ROUNDABOUT, 300.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0, gnss_rate=1.0,
+                seed=seed, imu_offset=(2.0, 0.0, 0.0))  # fmt: skip
+    dataset = fgins.load(tmp_path / "imu.csv", tmp_path / "gnss.csv", config=tmp_path / "cfg.toml", vehicle="car")
+    error, _ = mounting_yaw_error_deg(dataset, (0.0, 0.0, 0.0))
+    assert abs(error) < 1.0, error
+    track, rms = _smooth(tmp_path, (0.0, 0.0, 0.0))
+    reference, right_rms = _smooth(tmp_path, (-2.0, 0.0, 0.0))
+    warnings = track.info.get("fit_warnings", [])
+    assert not [w for w in warnings if "mounting" in w], warnings
+    assert abs(track.info["nhc_lever_arm_corrected_m"][0] + 2.0) < 0.3, track.info["nhc_lever_arm_corrected_m"]
+    assert rms < 1.15 * right_rms + 0.05, (rms, right_rms)
+    assert not reference.info.get("fit_warnings"), reference.info.get("fit_warnings")
