@@ -35,6 +35,7 @@ from fgins.datatypes import GnssData, InputError
 VELOCITY_WINDOW_S = 4.0
 POSITION_WINDOW_S = 8.0
 MIN_SPEED_M_PER_S = 3.0  # a course to take the track axes from
+STOP_CHORD_S = 2.0
 MIN_WINDOWS = 20
 # Refused when the mirrored fit leaves at most MIRRORED_RESIDUAL_RATIO of the right-handed
 # fit's unexplained part and correlates at MIRRORED_MIN_CORRELATION. Seen: right-handed drives
@@ -85,15 +86,18 @@ def handedness_fit(imu, gnss: GnssData, enu: np.ndarray) -> tuple[float, float, 
         accel /= 2.0 * window
     else:
         accel = (chord - 2.0 * (_at(grid, t, position) - _at(grid - window, t, position))) / window**2
-    moving = np.abs(chord) / (2.0 * window) > MIN_SPEED_M_PER_S
-    use = dense & moving
+    # The track's direction is the body's forward one or, reversing, its opposite: one sign
+    # per stretch between stops, fitted. A turn taken reversing reads as a mirrored one in
+    # track axes (an independent simulator's car reversing 90 s with turns: refused, 0.08).
+    # To turn round, the speed over +-STOP_CHORD_S passes below MIN_SPEED_M_PER_S (the long
+    # chord would not do: round a 30 m circle at 8 m/s it spans 245 deg and flickers about
+    # 3 m/s, and a stretch per flicker let the mirrored fit take the circle).
+    short = _at(grid + STOP_CHORD_S, t, position) - _at(grid - STOP_CHORD_S, t, position)
+    going = np.abs(short) / (2.0 * STOP_CHORD_S) > MIN_SPEED_M_PER_S
+    use = dense & going & (np.abs(chord) / (2.0 * window) > MIN_SPEED_M_PER_S)
     if use.sum() < MIN_WINDOWS:
         return None
-    # The track's direction is the body's forward one or, reversing, its opposite: one sign
-    # per stretch between stops (to turn round, the chord's speed passes below
-    # MIN_SPEED_M_PER_S), fitted. A turn taken reversing reads as a mirrored one in track
-    # axes (an independent simulator's car reversing 90 s with turns: refused, 0.08).
-    stretch = np.cumsum(np.diff(moving.astype(int), prepend=0) == 1)[use]
+    stretch = np.cumsum(np.diff(going.astype(int), prepend=0) == 1)[use]
     track = accel[use] * np.conj(chord[use] / np.abs(chord[use]))  # along + i left
     right, mirrored = (
         _correlation(force - force.mean(), track, stretch)
