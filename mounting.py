@@ -143,11 +143,11 @@ def _forward_axis_from_turns(dataset) -> tuple[np.ndarray, int] | None:
         return _forward_from_speed_changes(imu.t, summed_accel, summed_gyro, t, speed, up, bias)
     motion = np.column_stack([centripetal[turning], along[turning]])
     # An IMU a lever l ahead of the non-slipping point (the rear axle) feels -l w^2 along
-    # the forward axis and l dw/dt along the left one as well: regressed out, or a
-    # roundabout's steady turn tilts the fitted axis by atan(l w / v) (2 m ahead at 8 m/s
-    # and 0.3 rad/s: 3 deg).
+    # the forward axis and l dw/dt along the left one as well: regressed out where they show
+    # a lever (LEVER_TERMS_SIGMAS), or a roundabout's steady turn tilts the fitted axis by
+    # atan(l w / v) (2 m ahead at 8 m/s and 0.3 rad/s: 3 deg).
     lever_terms = np.column_stack([rate**2, np.gradient(rate, t)])[turning]
-    forward = _free_fit(accel[turning], np.column_stack([motion, lever_terms]), up)
+    forward = _free_fit(accel[turning], motion, up, lever_terms)
     if forward is None:
         forward = _rigid_fit(accel[turning], motion, up)
     if forward is None:
@@ -215,25 +215,64 @@ def _forward_from_speed_changes(
     return forward / np.linalg.norm(forward), round(n * MOTION_STEP_S)
 
 
-def _free_fit(accel: np.ndarray, motion: np.ndarray, up: np.ndarray) -> np.ndarray | None:
+# The IMU's lever terms (-l w^2 forward, l dw/dt left; see _forward_axis_from_turns) are
+# kept in the turns' fit only where the lever they show is this many of its sigmas and
+# metres from zero: two more regressors cost precision, and KITTI (0.27 m) moved 0.13 deg
+# with them, enough to replace its configured mounting and lose 38 % in its 60 s outages.
+LEVER_TERMS_SIGMAS = 3.0
+LEVER_TERMS_MIN_M = 0.5
+
+
+def _free_fit(accel: np.ndarray, motion: np.ndarray, up: np.ndarray, lever_terms: np.ndarray | None = None) -> np.ndarray | None:
     """Forward axis from a free regression of the horizontal specific force on v w (the
     left axis), the forward acceleration (braking into a turn, or a grade through it,
-    correlates it with v w) and a constant; None when the left axis's scale is not ~1 or its
+    correlates it with v w), the IMU's ``lever_terms`` (w^2, dw/dt) where they show a
+    significant lever, and a constant; None when the left axis's scale is not ~1 or its
     direction is uncertain by more than MOTION_MAX_SIGMA_DEG."""
     horizontal = accel - np.outer(accel @ up, up)
-    design = np.column_stack([motion, np.ones(len(motion))])
+    if lever_terms is not None:
+        fit = _regression(horizontal, np.column_stack([motion, lever_terms]))
+        if fit is not None:
+            coefficients, covariance_scale, variance = fit
+            left = coefficients[0] / np.linalg.norm(coefficients[0])
+            forward = np.cross(left, up)
+            # Both terms show the lever: -l along forward per w^2, l along left per dw/dt.
+            # They must agree, and together put it clear of zero (a hilly drive's grades
+            # made the w^2 term alone -38 +- 7 m).
+            estimates = np.array([-float(coefficients[2] @ forward), float(coefficients[3] @ left)])
+            sigmas = np.sqrt(np.maximum(variance * np.diag(covariance_scale)[2:4], 1e-12))
+            weights = 1.0 / sigmas**2
+            lever = float(np.sum(weights * estimates) / np.sum(weights))
+            sigma = float(1.0 / np.sqrt(np.sum(weights)))
+            agree = abs(estimates[0] - estimates[1]) <= LEVER_TERMS_SIGMAS * float(np.hypot(*sigmas))
+            if agree and abs(lever) > max(LEVER_TERMS_SIGMAS * sigma, LEVER_TERMS_MIN_M):
+                return _checked_left(coefficients[0], covariance_scale[0, 0], variance, up)
+    fit = _regression(horizontal, motion)
+    if fit is None:
+        return None
+    coefficients, covariance_scale, variance = fit
+    return _checked_left(coefficients[0], covariance_scale[0, 0], variance, up)
+
+
+def _regression(horizontal: np.ndarray, columns: np.ndarray) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """Least squares of ``horizontal`` on ``columns`` and a constant: (coefficients,
+    (X^T X)^-1, per-axis residual variance); None when singular."""
+    design = np.column_stack([columns, np.ones(len(columns))])
     coefficients, *_ = np.linalg.lstsq(design, horizontal, rcond=None)
-    left = coefficients[0]  # (3,): specific force per unit of v w, IMU axes (~unit length)
+    try:
+        covariance_scale = np.linalg.inv(design.T @ design)
+    except np.linalg.LinAlgError:
+        return None
+    return coefficients, covariance_scale, _residual_variance(horizontal - design @ coefficients, design.shape[1])
+
+
+def _checked_left(left: np.ndarray, unscaled: float, variance: float, up: np.ndarray) -> np.ndarray | None:
+    """The forward axis from the fitted left axis (specific force per unit of v w, IMU axes,
+    ~unit length); None when its scale is not ~1 or its direction is uncertain by more than
+    MOTION_MAX_SIGMA_DEG."""
     scale = float(np.linalg.norm(left))
     if not MOTION_SCALE_RANGE[0] <= scale <= MOTION_SCALE_RANGE[1]:
         return None
-    residual = horizontal - design @ coefficients
-    p = design.shape[1]
-    try:
-        unscaled = float(np.linalg.inv(design.T @ design)[0, 0])
-    except np.linalg.LinAlgError:
-        return None
-    variance = _residual_variance(residual, p)
     if not np.degrees(np.sqrt(max(variance * unscaled, 0.0)) / scale) <= MOTION_MAX_SIGMA_DEG:
         return None
     forward = np.cross(left / scale, up)

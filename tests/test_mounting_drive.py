@@ -268,8 +268,8 @@ def test_a_mounting_nobody_gave_is_taken_from_the_drive(drive, rpy, method):
 @pytest.mark.parametrize("method", ["batch", "ekf-rts"])
 def test_a_mounting_taken_from_a_hilly_drive_is_refined_by_the_fit(tmp_path, method):
     """An independent simulator's hilly drive, its IMU x right and y forward, no mounting
-    given: the turns' fit alone is 1.2 deg off (0.5 deg since it regresses out the IMU's
-    lever terms; 1.52 m inside a 40 s outage where the true mounting gives 0.23 m); refined by a batch solve's constant misalignment state, the
+    given: the turns' fit alone is 1.2 deg off (1.52 m inside a 40 s outage where the true
+    mounting gives 0.23 m); refined by a batch solve's constant misalignment state, the
     mounting is right to a few hundredths of a degree and every method gets the true
     mounting's accuracy."""
     import re
@@ -305,7 +305,7 @@ def test_a_mounting_taken_from_a_hilly_drive_is_refined_by_the_fit(tmp_path, met
     notes = [w for w in runs["none"].info["fit_warnings"] if "no IMU mounting was given" in w]
     assert len(notes) == 1, notes
     turned = float(re.search(r"misalignment state turned that by ([0-9.]+) deg", notes[0]).group(1))
-    assert turned > 0.2, notes[0]  # the turns' fit alone is off (1.2 deg; 0.5 with the lever terms)
+    assert turned > 0.2, notes[0]  # the turns' fit alone is off
     yaw = float(re.search(r"using \S+ = \[[^,]+, [^,]+, ([^]]+)\]", notes[0]).group(1))
     assert abs(yaw + 90.0) < 0.1, notes[0]
     expected, got = outage_rms(runs["given"]), outage_rms(runs["none"])
