@@ -93,7 +93,15 @@ def _forward_axis(dataset) -> ForwardAxis | None:
 
 def _forward_axis_from_turns(dataset) -> tuple[np.ndarray, int] | None:
     """The vehicle's forward axis in IMU axes from the turns or straight speed changes, or
-    None when the drive has too few of them to tell; with the seconds used.
+    None when the drive has too few of them to tell; with the seconds used (see _turns_fit)."""
+    found = _turns_fit(dataset)
+    return None if found is None else (found[0], found[1])
+
+
+def _turns_fit(dataset) -> tuple[np.ndarray, int, tuple[float, float] | None] | None:
+    """The vehicle's forward axis in IMU axes from the turns or straight speed changes, or
+    None when the drive has too few of them to tell; with the seconds used and the IMU's
+    lever ahead of the non-slipping point where the turns show one (m, sigma).
 
     A ground vehicle turning at rate ``w`` (about up) with speed ``v`` accelerates toward the
     turn's centre, ``v w`` along its left axis; the IMU's specific force shows it in the
@@ -140,19 +148,28 @@ def _forward_axis_from_turns(dataset) -> tuple[np.ndarray, int] | None:
     n = int(turning.sum())
     if n * MOTION_STEP_S < MOTION_MIN_TURN_S:
         bias = np.median(gyro[straight] @ up) if straight.sum() >= 5 else 0.0
-        return _forward_from_speed_changes(imu.t, summed_accel, summed_gyro, t, speed, up, bias)
+        straight_ahead = _forward_from_speed_changes(imu.t, summed_accel, summed_gyro, t, speed, up, bias)
+        return None if straight_ahead is None else (*straight_ahead, None)
     motion = np.column_stack([centripetal[turning], along[turning]])
     # An IMU a lever l ahead of the non-slipping point (the rear axle) feels -l w^2 along
     # the forward axis and l dw/dt along the left one as well: regressed out where they show
     # a lever (LEVER_TERMS_SIGMAS), or a roundabout's steady turn tilts the fitted axis by
     # atan(l w / v) (2 m ahead at 8 m/s and 0.3 rad/s: 3 deg).
     lever_terms = np.column_stack([rate**2, np.gradient(rate, t)])[turning]
-    forward = _free_fit(accel[turning], motion, up, lever_terms)
+    forward, lever = _free_fit(accel[turning], motion, up, lever_terms)
     if forward is None:
         forward = _rigid_fit(accel[turning], motion, up)
     if forward is None:
         return None  # the turns do not show the nose well enough: cannot tell
-    return forward / np.linalg.norm(forward), round(n * MOTION_STEP_S)
+    return forward / np.linalg.norm(forward), round(n * MOTION_STEP_S), lever
+
+
+def imu_lever_from_turns(dataset) -> tuple[float, float] | None:
+    """How far (m) the IMU sits ahead of the non-slipping point (the rear axle) as the
+    turns show it (its -l w^2 and l dw/dt agreeing beyond LEVER_TERMS_SIGMAS and
+    LEVER_TERMS_MIN_M), with its sigma; None where they do not show one."""
+    found = _turns_fit(dataset)
+    return None if found is None else found[2]
 
 
 def _forward_from_speed_changes(
@@ -223,12 +240,15 @@ LEVER_TERMS_SIGMAS = 3.0
 LEVER_TERMS_MIN_M = 0.5
 
 
-def _free_fit(accel: np.ndarray, motion: np.ndarray, up: np.ndarray, lever_terms: np.ndarray | None = None) -> np.ndarray | None:
+def _free_fit(
+    accel: np.ndarray, motion: np.ndarray, up: np.ndarray, lever_terms: np.ndarray | None = None
+) -> tuple[np.ndarray | None, tuple[float, float] | None]:
     """Forward axis from a free regression of the horizontal specific force on v w (the
     left axis), the forward acceleration (braking into a turn, or a grade through it,
     correlates it with v w), the IMU's ``lever_terms`` (w^2, dw/dt) where they show a
     significant lever, and a constant; None when the left axis's scale is not ~1 or its
-    direction is uncertain by more than MOTION_MAX_SIGMA_DEG."""
+    direction is uncertain by more than MOTION_MAX_SIGMA_DEG. With it, the lever (m, the IMU
+    ahead of the non-slipping point) and its sigma where it was regressed out."""
     horizontal = accel - np.outer(accel @ up, up)
     if lever_terms is not None:
         fit = _regression(horizontal, np.column_stack([motion, lever_terms]))
@@ -246,12 +266,13 @@ def _free_fit(accel: np.ndarray, motion: np.ndarray, up: np.ndarray, lever_terms
             sigma = float(1.0 / np.sqrt(np.sum(weights)))
             agree = abs(estimates[0] - estimates[1]) <= LEVER_TERMS_SIGMAS * float(np.hypot(*sigmas))
             if agree and abs(lever) > max(LEVER_TERMS_SIGMAS * sigma, LEVER_TERMS_MIN_M):
-                return _checked_left(coefficients[0], covariance_scale[0, 0], variance, up)
+                forward = _checked_left(coefficients[0], covariance_scale[0, 0], variance, up)
+                return forward, (None if forward is None else (lever, sigma))
     fit = _regression(horizontal, motion)
     if fit is None:
-        return None
+        return None, None
     coefficients, covariance_scale, variance = fit
-    return _checked_left(coefficients[0], covariance_scale[0, 0], variance, up)
+    return _checked_left(coefficients[0], covariance_scale[0, 0], variance, up), None
 
 
 def _regression(horizontal: np.ndarray, columns: np.ndarray) -> tuple[np.ndarray, np.ndarray, float] | None:

@@ -19,6 +19,7 @@ from fgins.corrections import (
     Rerun,
     add_arm_uncertainty,
     mounting_from_drive,
+    nhc_lever_from_turns,
     noise_from_data,
     with_antenna_corrected,
     with_gnss_sigmas_scaled,
@@ -58,6 +59,7 @@ def run_method(
     run = Rerun(method, gnss_mask, lambda data, cfg, how: _run(data, cfg, how, gnss_mask, progress))
     config, noise_note = noise_from_data(dataset, config, run)
     config, mounting_note = mounting_from_drive(dataset, config, run)
+    config, point_note = nhc_lever_from_turns(dataset, config)
     trajectory = run.solve(dataset, config)
     trajectory, config, bias_note = with_turn_on_bias_widened(dataset, config, run, trajectory)
     # The car's constraint point before the antenna: a lever left out (an IMU 2 m ahead of the
@@ -80,7 +82,7 @@ def run_method(
     # Last: the solves above hold a taken arm fixed, the output's uncertainty must not.
     add_arm_uncertainty(trajectory, trajectory.info.pop("gnss_lever_arm_corrected_cov_m2", None))
     notes = [
-        noise_note, bias_note, mounting_note, lever_note, unknown_height(dataset, trajectory),
+        noise_note, bias_note, mounting_note, point_note, lever_note, unknown_height(dataset, trajectory),
         nose_off_track(config, trajectory),
     ]  # fmt: skip
     if config.smoother.initial_heading_deg is None:  # else the configured heading is known
