@@ -14,6 +14,7 @@ here, so they cannot disagree about the convention.
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -81,14 +82,26 @@ class ForwardAxis:
     sigma_deg: float | None = None
 
 
+# One run asks up to three times (check, adopt, the adopted check) for the same drive: the
+# last answer is kept while the very same IMU and GNSS data are asked about (weak
+# references: a new or changed dataset brings new objects).
+_last_forward_axis: list = []
+
+
 def _forward_axis(dataset) -> ForwardAxis | None:
+    arrays = (dataset.imu, dataset.imu.accel, dataset.imu.gyro, dataset.gnss, dataset.gnss.lla)
+    if _last_forward_axis and all(ref() is array for ref, array in zip(_last_forward_axis[0], arrays, strict=True)):
+        return _last_forward_axis[1]
     found = _forward_axis_from_turns(dataset)
     if found is not None:
-        return ForwardAxis(found[0], found[1], "turns or speed changes")
-    heading = forward_axis_from_heading(dataset)
-    if heading is None:
-        return None
-    return ForwardAxis(heading[0], heading[1], "travel against the IMU's heading", heading[2])
+        answer = ForwardAxis(found[0], found[1], "turns or speed changes")
+    else:
+        heading = forward_axis_from_heading(dataset)
+        answer = None if heading is None else ForwardAxis(
+            heading[0], heading[1], "travel against the IMU's heading", heading[2]
+        )  # fmt: skip
+    _last_forward_axis[:] = [tuple(weakref.ref(array) for array in arrays), answer]
+    return answer
 
 
 def _forward_axis_from_turns(dataset) -> tuple[np.ndarray, int] | None:
