@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgins.datatypes import InputError
+from fgins.planar import complex_at, horizontal_axes, window_means, yaw_about
 
 
 def _axis_rotation(axis: int, angle: float) -> np.ndarray:
@@ -73,13 +74,15 @@ def forward_axis_from_motion(dataset) -> tuple[np.ndarray, int] | None:
 @dataclass(frozen=True)
 class ForwardAxis:
     """The vehicle's forward axis in IMU axes as the drive shows it, the seconds used, what
-    shows it (words for a message) and, from the heading match, its standard error (deg;
-    None for the turns' and speed changes' fits, good to ~0.1-1 deg)."""
+    shows it (words for a message), from the heading match its standard error (deg; None
+    for the turns' and speed changes' fits, good to ~0.1-1 deg), and from the turns the
+    IMU's lever ahead of the non-slipping point where they show one."""
 
     forward: np.ndarray
     seconds: int
     evidence: str
     sigma_deg: float | None = None
+    lever: tuple[float, float] | None = None  # the turns' lever terms: (m ahead, sigma)
 
 
 # One run asks up to three times (check, adopt, the adopted check) for the same drive: the
@@ -92,9 +95,9 @@ def _forward_axis(dataset) -> ForwardAxis | None:
     arrays = (dataset.imu, dataset.imu.accel, dataset.imu.gyro, dataset.gnss, dataset.gnss.lla)
     if _last_forward_axis and all(ref() is array for ref, array in zip(_last_forward_axis[0], arrays, strict=True)):
         return _last_forward_axis[1]
-    found = _forward_axis_from_turns(dataset)
+    found = _turns_fit(dataset)
     if found is not None:
-        answer = ForwardAxis(found[0], found[1], "turns or speed changes")
+        answer = ForwardAxis(found[0], found[1], "turns or speed changes", lever=found[2])
     else:
         heading = forward_axis_from_heading(dataset)
         answer = None if heading is None else ForwardAxis(
@@ -181,8 +184,8 @@ def imu_lever_from_turns(dataset) -> tuple[float, float] | None:
     """How far (m) the IMU sits ahead of the non-slipping point (the rear axle) as the
     turns show it (its -l w^2 and l dw/dt agreeing beyond LEVER_TERMS_SIGMAS and
     LEVER_TERMS_MIN_M), with its sigma; None where they do not show one."""
-    found = _turns_fit(dataset)
-    return None if found is None else found[2]
+    found = _forward_axis(dataset)  # the mounting check's own fit, kept
+    return None if found is None else found.lever
 
 
 def _forward_from_speed_changes(
@@ -390,32 +393,29 @@ def _forward_from_heading(dataset, box_s: float) -> tuple[np.ndarray, int, float
     dense = np.max(t[ends] - t[ends - 1], axis=0) <= half
     position = enu[:, 0] + 1j * enu[:, 1]
     if velocity is not None:
-        fixes = (_complex_at(grid + half, *velocity) - _complex_at(grid - half, *velocity)) / (2 * half)
+        fixes = (complex_at(grid + half, *velocity) - complex_at(grid - half, *velocity)) / (2 * half)
     else:
-        fixes = (_complex_at(grid + half, t, position) - 2 * _complex_at(grid, t, position)
-                 + _complex_at(grid - half, t, position)) / half**2  # fmt: skip
+        fixes = (complex_at(grid + half, t, position) - 2 * complex_at(grid, t, position)
+                 + complex_at(grid - half, t, position)) / half**2  # fmt: skip
     # A grade leans the IMU's horizontal plane (normal to the mean specific force) and
     # gravity's share g sin(grade) acts along the direction of travel, either way of
     # driving: fitted with it (its coefficient ~g).
     epoch_speed = _speed(t, enu, gnss.velocity)
     with np.errstate(invalid="ignore", divide="ignore"):
         slope = np.where(epoch_speed > HEADING_MIN_SPEED_M_S, _climb(t, enu, gnss.velocity) / epoch_speed, 0.0)
-    travel_direction = np.gradient(position, t)
-    travel_direction /= np.maximum(np.abs(travel_direction), 1e-9)
-    grade_lean = _complex_at(grid, t, np.nan_to_num(slope) * travel_direction)
+    position_rate = np.gradient(position, t)
+    travel_direction = position_rate / np.maximum(np.abs(position_rate), 1e-9)
+    grade_lean = complex_at(grid, t, np.nan_to_num(slope) * travel_direction)
     up = _up_axis(imu)
-    first = np.cross(up, np.eye(3)[int(np.argmin(np.abs(up)))])
-    first /= np.linalg.norm(first)
-    second = np.cross(up, first)
+    first, second = horizontal_axes(up)
     force = imu.accel @ first + 1j * (imu.accel @ second)
-    dt = np.diff(imu.t)
-    measured_yaw = np.concatenate([[0.0], np.cumsum(0.5 * (imu.gyro[1:] + imu.gyro[:-1]) @ up * dt)])
+    measured_yaw = yaw_about(imu, up)
     middle = 0.5 * (imu.t[0] + imu.t[-1])
     use, drift, fit = dense.copy(), 0.0, None
     for _ in range(4):  # the gyro's bias about up turns the carried frame: fitted, removed
         yaw = measured_yaw - drift * (imu.t - middle)
-        carried = _window_means(imu.t, force * np.exp(1j * yaw), grid, half, velocity is not None)
-        bias_turn = _window_means(imu.t, np.exp(1j * yaw), grid, half, velocity is not None)
+        carried = window_means(imu.t, force * np.exp(1j * yaw), grid, half, velocity is not None)
+        bias_turn = window_means(imu.t, np.exp(1j * yaw), grid, half, velocity is not None)
         # The fixes' acceleration (the noisy side: metre-level fixes' second differences)
         # regressed on the IMU's: fixes = W carried, W = e^{i heading} at the middle time,
         # turning with the gyro's bias (the second column) and less the accelerometer's
@@ -444,7 +444,7 @@ def _forward_from_heading(dataset, box_s: float) -> tuple[np.ndarray, int, float
     if apart > HEADING_HALVES_SIGMAS * float(np.hypot(first_sigma, second_sigma)):
         return None
     # The travel direction in IMU axes at each fix: e^{-i heading} v, heading = arg W + yaw.
-    travel = velocity[1] if velocity is not None else np.gradient(position, t)
+    travel = velocity[1] if velocity is not None else position_rate
     travel_t = velocity[0] if velocity is not None else t
     speed = np.abs(travel)
     moving = speed > HEADING_MIN_SPEED_M_S
@@ -482,23 +482,6 @@ def _heading_fit(design: np.ndarray, fixes: np.ndarray, use: np.ndarray, half: f
         return None
     sigma_deg = float(np.degrees(np.sqrt(max(noise * spread / 2.0, 0.0)) / abs(w)))
     return (w, sigma_deg) if np.isfinite(sigma_deg) else None
-
-
-def _complex_at(x: np.ndarray, t: np.ndarray, values: np.ndarray) -> np.ndarray:
-    return np.interp(x, t, values.real) + 1j * np.interp(x, t, values.imag)
-
-
-def _window_means(times: np.ndarray, values: np.ndarray, grid: np.ndarray, half: float, box: bool) -> np.ndarray:
-    """Means of complex ``values`` over +-half about ``grid`` (box: what velocities
-    differenced over the window measure), or the triangle over +-half a second difference
-    of positions weighs them by."""
-    dt = np.diff(times)
-    once = np.concatenate([[0.0], np.cumsum(0.5 * (values[1:] + values[:-1]) * dt)])
-    if box:
-        return (_complex_at(grid + half, times, once) - _complex_at(grid - half, times, once)) / (2 * half)
-    twice = np.concatenate([[0.0], np.cumsum(0.5 * (once[1:] + once[:-1]) * dt)])
-    return (_complex_at(grid + half, times, twice) - 2 * _complex_at(grid, times, twice)
-            + _complex_at(grid - half, times, twice)) / half**2  # fmt: skip
 
 
 def _complex_fit(design: np.ndarray, target: np.ndarray, use: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:

@@ -28,6 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from fgins.datatypes import GnssData, InputError
+from fgins.planar import complex_at, horizontal_axes, window_means, yaw_about
 
 # The accelerations compared are means over a window of +-WINDOW_S around each second: the
 # receiver's velocity differenced over it, or, without velocities, the fixes' second
@@ -79,20 +80,20 @@ def handedness_fit(imu, gnss: GnssData, enu: np.ndarray) -> tuple[float, float, 
     dense = np.max(t[ends] - t[ends - 1], axis=0) <= window / 2
 
     position = enu[:, 0] + 1j * enu[:, 1]
-    chord = _at(grid + window, t, position) - _at(grid - window, t, position)
+    chord = complex_at(grid + window, t, position) - complex_at(grid - window, t, position)
     if velocity is not None:
         known = np.isfinite(velocity)
-        accel = (_at(grid + window, t[known], velocity[known]) - _at(grid - window, t[known], velocity[known]))
+        accel = (complex_at(grid + window, t[known], velocity[known]) - complex_at(grid - window, t[known], velocity[known]))
         accel /= 2.0 * window
     else:
-        accel = (chord - 2.0 * (_at(grid, t, position) - _at(grid - window, t, position))) / window**2
+        accel = (chord - 2.0 * (complex_at(grid, t, position) - complex_at(grid - window, t, position))) / window**2
     # The track's direction is the body's forward one or, reversing, its opposite: one sign
     # per stretch between stops, fitted. A turn taken reversing reads as a mirrored one in
     # track axes (an independent simulator's car reversing 90 s with turns: refused, 0.08).
     # To turn round, the speed over +-STOP_CHORD_S passes below MIN_SPEED_M_PER_S (the long
     # chord would not do: round a 30 m circle at 8 m/s it spans 245 deg and flickers about
     # 3 m/s, and a stretch per flicker let the mirrored fit take the circle).
-    short = _at(grid + STOP_CHORD_S, t, position) - _at(grid - STOP_CHORD_S, t, position)
+    short = complex_at(grid + STOP_CHORD_S, t, position) - complex_at(grid - STOP_CHORD_S, t, position)
     going = np.abs(short) / (2.0 * STOP_CHORD_S) > MIN_SPEED_M_PER_S
     use = dense & going & (np.abs(chord) / (2.0 * window) > MIN_SPEED_M_PER_S)
     if use.sum() < MIN_WINDOWS:
@@ -126,23 +127,13 @@ def _horizontal_force(imu, grid: np.ndarray, window: float, box: bool, mirror: b
     mirror image is what turns with the gyro)."""
     up = np.mean(imu.accel, axis=0)
     up /= np.linalg.norm(up)
-    first_axis = np.cross(up, np.eye(3)[int(np.argmin(np.abs(up)))])
-    first_axis /= np.linalg.norm(first_axis)
-    second_axis = np.cross(up, first_axis)
+    first_axis, second_axis = horizontal_axes(up)
     force = imu.accel @ first_axis + 1j * (imu.accel @ second_axis)
     if mirror:
         force = np.conj(force)
-    dt = np.diff(imu.t)
-    yaw = np.concatenate([[0.0], np.cumsum(0.5 * (imu.gyro[1:] + imu.gyro[:-1]) @ up * dt)])
+    yaw = yaw_about(imu, up)
     steady = force * np.exp(1j * yaw)  # in axes that do not turn with the body about up
-    once = np.concatenate([[0.0], np.cumsum(0.5 * (steady[1:] + steady[:-1]) * dt)])
-    if box:
-        mean = (_at(grid + window, imu.t, once) - _at(grid - window, imu.t, once)) / (2.0 * window)
-    else:
-        twice = np.concatenate([[0.0], np.cumsum(0.5 * (once[1:] + once[:-1]) * dt)])
-        mean = (
-            _at(grid + window, imu.t, twice) - 2.0 * _at(grid, imu.t, twice) + _at(grid - window, imu.t, twice)
-        ) / window**2
+    mean = window_means(imu.t, steady, grid, window, box)
     return mean * np.exp(-1j * np.interp(grid, imu.t, yaw))
 
 
@@ -189,11 +180,6 @@ def _stretch_signs(products: np.ndarray, stretch: np.ndarray, count: int) -> np.
             break
         best = settled
     return best
-
-
-def _at(x: np.ndarray, t: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """Complex ``values`` at times ``t`` interpolated linearly at ``x``."""
-    return np.interp(x, t, values.real) + 1j * np.interp(x, t, values.imag)
 
 
 # A vehicle that need not follow its track (a multirotor, a pedestrian) or banks into its
