@@ -522,13 +522,15 @@ def mounting_from_drive(dataset: Dataset, config: RunConfig, run: Rerun) -> tupl
     if adopted is None:
         return config, finding if given else None
     original = config
-    angles, evidence = adopted
-    smoother = replace(config.smoother, imu_to_vehicle_rpy_deg=tuple(float(a) for a in angles))
+    evidence = adopted.evidence
+    smoother = replace(config.smoother, imu_to_vehicle_rpy_deg=tuple(float(a) for a in adopted.rpy_deg))
     config = replace(config, smoother=smoother)
     refined = None
     holds_deg = GIVEN_HOLDS_DEG if given else DEFAULT_HOLDS_DEG
     if smoother.nhc_misalignment_prior_deg == 0.0:  # else the run estimates one itself
-        refined = _refined_mounting(dataset, config, run)
+        # A coarse heading match (a crawl: +-16 deg) leaves more to refine than the turns.
+        prior_deg = max(ADOPTED_MOUNTING_SIGMA_DEG, adopted.sigma_deg or 0.0)
+        refined = _refined_mounting(dataset, config, run, prior_deg)
         if refined is None:  # the refining solve failed: judged as a given mounting is
             return original, finding if given else check_mounting(dataset, rpy)
     elif given:
@@ -569,9 +571,11 @@ def _forward_angle_deg(rpy_a, rpy_b) -> float:
     return float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
 
 
-def _refined_mounting(dataset: Dataset, config: RunConfig, run: Rerun) -> tuple[tuple[float, float, float], float, float] | None:
+def _refined_mounting(
+    dataset: Dataset, config: RunConfig, run: Rerun, prior_deg: float = ADOPTED_MOUNTING_SIGMA_DEG
+) -> tuple[tuple[float, float, float], float, float] | None:
     """The mounting taken from the turns, turned by the constant NHC misalignment a batch
-    solve estimates with it (sigma ADOPTED_MOUNTING_SIGMA_DEG), each of its two angles only
+    solve estimates with it (sigma ``prior_deg``), each of its two angles only
     where it exceeds MISALIGNMENT_SIGNIFICANT sigmas of its own estimate; the angle turned
     and the larger sigma (deg). None when that solve fails. The turns' fit is good to
     ~0.1-1 deg: 1.2 deg off on an independent simulator's hilly drive, 1.52 m inside a 40 s
@@ -581,7 +585,7 @@ def _refined_mounting(dataset: Dataset, config: RunConfig, run: Rerun) -> tuple[
     misalignment serves every method, the Kalman baselines too, at the cost of one solve."""
     from fgins.mounting import turned_by_misalignment
 
-    smoother = replace(config.smoother, nhc_misalignment_prior_deg=ADOPTED_MOUNTING_SIGMA_DEG)
+    smoother = replace(config.smoother, nhc_misalignment_prior_deg=prior_deg)
     try:
         probe = run.solve(dataset, replace(config, smoother=smoother), "batch")
     except FginsError:

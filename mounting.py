@@ -353,7 +353,14 @@ def _rigid_fit(accel: np.ndarray, motion: np.ndarray, up: np.ndarray) -> np.ndar
 # 40 s outage (NEES 485-4663) at 2-7 m/s, the turns' fit "cannot tell".
 HEADING_BOX_S = 2.0  # accelerations: means over +-this (velocities), second differences over +-2x (fixes)
 HEADING_MIN_SPEED_M_S = 1.0  # the direction of travel taken above this
-HEADING_MAX_SIGMA_DEG = 6.0
+# The heading match answers up to this standard error. What it overturns scales with it
+# (HEADING_WARN_SIGMAS, HEADING_ERROR_SIGMAS), so a coarse answer only overturns a mounting
+# that is grossly off: a 0.5 m/s crawl's fixes (1 m noise, 0.5 m apart) give +-16 deg, which
+# tells the 90 and 180 deg turns people mix up (beyond 3 sigma, 47 deg) from the default. An
+# independent simulator's crawl with the IMU mounted backward and no mounting given ran to
+# 2.8 m inside a 40 s outage (NEES 46, not a word on the mounting) where the heading match,
+# then capped at 6 deg, saw it 154 +- 16 deg off the default.
+HEADING_MAX_SIGMA_DEG = 20.0
 HEADING_MIN_WINDOWS = 30
 # A configured mounting the heading match puts off by more than these many of its standard
 # errors (and MOUNTING_WARN_DEG / MOUNTING_ERROR_DEG) is said / refused.
@@ -682,11 +689,22 @@ def _check_forward_level(rpy_deg, forward: np.ndarray, up: np.ndarray) -> None:
     )
 
 
+@dataclass(frozen=True)
+class AdoptedMounting:
+    """A mounting the data show (:func:`adopted_mounting`): its angles (deg, ZYX), what
+    shows it (words for a warning) and, from the heading match, its forward axis's standard
+    error about up (deg; None for the turns' fit, good to ~0.1-1 deg)."""
+
+    rpy_deg: np.ndarray
+    evidence: str
+    sigma_deg: float | None = None
+
+
 def adopted_mounting(
     dataset, rpy_deg, refine_beyond_deg: float = MOUNTING_WARN_DEG
-) -> tuple[np.ndarray, str] | None:
+) -> AdoptedMounting | None:
     """For a car whose mounting nobody gave (``rpy_deg`` the default): the mounting the data
-    show, with what shows it (words for a warning), when :func:`check_mounting` finds the
+    show, with what shows it, when :func:`check_mounting` finds the
     default wrong or the turns put its forward axis more than ``refine_beyond_deg`` off
     about up; None when it agrees or the drive cannot tell. The forward axis comes from the
     turns where its yaw (or the whole axis) is off by more than that, else it is the
@@ -717,9 +735,8 @@ def adopted_mounting(
     vehicle_forward = np.cos(grade) * forward - np.sin(grade) * up
     vehicle_up = np.cos(grade) * up + np.sin(grade) * forward
     rpy = _mounting_rpy_deg(vehicle_forward, vehicle_up)
-    return rpy, (
-        f"{_evidence(found)} and gravity show {_angles(rpy, 1)}"
-    )
+    sigma = None if yaw_agrees else found.sigma_deg  # the roll and pitch come from gravity
+    return AdoptedMounting(rpy, f"{_evidence(found)} and gravity show {_angles(rpy, 1)}", sigma)
 
 
 def turned_by_misalignment(rpy_deg, lateral_rad: float, vertical_rad: float) -> tuple[np.ndarray, float]:
