@@ -136,7 +136,10 @@ def _turns_fit(dataset) -> tuple[np.ndarray, int, tuple[float, float] | None] | 
     t = np.arange(start, end, MOTION_STEP_S)
     nearest_fix = np.abs(gnss.t[np.clip(np.searchsorted(gnss.t, t), 0, len(gnss.t) - 1)] - t)
     speed = np.interp(t, gnss.t, epoch_speed)
-    speed[nearest_fix > MOTION_MAX_FIX_GAP_S] = np.nan
+    # Within a fix interval of slower receivers too (0.2 Hz: 5 s apart, and every turn was
+    # "cannot tell"); a gap (an outage) is not interpolated across.
+    usual_gap = float(np.median(np.diff(gnss.t)))
+    speed[nearest_fix > max(MOTION_MAX_FIX_GAP_S, 0.75 * usual_gap)] = np.nan
     lo = np.searchsorted(imu.t, t - MOTION_WINDOW_S / 2)
     hi = np.searchsorted(imu.t, t + MOTION_WINDOW_S / 2)
     count = np.maximum(hi - lo, 1)[:, None]
@@ -545,12 +548,20 @@ def _speed(t: np.ndarray, enu: np.ndarray, velocity: np.ndarray | None) -> np.nd
     """Horizontal speed at each epoch: the receiver's velocity, else a position chord."""
     if velocity is not None and np.mean(np.isfinite(velocity[:, 0])) > 0.5:
         return np.hypot(velocity[:, 0], velocity[:, 1])
-    a = np.searchsorted(t, t - CHORD_S / 2)
-    b = np.clip(np.searchsorted(t, t + CHORD_S / 2, side="right") - 1, 0, len(t) - 1)
+    chord = _chord_s(t, CHORD_S)
+    a = np.searchsorted(t, t - chord / 2)
+    b = np.clip(np.searchsorted(t, t + chord / 2, side="right") - 1, 0, len(t) - 1)
     span = t[b] - t[a]
     with np.errstate(invalid="ignore", divide="ignore"):
         speed = np.hypot(*(enu[b, :2] - enu[a, :2]).T) / span
-    return np.where(span > 0.5 * CHORD_S, speed, np.nan)
+    return np.where(span > 0.5 * chord, speed, np.nan)
+
+
+def _chord_s(t: np.ndarray, nominal_s: float) -> float:
+    """A chord of ``nominal_s``, or of two fix intervals where the fixes are sparser (at
+    0.2 Hz a 4 s chord held no other fix: no speed anywhere, every turn "cannot tell")."""
+    usual_gap = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    return max(nominal_s, 2.0 * usual_gap + 1e-6)
 
 
 def _climb(t: np.ndarray, enu: np.ndarray, velocity: np.ndarray | None) -> np.ndarray:
@@ -559,12 +570,13 @@ def _climb(t: np.ndarray, enu: np.ndarray, velocity: np.ndarray | None) -> np.nd
     forward axis by 34 deg: a false mounting error on valid data)."""
     if velocity is not None and np.mean(np.isfinite(velocity[:, 2])) > 0.5:
         return np.nan_to_num(velocity[:, 2])
-    a = np.searchsorted(t, t - CLIMB_CHORD_S / 2)
-    b = np.clip(np.searchsorted(t, t + CLIMB_CHORD_S / 2, side="right") - 1, 0, len(t) - 1)
+    chord = _chord_s(t, CLIMB_CHORD_S)
+    a = np.searchsorted(t, t - chord / 2)
+    b = np.clip(np.searchsorted(t, t + chord / 2, side="right") - 1, 0, len(t) - 1)
     span = t[b] - t[a]
     with np.errstate(invalid="ignore", divide="ignore"):
         climb = (enu[b, 2] - enu[a, 2]) / span
-    return np.where(span > 0.5 * CLIMB_CHORD_S, climb, 0.0)
+    return np.where(span > 0.5 * chord, climb, 0.0)
 
 
 def mounting_yaw_error_deg(dataset, rpy_deg) -> tuple[float, int] | None:

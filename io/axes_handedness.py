@@ -72,12 +72,18 @@ def handedness_fit(imu, gnss: GnssData, enu: np.ndarray) -> tuple[float, float, 
     velocity = _horizontal_velocity(gnss)
     window = VELOCITY_WINDOW_S if velocity is not None else POSITION_WINDOW_S
     t = gnss.t
+    if t.size < 2:
+        return None
+    # Sparser fixes (0.2 Hz: 5 s apart) need two fix intervals a side, and take one interval
+    # as dense: with 8 s and 4 s no window was, and a mirrored accelerometer went unchecked.
+    usual_gap = float(np.median(np.diff(t)))
+    window = max(window, 2.0 * usual_gap)
     grid = np.arange(max(t[0], imu.t[0]) + window, min(t[-1], imu.t[-1]) - window, 1.0)
     if grid.size < MIN_WINDOWS:
         return None
     # Fixes dense around each second's window (an outage makes its acceleration a guess).
     ends = np.clip(np.searchsorted(t, grid + np.array([[-window], [0.0], [window]])), 1, t.size - 1)
-    dense = np.max(t[ends] - t[ends - 1], axis=0) <= window / 2
+    dense = np.max(t[ends] - t[ends - 1], axis=0) <= max(window / 2, 1.5 * usual_gap)
 
     position = enu[:, 0] + 1j * enu[:, 1]
     chord = complex_at(grid + window, t, position) - complex_at(grid - window, t, position)

@@ -194,7 +194,7 @@ def check_units(
     ratio, turns, turn_sign = _gyro_turn_ratio(imu, gnss, origin)
     if turns >= TURN_MIN_WINDOWS and ratio > GYRO_TURN_RATIO_MAX:
         raise InputError(
-            f"imu: the gyro looks like deg/s, not rad/s: over {turns} {TURN_WINDOW_S:g}-s windows "
+            f"imu: the gyro looks like deg/s, not rad/s: over {turns} {turn_window_s(gnss.t):g}-s windows "
             f"of the GNSS track it integrates to {ratio:.1f} times the turn the fixes show "
             f"(57.3 for deg/s, ~1 for rad/s); multiply gyro_x, gyro_y, gyro_z by "
             f"pi/180 = {math.pi / 180:.6f}"
@@ -210,7 +210,7 @@ def check_units(
         and (body_follows_track or not gyro_alive)
     ):
         problems.append(
-            f"imu: the gyro does not see the turns: over {turns} {TURN_WINDOW_S:g}-s windows of "
+            f"imu: the gyro does not see the turns: over {turns} {turn_window_s(gnss.t):g}-s windows of "
             f"the GNSS track it integrates to {ratio:.3g} times the turn the fixes show (~1 "
             "expected; 0.017 if rad/s were converted to rad/s again, 0 for a dead gyro), or "
             "the IMU and GNSS clocks are offset (give --time-offset SECONDS)"
@@ -717,23 +717,38 @@ def _wrapped(angle: np.ndarray) -> np.ndarray:
     return np.mod(angle + np.pi, 2.0 * np.pi) - np.pi
 
 
+def _usual_gap(t: np.ndarray) -> float:
+    return float(np.median(np.diff(t))) if t.size > 1 else 0.0
+
+
+def turn_window_s(t: np.ndarray) -> float:
+    """The turn windows' length for fixes at times ``t``: TURN_WINDOW_S, or four fix
+    intervals where the fixes are sparser (at 0.2 Hz a 10 s window's courses, 5 s chords,
+    spanned one fix interval and were all left out: an IMU with a flipped axis, a gyro in
+    deg/s or one that does not see the turns went unchecked)."""
+    return max(TURN_WINDOW_S, 4.0 * _usual_gap(t))
+
+
 def _gyro_turn_ratio(imu, gnss: GnssData, origin: Origin) -> tuple[float, int, float]:
     """Median of |integrated gyro| / |GNSS course change| over windows with a clear turn,
     their number, and the median over them of the gyro's rotation about up over the course
     change (up: the mean accelerometer reading, the reaction to gravity; ~+1).
 
-    The course at a time comes from positions TURN_WINDOW_S/2 apart (a few metres of noise are
-    small against the tens of metres travelled); a window spans TURN_WINDOW_S seconds between
-    two such courses. Only windows whose end points lie among dense fixes (no outage) count.
+    The course at a time comes from positions half a window (:func:`turn_window_s`) apart (a
+    few metres of noise are small against the tens of metres travelled); a window spans the
+    time between two such courses. Only windows whose end points lie among dense fixes (no outage) count.
     """
     from fgins.geodesy import lla_to_enu
 
     t = gnss.t
-    half = TURN_WINDOW_S / 2
-    lo, hi = max(t[0], imu.t[0]) + half, min(t[-1], imu.t[-1]) - half
-    if t.size < 4 or hi - lo < TURN_WINDOW_S:
+    if t.size < 4:
         return math.nan, 0, math.nan
-    step = TURN_WINDOW_S / 4
+    window_s = turn_window_s(t)
+    half = window_s / 2
+    lo, hi = max(t[0], imu.t[0]) + half, min(t[-1], imu.t[-1]) - half
+    if hi - lo < window_s:
+        return math.nan, 0, math.nan
+    step = window_s / 4
     grid = np.arange(lo, hi, step)
     enu = lla_to_enu(gnss.lla, origin)
     a, b = grid - half / 2, grid + half / 2
@@ -750,7 +765,7 @@ def _gyro_turn_ratio(imu, gnss: GnssData, origin: Origin) -> tuple[float, int, f
     chord_sigma = np.sqrt(2.0) * _horizontal_sigma(gnss)
     length = np.hypot(east, north)
     speed = length / half
-    good = (speed > TURN_MIN_SPEED_M_PER_S) & (local_gap <= half / 2)
+    good = (speed > TURN_MIN_SPEED_M_PER_S) & (local_gap <= max(half / 2, 1.5 * _usual_gap(t)))
     good &= length >= COURSE_MIN_CHORD_SIGMAS * chord_sigma
     course_sigma = chord_sigma / np.maximum(length, 1e-9)
     course = np.unwrap(np.arctan2(east, north))

@@ -38,6 +38,9 @@ DRIVES = [
     ("car-urban", {"gnss_velocity": False}, 3),
     ("mems-car-pdop", {}, 4),
     ("independent", {}, 5),
+    # Fixes 5 s apart: no window was dense enough before, and every mirror went unchecked.
+    ("independent", {"gnss_rate": 0.2}, 6),
+    ("independent", {"gnss_rate": 0.2}, 7),
 ]
 
 
@@ -45,7 +48,8 @@ def _write(folder: Path, scenario: str, options: dict, seed: int) -> None:
     if scenario == "independent":  # fixes only (no velocities), 1 m sigma, stop-and-go with turns
         profile = CarProfile(steps=[(10, 8, 12.0), (70, 6, -8.0), (110, 5, 10.0)], turns=FIVE_TURNS,
                              gamma=lambda t: 0 * t)  # fmt: skip
-        write_drive(folder, profile, 200.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0, gnss_rate=1.0, seed=seed)
+        write_drive(folder, profile, 200.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
+                    gnss_rate=options.get("gnss_rate", 1.0), seed=seed)  # fmt: skip
         (folder / "cfg.toml").unlink()
     else:
         write_sim_dir(SCENARIOS[scenario](seed=seed, duration_s=200.0, **options), folder)
@@ -176,3 +180,22 @@ def test_a_drive_that_reverses_round_bends_is_read_and_its_mirror_not_passed_as_
     MIRRORS["accel_y negated"](original).to_csv(tmp_path / "imu.csv", index=False, float_format="%.10e")
     with pytest.raises(fgins.InputError, match="accelerometer's axes are a mirror image"):
         fgins.load(tmp_path, vehicle="car")
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_at_0_2_hz_a_flipped_imu_axis_or_a_gyro_in_deg_per_s_is_refused(tmp_path, seed):
+    """The turn check's 10 s windows took courses 5 s apart: at 0.2 Hz one fix interval,
+    all left out, so an IMU read with its y axis flipped (the gyro turning against the
+    track) or a gyro in deg/s was smoothed with exit code 0. Its windows now span four fix
+    intervals."""
+    profile = CarProfile(steps=[(10, 5, 10.0), (100, 5, -5.0), (150, 5, 5.0)],
+                         turns=[(40, 50, 3, 0.15), (120, 130, 3, -0.15), (200, 210, 3, 0.15)], gamma=lambda t: 0 * t)  # fmt: skip
+    write_drive(tmp_path, profile, 300.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0, gnss_rate=0.2, seed=seed)
+    fgins.load(tmp_path, vehicle="car")  # as written: read
+    original = pd.read_csv(tmp_path / "imu.csv")
+    flipped_y = original.assign(accel_y=-original["accel_y"], gyro_x=-original["gyro_x"], gyro_z=-original["gyro_z"])
+    in_deg = original.assign(**{f"gyro_{a}": np.degrees(original[f"gyro_{a}"]) for a in "xyz"})
+    for changed, message in ((flipped_y, "gyro turns against the GNSS track"), (in_deg, "deg/s")):
+        changed.to_csv(tmp_path / "imu.csv", index=False, float_format="%.10e")
+        with pytest.raises(fgins.InputError, match=message):
+            fgins.load(tmp_path, vehicle="car")
