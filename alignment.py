@@ -185,6 +185,10 @@ def initial_alignment(
     gnss_enu = dataset.gnss_enu()[mask]
     if len(gnss_t) < 2:
         raise InputError("alignment needs at least 2 usable GNSS fixes")
+    # Three fix intervals at least: at 0.2 Hz a 6 s window held two fixes, too few for the
+    # cruise test (a quiet IMU moving at a steady speed), and a car already at 15 m/s was
+    # aligned at rest (0 +- 15 m/s): the EKF+RTS diverged to 320 m at exit 0.
+    fit_window_s = max(fit_window_s, 3.0 * float(np.median(np.diff(gnss_t))))
     if smoother is not None:
         heading_deg = smoother.initial_heading_deg if heading_deg is None else heading_deg
         if forward_axis is None:
