@@ -185,10 +185,6 @@ def initial_alignment(
     gnss_enu = dataset.gnss_enu()[mask]
     if len(gnss_t) < 2:
         raise InputError("alignment needs at least 2 usable GNSS fixes")
-    # Three fix intervals at least: at 0.2 Hz a 6 s window held two fixes, too few for the
-    # cruise test (a quiet IMU moving at a steady speed), and a car already at 15 m/s was
-    # aligned at rest (0 +- 15 m/s): the EKF+RTS diverged to 320 m at exit 0.
-    fit_window_s = max(fit_window_s, 3.0 * float(np.median(np.diff(gnss_t))))
     if smoother is not None:
         heading_deg = smoother.initial_heading_deg if heading_deg is None else heading_deg
         if forward_axis is None:
@@ -758,8 +754,11 @@ RECEIVER_FIXES = 3  # the velocity at t0 from the receiver's this many nearest
 
 def _median_velocity(t: np.ndarray, enu: np.ndarray) -> np.ndarray | None:
     """Constant velocity between the medians of the first and the second half of the fixes
-    (time and position), when they lie ``MIN_CRUISE_DISTANCE_M`` or more apart; else None."""
-    if len(t) < 4:
+    (time and position), when they lie ``MIN_CRUISE_DISTANCE_M`` or more apart; else None.
+    Three fixes will do (the first and the last): at 0.2 Hz the fit window holds no more,
+    and a car already at 15 m/s was aligned at rest (0 +- 15 m/s), EKF+RTS diverging to
+    320 m at exit 0. (A wider window took in the first metres of a car moving off.)"""
+    if len(t) < 3:
         return None
     order = np.argsort(t)
     half = len(t) // 2

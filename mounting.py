@@ -95,16 +95,29 @@ def _forward_axis(dataset) -> ForwardAxis | None:
     arrays = (dataset.imu, dataset.imu.accel, dataset.imu.gyro, dataset.gnss, dataset.gnss.lla)
     if _last_forward_axis and all(ref() is array for ref, array in zip(_last_forward_axis[0], arrays, strict=True)):
         return _last_forward_axis[1]
-    found = _turns_fit(dataset)
-    if found is not None:
-        answer = ForwardAxis(found[0], found[1], "turns or speed changes", lever=found[2])
-    else:
-        heading = forward_axis_from_heading(dataset)
-        answer = None if heading is None else ForwardAxis(
-            heading[0], heading[1], "travel against the IMU's heading", heading[2]
-        )  # fmt: skip
+    answer = None
+    # Fixes further apart than the turns' speed can follow (0.2 Hz): the heading match
+    # first. There the turns' fit missed a lever's -l w^2 (IMU 1.2 m ahead in a roundabout:
+    # 3.9 deg off, the batch 1.34 m inside an outage against 0.65 m); the heading match
+    # regresses the fixes' own accelerations over its long windows (+-1 deg).
+    sparse = len(dataset.gnss.t) > 1 and float(np.median(np.diff(dataset.gnss.t))) > MOTION_MAX_FIX_GAP_S
+    if sparse:
+        answer = _heading_answer(dataset)
+    if answer is None:
+        found = _turns_fit(dataset)
+        if found is not None:
+            answer = ForwardAxis(found[0], found[1], "turns or speed changes", lever=found[2])
+        elif not sparse:
+            answer = _heading_answer(dataset)
     _last_forward_axis[:] = [tuple(weakref.ref(array) for array in arrays), answer]
     return answer
+
+
+def _heading_answer(dataset) -> ForwardAxis | None:
+    heading = forward_axis_from_heading(dataset)
+    return None if heading is None else ForwardAxis(
+        heading[0], heading[1], "travel against the IMU's heading", heading[2]
+    )  # fmt: skip
 
 
 def _forward_axis_from_turns(dataset) -> tuple[np.ndarray, int] | None:
@@ -176,6 +189,12 @@ def _turns_fit(dataset) -> tuple[np.ndarray, int, tuple[float, float] | None] | 
     # atan(l w / v) (2 m ahead at 8 m/s and 0.3 rad/s: 3 deg).
     lever_terms = np.column_stack([rate**2, np.gradient(rate, t)])[turning]
     forward, lever = _free_fit(accel[turning], motion, up, lever_terms)
+    if forward is None and lever is not None:
+        # The lever shows but the axis does not, with it: a fit without it is tilted by
+        # atan(l w / v) (IMU 2 m ahead in a roundabout with fixes at 0.2 Hz: 5 deg, the batch
+        # 1.85 m inside an outage, 0.65 m with the heading match instead). Cannot tell; nor
+        # is such a lever taken (a 20 % climb at 0.2 Hz showed one of -1.6 +- 0.3 m).
+        return None
     if forward is None:
         forward = _rigid_fit(accel[turning], motion, up)
     if forward is None:
@@ -285,8 +304,10 @@ def _free_fit(
             sigma = float(1.0 / np.sqrt(np.sum(weights)))
             agree = abs(estimates[0] - estimates[1]) <= LEVER_TERMS_SIGMAS * float(np.hypot(*sigmas))
             if agree and abs(lever) > max(LEVER_TERMS_SIGMAS * sigma, LEVER_TERMS_MIN_M):
+                # The lever even where the axis is too uncertain with it: a fit without
+                # the lever would be tilted by it (see _turns_fit).
                 forward = _checked_left(coefficients[0], covariance_scale[0, 0], variance, up)
-                return forward, (None if forward is None else (lever, sigma))
+                return forward, (lever, sigma)
     fit = _regression(horizontal, motion)
     if fit is None:
         return None, None
