@@ -96,6 +96,12 @@ class ImuData:
         return float(1.0 / np.median(np.diff(self.t)))
 
 
+def median_interval(t: np.ndarray) -> float:
+    """The median interval (s) between consecutive times ``t``; 0 with fewer than two (the
+    fix interval the checks' chords and windows widen to where fixes are sparse)."""
+    return float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+
+
 @dataclass
 class GnssData:
     """GNSS fixes. Positions geodetic (deg, deg, ellipsoidal m); optional columns are NaN.

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fgins.datatypes import InputError
+from fgins.datatypes import InputError, median_interval
 from fgins.planar import complex_at, horizontal_axes, window_means, yaw_about
 
 
@@ -100,7 +100,7 @@ def _forward_axis(dataset) -> ForwardAxis | None:
     # first. There the turns' fit missed a lever's -l w^2 (IMU 1.2 m ahead in a roundabout:
     # 3.9 deg off, the batch 1.34 m inside an outage against 0.65 m); the heading match
     # regresses the fixes' own accelerations over its long windows (+-1 deg).
-    sparse = len(dataset.gnss.t) > 1 and float(np.median(np.diff(dataset.gnss.t))) > MOTION_MAX_FIX_GAP_S
+    sparse = median_interval(dataset.gnss.t) > MOTION_MAX_FIX_GAP_S
     if sparse:
         answer = _heading_answer(dataset)
     if answer is None:
@@ -151,8 +151,7 @@ def _turns_fit(dataset) -> tuple[np.ndarray, int, tuple[float, float] | None] | 
     speed = np.interp(t, gnss.t, epoch_speed)
     # Within a fix interval of slower receivers too (0.2 Hz: 5 s apart, and every turn was
     # "cannot tell"); a gap (an outage) is not interpolated across.
-    usual_gap = float(np.median(np.diff(gnss.t)))
-    speed[nearest_fix > max(MOTION_MAX_FIX_GAP_S, 0.75 * usual_gap)] = np.nan
+    speed[nearest_fix > max(MOTION_MAX_FIX_GAP_S, 0.75 * median_interval(gnss.t))] = np.nan
     lo = np.searchsorted(imu.t, t - MOTION_WINDOW_S / 2)
     hi = np.searchsorted(imu.t, t + MOTION_WINDOW_S / 2)
     count = np.maximum(hi - lo, 1)[:, None]
@@ -581,8 +580,7 @@ def _speed(t: np.ndarray, enu: np.ndarray, velocity: np.ndarray | None) -> np.nd
 def _chord_s(t: np.ndarray, nominal_s: float) -> float:
     """A chord of ``nominal_s``, or of two fix intervals where the fixes are sparser (at
     0.2 Hz a 4 s chord held no other fix: no speed anywhere, every turn "cannot tell")."""
-    usual_gap = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
-    return max(nominal_s, 2.0 * usual_gap + 1e-6)
+    return max(nominal_s, 2.0 * median_interval(t) + 1e-6)
 
 
 def _climb(t: np.ndarray, enu: np.ndarray, velocity: np.ndarray | None) -> np.ndarray:

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from fgins.datatypes import GnssData, InputError
+from fgins.datatypes import GnssData, InputError, median_interval
 from fgins.planar import complex_at, horizontal_axes, window_means, yaw_about
 
 # The accelerations compared are means over a window of +-WINDOW_S around each second: the
@@ -76,7 +76,7 @@ def handedness_fit(imu, gnss: GnssData, enu: np.ndarray) -> tuple[float, float, 
         return None
     # Sparser fixes (0.2 Hz: 5 s apart) need two fix intervals a side, and take one interval
     # as dense: with 8 s and 4 s no window was, and a mirrored accelerometer went unchecked.
-    usual_gap = float(np.median(np.diff(t)))
+    usual_gap = median_interval(t)
     window = max(window, 2.0 * usual_gap)
     grid = np.arange(max(t[0], imu.t[0]) + window, min(t[-1], imu.t[-1]) - window, 1.0)
     if grid.size < MIN_WINDOWS:

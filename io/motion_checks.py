@@ -10,7 +10,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from fgins.datatypes import GnssData, InputError, Origin
+from fgins.datatypes import GnssData, InputError, Origin, median_interval
 from fgins.io.gnss_checks import fix_sigma
 
 # Units. In rad/s no vehicle's rate is routinely (10 % of the time) above 10 rad/s; integrated
@@ -717,16 +717,12 @@ def _wrapped(angle: np.ndarray) -> np.ndarray:
     return np.mod(angle + np.pi, 2.0 * np.pi) - np.pi
 
 
-def _usual_gap(t: np.ndarray) -> float:
-    return float(np.median(np.diff(t))) if t.size > 1 else 0.0
-
-
 def turn_window_s(t: np.ndarray) -> float:
     """The turn windows' length for fixes at times ``t``: TURN_WINDOW_S, or four fix
     intervals where the fixes are sparser (at 0.2 Hz a 10 s window's courses, 5 s chords,
     spanned one fix interval and were all left out: an IMU with a flipped axis, a gyro in
     deg/s or one that does not see the turns went unchecked)."""
-    return max(TURN_WINDOW_S, 4.0 * _usual_gap(t))
+    return max(TURN_WINDOW_S, 4.0 * median_interval(t))
 
 
 def _gyro_turn_ratio(imu, gnss: GnssData, origin: Origin) -> tuple[float, int, float]:
@@ -765,7 +761,7 @@ def _gyro_turn_ratio(imu, gnss: GnssData, origin: Origin) -> tuple[float, int, f
     chord_sigma = np.sqrt(2.0) * _horizontal_sigma(gnss)
     length = np.hypot(east, north)
     speed = length / half
-    good = (speed > TURN_MIN_SPEED_M_PER_S) & (local_gap <= max(half / 2, 1.5 * _usual_gap(t)))
+    good = (speed > TURN_MIN_SPEED_M_PER_S) & (local_gap <= max(half / 2, 1.5 * median_interval(t)))
     good &= length >= COURSE_MIN_CHORD_SIGMAS * chord_sigma
     course_sigma = chord_sigma / np.maximum(length, 1e-9)
     course = np.unwrap(np.arctan2(east, north))
