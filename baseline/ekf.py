@@ -423,6 +423,50 @@ class FilterRecorder:
         )
 
 
+class LinearisationLost(Exception):
+    """A pass linearised about a reference found the filter's estimate too far from it."""
+
+
+# The largest attitude error from the reference a relinearised pass carries (rad).
+MAX_REFERENCE_TURN_RAD = 0.5 * np.pi
+
+
+class ReferenceRecorder(FilterRecorder):
+    """The recorder of a pass linearised about ``reference`` (a state per boundary): every
+    update is linearised there too, not at the filter's own estimate.
+
+    The updates (GNSS, then the vehicle and barometer ones) run on the reference, giving its
+    correction ``K r(L)`` and the covariance ``P+ = (I - K H) P-``; the filter's error from
+    the reference ``e`` then updates as in any linear Kalman filter, ``e+ = (I - K H) e- +
+    K r(L)``, with ``I - K H = P+ P-^-1`` (that of the whole sequence of updates). A car's
+    non-holonomic constraint taken at a filter estimate 9 deg and 70 m off in an outage, as
+    the forward pass's was, is no model of the drive; at the smoothed states it is."""
+
+    def __init__(
+        self, setup: FilterSetup, imu_t: np.ndarray, gyro: np.ndarray, reference: list[NominalState]
+    ) -> None:
+        super().__init__(setup, imu_t, gyro)
+        self.reference = reference
+
+    def update(
+        self, k: int, state: NominalState, cov: np.ndarray, gnss_update: GnssUpdate
+    ) -> tuple[NominalState, np.ndarray]:
+        about = self.reference[k]
+        error = state.boxminus(about)
+        corrected, cov_after = super().update(k, about.copy(), cov, gnss_update)
+        # P+ P-^-1 e, in correlation form (variances from 1e2 m^2 to 1e-10 (rad/s)^2).
+        scale = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
+        correlation = cov / np.outer(scale, scale)
+        whitened = np.linalg.solve(correlation, error / scale) / scale
+        error = cov_after @ whitened + corrected.boxminus(about)
+        # Beyond this the reference is no linearisation point (a heading nothing observes,
+        # 165 deg from where the smoother put it at rest), and the updates' attitude resets
+        # make P+ P-^-1 no contraction: the pass is abandoned, not run to NaN.
+        if not np.all(np.isfinite(error)) or np.linalg.norm(error[ATT]) > MAX_REFERENCE_TURN_RAD:
+            raise LinearisationLost(f"boundary {k}")
+        return about.boxplus(error), cov_after
+
+
 @dataclass
 class SampledNodes:
     """Nominal states at chosen nodes of a forward pass (see :class:`NodeSampler`)."""
@@ -692,9 +736,10 @@ def run_filter(
             accel_bias=start.accel_bias, gyro_bias=start.gyro_bias,
             extra=setup.state.extra,
         )  # fmt: skip
-    recorder = FilterRecorder(setup, dataset.imu.t, dataset.imu.gyro)
     if reference is None:
+        recorder = FilterRecorder(setup, dataset.imu.t, dataset.imu.gyro)
         return _ekf_forward(setup, recorder, config, options, progress), setup.epochs
+    recorder = ReferenceRecorder(setup, dataset.imu.t, dataset.imu.gyro, reference)
     anchors: list[NominalState] = [reference[0]]
     run = _ekf_forward(setup, recorder, config, options, progress, reference, anchors)
     return _about_reference(run, reference, anchors), setup.epochs
@@ -866,6 +911,11 @@ def trajectory_info(run: FilterRun, epochs: GnssEpochs) -> dict[str, object]:
             f"EKF+RTS: {run.counts['forward_passes']} forward pass(es) from the start, then "
             f"{run.counts['relinearised_passes']} relinearised about the smoothed states"
         )
+        if run.counts.get("relinearisation_abandoned"):
+            info["solver"] += (
+                " (one more abandoned: its estimate left the linearisation, or it did not "
+                "converge)"
+            )
     return info
 
 
@@ -1095,16 +1145,29 @@ def relinearised_passes(
     (1 - cos 9 deg) = 33 m), and the RTS ended 6.4 m off with sigmas for 0.8 m (NEES 70)
     where the batch was 0.7 m off. Returns the last run and the number of passes made."""
     passes = 0
-    while passes < MAX_RELINEARISED_PASSES:
+    turned = _largest_turn(run)
+    while passes < MAX_RELINEARISED_PASSES and turned > RELINEARISE_TURNED_RAD:
         from_posterior = rts_smooth(run)[0]
-        if np.max(np.linalg.norm(from_posterior[:, ATT], axis=1)) <= RELINEARISE_TURNED_RAD:
-            break
         reference = [
             post.boxplus(dx) for post, dx in zip(run.posterior, from_posterior, strict=True)
         ]
-        run, _ = run_filter(dataset, config, gnss_mask, options, progress, start, reference)
+        try:
+            again, _ = run_filter(dataset, config, gnss_mask, options, progress, start, reference)
+        except (LinearisationLost, np.linalg.LinAlgError):
+            run.counts["relinearisation_abandoned"] = 1
+            break
+        turned_again = _largest_turn(again)
+        if not turned_again < turned:  # not converging: the last pass that did stays
+            run.counts["relinearisation_abandoned"] = 1
+            break
+        run, turned = again, turned_again
         passes += 1
     return run, passes
+
+
+def _largest_turn(run: FilterRun) -> float:
+    """The largest attitude correction (rad) the RTS smoother makes to a run's states."""
+    return float(np.max(np.linalg.norm(rts_smooth(run)[0][:, ATT], axis=1)))
 
 
 def _guess_samples(imu_t: np.ndarray, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
