@@ -728,7 +728,7 @@ def run_filter(
     position instead of the alignment's when given; P0 and the biases' prior unchanged).
 
     With ``reference`` (a state per block boundary), every block is linearised about it
-    instead of about the filter's own estimate (:func:`relinearised_pass`)."""
+    instead of about the filter's own estimate (:func:`relinearised_passes`)."""
     setup = prepare_filter(dataset, config, gnss_mask, options.max_block_s)
     if start is not None:
         setup.state = NominalState(
@@ -758,8 +758,9 @@ def _ekf_forward(
 
     With ``reference``, block b is mechanised from ``reference[b]`` and its Phi and Q taken
     there; the filter's own estimate moves through the block with that Phi (its error from
-    the reference, transformed linearly) and the updates correct it as usual. The
-    propagated reference at each block's end goes to ``anchors``."""
+    the reference, transformed linearly), and the recorder (:class:`ReferenceRecorder`)
+    linearises the updates at the reference too. The propagated reference at each block's
+    end goes to ``anchors``."""
     update = _Updater.for_setup(setup, config, options.innovation_gate_probability)
 
     def predict(
