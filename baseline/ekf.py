@@ -797,8 +797,8 @@ def _about_reference(
     (smoothed, with the pass's Phi) taken from the reference at each boundary's start and
     from the propagated reference at its end, so that the output adds small corrections to
     the reference's mechanised nodes (where the filter's own estimate may lie far off)."""
-    from_posterior, _, cov_smoothed = rts_smooth(run)
-    smoothed = [post.boxplus(dx) for post, dx in zip(run.posterior, from_posterior, strict=True)]
+    smoothed = smoothed_states(run)
+    cov_smoothed = rts_smooth(run)[2]
     last = reference[-1]
     run.rotation[-1], run.velocity[-1], run.position[-1] = (
         last.rotation, last.velocity, last.position,
@@ -965,6 +965,12 @@ def rts_smooth(run: FilterRun) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         cov_smoothed[k] = 0.5 * (cov + cov.T)
     run.smoothed = (from_posterior, from_prior, cov_smoothed)
     return run.smoothed
+
+
+def smoothed_states(run: FilterRun) -> list[NominalState]:
+    """The RTS-smoothed state at every block boundary of a run."""
+    from_posterior = rts_smooth(run)[0]
+    return [post.boxplus(dx) for post, dx in zip(run.posterior, from_posterior, strict=True)]
 
 
 def smoothed_output(dataset: Dataset, run: FilterRun) -> tuple[NominalState, NavCovariance]:
@@ -1148,10 +1154,7 @@ def relinearised_passes(
     passes = 0
     turned = _largest_turn(run)
     while passes < MAX_RELINEARISED_PASSES and turned > RELINEARISE_TURNED_RAD:
-        from_posterior = rts_smooth(run)[0]
-        reference = [
-            post.boxplus(dx) for post, dx in zip(run.posterior, from_posterior, strict=True)
-        ]
+        reference = smoothed_states(run)
         try:
             again, _ = run_filter(dataset, config, gnss_mask, options, progress, start, reference)
         except (LinearisationLost, np.linalg.LinAlgError):
