@@ -112,6 +112,21 @@ TURN_ON_BIAS_EXCESS = 5.0
 TURN_ON_BIAS_WIDENED = 2.0
 
 
+def clock_correction_pending(config: RunConfig, trajectory: Trajectory) -> bool:
+    """Does ``trajectory``'s antenna and clock check find the fixes' time stamps off, which
+    :func:`with_antenna_corrected` will correct? Then its biases are not yet the IMU's:
+    fixes 2 s late made a forward EKF's accelerometer bias 6 times its turn-on sigma, and
+    the solve with that sigma widened left the filter too far off to check its clocks (28 m
+    inside outages; with the stamps corrected first, 2.9 m). An arm found is not one: a
+    turn-on sigma far too small (0.5 mg for a 10 mg bias) made the filter's check find an
+    antenna 4.4 m off, while the bias, widened first, explained the drive (0.39 m)."""
+    info = trajectory.info
+    return bool(
+        config.gnss.time_offset_from_data
+        and any(key in info for key in ("gnss_time_offset_s", "gnss_time_drift_s", "gnss_velocity_lag_s"))
+    )
+
+
 def with_turn_on_bias_widened(
     dataset: Dataset, config: RunConfig, run: Rerun, trajectory: Trajectory
 ) -> tuple[Trajectory, RunConfig, str | None]:
@@ -164,6 +179,14 @@ def with_turn_on_bias_widened(
             f"imu: {'; '.join(said)} failed; the configured turn-on sigmas are too small for "
             "this IMU ([imu] gyro_turn_on_bias_deg_per_s, accel_turn_on_bias_mg, --imu-preset)"
         )
+    # What earlier steps corrected and said (the antenna's, when this runs after it).
+    earlier: list[str] = trajectory.info.get(CORRECTIONS_SAID, [])  # type: ignore[assignment]
+    for key in CARRIED_KEYS:
+        if key in trajectory.info and key not in again.info:
+            again.info[key] = trajectory.info[key]
+    if earlier:
+        again.info[CORRECTIONS_SAID] = list(earlier)
+        again.info["fit_warnings"] = [*earlier, *again.info.get("fit_warnings", [])]
     return again, widened_config, (
         f"imu: {'; '.join(said)}: the configured turn-on bias sigmas are too small for this "
         "IMU (a preset of a better grade? --imu-preset, [imu]); [imu] turn_on_bias_from_data = "
@@ -171,6 +194,10 @@ def with_turn_on_bias_widened(
     )
 
 
+# The methods whose solutions carry the antenna and clock check (fgins.antenna_verdict): the
+# graph's (fgins.graph.reports.lever_arm_report) and the Kalman baselines' with the 15-state
+# model (fgins.baseline.ekf.antenna_about; the planar and gyro-free filters have none).
+ANTENNA_CHECKED_METHODS = ("batch", "isam2", "ekf", "ekf-rts", "ukf")
 # Rounds of antenna and clock corrections: a fix stamped late is found at once (0.193 s of
 # 0.2), an IMU clock's drift only in part where the drive's biases absorb some (an aircraft
 # whose IMU runs 300 ppm fast: 30 % in the first round).
@@ -190,8 +217,11 @@ def with_antenna_corrected(
     simulator's car, fixes stamped 0.2 s late: 2.9 m inside outages, 2.7 m beside the
     fixes; corrected, as with true stamps. An unconfigured 2-3 m arm on a stop-and-go
     drive: 1.2-1.6 m inside outages; corrected, 0.4-0.5 m.)"""
-    if run.method not in ("batch", "isam2"):
+    if run.method not in ANTENNA_CHECKED_METHODS:
         return trajectory, dataset, config
+    fit_key, fit_name = ("chi2_per_dof", "chi2/dof") if run.method in ("batch", "isam2") else (
+        "gnss_nis_mean", "mean NIS of the GNSS updates"
+    )  # fmt: skip
     first, best = trajectory, trajectory
     fixes_moved = velocity_lag = 0.0
     imu_t0, imu_t1 = float(dataset.imu.t[0]), float(dataset.imu.t[-1])
@@ -256,7 +286,7 @@ def with_antenna_corrected(
             corrected = run.solve(trial, trial_config)
         except FginsError:
             break
-        before, after = best.info.get("chi2_per_dof"), corrected.info.get("chi2_per_dof")
+        before, after = best.info.get(fit_key), corrected.info.get(fit_key)
         if not (isinstance(before, float) and isinstance(after, float) and after < before):
             break
         best, dataset, config, fixes_moved, velocity_lag = corrected, trial, trial_config, trial_moved, trial_lag
@@ -287,10 +317,10 @@ def with_antenna_corrected(
             best.info["gnss_lever_arm_corrected_cov_m2"] = arm_covariance
         done.append(f"the lever arm set to [{', '.join(f'{x:.2f}' for x in arm_taken)}] m")
         switches.append("lever_arm_from_data = false the configured arm")
-    before, after = first.info.get("chi2_per_dof"), best.info.get("chi2_per_dof")
+    before, after = first.info.get(fit_key), best.info.get(fit_key)
     how = (
-        f"{' and '.join(done)}, and the drive solved again (chi2/dof {before:.2f} -> {after:.2f}; "
-        f"{', '.join(switches)})"
+        f"{' and '.join(done)}, and the drive solved again ({fit_name} {before:.2f} -> "
+        f"{after:.2f}; {', '.join(switches)})"
     )
     findings = first.info.get("antenna_findings") or ["GNSS antenna"]
     said = [

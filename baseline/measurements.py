@@ -85,10 +85,28 @@ class Linearized:
     """Stacked measurement rows at one epoch: residual z - h(x), Jacobian, noise variances."""
 
     residual: np.ndarray  # (m,)
-    jacobian: np.ndarray  # (m, 15)
+    jacobian: np.ndarray  # (m, 15), or up to the antenna states' last column
     variance: np.ndarray  # (m,)
     n_position: int
     n_velocity: int
+
+
+@dataclass(frozen=True)
+class AntennaStates:
+    """Five augmented error states of a Kalman pass from ``index`` on: the antenna's offset
+    from the configured lever arm (3, IMU axes), the fixes' time offset at ``middle`` (s,
+    late) and its change from there to ``middle +- half_span`` (a drift between two clocks),
+    in the layout of :mod:`fgins.antenna_verdict` (ARM, TIME, DRIFT)."""
+
+    index: int
+    middle: float
+    half_span: float
+
+    def nominal(self, state: NominalState) -> tuple[np.ndarray, float, float]:
+        """The arm offset, time offset and drift of ``state``."""
+        assert state.extra is not None
+        values = state.extra[self.index - STATE_DIM : self.index - STATE_DIM + 5]
+        return values[:3], float(values[3]), float(values[4])
 
 
 def linearize_gnss(
@@ -97,19 +115,43 @@ def linearize_gnss(
     state: NominalState,
     body_rate: np.ndarray,
     lever_arm: np.ndarray,
+    antenna: AntennaStates | None = None,
 ) -> Linearized:
     """Antenna position (and velocity where given) of epoch ``g`` against the nominal state.
 
     h_p = p + R l and h_v = v + R (w_nb x l), with w_nb the body rate relative to ENU (bias
     corrected). With R_true = Exp(phi) R: d(R l)/dphi = -[R l]x, d(R (w x l))/dphi =
     -[R (w x l)]x and, since w_true = w_nominal - dbg, d(R (w x l))/d(dbg) = R [l]x.
+
+    With ``antenna`` (:class:`AntennaStates`): the arm is ``l + a`` (d/da: R, and R [w]x on
+    the velocity) and the position was stamped ``d = d0 + d1 s`` late (s = (t - middle) /
+    half_span), h_p = p + R (l + a) - v d (d/dd0: -v, d/dd1: -v s, d/dv: -d I). Only the
+    positions carry the time offset: a receiver's velocities may lag its positions by
+    their own 0.5-2.5 s (smoothing), and at a turn's 2 m/s^2 a shared offset would be taken
+    from them (0.1 m/s sigmas) and move every position by the speed times their lag. The
+    Jacobian then has a column per error state up to the antenna's, else 15.
     """
     rotation = state.rotation
+    columns = STATE_DIM
+    late = 0.0
+    if antenna is not None:
+        offset, late0, drift = antenna.nominal(state)
+        lever_arm = lever_arm + offset
+        late = late0 + drift * (float(epochs.t[g]) - antenna.middle) / antenna.half_span
+        columns = antenna.index + 5
     arm_nav = rotation @ lever_arm
-    rows_h = [np.zeros((3, STATE_DIM))]
+    rows_h = [np.zeros((3, columns))]
     rows_h[0][:, POS] = np.eye(3)
     rows_h[0][:, ATT] = -skew_batch(arm_nav)
-    residual = [epochs.position[g] - (state.position + arm_nav)]
+    predicted = state.position + arm_nav
+    if antenna is not None:
+        a = antenna.index
+        rows_h[0][:, VEL] = -late * np.eye(3)
+        rows_h[0][:, a : a + 3] = rotation
+        rows_h[0][:, a + 3] = -state.velocity
+        rows_h[0][:, a + 4] = -state.velocity * (float(epochs.t[g]) - antenna.middle) / antenna.half_span
+        predicted = predicted - state.velocity * late
+    residual = [epochs.position[g] - predicted]
     variance = [epochs.position_sigma[g] ** 2]
     n_velocity = 0
     use = np.isfinite(epochs.velocity_sigma[g]) & np.isfinite(epochs.velocity[g])
@@ -119,10 +161,12 @@ def linearize_gnss(
             [w[1] * arm[2] - w[2] * arm[1], w[2] * arm[0] - w[0] * arm[2],
              w[0] * arm[1] - w[1] * arm[0]]
         )  # fmt: skip
-        h = np.zeros((3, STATE_DIM))
+        h = np.zeros((3, columns))
         h[:, VEL] = np.eye(3)
         h[:, ATT] = -skew_batch(arm_velocity)
         h[:, GYRO_BIAS] = rotation @ skew_batch(lever_arm)
+        if antenna is not None:
+            h[:, antenna.index : antenna.index + 3] = rotation @ skew_batch(body_rate)
         r = epochs.velocity[g] - (state.velocity + arm_velocity)
         # Vertical velocity only where the receiver gives it (speed + course has none).
         rows = np.flatnonzero(use)

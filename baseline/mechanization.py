@@ -171,7 +171,9 @@ def block_times(
     pieces = [ends[:1]]
     for a, b in itertools.pairwise(ends):
         n_fill = max(1, int(np.ceil((b - a) / max_block_s - 1e-9)))
-        pieces.append(a + (b - a) * np.arange(1, n_fill + 1) / n_fill)
+        # The anchor itself ends the piece: a + (b - a) can round below b (0.0396 + 1.0 from
+        # fixes moved by 0.2604 s), and the epoch then matched no boundary.
+        pieces.append(np.append(a + (b - a) * np.arange(1, n_fill) / n_fill, b))
     times = np.concatenate(pieces)
     times[-1] = t_last
     return times

@@ -52,6 +52,7 @@ from fgins.baseline.ekf import (
     FilterRecorder,
     FilterRun,
     GnssUpdater,
+    antenna_check,
     forward_pass,
     kalman_trajectory,
     prepare_filter,
@@ -311,4 +312,5 @@ def run_ukf(
         extra_info={
             "unscented": {"alpha": options.alpha, "beta": options.beta, "kappa": options.kappa}
         },
+        antenna_check=antenna_check(dataset, config, gnss_mask, options.max_block_s),
     )

@@ -11,7 +11,14 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import B, V, X
 
-from fgins.config import GnssConfig
+from fgins.antenna_verdict import (
+    ARM,
+    DRIFT,
+    LEVER_ARM_PRIOR_M,
+    TIME,
+    TIME_OFFSET_PRIOR_S,
+    antenna_verdict,
+)
 from fgins.datatypes import Trajectory
 from fgins.factors import gnss as gnss_model
 from fgins.factors import odometer as odometer_model
@@ -194,7 +201,7 @@ def lever_arm_report(
     speeds = np.array([np.linalg.norm(values.atVector(V(int(k)))) for k in keyframes])
     moving = speeds[speeds > 1.0]
     typical_speed = float(np.median(moving)) if len(moving) else 0.0
-    out = _antenna_verdict(config, configured, change, covariance, typical_speed)
+    out = antenna_verdict(config, configured, change, covariance, typical_speed)
     out["gnss_time_middle_s"], out["gnss_time_half_span_s"] = middle, half_span
     if nhc_at:  # the pipeline takes it where significant (fgins.corrections)
         out["nhc_lever_forward_fit_m"] = float(joint.step[NHC_LEVER[0]])
@@ -308,15 +315,9 @@ def _base_sigmas(noise_model) -> np.ndarray:  # gtsam.noiseModel.Base
     return noise_model.sigmas()
 
 
-def _significance(change: np.ndarray, covariance: np.ndarray) -> float:
-    return float(change @ np.linalg.solve(covariance, change))
-
-
-# The joint estimate's parameters: the arm's change (3, body axes), the time offset at the
-# drive's middle and its change from there to the end (s), and the IMU's scale errors (gyro,
-# accelerometer, per axis), which are not reported: they keep a sensor's own scale error
-# from reading as an arm or a clock.
-ARM, TIME, DRIFT = [0, 1, 2], [3], [4]
+# The joint estimate's parameters beyond the antenna and clocks (fgins.antenna_verdict:
+# ARM, TIME, DRIFT): the IMU's scale errors (gyro, accelerometer, per axis), which are not
+# reported: they keep a sensor's own scale error from reading as an arm or a clock.
 GYRO_SCALE, ACCEL_SCALE = [5, 6, 7], [8, 9, 10]
 # The velocities' own delay against the positions (s): a velocity made from the positions'
 # differences lags them by half an epoch, a smoothed one more. Free, the common offset is the
@@ -335,193 +336,6 @@ VELOCITY_LAG_SIGMAS = 5.0
 VELOCITY_LAG_MIN_S = 0.05
 
 
-def _held(index: list[int], change: np.ndarray, covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The estimate of the parameters ``index`` with all others held at zero (their
-    configured values): the conditional Gaussian of the joint one."""
-    others = [i for i in range(len(change)) if i not in index]
-    gain = covariance[np.ix_(index, others)] @ np.linalg.inv(covariance[np.ix_(others, others)])
-    return (
-        change[index] - gain @ change[others],
-        covariance[np.ix_(index, index)] - gain @ covariance[np.ix_(others, index)],
-    )
-
-
-def _antenna_verdict(
-    config: GnssConfig,
-    configured: np.ndarray,
-    change: np.ndarray,
-    covariance: np.ndarray,
-    typical_speed: float,
-) -> dict[str, object]:
-    """The lever-arm and GNSS time entries and warnings of :func:`lever_arm_report`, from
-    the joint change (:data:`ARM`, :data:`TIME`, :data:`DRIFT`) and its covariance. A time
-    offset counts when it moves the fixes as far as an arm must (LEVER_ARM_MIN_M) at the
-    drive's typical speed (KITTI: 0.046 +- 0.007 s early at ~9 m/s, 0.4 m: not said), a
-    drift when the offset's change from the middle to the ends does.
-
-    What counts is also returned as the correction fgins.pipeline makes (solved again with
-    it, kept when the fit improves): ``gnss_time_offset_s`` (the fixes' times to move back,
-    at the drive's middle), ``gnss_time_drift_s`` (and its change from there to the ends)
-    and ``gnss_lever_arm_m`` (the arm to use; components the drive does not determine to
-    ARM_CORRECTION_MAX_SIGMA_M stay as configured), with ``antenna_findings``, what is said."""
-
-    def says(name: str, shift: np.ndarray, cov: np.ndarray) -> bool:
-        size = float(np.linalg.norm(shift)) * (1.0 if name == "arm" else typical_speed)
-        chi2 = LEVER_ARM_CHI2 if name == "arm" else TIME_OFFSET_CHI2
-        return _significance(shift, cov) > chi2 and size > LEVER_ARM_MIN_M
-
-    clock, clock_cov = _held(TIME + DRIFT, change, covariance)  # the arm held as configured
-    drifting = says("drift", change[DRIFT], covariance[np.ix_(DRIFT, DRIFT)])
-    if not drifting:
-        # The sharper question with no drift: one free blurs an arm with an offset wherever
-        # the speed changes along the drive (an unconfigured 3 m arm on a stop-and-go drive
-        # fell under 5 sigma).
-        change, covariance = _held(ARM + TIME, change, covariance)
-    readings = {"arm": ARM, "time": TIME, **({"drift": DRIFT} if drifting else {})}
-    # Each reading alone, the others held as configured.
-    alone = {name: _held(index, change, covariance) for name, index in (("arm", ARM), ("time", TIME))}
-    out: dict[str, object] = {
-        "gnss_lever_arm_fit_m": [float(x) for x in configured + alone["arm"][0]],
-        "gnss_lever_arm_fit_sigma_m": [float(x) for x in np.sqrt(np.diag(alone["arm"][1]))],
-        "gnss_time_offset_fit_s": float(alone["time"][0][0]),
-        "gnss_time_offset_fit_sigma_s": float(np.sqrt(max(alone["time"][1][0, 0], 0.0))),
-        "gnss_time_drift_fit_s": float(clock[1]),
-        "gnss_time_drift_fit_sigma_s": float(np.sqrt(max(clock_cov[1, 1], 0.0))),
-        # The offset at the drive's middle that goes with the drift (both with the arm as
-        # configured): what fgins.pipeline refines once two clocks are found.
-        "gnss_time_clock_offset_fit_s": float(clock[0]),
-        "gnss_time_clock_offset_fit_sigma_s": float(np.sqrt(max(clock_cov[0, 0], 0.0))),
-    }
-
-    def arm_line(shift: np.ndarray, cov: np.ndarray) -> str:
-        shown = ", ".join(f"{x:.2f}" for x in configured + shift)
-        sigma = ", ".join(f"{x:.2f}" for x in np.sqrt(np.diag(cov)))
-        return f"an antenna at [{shown}] m (IMU axes; +-{sigma})"
-
-    def time_line(shift: float, var: float) -> str:
-        return (
-            f"time stamps {abs(shift):.3f} +- {np.sqrt(var):.3f} s "
-            f"{'late' if shift > 0 else 'early'} against the IMU's"
-        )
-
-    def drift_line(offset: float, drift: float, drift_var: float) -> str:
-        return (
-            f"time stamps {offset - drift:+.3f} s at the start and {offset + drift:+.3f} s at "
-            f"the end against the IMU's (+ late; the change +-{2 * np.sqrt(drift_var):.3f} s: "
-            "two clocks at different rates)"
-        )
-
-    configured_arm = f"the configured {list(config.lever_arm_m)} ([gnss] lever_arm_m)"
-    found = [name for name, index in readings.items()
-             if says(name, change[index], covariance[np.ix_(index, index)])]  # fmt: skip
-    findings, advice = [], []
-    if found:  # the drive tells them apart
-        # What is corrected, with the rest held as configured; a drift moves the offset too.
-        index = sorted({i for name in found for i in {"arm": ARM, "time": TIME, "drift": TIME + DRIFT}[name]})
-        shift, shift_cov = _held(index, change, covariance)
-        fitted = dict(zip(index, shift, strict=True))
-        variance = dict(zip(index, np.diag(shift_cov), strict=True))
-        if "arm" in found:
-            arm_cov = shift_cov[:3, :3]
-            arm = np.array([fitted[i] for i in ARM])
-            findings.append(f"GNSS lever arm: the fixes fit {arm_line(arm, arm_cov)}, not {configured_arm}")
-            advice.append("measure and set it")
-            if (taken := _determined_arm(configured, arm, arm_cov)) is not None:
-                out["gnss_lever_arm_m"] = taken
-                out["gnss_lever_arm_cov_m2"] = _determined_arm_covariance(arm_cov)
-        if "drift" in found:
-            findings.append(f"GNSS time: the fixes fit {drift_line(fitted[3], fitted[4], variance[4])}")
-            advice.append("put both on one clock, or stamp the IMU samples with the receiver's time")
-            out["gnss_time_offset_s"], out["gnss_time_drift_s"] = fitted[3], fitted[4]
-        elif "time" in found:
-            findings.append(
-                f"GNSS time: the fixes fit {time_line(fitted[3], variance[3])} (a receiver's "
-                "or a logger's latency)"
-            )
-            advice.append(f"smooth again with --time-offset {-fitted[3]:+.3f} (the IMU's clock is kept)")
-            out["gnss_time_offset_s"] = fitted[3]
-    else:
-        if not any(says(name, *alone[name]) for name in ("arm", "time")):
-            return out
-        # An arm along the track and a time offset look the same at one steady speed: either
-        # correction gives the same track there (they differ by at most the arm at stops);
-        # leaving both out does not (fixes 0.1 s late at 15 m/s: 1.4 m beside the fixes and
-        # 1.1-1.6 m inside outages at 2.4-5 times the sigmas; an antenna 1.5 m behind
-        # likewise; corrected 0.3-0.6 m). The one that explains more is made, with an Akaike
-        # penalty for the arm's three numbers against the offset's one (an antenna 2 m
-        # behind on a stop-and-go drive: 0.29 m as an arm, 1.11 m as a time, 1.70 m left).
-        arm, arm_cov = alone["arm"]
-        offset, offset_var = float(alone["time"][0][0]), float(alone["time"][1][0, 0])
-        # The offset still changing along the drive once it is taken as a time: two clocks,
-        # which no arm or latency gives (an IMU clock 0.1 % slow, its drift under 5 sigma
-        # with the arm free and at 6.6 with the offset, was taken as an antenna 2.3 m ahead:
-        # 1.95 m inside outages, 0.51 m left alone).
-        two_clocks = bool(clock[1] ** 2 / clock_cov[1, 1] > CLOCK_CHI2) and abs(clock[1]) * typical_speed > LEVER_ARM_MIN_M
-        readings = f"{arm_line(arm, arm_cov)} instead of {configured_arm}, or {time_line(offset, offset_var)}"
-        if two_clocks:
-            readings += f", or {drift_line(float(clock[0]), float(clock[1]), float(clock_cov[1, 1]))}"
-        findings.append(
-            f"GNSS lever arm or time: the fixes fit {readings}: the drive cannot tell the two "
-            "apart (an offset along the track at a steady speed)"
-            + ("; the offset changes along the drive" if two_clocks else "")
-        )
-        advice.append(f"measure the arm, check the time bases (--time-offset {-offset:+.3f} would align them)")
-        arm_merit = _significance(arm, arm_cov) - 6.0
-        time_merit = offset**2 / offset_var - 2.0
-        time_says = says("time", np.array([offset]), np.array([[offset_var]]))
-        taken = _determined_arm(configured, arm, arm_cov) if says("arm", arm, arm_cov) else None
-        if two_clocks:
-            out["gnss_time_offset_s"], out["gnss_time_drift_s"] = float(clock[0]), float(clock[1])
-        elif taken is not None and (arm_merit > time_merit or not time_says):
-            out["gnss_lever_arm_m"] = taken
-            out["gnss_lever_arm_cov_m2"] = _determined_arm_covariance(arm_cov)
-        elif time_says:
-            out["gnss_time_offset_s"] = offset
-    out["antenna_findings"] = findings
-    out["fit_warnings"] = [f"{finding}: {then}" for finding, then in zip(findings, advice, strict=True)]
-    return out
-
-
-def _determined_arm(configured: np.ndarray, shift: np.ndarray, cov: np.ndarray) -> list[float] | None:
-    """The configured arm moved by ``shift`` in the components the drive determines (sigma
-    under ARM_CORRECTION_MAX_SIGMA_M), the others held as configured and the determined ones
-    conditioned on that; None when it determines none. (A car's drive leaves the vertical
-    at +-2 m: taking its estimate would move every height by up to that.)"""
-    known = np.sqrt(np.diag(cov)) < ARM_CORRECTION_MAX_SIGMA_M
-    if not known.any():
-        return None
-    held = ~known
-    moved = shift[known]
-    if held.any():
-        moved = moved - cov[np.ix_(known, held)] @ np.linalg.solve(cov[np.ix_(held, held)], shift[held])
-    arm = configured.astype(float).copy()
-    arm[known] += moved
-    return [float(x) for x in arm]
-
-
-def _determined_arm_covariance(cov: np.ndarray) -> list[list[float]]:
-    """The covariance (m^2, IMU axes) of the arm :func:`_determined_arm` takes: its
-    determined components conditioned on the held ones, zero where it holds them."""
-    known = np.sqrt(np.diag(cov)) < ARM_CORRECTION_MAX_SIGMA_M
-    held = ~known
-    block = cov[np.ix_(known, known)]
-    if held.any() and known.any():
-        block = block - cov[np.ix_(known, held)] @ np.linalg.solve(
-            cov[np.ix_(held, held)], cov[np.ix_(held, known)]
-        )
-    out = np.zeros((3, 3))
-    out[np.ix_(known, known)] = block
-    return [[float(x) for x in row] for row in out]
-
-
-LEVER_ARM_PRIOR_M = 10.0
-# 5 sigma in one direction (chi-square with 3 dof; 1 for the time): the fixes' errors are
-# correlated over seconds, so a correctly configured drive can sit at 4-5 sigma (KITTI's arm:
-# 0.23 +- 0.06 m, under the floor below); an unconfigured 2 m arm on a 280 s drive with five
-# turns showed at 7 sigma, a 1.5 m one at 5.8, with 1.5-2 m errors everywhere.
-LEVER_ARM_CHI2 = 25.0
-LEVER_ARM_MIN_M = 0.5
-TIME_OFFSET_PRIOR_S = 1.0
 NHC_LEVER_PRIOR_M = 10.0
 # The IMU's scale errors before the data: the gyro's as fgins.graph.gyro_scale's prior, the
 # accelerometer's 3 % (consumer MEMS datasheets: 1-3 %).
@@ -530,11 +344,6 @@ PARAMETER_PRIOR_SIGMAS = np.array(
     [LEVER_ARM_PRIOR_M] * 3 + [TIME_OFFSET_PRIOR_S] * 2 + [SCALE_PRIOR] * 3 + [ACCEL_SCALE_PRIOR] * 3
     + [TIME_OFFSET_PRIOR_S] + [NHC_LEVER_PRIOR_M]
 )
-TIME_OFFSET_CHI2 = 25.0
-# Where an offset is there (5 sigma) but the drive cannot tell an arm from a time: the drift
-# with the time taken, at 4 sigma, makes it two clocks (no arm or offset keeps changing so).
-CLOCK_CHI2 = 16.0
-ARM_CORRECTION_MAX_SIGMA_M = 0.5
 
 
 def _dop_model_scale(problem: Problem, norms: np.ndarray) -> dict[str, object]:
