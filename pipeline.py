@@ -16,8 +16,10 @@ import numpy as np
 from fgins.config import RunConfig
 from fgins.corrections import (
     CORRECTIONS_SAID,
+    FILTER_FIT_FAILED,
     Rerun,
     add_arm_uncertainty,
+    add_time_offset_uncertainty,
     clock_correction_pending,
     mounting_from_drive,
     nhc_lever_from_turns,
@@ -89,6 +91,7 @@ def run_method(
         trajectory, config, bias_note = with_turn_on_bias_widened(dataset, config, run, trajectory)
     # Last: the solves above hold a taken arm fixed, the output's uncertainty must not.
     add_arm_uncertainty(trajectory, trajectory.info.pop("gnss_lever_arm_corrected_cov_m2", None))
+    add_time_offset_uncertainty(trajectory)
     notes = [
         noise_note, bias_note, mounting_note, point_note, lever_note, unknown_height(dataset, trajectory),
         nose_off_track(config, trajectory),
@@ -98,6 +101,7 @@ def run_method(
     for note in filter(None, notes):
         trajectory.info.setdefault("fit_warnings", []).append(note)
     trajectory.info.pop(CORRECTIONS_SAID, None)  # said in fit_warnings
+    trajectory.info.pop(FILTER_FIT_FAILED, None)  # said in its own note
     return trajectory
 
 
@@ -215,6 +219,11 @@ FILTER_FIT_CHI2_MAX = 5.0
 # stay small because a filter follows the fixes it is given (issue 12, outside tester: an
 # 18 s offset with --method ekf was 218 m off at exit 0 without a word).
 FILTER_NIS_MAX = 5.0
+# The share of a Kalman baseline's GNSS measurement components its Huber kernel down-weighted:
+# 0 on KITTI and the independent simulator's drives, ~2 % with 2 % multipath outliers; 13 %
+# on a fixed-wing whose fixes and velocities were 0.5 s late, where the kernel held the
+# median NIS at 3.8 and EKF+RTS was 5.7 m off with sigmas for 0.15 m (NEES 1,500), unsaid.
+FILTER_DOWNWEIGHTED_MAX = 0.05
 
 
 def _filter_fit_note(
@@ -251,6 +260,7 @@ def _filter_fit_note(
             if method == "planar-kf" else ""
         )  # fmt: skip
         estimate = "online estimate" if method == "isam2-online" else "filter"
+        trajectory.info[FILTER_FIT_FAILED] = True
         return [(
             f"{method}: its track does not fit the GNSS fixes it used: horizontal residuals "
             f"chi2/dof {chi2:.3g} (about 1 or below expected from their sigmas); {planar}the "
@@ -259,7 +269,20 @@ def _filter_fit_note(
             "GNSS sigmas are too small: compare --method batch, which checks its own fit"
         ), *heights_only]
     nis = float(trajectory.info.get("gnss_nis_median", math.nan))
+    components = 3 * (int(trajectory.info.get("gnss_updates", 0)) + int(trajectory.info.get("velocity_updates", 0)))  # type: ignore[call-overload]
+    downweighted = int(trajectory.info.get("huber_downweighted", 0)) / max(components, 1)  # type: ignore[call-overload]
+    if downweighted > FILTER_DOWNWEIGHTED_MAX:
+        trajectory.info[FILTER_FIT_FAILED] = True
+        return [(
+            f"{method}: its IMU predictions miss the GNSS fixes far more often than its "
+            f"covariance allows (the Huber kernel down-weighted {100 * downweighted:.0f} % of "
+            "their components, under 1 % expected without multipath): IMU and GNSS on different "
+            "clocks or the velocities late (--time-offset), wrong axes or units, or IMU noise set "
+            "far too small; its output and sigmas are not to be trusted: compare --method batch, "
+            "which checks its own fit"
+        ), *heights_only]
     if np.isfinite(nis) and nis > FILTER_NIS_MAX:
+        trajectory.info[FILTER_FIT_FAILED] = True
         return [(
             f"{method}: its IMU predictions miss the GNSS fixes by far more than its covariance "
             f"says (median normalised innovation {nis:.3g} per dimension, ~0.8 expected): IMU "

@@ -1376,6 +1376,10 @@ def antenna_about(
     for state in about:  # the reference: the configured arm and the fixes as stamped
         assert state.extra is not None
         state.extra = np.append(state.extra[: antenna.index - STATE_DIM], np.zeros(5))
+    # The pass starts on the reference (P0 kept, as the relinearised passes do): from the
+    # alignment, a car already reversing at the start began 39 deg off it, and the first
+    # 25 s read as an antenna 4 m to the side and two clocks (the batch: nothing).
+    setup.state = about[0].copy()
     recorder = _LastState(setup, dataset.imu.t, dataset.imu.gyro, np.zeros(0, dtype=np.int64))
     recorder.reference = about
     recorder.transition_steps = options.transition_steps
