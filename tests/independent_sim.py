@@ -308,3 +308,19 @@ def turn_imu_axes(folder: Path, turn: str) -> None:
         x, y = imu[f"{kind}_x"].copy(), imu[f"{kind}_y"].copy()
         imu[f"{kind}_x"], imu[f"{kind}_y"] = {"rfu": (-y, x), "backward": (-x, -y)}[turn]
     imu.to_csv(folder / "imu.csv", index=False, float_format="%.10e")
+
+# Speed steps of a stop-and-go drive (FIVE_TURNS' companion): speed changes tell an antenna
+# along the track from fixes stamped late, which one steady speed does not.
+STOP_AND_GO = [(10, 8, 12.0), (70, 6, -8.0), (110, 5, 10.0), (160, 6, -12.0), (172, 6, 9.0)]
+
+
+def write_turning_drive(folder: Path, steps, seed: int, shift_s: float = 0.0,
+                        arm=(0.0, 0.0, 0.0)) -> None:  # fmt: skip
+    """A 280 s drive through FIVE_TURNS at ``steps``' speeds (industrial IMU at 100 Hz, 1 Hz
+    fixes), its antenna ``arm`` from the IMU (left out of cfg.toml) and its fixes stamped
+    ``shift_s`` late."""
+    profile = CarProfile(steps=steps, turns=FIVE_TURNS, gamma=lambda t: 0 * t)
+    write_drive(folder, profile, 280.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
+                gnss_rate=1.0, seed=seed, lever_arm=arm)  # fmt: skip
+    if shift_s:
+        shift_fix_times(folder, shift_s)

@@ -20,26 +20,15 @@ import fgins
 
 sys.path.insert(0, str(Path(__file__).parent))
 from independent_sim import (
-    FIVE_TURNS,
-    INDUSTRIAL,
-    CarProfile,
+    STOP_AND_GO,
     horizontal_errors,
     outage_rms_and_sigma,
     run_imu_clock_off,
     shift_fix_times,
-    write_drive,
 )
+from independent_sim import write_turning_drive as _drive
 
 OUTAGES = [(60.0, 105.0), (175.0, 215.0)]
-STOP_AND_GO = [(10, 8, 12.0), (70, 6, -8.0), (110, 5, 10.0), (160, 6, -12.0), (172, 6, 9.0)]
-
-
-def _drive(folder: Path, steps, seed: int, shift_s: float = 0.0, arm=(0.0, 0.0, 0.0)) -> None:
-    profile = CarProfile(steps=steps, turns=FIVE_TURNS, gamma=lambda t: 0 * t)
-    write_drive(folder, profile, 280.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
-                gnss_rate=1.0, seed=seed, lever_arm=arm)  # fmt: skip
-    if shift_s:
-        shift_fix_times(folder, shift_s)
 
 
 def _smooth(folder: Path, method: str = "batch", extra: str = "", outages=OUTAGES):
