@@ -219,3 +219,6 @@ ARM_CORRECTION_MAX_SIGMA_M = 0.5
 # The priors of the arm's offset (3, m), the time offset and its drift (s) in the joint
 # estimates (the graph's parameter step, a Kalman baseline's augmented states).
 ANTENNA_PRIOR_SIGMAS = np.array([LEVER_ARM_PRIOR_M] * 3 + [TIME_OFFSET_PRIOR_S] * 2)
+# The fewest fixes a joint estimate is made from (the graph's lever_arm_report and the Kalman
+# baselines' antenna_about alike).
+MIN_FIXES = 30

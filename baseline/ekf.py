@@ -40,7 +40,7 @@ from typing import Any, Self
 import numpy as np
 
 from fgins.alignment import initial_alignment
-from fgins.antenna_verdict import ANTENNA_PRIOR_SIGMAS, antenna_verdict
+from fgins.antenna_verdict import ANTENNA_PRIOR_SIGMAS, MIN_FIXES, antenna_verdict
 from fgins.baseline.measurements import (
     AntennaStates,
     GnssEpochs,
@@ -1370,6 +1370,8 @@ def antenna_about(
     again."""
     options = EkfOptions(max_block_s=max_block_s, transition_steps=ANTENNA_TRANSITION_STEPS)
     setup = prepare_filter(dataset, config, gnss_mask, options.max_block_s, ANTENNA_PRIOR_SIGMAS)
+    if len(setup.epochs.t) < MIN_FIXES:
+        return None
     antenna = setup.antenna
     assert antenna is not None and len(reference) == len(setup.times)
     about = [state.copy() for state in reference]

@@ -15,6 +15,7 @@ from fgins.antenna_verdict import (
     ARM,
     DRIFT,
     LEVER_ARM_PRIOR_M,
+    MIN_FIXES,
     TIME,
     TIME_OFFSET_PRIOR_S,
     antenna_verdict,
@@ -137,7 +138,7 @@ def lever_arm_report(
     linearly along the drive (``gnss_time_middle_s``, ``gnss_time_half_span_s``: where the
     drift is counted from and over), which no arm gives."""
     keyframes = np.flatnonzero(problem.gnss_at >= 0)
-    if len(keyframes) < MIN_FIXES_FOR_SCALE:
+    if len(keyframes) < MIN_FIXES:
         return {}
     # The GNSS factors are linearised here, with their columns; the rest as they are.
     position_types = (gtsam.GPSFactor, gtsam.GPSFactorArm)
