@@ -21,7 +21,11 @@ For each: batch's horizontal RMS inside the outages against the simulator's trut
 error / reported sigma there, with the step on (the default) and off, and the ratios to the
 true sensor's RMS measured in the same run.
 
-    python scripts/bench_sensor_errors.py [--seeds 1,2] [--method batch]
+The Kalman baselines (``--method ekf``, ``ekf-rts``, ``ukf``) run the same antenna and clock
+check (session 41; ``--cases late,early,arm`` for those rows only): "off" is what they did
+before, following the fixes they were given.
+
+    python scripts/bench_sensor_errors.py [--seeds 1,2] [--method batch] [--cases late,arm]
 """
 
 from __future__ import annotations
@@ -63,6 +67,7 @@ CASES = [
     ("fixes 0.1 s late", lambda d, s: shift_fix_times(d, 0.1), ANTENNA_OFF),
     ("fixes 0.2 s late", lambda d, s: shift_fix_times(d, 0.2), ANTENNA_OFF),
     ("fixes 0.3 s early", lambda d, s: shift_fix_times(d, -0.3), ANTENNA_OFF),
+    ("fixes 1 s late", lambda d, s: shift_fix_times(d, 1.0), ANTENNA_OFF),
     ("arm [-1.5, 0, 0] m", lambda d, s: None, ANTENNA_OFF),
     ("arm [2, 0.5, 1] m", lambda d, s: None, ANTENNA_OFF),
     ("IMU clock +2000 ppm", lambda d, s: run_imu_clock_off(d, 2000.0), ANTENNA_OFF),
@@ -95,8 +100,11 @@ def _run(folder: Path, method: str, off: str = "") -> tuple[float, float, list[s
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", default="1,2")
-    parser.add_argument("--method", default="batch", choices=["batch", "isam2"])
+    parser.add_argument("--method", default="batch", choices=["batch", "isam2", "ekf", "ekf-rts", "ukf"])
+    parser.add_argument("--cases", default="", help="only the rows whose label holds one of these words")
     args = parser.parse_args()
+    wanted = [word for word in args.cases.split(",") if word]
+    cases = [case for case in CASES if not wanted or any(word in case[0] for word in wanted)]
     seeds = [int(s) for s in args.seeds.split(",")]
     warnings.simplefilter("ignore")  # fgins's warnings are read from the run's info instead
     started = time.perf_counter()
@@ -110,7 +118,7 @@ def main() -> None:
             _write(folder, seed)
             true_rms, true_ratio, _ = _run(folder, args.method)
             print(f"{'true sensors':<20} {seed:>4} {true_rms:7.2f} {'':>6} {'':>7} {true_ratio:10.2f}")
-            for label, make, off in CASES:
+            for label, make, off in cases:
                 _write(folder, seed, ARMS.get(label, (0.0, 0.0, 0.0)))
                 make(folder, seed)
                 on_rms, on_ratio, said = _run(folder, args.method)
