@@ -19,6 +19,22 @@ from fgins.config import GnssConfig
 ARM, TIME, DRIFT = [0, 1, 2], [3], [4]
 
 
+def typical_speed(speeds: np.ndarray) -> float:
+    """The drive's typical speed, against which a time offset is sized: the median of the
+    speeds above 1 m/s (0 if it never moves)."""
+    moving = np.asarray(speeds, dtype=float)
+    moving = moving[moving > 1.0]
+    return float(np.median(moving)) if len(moving) else 0.0
+
+
+def drift_time_base(fix_times: np.ndarray) -> tuple[float, float]:
+    """Where a drift between two clocks is counted from and over: the middle of the fixes'
+    span and half its length (the DRIFT parameter is the offset's change from there to the
+    ends)."""
+    first, last = float(fix_times[0]), float(fix_times[-1])
+    return 0.5 * (first + last), max(0.5 * (last - first), 1e-9)
+
+
 def significance(change: np.ndarray, covariance: np.ndarray) -> float:
     """The chi-square of ``change`` against its covariance."""
     return float(change @ np.linalg.solve(covariance, change))

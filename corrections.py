@@ -65,6 +65,18 @@ CARRIED_KEYS = (
 )
 SCATTER_AFTER_MIN = 0.5
 
+
+def _carry_said(previous: Trajectory, solution: Trajectory, said: list[str]) -> None:
+    """``solution`` (a step's solve again of ``previous``'s drive) says what the steps before
+    it said and corrected (CORRECTIONS_SAID, CARRIED_KEYS), then ``said``, and keeps both for
+    the steps after it."""
+    said = [*previous.info.get(CORRECTIONS_SAID, []), *said]  # type: ignore[list-item]
+    for key in CARRIED_KEYS:
+        if key in previous.info and key not in solution.info:
+            solution.info[key] = previous.info[key]
+    solution.info[CORRECTIONS_SAID] = said
+    solution.info["fit_warnings"] = [*said, *solution.info.get("fit_warnings", [])]
+
 # The densities the [imu] schema allows (fgins.config.IMU_SCHEMA): a measured one beyond them
 # is clipped there (a log that vibrates that much is refused by its unit checks first).
 MAX_GYRO_DENSITY = 1.0
@@ -183,14 +195,7 @@ def with_turn_on_bias_widened(
             f"imu: {'; '.join(said)} failed; the configured turn-on sigmas are too small for "
             "this IMU ([imu] gyro_turn_on_bias_deg_per_s, accel_turn_on_bias_mg, --imu-preset)"
         )
-    # What earlier steps corrected and said (the antenna's, when this runs after it).
-    earlier: list[str] = trajectory.info.get(CORRECTIONS_SAID, [])  # type: ignore[assignment]
-    for key in CARRIED_KEYS:
-        if key in trajectory.info and key not in again.info:
-            again.info[key] = trajectory.info[key]
-    if earlier:
-        again.info[CORRECTIONS_SAID] = list(earlier)
-        again.info["fit_warnings"] = [*earlier, *again.info.get("fit_warnings", [])]
+    _carry_said(trajectory, again, [])  # the antenna's, when this runs after it
     return again, widened_config, (
         f"imu: {'; '.join(said)}: the configured turn-on bias sigmas are too small for this "
         "IMU (a preset of a better grade? --imu-preset, [imu]); [imu] turn_on_bias_from_data = "
@@ -355,15 +360,7 @@ def with_antenna_corrected(
         f"{after:.2f}; {', '.join(switches)})"
     )
     findings = first.info.get("antenna_findings") or ["GNSS antenna"]
-    said = [
-        *first.info.get(CORRECTIONS_SAID, []),  # type: ignore[list-item]
-        *(f"{finding}: corrected, {how}" for finding in findings),  # type: ignore[union-attr]
-    ]
-    for key in CARRIED_KEYS:
-        if key in first.info and key not in best.info:
-            best.info[key] = first.info[key]
-    best.info[CORRECTIONS_SAID] = said
-    best.info["fit_warnings"] = [*said, *best.info.get("fit_warnings", [])]
+    _carry_said(first, best, [f"{finding}: corrected, {how}" for finding in findings])  # type: ignore[union-attr]
     return best, dataset, config
 
 
@@ -505,12 +502,7 @@ def with_gnss_sigmas_scaled(
             f"{speed_scale[2]:.1f} vertically and the drive solved again (now {now[0]:.1f}x; "  # type: ignore[index]
             "[gnss] sigma_from_fit = false keeps them)"
         )
-    said = [*info.get(CORRECTIONS_SAID, []), *said]  # type: ignore[list-item]
-    for key in CARRIED_KEYS:
-        if key in info and key not in corrected.info:
-            corrected.info[key] = info[key]
-    corrected.info[CORRECTIONS_SAID] = said
-    corrected.info["fit_warnings"] = [*said, *corrected.info.get("fit_warnings", [])]
+    _carry_said(trajectory, corrected, said)
     return corrected, trial, trial_config
 
 
@@ -782,16 +774,10 @@ def with_nhc_lever_corrected(
             f"{finding}; solved with nhc_lever_arm_m = [{shown}] it fits no better: kept as "
             "configured"
         )
-    said = [
-        *info.get(CORRECTIONS_SAID, []),  # type: ignore[list-item]
+    corrected.info["nhc_lever_arm_corrected_m"] = lever
+    _carry_said(trajectory, corrected, [
         f"{finding}: corrected, nhc_lever_arm_m = [{shown}] and the drive solved again "
         f"(chi2/dof {before:.2f} -> {after:.2f}; [smoother] nhc_lever_from_data = false keeps "
-        "it)",
-    ]
-    for key in CARRIED_KEYS:
-        if key in info and key not in corrected.info:
-            corrected.info[key] = info[key]
-    corrected.info["nhc_lever_arm_corrected_m"] = lever
-    corrected.info[CORRECTIONS_SAID] = said
-    corrected.info["fit_warnings"] = [*said, *corrected.info.get("fit_warnings", [])]
+        "it)"
+    ])  # fmt: skip
     return corrected, trial, None

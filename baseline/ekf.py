@@ -40,7 +40,13 @@ from typing import Any, Self
 import numpy as np
 
 from fgins.alignment import initial_alignment
-from fgins.antenna_verdict import ANTENNA_PRIOR_SIGMAS, MIN_FIXES, antenna_verdict
+from fgins.antenna_verdict import (
+    ANTENNA_PRIOR_SIGMAS,
+    MIN_FIXES,
+    antenna_verdict,
+    drift_time_base,
+    typical_speed,
+)
 from fgins.baseline.measurements import (
     AntennaStates,
     GnssEpochs,
@@ -264,11 +270,8 @@ def prepare_filter(
     extra, extra_variance = aiding.initial_extra(float(align.position[2]))
     antenna = None
     if antenna_prior is not None:
-        antenna = AntennaStates(
-            index=STATE_DIM + len(extra),
-            middle=0.5 * float(epochs.t[0] + epochs.t[-1]),
-            half_span=max(0.5 * float(epochs.t[-1] - epochs.t[0]), 1e-9),
-        )
+        middle, half_span = drift_time_base(epochs.t)
+        antenna = AntennaStates(index=STATE_DIM + len(extra), middle=middle, half_span=half_span)
         extra = np.append(extra, np.zeros(5))
         extra_variance = np.append(extra_variance, np.asarray(antenna_prior, dtype=float) ** 2)
     rotation = np.asarray(align.rotation, dtype=float)
@@ -1396,12 +1399,10 @@ def antenna_about(
     change, covariance = state.extra[rows.start - STATE_DIM : rows.stop - STATE_DIM], cov[rows, rows]
     if not (np.all(np.isfinite(change)) and np.all(np.isfinite(covariance))):
         return None
-    speeds = np.linalg.norm([state.velocity for state in reference], axis=1)
-    moving = speeds[speeds > 1.0]
     return AntennaEstimate(
         change=np.array(change, dtype=float),
         covariance=0.5 * (covariance + covariance.T),
-        typical_speed=float(np.median(moving)) if len(moving) else 0.0,
+        typical_speed=typical_speed(np.linalg.norm([state.velocity for state in reference], axis=1)),
         middle=antenna.middle,
         half_span=antenna.half_span,
     )

@@ -133,11 +133,12 @@ def linearize_gnss(
     """
     rotation = state.rotation
     columns = STATE_DIM
-    late = 0.0
+    late = along = 0.0
     if antenna is not None:
         offset, late0, drift = antenna.nominal(state)
         lever_arm = lever_arm + offset
-        late = late0 + drift * (float(epochs.t[g]) - antenna.middle) / antenna.half_span
+        along = (float(epochs.t[g]) - antenna.middle) / antenna.half_span  # the drift's s
+        late = late0 + drift * along
         columns = antenna.index + 5
     arm_nav = rotation @ lever_arm
     rows_h = [np.zeros((3, columns))]
@@ -149,7 +150,7 @@ def linearize_gnss(
         rows_h[0][:, VEL] = -late * np.eye(3)
         rows_h[0][:, a : a + 3] = rotation
         rows_h[0][:, a + 3] = -state.velocity
-        rows_h[0][:, a + 4] = -state.velocity * (float(epochs.t[g]) - antenna.middle) / antenna.half_span
+        rows_h[0][:, a + 4] = -state.velocity * along
         predicted = predicted - state.velocity * late
     residual = [epochs.position[g] - predicted]
     variance = [epochs.position_sigma[g] ** 2]

@@ -19,6 +19,8 @@ from fgins.antenna_verdict import (
     TIME,
     TIME_OFFSET_PRIOR_S,
     antenna_verdict,
+    drift_time_base,
+    typical_speed,
 )
 from fgins.datatypes import Trajectory
 from fgins.factors import gnss as gnss_model
@@ -158,8 +160,7 @@ def lever_arm_report(
     config = problem.config.gnss
     configured = np.asarray(config.lever_arm_m, dtype=float)
     fix_times = problem.segments.times[keyframes]
-    middle = 0.5 * float(fix_times[0] + fix_times[-1])
-    half_span = max(0.5 * float(fix_times[-1] - fix_times[0]), 1e-9)
+    middle, half_span = drift_time_base(fix_times)
     try:
         linear = check.linearize(values)
         columns = _imu_columns(problem, check, linear, values, half_span)
@@ -200,9 +201,7 @@ def lever_arm_report(
     if not (np.all(np.isfinite(change)) and np.all(np.isfinite(covariance))):
         return {}
     speeds = np.array([np.linalg.norm(values.atVector(V(int(k)))) for k in keyframes])
-    moving = speeds[speeds > 1.0]
-    typical_speed = float(np.median(moving)) if len(moving) else 0.0
-    out = antenna_verdict(config, configured, change, covariance, typical_speed)
+    out = antenna_verdict(config, configured, change, covariance, typical_speed(speeds))
     out["gnss_time_middle_s"], out["gnss_time_half_span_s"] = middle, half_span
     if nhc_at:  # the pipeline takes it where significant (fgins.corrections)
         out["nhc_lever_forward_fit_m"] = float(joint.step[NHC_LEVER[0]])
