@@ -542,14 +542,28 @@ def _checked_origin(table: object, config_path: Path | None) -> Origin:
     return Origin(checked["lat"], checked["lon"], checked["alt"])
 
 
+DATA_FOLDER_SECTIONS = frozenset(
+    {"imu", "gnss", "smoother", "origin", "scenario", "accel_array", "baro"}
+)
+
+
 def _read_sim_config(folder: Path) -> dict[str, Any]:
     path = folder / "config.toml"
     if not path.exists():
         return {}
     try:
-        return tomllib.loads(path.read_text(encoding="utf-8-sig"))  # a BOM, as in the CSVs
+        table = tomllib.loads(path.read_text(encoding="utf-8-sig"))  # a BOM, as in the CSVs
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"{path}: {exc}") from None
+    # A misspelt section ([smoothr]) would otherwise be ignored without a word, as --config's
+    # unknown sections are not. [scenario] and [baro] describe the simulation (not read).
+    unknown = sorted(set(table) - DATA_FOLDER_SECTIONS)
+    if unknown:
+        raise InputError(
+            f"{path}: unknown section(s) {', '.join(f'[{name}]' for name in unknown)} (valid: "
+            f"{', '.join(f'[{name}]' for name in sorted(DATA_FOLDER_SECTIONS))})"
+        )
+    return table
 
 
 def _not_a_sim_folder(path: Path) -> NoReturn:

@@ -20,6 +20,10 @@ JUMP_SIGMA_FACTOR = 5.0  # tolerance in the fixes' own sigmas on top of the spee
 DEFAULT_FIX_SIGMA_M = 10.0  # a fix without any sigma or DOP: a consumer receiver's error
 UERE_FOR_DOP_M = 5.0
 JUMP_NEIGHBOURS = 3  # a fix is judged against this many fixes on each side
+# A chord between two fixes judges the track's speed only where it spans far more than the
+# fixes' own scatter; this many sigmas (of both ends) at least.
+TRACK_CHORD_SIGMAS = 10.0
+TRACK_CHORDS_MIN = 5
 GNSS_GAP_MIN_S = 5.0
 GNSS_GAP_PERIODS = 10.0
 
@@ -160,6 +164,7 @@ def check_gnss(gnss: GnssData, origin: Origin, checks: list[str]) -> tuple[GnssD
         )
         gnss = gnss.subset(~bad)
     _reject_persistent_jumps(gnss)
+    _reject_impossible_track_speed(gnss)
     _warn_radians(gnss, checks)
     if not _geodetic_ok(np.array([[origin.lat, origin.lon, origin.alt]]))[0]:
         if not origin_is_first_fix:
@@ -375,6 +380,41 @@ def _reject_persistent_jumps(gnss: GnssData) -> None:
             f"t={gnss.t[i + 1]:.3f} ({distance[i] / max(dt[i], 1e-9):.0f} m/s, faster than any "
             f"vehicle) and stays there ({off.size} such jump(s)); the log mixes two receivers or "
             "datums: split it"
+        )
+
+
+def _reject_impossible_track_speed(gnss: GnssData) -> None:
+    """A whole track faster than any vehicle: its times are not in seconds.
+
+    The jump checks compare a fix with its near neighbours, within their sigmas: fixes whose
+    times were divided by 1000 lie 1 ms apart and move 8 m each, inside the sigmas, so every
+    neighbour agrees while the track runs at 8 km/s. Chords of doubling length (1, 2, 4 ...
+    epochs) that span at least TRACK_CHORD_SIGMAS of both ends' sigmas show the speed free of
+    the fixes' noise; their median beyond any vehicle's refuses the log. O(N log N).
+    """
+    n = len(gnss)
+    if n < TRACK_CHORDS_MIN + 1:
+        return
+    xyz = _ecef(gnss.lla)
+    sigma = fix_sigma(gnss)
+    speeds = []
+    lag = 1
+    while lag < n:
+        distance = np.linalg.norm(xyz[lag:] - xyz[:-lag], axis=1)
+        dt = gnss.t[lag:] - gnss.t[:-lag]
+        spans = (distance > TRACK_CHORD_SIGMAS * (sigma[lag:] + sigma[:-lag])) & (dt > 0)
+        speeds.append(distance[spans] / dt[spans])
+        lag *= 2
+    chords = np.concatenate(speeds)
+    if chords.size < TRACK_CHORDS_MIN:
+        return
+    median = float(np.median(chords))
+    if median > MAX_SPEED_M_PER_S:
+        raise InputError(
+            f"gnss: the track moves at {median:,.0f} m/s (median over {chords.size} chords between "
+            f"fixes far beyond their sigmas), faster than any vehicle ({MAX_SPEED_M_PER_S:g} m/s): "
+            f"the fixes' times are not in seconds ({gnss.t[0]:.6g} .. {gnss.t[-1]:.6g} for "
+            f"{n} fixes), or lat/lon are not in degrees"
         )
 
 

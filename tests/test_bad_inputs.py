@@ -343,6 +343,13 @@ CONFIG_CASES = [
             text,
         ),
     ),
+    # A misspelt section of the folder's own config.toml was ignored without a word.
+    Case(
+        "dataset-unknown-section",
+        SMOOTH,
+        r"config\.toml: unknown section\(s\) \[smoothr\] \(valid: .*\[smoother\]",
+        edit_sim_config=lambda text: text + '\n[smoothr]\nvehicle = "car"\n',
+    ),
     Case(
         "dataset-vehicle-boat",
         SMOOTH,
@@ -423,6 +430,13 @@ OUTPUT_CASES = [
     ),
     Case("output-bad-suffix", SMOOTH, r"output format must be one of", out="{tmp}/out.txt"),
 ]
+
+def _gnss_times_scaled(factor: float):
+    def edit(header, rows):
+        rows[:, _column(header, "time")] *= factor
+
+    return edit
+
 
 DATA_CASES = [
     pytest.param(
@@ -687,6 +701,30 @@ def test_bad_output_path(case, sim_dir, tmp_path, capsys, monkeypatch):
 @pytest.mark.parametrize("case", DATA_CASES)
 def test_bad_data(case, sim_dir, tmp_path, capsys, monkeypatch):
     _check_case(case, sim_dir, tmp_path, capsys, monkeypatch)
+
+
+@pytest.fixture(scope="module")
+def highway_dir(tmp_path_factory) -> Path:
+    """60 s of a motorway drive (~30 m/s): far more track than the fixes' scatter."""
+    folder = tmp_path_factory.mktemp("highway") / "drive"
+    assert cli.main(["sim", "highway", "-o", str(folder), "--duration", "60"]) == 0
+    return folder
+
+
+@pytest.mark.parametrize("factor", [1e-3, 1e-2])
+def test_gnss_times_in_other_units_than_seconds_are_refused(factor, highway_dir, tmp_path, capsys,
+                                                            monkeypatch):
+    """Fixes 1 or 10 ms apart moving ~30 m each stay within their sigmas of their neighbours,
+    so the jump checks passed them: a car drive with its GNSS times divided by 1000 came out
+    516 m off with exit code 0 (its fit only "inconsistent"). The track's speed over chords far
+    beyond the fixes' scatter is 3,000-30,000 m/s."""
+    case = Case(
+        "gnss-times-scaled",
+        SMOOTH,
+        r"gnss: the track moves at [\d,]+ m/s .*faster than any vehicle.*not in seconds",
+        edit_gnss=_gnss_times_scaled(factor),
+    )
+    _check_case(case, highway_dir, tmp_path, capsys, monkeypatch)
 
 
 def test_good_inputs_pass_the_same_harness(sim_dir, tmp_path, capsys):
