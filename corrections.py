@@ -236,6 +236,7 @@ def with_antenna_corrected(
     imu_t0, imu_t1 = float(dataset.imu.t[0]), float(dataset.imu.t[-1])
     drifting, last, arm_taken, arm_covariance = False, (0.0, 0.0), None, None
     tried = clocks_declined = False
+    declined: tuple[object, object] | None = None  # (fit before, fit with the correction)
     for _ in range(ANTENNA_ROUNDS):
         info = best.info
         offset = info.get("gnss_time_offset_s") if config.gnss.time_offset_from_data else None
@@ -313,8 +314,14 @@ def with_antenna_corrected(
             if one_clock is not None and not _fits_better(corrected, one_clock, fit_key, CLOCK_CHI2_GAIN):
                 corrected, trial, trial_moved, drifting = one_clock, latency, trial_moved - offset, False
                 clocks_declined = True
-        before, after = best.info.get(fit_key), corrected.info.get(fit_key)
-        if not (isinstance(before, float) and isinstance(after, float) and after < before):
+        # Kept only where it fits better by CORRECTION_CHI2_PER_NUMBER per number taken. A
+        # correction that explains nothing is not a finding: velocities weighted 2x too much
+        # in a stretch of HDOP 3.5 read to EKF+RTS as an antenna 1 m ahead of the configured
+        # one at 5 sigma; taken, its total fit gained 3.7-8.5 and the outage went 0.80 ->
+        # 1.40 m.
+        taken = 3 * (arm is not None) + (offset is not None) + bool(drift) + (lag is not None)
+        if not _fits_better(corrected, best, fit_key, CORRECTION_CHI2_PER_NUMBER * taken):
+            declined = (best.info.get(fit_key), corrected.info.get(fit_key))
             break
         best, dataset, config, fixes_moved, velocity_lag = corrected, trial, trial_config, trial_moved, trial_lag
         if arm is not None:
@@ -328,6 +335,15 @@ def with_antenna_corrected(
                 first.info["fit_warnings"] = [
                     w for w in first.info.get("fit_warnings", []) if not w.startswith(findings)
                 ]
+        elif declined is not None:
+            # The check's reading, solved with, explains nothing: no advice to set it.
+            before, after = (f"{v:.2f}" if isinstance(v, float) else "?" for v in declined)
+            first.info["fit_warnings"] = _findings_reworded(
+                first.info.get("fit_warnings", []),
+                tuple(first.info.get("antenna_findings") or ()),
+                f"solved again with it, the fit is no better ({fit_name} {before} -> {after}): "
+                "left as configured (GNSS sigmas set too small make small offsets look significant)",
+            )
         return first, dataset, config
     done, switches = [], []
     if fixes_moved:
@@ -362,6 +378,23 @@ def with_antenna_corrected(
     findings = first.info.get("antenna_findings") or ["GNSS antenna"]
     _carry_said(first, best, [f"{finding}: corrected, {how}" for finding in findings])  # type: ignore[union-attr]
     return best, dataset, config
+
+
+# What a correction must gain in total fit (chi-square, or a filter's NIS summed over its GNSS
+# components) per number it takes (3 for an arm, 1 for a time offset, its drift, a velocity
+# lag). Real ones gain far more: 34-8,300 for the arms, latencies and clocks of
+# tests/test_kalman_antenna_check.py, test_gnss_time_offset.py and test_flight_gnss_latency.py.
+CORRECTION_CHI2_PER_NUMBER = 4.0
+
+
+def _findings_reworded(warnings: list[str], findings: tuple[str, ...], then: str) -> list[str]:
+    """``warnings`` with each line that says one of ``findings`` ending in ``then`` instead of
+    its advice."""
+    out = []
+    for warning in warnings:
+        finding = next((f for f in findings if warning.startswith(f)), None)
+        out.append(warning if finding is None else f"{finding}: {then}")
+    return out
 
 
 # How much better (in total chi-square: chi2/dof times dof, or a filter's mean NIS times its

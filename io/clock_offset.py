@@ -75,7 +75,10 @@ def estimate_clock_offset(
     interval = float(np.median(np.diff(t_gnss)))
     if not interval > 0 or interval > CHORD_HALF_S:
         return None  # fixes too sparse for a 2-s chord
-    lo, hi = t_gnss[0] + CHORD_HALF_S, t_gnss[-1] - CHORD_HALF_S - WINDOW_S
+    # Windows only where both sensors are: a few fixes stamped 0 (1970) among POSIX-time
+    # ones made a grid over 54 years (25 GiB) before any check saw them.
+    lo = max(t_gnss[0], t_imu[0]) + CHORD_HALF_S
+    hi = min(t_gnss[-1], t_imu[-1]) - CHORD_HALF_S - WINDOW_S
     if hi - lo < 10 * WINDOW_S:
         return None
     start = np.arange(lo, hi, GRID_S)

@@ -727,6 +727,32 @@ def test_gnss_times_in_other_units_than_seconds_are_refused(factor, highway_dir,
     _check_case(case, highway_dir, tmp_path, capsys, monkeypatch)
 
 
+def _posix_times_some_fixes_at_zero(header, rows):
+    rows[:, _column(header, "time")] += 1.7e9
+    rows[[3, 9, 14], _column(header, "time")] = 0.0  # a driver's unset stamps (1970)
+
+
+def _posix_times(header, rows):
+    rows[:, _column(header, "time")] += 1.7e9
+
+
+def test_a_few_fixes_stamped_zero_among_posix_times_are_counted_not_fatal(sim_dir, tmp_path, capsys,
+                                                                         monkeypatch):
+    """Three fixes stamped 0 (1970) among POSIX-time ones: the clock check built its grid of
+    windows over the fixes' whole span, 54 years (25 GiB), and the run ended in "out of
+    memory". Two repeat the first's stamp (dropped, counted); the one left lies outside the
+    IMU's span: counted, and the drive smoothed."""
+    case = Case(
+        "fixes-stamped-zero",
+        SMOOTH,
+        r"1 of \d+ GNSS epoch\(s\) lie outside the IMU time span",
+        edit_gnss=_posix_times_some_fixes_at_zero,
+        edit_imu=_posix_times,
+        warning_ok=True,
+    )
+    _check_case(case, sim_dir, tmp_path, capsys, monkeypatch)
+
+
 def test_good_inputs_pass_the_same_harness(sim_dir, tmp_path, capsys):
     """The harness is not vacuous: the unchanged drive, its NMEA version with an IMU CSV and
     a constant-bias config (zero bias instability is valid) all run, exit 0, write output."""
