@@ -317,8 +317,8 @@ def with_antenna_corrected(
         # Kept only where it fits better by CORRECTION_CHI2_PER_NUMBER per number taken. A
         # correction that explains nothing is not a finding: velocities weighted 2x too much
         # in a stretch of HDOP 3.5 read to EKF+RTS as an antenna 1 m ahead of the configured
-        # one at 5 sigma; taken, its total fit gained 3.7-8.5 and the outage went 0.80 ->
-        # 1.40 m.
+        # one at 5 sigma; taken, its total fit gained 3.7-8.5 and the outage went 0.47 ->
+        # 0.99 m.
         taken = 3 * (arm is not None) + (offset is not None) + bool(drift) + (lag is not None)
         if not _fits_better(corrected, best, fit_key, CORRECTION_CHI2_PER_NUMBER * taken):
             declined = (best.info.get(fit_key), corrected.info.get(fit_key))
@@ -326,8 +326,18 @@ def with_antenna_corrected(
         best, dataset, config, fixes_moved, velocity_lag = corrected, trial, trial_config, trial_moved, trial_lag
         if arm is not None:
             arm_taken, arm_covariance = arm, info.get("gnss_lever_arm_cov_m2")
+    filter_failed = best is first and tried and bool(first.info.get(FILTER_FIT_FAILED))
+    if declined is not None and not filter_failed:
+        # The check's reading, solved with, explains nothing: no advice to set it.
+        before, after = (f"{v:.2f}" if isinstance(v, float) else "?" for v in declined)
+        best.info["fit_warnings"] = _findings_reworded(
+            best.info.get("fit_warnings", []),
+            tuple(best.info.get("antenna_findings") or ()),
+            f"solved again with it, the fit is no better ({fit_name} {before} -> {after}): "
+            "left as configured (GNSS sigmas set too small make small offsets look significant)",
+        )
     if best is first:
-        if tried and first.info.get(FILTER_FIT_FAILED):
+        if filter_failed:
             # Corrected, it fit no better: what the check found is the divergence's (said in
             # the filter's own note), not the antenna's.
             findings = tuple(first.info.pop("antenna_findings", None) or ())
@@ -335,15 +345,6 @@ def with_antenna_corrected(
                 first.info["fit_warnings"] = [
                     w for w in first.info.get("fit_warnings", []) if not w.startswith(findings)
                 ]
-        elif declined is not None:
-            # The check's reading, solved with, explains nothing: no advice to set it.
-            before, after = (f"{v:.2f}" if isinstance(v, float) else "?" for v in declined)
-            first.info["fit_warnings"] = _findings_reworded(
-                first.info.get("fit_warnings", []),
-                tuple(first.info.get("antenna_findings") or ()),
-                f"solved again with it, the fit is no better ({fit_name} {before} -> {after}): "
-                "left as configured (GNSS sigmas set too small make small offsets look significant)",
-            )
         return first, dataset, config
     done, switches = [], []
     if fixes_moved:
