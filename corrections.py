@@ -327,7 +327,13 @@ def with_antenna_corrected(
         if arm is not None:
             arm_taken, arm_covariance = arm, info.get("gnss_lever_arm_cov_m2")
     filter_failed = best is first and tried and bool(first.info.get(FILTER_FIT_FAILED))
-    if declined is not None and not filter_failed:
+    if filter_failed:
+        # Corrected, it fit no better: what the check found is the divergence's (said in the
+        # filter's own note), not the antenna's.
+        first.info["fit_warnings"] = _findings_reworded(
+            first.info.get("fit_warnings", []), tuple(first.info.pop("antenna_findings", None) or ()), None
+        )
+    elif declined is not None:
         # The check's reading, solved with, explains nothing: no advice to set it.
         before, after = (f"{v:.2f}" if isinstance(v, float) else "?" for v in declined)
         best.info["fit_warnings"] = _findings_reworded(
@@ -337,14 +343,6 @@ def with_antenna_corrected(
             "left as configured (GNSS sigmas set too small make small offsets look significant)",
         )
     if best is first:
-        if filter_failed:
-            # Corrected, it fit no better: what the check found is the divergence's (said in
-            # the filter's own note), not the antenna's.
-            findings = tuple(first.info.pop("antenna_findings", None) or ())
-            if findings:
-                first.info["fit_warnings"] = [
-                    w for w in first.info.get("fit_warnings", []) if not w.startswith(findings)
-                ]
         return first, dataset, config
     done, switches = [], []
     if fixes_moved:
@@ -388,13 +386,16 @@ def with_antenna_corrected(
 CORRECTION_CHI2_PER_NUMBER = 4.0
 
 
-def _findings_reworded(warnings: list[str], findings: tuple[str, ...], then: str) -> list[str]:
+def _findings_reworded(warnings: list[str], findings: tuple[str, ...], then: str | None) -> list[str]:
     """``warnings`` with each line that says one of ``findings`` ending in ``then`` instead of
-    its advice."""
+    its advice, or left out where ``then`` is None."""
     out = []
     for warning in warnings:
         finding = next((f for f in findings if warning.startswith(f)), None)
-        out.append(warning if finding is None else f"{finding}: {then}")
+        if finding is None:
+            out.append(warning)
+        elif then is not None:
+            out.append(f"{finding}: {then}")
     return out
 
 

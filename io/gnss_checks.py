@@ -163,8 +163,10 @@ def check_gnss(gnss: GnssData, origin: Origin, checks: list[str]) -> tuple[GnssD
             f"sigma) as implausible, at t - t_gnss0 = {times}{more} s"
         )
         gnss = gnss.subset(~bad)
-    _reject_persistent_jumps(gnss)
-    _reject_impossible_track_speed(gnss)
+    # The kept fixes' positions and sigmas, for both checks of the track as a whole.
+    xyz, sigma = _ecef(gnss.lla), fix_sigma(gnss)
+    _reject_persistent_jumps(gnss, xyz, sigma)
+    _reject_impossible_track_speed(gnss, xyz, sigma)
     _warn_radians(gnss, checks)
     if not _geodetic_ok(np.array([[origin.lat, origin.lon, origin.alt]]))[0]:
         if not origin_is_first_fix:
@@ -363,12 +365,11 @@ def check_gnss_records(gnss: GnssData, checks: list[str]) -> GnssData:
     return gnss
 
 
-def _reject_persistent_jumps(gnss: GnssData) -> None:
-    """After spikes are gone, a jump between consecutive fixes means two sources in one log."""
+def _reject_persistent_jumps(gnss: GnssData, xyz: np.ndarray, sigma: np.ndarray) -> None:
+    """After spikes are gone, a jump between consecutive fixes means two sources in one log
+    (``xyz``, ``sigma``: the fixes' ECEF positions and sigmas)."""
     if len(gnss) < 2:
         return
-    xyz = _ecef(gnss.lla)
-    sigma = fix_sigma(gnss)
     distance = np.linalg.norm(np.diff(xyz, axis=0), axis=1)
     dt = np.diff(gnss.t)
     allowed = MAX_SPEED_M_PER_S * dt + JUMP_SIGMA_FACTOR * (sigma[1:] + sigma[:-1])
@@ -383,7 +384,7 @@ def _reject_persistent_jumps(gnss: GnssData) -> None:
         )
 
 
-def _reject_impossible_track_speed(gnss: GnssData) -> None:
+def _reject_impossible_track_speed(gnss: GnssData, xyz: np.ndarray, sigma: np.ndarray) -> None:
     """A whole track faster than any vehicle: its times are not in seconds.
 
     The jump checks compare a fix with its near neighbours, within their sigmas: fixes whose
@@ -395,8 +396,6 @@ def _reject_impossible_track_speed(gnss: GnssData) -> None:
     n = len(gnss)
     if n < TRACK_CHORDS_MIN + 1:
         return
-    xyz = _ecef(gnss.lla)
-    sigma = fix_sigma(gnss)
     speeds = []
     lag = 1
     while lag < n:

@@ -286,10 +286,11 @@ def run_imu_clock_off(folder: Path, ppm: float) -> None:
     imu.to_csv(folder / "imu.csv", index=False, float_format="%.10e")
 
 
-def outage_rms_and_sigma(track, folder: Path, windows) -> tuple[float, float]:
-    """Horizontal RMS error inside ``windows`` against ``folder/truth.csv``, and the RMS of
-    the horizontal sigma the track reports there (their ratio: how honest the sigmas are)."""
-    t, error = horizontal_errors(track, folder)
+def outage_rms_and_sigma(track, folder: Path, windows, origin=(45.0, 10.0, 100.0)) -> tuple[float, float]:
+    """Horizontal RMS error inside ``windows`` against ``folder/truth.csv`` (east, north about
+    ``origin``), and the RMS of the horizontal sigma the track reports there (their ratio: how
+    honest the sigmas are)."""
+    t, error = horizontal_errors(track, folder, origin)
     frame = track.to_dataframe()
     sigma = np.hypot(frame["std_east"], frame["std_north"]).to_numpy()
     inside = np.zeros(len(t), bool)

@@ -150,21 +150,12 @@ def test_a_correction_that_fits_no_better_is_not_taken(tmp_path, seed, method):
     config = config.replace("velocity_sigma_m_per_s = 0.2", "velocity_sigma_m_per_s = 0.1")
     (folder / "config.toml").write_text(config.replace("[gnss]\n", "[gnss]\npdop_max = 100.0\n"))
     (folder / "off.toml").write_text("[gnss]\nlever_arm_from_data = false\ntime_offset_from_data = false\n")
-    truth = np.loadtxt(folder / "truth.csv", delimiter=",", skiprows=1, usecols=(0, 1, 2, 3))
+    origin = (48.1372, 11.5755, 520.0)  # car-urban's [origin], about which truth.csv is
+    assert f"lat = {origin[0]}\nlon = {origin[1]}\nalt = {origin[2]}" in config
     outage = (40.0, 80.0)
 
     def outage_rms(track) -> float:
-        import pymap3d
-
-        frame = track.to_dataframe()
-        inside = ((frame["time"] >= outage[0]) & (frame["time"] < outage[1])).to_numpy()
-        t = frame["time"].to_numpy()[inside]
-        reference = [np.interp(t, truth[:, 0], truth[:, k]) for k in (1, 2, 3)]
-        east, north, _ = pymap3d.geodetic2enu(
-            frame["lat"].to_numpy()[inside], frame["lon"].to_numpy()[inside],
-            frame["alt"].to_numpy()[inside], *reference,
-        )  # fmt: skip
-        return float(np.sqrt(np.mean(east**2 + north**2)))
+        return outage_rms_and_sigma(track, folder, [outage], origin)[0]
 
     track = fgins.smooth(fgins.load(folder), method, gnss_outage=[outage])
     off = fgins.smooth(fgins.load(folder, config=folder / "off.toml"), method, gnss_outage=[outage])
