@@ -31,7 +31,10 @@ class OutputError(FginsError):
 
 
 def _as_float_array(name: str, value: object, shape_tail: tuple[int, ...]) -> np.ndarray:
-    array = np.asarray(value, dtype=float)
+    try:
+        array = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as error:  # strings, ragged lists, objects
+        raise InputError(f"{name}: expected numbers, got {type(value).__name__} ({error})") from None
     if array.ndim != 1 + len(shape_tail) or array.shape[1:] != shape_tail:
         expected = "(N" + "".join(f", {d}" for d in shape_tail) + ")"
         raise InputError(f"{name}: expected shape {expected}, got {array.shape}")
@@ -233,7 +236,14 @@ class AccelArrayData:
         self.initial_rate = np.asarray(self.initial_rate, dtype=float)
         if self.initial_rate.shape != (3,) or not np.all(np.isfinite(self.initial_rate)):
             raise InputError("accel_array.initial_rate: expected 3 finite values (rad/s)")
-        self.noise_density = float(self.noise_density)
+        try:
+            self.noise_density = float(self.noise_density)
+            self.bias_sigma = None if self.bias_sigma is None else float(self.bias_sigma)
+        except (TypeError, ValueError):
+            raise InputError(
+                f"accel_array: noise density {self.noise_density!r} and bias sigma "
+                f"{self.bias_sigma!r} must be numbers"
+            ) from None
         if not (np.isfinite(self.noise_density) and self.noise_density > 0):
             raise InputError(
                 f"accel_array: noise density {self.noise_density} must be finite and > 0"
@@ -258,6 +268,33 @@ class Origin:
     lat: float
     lon: float
     alt: float
+
+    def __post_init__(self) -> None:
+        for name in ("lat", "lon", "alt"):
+            value = getattr(self, name)
+            try:
+                setattr(self, name, float(value))
+            except (TypeError, ValueError):
+                raise InputError(f"origin.{name}: expected a number, got {value!r}") from None
+
+
+def _as_origin(value: object, gnss: GnssData) -> Origin:
+    """A dataset's origin: an Origin (or any object with lat, lon, alt), a (lat, lon, alt)
+    sequence, or None for the first fix (as every reader does without a stated origin)."""
+    if value is None:
+        if len(gnss) == 0:
+            raise InputError("dataset: no GNSS fix at all; nothing to anchor the trajectory")
+        return Origin(*(float(v) for v in gnss.lla[0]))
+    if isinstance(value, Origin):
+        return value
+    if all(hasattr(value, name) for name in ("lat", "lon", "alt")):
+        return Origin(value.lat, value.lon, value.alt)  # type: ignore[attr-defined]
+    if isinstance(value, (str, bytes)) or np.ndim(value) != 1 or np.size(value) != 3:
+        raise InputError(
+            f"dataset: origin must be an Origin(lat, lon, alt), a (lat, lon, alt) sequence or "
+            f"None (the first fix), not {type(value).__name__} {value!r:.60}"
+        )
+    return Origin(*value)  # type: ignore[misc]
 
 
 @dataclass
@@ -284,6 +321,22 @@ class Dataset:
     metadata: dict[str, object] = field(default_factory=dict)
     # Raw gyro-free IMU readings when ``imu`` was derived from an accelerometer array.
     accel_array: AccelArrayData | None = None
+
+    def __post_init__(self) -> None:
+        # A dataset made in code (the API) gets a one-line error here, not an AttributeError
+        # deep inside a solve.
+        for name, kind, optional in (
+            ("imu", ImuData, False), ("gnss", GnssData, False), ("baro", BaroData, True),
+            ("odometer", OdometerData, True), ("accel_array", AccelArrayData, True),
+        ):  # fmt: skip
+            value = getattr(self, name)
+            if not isinstance(value, kind) and not (optional and value is None):
+                need = "GNSS fixes: fgins anchors the trajectory on them" if name == "gnss" else ""
+                raise InputError(
+                    f"dataset: {name} must be a fgins.{kind.__name__}{' or None' if optional else ''}"
+                    f", not {type(value).__name__}{f' ({need})' if need and value is None else ''}"
+                )
+        self.origin = _as_origin(self.origin, self.gnss)
 
     @property
     def t0(self) -> float:

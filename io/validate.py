@@ -195,9 +195,9 @@ def _warn_frame_extent(gnss: GnssData, origin: Origin, checks: list[str]) -> Non
         # Only a stated origin can be away from every fix (readers otherwise take the first
         # fix): an outside tester's [origin] 3,900 km off gave 43 m errors with 0.6 m sigmas.
         raise InputError(
-            f"frame: the origin ({origin.lat:.6f}, {origin.lon:.6f}; a sim folder's config.toml "
-            f"[origin]) lies {nearest / 1000:,.0f} km from the nearest fix: give an origin "
-            "at the drive, or remove [origin] to use the first fix"
+            f"frame: the origin ({origin.lat:.6f}, {origin.lon:.6f}) lies {nearest / 1000:,.0f} "
+            "km from the nearest fix: give an origin at the drive (a sim folder's config.toml "
+            "[origin], a Dataset's origin), or leave it out to use the first fix"
         )
     if reach <= FRAME_EXTENT_M:
         return

@@ -191,3 +191,60 @@ def test_overlapping_outage_windows_are_said_and_refused_by_the_benchmark(datase
             fgins.smooth(dataset, "ekf", gnss_outage=[(20, 30), (31, 40)])
         except fgins.FginsWarning as caught:
             assert "overlap" not in str(caught) and "touch" not in str(caught)
+
+
+@pytest.mark.parametrize(
+    "part, words",
+    [
+        ("gnss=None", "gnss must be a fgins.GnssData, not NoneType"),
+        ("imu=None", "imu must be a fgins.ImuData"),
+        ("baro=arrays", "baro must be a fgins.BaroData or None"),
+        ("origin=text", "origin must be an Origin"),
+        ("origin=pair", "origin must be an Origin"),
+        ("origin=words", "origin.lat: expected a number"),
+        ("imu.t=text", "imu.t: expected numbers"),
+        ("gnss.lla=ragged", "gnss.lla: expected numbers"),
+    ],
+)
+def test_a_malformed_dataset_made_in_code_is_a_one_line_input_error(dataset, part, words):
+    """Found by an API fuzzer: gnss=None, origin=None or a tuple, and string times ended in
+    TypeError / AttributeError / ValueError tracebacks from inside the solve."""
+    source = dataset
+
+    def build():
+        imu = source.imu
+        gnss = source.gnss
+        parts = {"imu": imu, "gnss": gnss, "origin": source.origin}
+        if part == "gnss=None":
+            parts["gnss"] = None
+        elif part == "imu=None":
+            parts["imu"] = None
+        elif part == "baro=arrays":
+            parts["baro"] = (gnss.t, gnss.lla[:, 2])
+        elif part == "origin=text":
+            parts["origin"] = "48.1, 11.5, 500"
+        elif part == "origin=pair":
+            parts["origin"] = (48.1, 11.5)
+        elif part == "origin=words":
+            parts["origin"] = fgins.Origin("north", 11.5, 500.0)
+        elif part == "imu.t=text":
+            parts["imu"] = fgins.ImuData(imu.t.astype(str).astype(object) + "s", imu.gyro, imu.accel)
+        elif part == "gnss.lla=ragged":
+            parts["gnss"] = fgins.GnssData(gnss.t, [list(row) for row in gnss.lla[:-1]] + [[1.0]])
+        return fgins.Dataset(**parts)
+
+    with pytest.raises(fgins.InputError, match=words):
+        build()
+
+
+def test_a_dataset_made_in_code_takes_its_origin_as_a_tuple_or_the_first_fix(dataset):
+    """None means the first fix (what every reader takes without a stated origin), a (lat,
+    lon, alt) sequence the same as an Origin: the same trajectory either way."""
+    first = tuple(float(v) for v in dataset.gnss.lla[0])
+    tracks = [
+        _quiet_smooth(fgins.Dataset(imu=dataset.imu, gnss=dataset.gnss, origin=origin), "ekf")
+        for origin in (fgins.Origin(*first), first, np.array(first), None)
+    ]
+    for track in tracks[1:]:
+        assert (track.origin.lat, track.origin.lon, track.origin.alt) == first
+        np.testing.assert_allclose(track.position, tracks[0].position, atol=1e-9)
