@@ -818,6 +818,8 @@ def summary(trajectory: Trajectory) -> dict[str, Any]:
     ``gnss_outage``, ``imu_samples``, ``gnss_epochs``, ``gnss_withheld``, ``wall_s``,
     ``warnings``; then what the method reported: ``gnss_gating`` (text),
     ``gnss_epochs_used``, ``gnss_rejected`` (text) and ``gnss_rejected_times`` (s),
+    ``gnss_excluded`` (text), ``gnss_excluded_times`` (s after the first GNSS epoch) and
+    ``gnss_excluded_count`` (fixes left out as faults, batch and iSAM2),
     ``iterations``, ``initial_error``/``final_error``, ``keyframes``,
     ``odometer_scale_error``... (only those the method has).
     """

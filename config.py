@@ -515,6 +515,10 @@ class GnssConfig:
     # the sigmas scaled by that scatter and the drive solved again (batch, iSAM2); false:
     # only said.
     sigma_from_fit: bool = True
+    # Fixes a robust solution leaves beyond 4 sigma, and the solution without them (its
+    # uncertainty included) too, are left out (fgins.graph.gnss_faults: a run of multipath
+    # fixes that the kernel only bounds); false: kept at the kernel's weight.
+    fault_exclusion: bool = True
     course_min_speed_m_per_s: float = 3.0
 
     def __post_init__(self) -> None:

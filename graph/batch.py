@@ -12,6 +12,7 @@ import gtsam
 import numpy as np
 
 from fgins.datatypes import FginsError, Trajectory
+from fgins.graph.gnss_faults import exclude_gnss_faults
 from fgins.graph.gyro_scale import correct_gyro_scale
 from fgins.graph.isam2 import run_isam2
 from fgins.graph.problem import Problem, bias_estimates
@@ -117,6 +118,8 @@ def smooth_batch(
     if is_suspect(report):
         report, result, graph = _fall_back(problem, source, others, report, result, graph)
     report.start = source  # a restart says so in report.fallback
+    # Faults before stops: a run of multipath fixes pulls the speeds the stops are judged by.
+    result, graph, faults = exclude_gnss_faults(problem, report, result, graph)
     report, result, graph = solve_with_stops(problem, report, result, graph)
     scale_info: dict[str, object] = {}
     if report.converged:  # a fit that is poor may be poor for the scale (chi2/dof 10 on an
@@ -147,6 +150,7 @@ def smooth_batch(
         vehicle_fit_report(problem, result),
         covariance_report(covariances),
         scale_info,
+        faults.info(len(problem.gnss_used)),
         {
             "initial_guess": source,
             "zupt_keyframes": len(problem.zupt_keyframes),

@@ -19,6 +19,7 @@ from fgins.datatypes import FginsError, Trajectory
 from fgins.factors import odometer as odometer_model
 from fgins.factors import stationary
 from fgins.factors.values import put_bias, put_double, put_pose, put_vector
+from fgins.graph.gnss_faults import FaultExclusion, exclude_gnss_faults
 from fgins.graph.gyro_scale import correct_gyro_scale
 from fgins.graph.output import KeyframeStates
 from fgins.graph.problem import Problem
@@ -63,6 +64,8 @@ RELINEARIZE_SKIP = 10  # GTSAM's default: relinearisation checks every 10 update
 ISAM2_WILDFIRE_THRESHOLD = 0.01  # see _run_isam2_with
 ISAM2_WINDOW_S = 10.0  # keyframes the running iSAM2 holds: see _Window
 ISAM2_MARGINALISE_EVERY = RELINEARIZE_SKIP  # updates (with the relinearisation ones)
+# The GNSS counts of the online (filtered) estimate: every fix, before any fault exclusion.
+ONLINE_GATING_KEYS = ("gnss_gating", "gnss_counts", "gnss_epochs_used")
 ISAM2_FINAL_ROUNDS = 5  # rebuilds of the whole graph at most in the final pass
 ISAM2_SETTLED_RELATIVE_ERROR = 1e-3  # a final Gauss-Newton step that gains less: converged
 
@@ -503,6 +506,29 @@ def _refined_by_lm(
     return solution, graph
 
 
+def _without_gnss_faults(
+    problem: Problem,
+    report: SolveReport,
+    solution: tuple[gtsam.Values, gtsam.NonlinearFactorGraph],
+) -> tuple[tuple[gtsam.Values, gtsam.NonlinearFactorGraph] | None, FaultExclusion]:
+    """The final ``solution`` (values, graph) with the GNSS faults left out
+    (fgins.graph.gnss_faults): solved again by Levenberg-Marquardt from it, its stops kept,
+    and said in ``report``; None where no fix is a fault."""
+    solve = SolveReport(solver=report.solver)
+    solve.final_error, solve.dof = report.final_error, report.dof
+    values, graph, faults = exclude_gnss_faults(problem, solve, *solution)
+    if not faults.keyframes:
+        return None, faults
+    report.final_error, report.dof, report.blame = solve.final_error, solve.dof, solve.blame
+    report.rounds += solve.rounds
+    report.fallback = "; ".join(filter(None, [
+        report.fallback,
+        f"{len(faults.keyframes)} GNSS fault(s) left out: solved again by Levenberg-Marquardt "
+        f"from the iSAM2 estimate ({solve.iterations} iterations)",
+    ]))  # fmt: skip
+    return (values, graph), faults
+
+
 def smooth_isam2(
     problem: Problem, progress: bool = True, *, online_first: bool = False
 ) -> tuple[Trajectory, DeferredTrajectory]:
@@ -529,6 +555,12 @@ def smooth_isam2(
                 "gyro scale corrected: solved again by Levenberg-Marquardt from the iSAM2 "
                 "estimate",
             ]))  # fmt: skip
+    # Faults last, as in the batch: a model error (a gyro scale) is not a fault of the fixes.
+    online_gating = {key: problem.info[key] for key in ONLINE_GATING_KEYS}  # every fix
+    without, faults = _without_gnss_faults(
+        problem, report, refined if refined is not None else (result, final_graph)
+    )
+    refined = without if without is not None else refined
     fail_if_diverged(report)
     incremental = time.perf_counter()
     report.notes = []
@@ -563,6 +595,7 @@ def smooth_isam2(
             vehicle_fit_report(problem, result),
             covariance_report(covariances),
             scale_info,
+            faults.info(len(problem.gnss_used)),
             {
                 "python_callback_factors": callback_factors(factors),
                 "zupt_keyframes": len(problem.zupt_keyframes),
@@ -575,6 +608,7 @@ def smooth_isam2(
         filtered = to_trajectory(problem, online_states, "isam2-online", smoothed=False)
         merge_info(
             filtered,
+            online_gating,  # the filter had every fix; the exclusion is the final pass's
             covariance_report(online),
             {"solver": "iSAM2 online (filtered)", "fallback": report.fallback},
         )

@@ -87,6 +87,11 @@ class Problem:
     _gnss_factors: dict[int, list] = field(default_factory=dict, repr=False)
     _imu_factors: dict[int, tuple] = field(default_factory=dict, repr=False)
     zupt_keyframes: set[int] = field(default_factory=set)
+    # Keyframes whose fix's position is left out as a fault (fgins.graph.gnss_faults); its
+    # velocity stays (its own kernel judges it: a reflected signal's range is metres long,
+    # its Doppler barely off, and the sim's 25 m jumps leave it right).
+    gnss_position_out: frozenset[int] = frozenset()
+    _gnss_counts_all: dict[str, int] | None = field(default=None, repr=False)
     # (noise parameters, rounded gravity) -> their preintegration parameters
     _gravity_params: dict[tuple, gtsam.PreintegrationCombinedParams] = field(
         default_factory=dict, repr=False
@@ -320,7 +325,7 @@ class Problem:
         if factors is None:
             factors = []
             g = int(self.gnss_at[k])
-            if g >= 0:
+            if g >= 0 and k not in self.gnss_position_out:
                 factors.append(
                     gnss_model.position_factor(X(k), self.gnss_enu[g], self.gnss_sigma[g], config)
                 )
@@ -529,7 +534,7 @@ class Problem:
     def gnss_whitened_residuals(self, values: gtsam.Values) -> tuple[np.ndarray, np.ndarray]:
         """(times, whitened residual east/north/up, one row per fix) of every GNSS position
         factor at an estimate, in the order of :attr:`gnss_used`."""
-        keyframes = np.flatnonzero(self.gnss_at >= 0)
+        keyframes = self.position_keyframes
         lever = np.asarray(self.config.gnss.lever_arm_m, dtype=float)
         whitened = np.empty((len(keyframes), 3))
         for i, k in enumerate(keyframes):
@@ -560,10 +565,43 @@ class Problem:
             rows.append(row)
         return np.array(rows).reshape(-1, 3)
 
+    def exclude_gnss(self, keyframes: set[int] | list[int]) -> None:
+        """Leave the positions of the fixes at ``keyframes`` out of the graph (GNSS faults,
+        fgins.graph.gnss_faults), every other one back in; an empty set restores all. Their
+        velocities stay."""
+        out = frozenset(int(k) for k in keyframes)
+        for k in out ^ self.gnss_position_out:
+            self._gnss_factors.pop(k, None)
+        self.gnss_position_out = out
+        # The counts say it: used + left out as faults + gated ... = total.
+        if self._gnss_counts_all is None:
+            self._gnss_counts_all = dict(self.info["gnss_counts"])  # type: ignore[arg-type]
+        counts = dict(self._gnss_counts_all)
+        counts["excluded_fault"] = len(out)
+        counts["used"] -= len(out)
+        self.info["gnss_counts"] = counts
+        self.info["gnss_epochs_used"] = counts["used"]
+        self.info["gnss_gating"] = _gating_summary(
+            counts, counts["used"], counts["decimated"], self.config
+        ) + gnss_model.dropped_on_read_note(self.dataset.metadata)
+
+    @property
+    def position_keyframes(self) -> np.ndarray:
+        """Keyframes with a GNSS position factor (a used fix not left out as a fault)."""
+        keyframes = np.flatnonzero(self.gnss_at >= 0)
+        if not self.gnss_position_out:
+            return keyframes
+        return keyframes[~np.isin(keyframes, list(self.gnss_position_out))]
+
+    @property
+    def excluded_gnss_times(self) -> np.ndarray:
+        """Times of the fixes whose positions are left out as faults (:meth:`exclude_gnss`)."""
+        return self.segments.times[sorted(self.gnss_position_out)]
+
     @property
     def gnss_used(self) -> np.ndarray:
         """Rows (into the usable epochs) of the fixes with a position factor, by keyframe."""
-        return self.gnss_at[self.gnss_at >= 0]
+        return self.gnss_at[self.position_keyframes]
 
     def preintegrate(self, i: int, bias: gtsam.imuBias.ConstantBias) -> None:
         """(Re)do interval i's preintegration about ``bias``."""
@@ -665,6 +703,8 @@ def _keys(symbol, keyframes: np.ndarray) -> np.ndarray:
 
 def _gating_summary(counts: dict[str, int], used: int, decimated: int, config: RunConfig) -> str:
     parts = [f"{used} used"]
+    if counts.get("excluded_fault"):
+        parts.append(f"{counts['excluded_fault']} left out as faults")
     if counts["withheld"]:
         parts.append(f"{counts['withheld']} withheld by outage")
     pdop = config.gnss.pdop_max

@@ -79,7 +79,11 @@ def extra_states(
 def gnss_report(problem: Problem, values: gtsam.Values) -> dict[str, object]:
     times, whitened = problem.gnss_whitened_residuals(values)
     norms = np.linalg.norm(whitened, axis=1)
-    large = times[norms > LARGE_RESIDUAL_WHITENED]
+    kept_large = times[norms > LARGE_RESIDUAL_WHITENED]
+    # Fixes left out as faults (fgins.graph.gnss_faults) are large residuals too, rejected.
+    excluded = problem.excluded_gnss_times
+    large = np.sort(np.concatenate([kept_large, excluded]))
+    total = len(times) + len(excluded)
     gnss = problem.config.gnss
     kernel = "Cauchy" if gnss.cauchy_k is not None else "Huber" if gnss.huber_k else None
     listed = (
@@ -89,21 +93,28 @@ def gnss_report(problem: Problem, values: gtsam.Values) -> dict[str, object]:
         if len(large)
         else ""
     )
+    out_as_faults = f"{len(excluded)} left out as faults, " if len(excluded) else ""
     if kernel == "Cauchy":
         # A redescending kernel leaves such fixes almost no weight: they are rejected.
-        text = f"GNSS outliers: {len(large)} of {len(times)} fixes rejected by the Cauchy kernel"
+        by_kernel = f"{len(kept_large)} by the Cauchy kernel"
+        text = f"GNSS outliers: {len(large)} of {total} fixes rejected" + (
+            f" ({out_as_faults}{by_kernel})" if len(excluded) else " by the Cauchy kernel"
+        )
     elif kernel == "Huber":
         text = (
-            f"GNSS large residuals: {len(large)} of {len(times)} fixes above "
-            f"{LARGE_RESIDUAL_WHITENED} sigma, down-weighted by the Huber kernel"
+            f"GNSS large residuals: {len(large)} of {total} fixes above "
+            f"{LARGE_RESIDUAL_WHITENED} sigma, {out_as_faults}"
+            + (f"{len(kept_large)} " if len(excluded) else "")
+            + "down-weighted by the Huber kernel"
         )
     else:
         text = (
-            f"GNSS large residuals: {len(large)} of {len(times)} fixes above "
+            f"GNSS large residuals: {len(large)} of {total} fixes above "
             f"{LARGE_RESIDUAL_WHITENED} sigma (no robust kernel: all kept at full weight)"
         )
+    rejected = large if kernel == "Cauchy" else excluded
     return {
-        "gnss_rejected_times": [float(t) for t in large] if kernel == "Cauchy" else [],
+        "gnss_rejected_times": [float(t) for t in rejected],
         "gnss_large_residual_times": [float(t) for t in large],
         "gnss_rejected": text + listed,
         **_merged_warnings(
@@ -139,7 +150,7 @@ def lever_arm_report(
     stamped by its own oscillator drifts against the receiver's clock: the offset changes
     linearly along the drive (``gnss_time_middle_s``, ``gnss_time_half_span_s``: where the
     drift is counted from and over), which no arm gives."""
-    keyframes = np.flatnonzero(problem.gnss_at >= 0)
+    keyframes = problem.position_keyframes
     if len(keyframes) < MIN_FIXES:
         return {}
     # The GNSS factors are linearised here, with their columns; the rest as they are.

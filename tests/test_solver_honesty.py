@@ -48,12 +48,17 @@ def test_constant_bias_car_batch_and_isam2_are_real_solutions():
     singular: batch returned the EKF's guess labelled "batch", iSAM2 an internal error, and
     every std was 0. Now it is a constant bias: both solve, converge, fit consistently, and
     inside the outage match EKF+RTS on the same models. Pooled over five seeds: one 40 s
-    window of one drive varies by +-20 % from seed to seed between equally good methods."""
+    window of one drive varies by +-20 % from seed to seed between equally good methods.
+    The solvers compare on the same fixes: the Kalman baselines keep the urban car's 25 m
+    outliers (Huber-weighted), so the graph's fault exclusion is off here (it leaves them out,
+    which moves this window's RMS by up to +-25 % either way, by chance: pooled over seeds
+    10-29 12.31 -> 12.23 m; tests/test_gnss_faults.py)."""
     pooled: dict[str, list[float]] = {"ekf": [], "rts": [], "batch": [], "isam2": []}
     for seed in range(5):
         run = SCENARIOS["car-urban"](seed=seed, duration_s=150)
         dataset = run.dataset
         config = _constant_bias_config(dataset, "car")
+        config.gnss.fault_exclusion = False
         windows = [(60.0, 100.0)]
         mask = outage_mask(dataset, windows)
         ekf = run_method(dataset, config, "ekf", gnss_mask=mask, progress=False)
