@@ -12,7 +12,7 @@ import gtsam
 import numpy as np
 
 from fgins.datatypes import FginsError, Trajectory
-from fgins.graph.gnss_faults import exclude_gnss_faults
+from fgins.graph.gnss_faults import exclude_gnss_faults, with_every_fix
 from fgins.graph.gyro_scale import correct_gyro_scale
 from fgins.graph.isam2 import run_isam2
 from fgins.graph.problem import Problem, bias_estimates
@@ -119,6 +119,7 @@ def smooth_batch(
         report, result, graph = _fall_back(problem, source, others, report, result, graph)
     report.start = source  # a restart says so in report.fallback
     # Faults before stops: a run of multipath fixes pulls the speeds the stops are judged by.
+    before = (graph, result)
     result, graph, faults = exclude_gnss_faults(problem, report, result, graph)
     report, result, graph = solve_with_stops(problem, report, result, graph)
     scale_info: dict[str, object] = {}
@@ -144,7 +145,7 @@ def smooth_batch(
     merge_info(
         trajectory,
         gnss_report(problem, result),
-        lever_arm_report(problem, graph, result),
+        with_every_fix(problem, faults, lambda: lever_arm_report(problem, *before)),
         extra_states(problem, result, marginal),
         solver_report(report),
         vehicle_fit_report(problem, result),

@@ -187,3 +187,19 @@ def _normalised_innovations(
         if not np.isfinite(out[k]):  # no marginal (NaN): judged by the fix's sigma alone
             out[k] = float(np.linalg.norm(difference / problem.gnss_sigma[g]))
     return out
+
+
+def with_every_fix(problem: Problem, faults: FaultExclusion, read: Callable[[], dict]) -> dict:
+    """``read()`` with the positions left out put back in the problem. The readings of the
+    model (the antenna's arm, the clocks: fgins.graph.reports.lever_arm_report) take every
+    fix at the solution before the exclusion, as the Kalman baselines do: a model error
+    shows most where it would be taken for a fault (fixes 0.5 s late on a banking aircraft:
+    the turns' fixes left out, the latency read as 0.446 s instead of 0.482, and 1.28 m
+    inside the outage instead of 0.43)."""
+    if not faults.keyframes:
+        return read()
+    problem.exclude_gnss(set())
+    try:
+        return read()
+    finally:
+        problem.exclude_gnss(faults.keyframes)

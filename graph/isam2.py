@@ -19,7 +19,7 @@ from fgins.datatypes import FginsError, Trajectory
 from fgins.factors import odometer as odometer_model
 from fgins.factors import stationary
 from fgins.factors.values import put_bias, put_double, put_pose, put_vector
-from fgins.graph.gnss_faults import FaultExclusion, exclude_gnss_faults
+from fgins.graph.gnss_faults import FaultExclusion, exclude_gnss_faults, with_every_fix
 from fgins.graph.gyro_scale import correct_gyro_scale
 from fgins.graph.output import KeyframeStates
 from fgins.graph.problem import Problem
@@ -557,9 +557,8 @@ def smooth_isam2(
             ]))  # fmt: skip
     # Faults last, as in the batch: a model error (a gyro scale) is not a fault of the fixes.
     online_gating = {key: problem.info[key] for key in ONLINE_GATING_KEYS}  # every fix
-    without, faults = _without_gnss_faults(
-        problem, report, refined if refined is not None else (result, final_graph)
-    )
+    before = refined if refined is not None else (result, final_graph)
+    without, faults = _without_gnss_faults(problem, report, before)
     refined = without if without is not None else refined
     fail_if_diverged(report)
     incremental = time.perf_counter()
@@ -589,7 +588,9 @@ def smooth_isam2(
         merge_info(
             final,
             gnss_report(problem, result),
-            lever_arm_report(problem, factors, result),
+            with_every_fix(
+                problem, faults, lambda: lever_arm_report(problem, before[1], before[0])
+            ),
             extra_states(problem, result),
             solver_report(report),
             vehicle_fit_report(problem, result),
