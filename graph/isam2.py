@@ -493,17 +493,25 @@ def _refined_by_lm(
     if not refined.final_error < report.final_error:
         return None
     before = report.chi2_per_dof
-    report.final_error, report.dof, report.blame = (
-        refined.final_error, refined.dof, refined.blame,
-    )  # fmt: skip
-    report.converged = refined.converged
-    report.rounds += refined.rounds
-    report.fallback = "; ".join(filter(None, [
-        report.fallback,
+    _took_lm(
+        report, refined,
         f"the iSAM2 estimate did not fit the data (chi2/dof {before:.3g}): refined by "
         f"Levenberg-Marquardt on the same graph ({refined.iterations} iterations)",
-    ]))  # fmt: skip
+    )  # fmt: skip
+    report.converged = refined.converged
     return solution, graph
+
+
+def _took_lm(report: SolveReport, solve: SolveReport, note: str) -> None:
+    """The iSAM2 ``report`` carries the fit of a Levenberg-Marquardt ``solve`` that replaced
+    its estimate, and says so (``note`` appended to its fallback)."""
+    report.final_error, report.dof, report.blame = solve.final_error, solve.dof, solve.blame
+    report.rounds += solve.rounds
+    _say(report, note)
+
+
+def _say(report: SolveReport, note: str) -> None:
+    report.fallback = "; ".join(filter(None, [report.fallback, note]))
 
 
 def _without_gnss_faults(
@@ -519,13 +527,11 @@ def _without_gnss_faults(
     values, graph, faults = exclude_gnss_faults(problem, solve, *solution)
     if not faults.keyframes:
         return None, faults
-    report.final_error, report.dof, report.blame = solve.final_error, solve.dof, solve.blame
-    report.rounds += solve.rounds
-    report.fallback = "; ".join(filter(None, [
-        report.fallback,
+    _took_lm(
+        report, solve,
         f"{len(faults.keyframes)} GNSS fault(s) left out: solved again by Levenberg-Marquardt "
         f"from the iSAM2 estimate ({solve.iterations} iterations)",
-    ]))  # fmt: skip
+    )  # fmt: skip
     return (values, graph), faults
 
 
@@ -550,11 +556,8 @@ def smooth_isam2(
         scaled, scaled_graph, scale_info = correct_gyro_scale(problem, report, solution, graph)
         if scaled is not solution:  # a scale corrected: LM from the iSAM2 estimate solved again
             refined = (scaled, scaled_graph)
-            report.fallback = "; ".join(filter(None, [
-                report.fallback,
-                "gyro scale corrected: solved again by Levenberg-Marquardt from the iSAM2 "
-                "estimate",
-            ]))  # fmt: skip
+            _say(report, "gyro scale corrected: solved again by Levenberg-Marquardt from the "
+                 "iSAM2 estimate")  # fmt: skip
     # Faults last, as in the batch: a model error (a gyro scale) is not a fault of the fixes.
     online_gating = {key: problem.info[key] for key in ONLINE_GATING_KEYS}  # every fix
     before = refined if refined is not None else (result, final_graph)
