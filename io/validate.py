@@ -50,7 +50,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from fgins.datatypes import Dataset, GnssData, InputError, Origin
+from fgins.datatypes import Dataset, InputError, Origin
 from fgins.io.axes_handedness import check_accel_handedness, handedness_note_3d
 from fgins.io.baro_checks import (
     check_baro_scale,
@@ -113,6 +113,10 @@ def _validated(dataset: Dataset, vehicle: str | None) -> Dataset:
     from fgins.geodesy import lla_to_enu
 
     enu = lla_to_enu(gnss.lla, origin)  # the checks below share the fixes' local positions
+    # First: the tracks and turns the checks below compare are meaningless in a frame far
+    # from the drive (an [origin] 168 deg of longitude off was called "the gyro does not see
+    # the turns").
+    _warn_frame_extent(enu, origin, checks)
     up = mean_up(imu)
     check_frozen_position(gnss, enu, imu, up)
     check_time_bases(imu.t, gnss.t, checks, n_read=len(dataset.gnss))
@@ -153,7 +157,6 @@ def _validated(dataset: Dataset, vehicle: str | None) -> Dataset:
     if not baro_heights:  # heights were checked for range and made pressures
         check_pressure_unit(baro)
     check_baro_scale(baro, gnss, "height" if baro_heights else "pressure's ISA height")
-    _warn_frame_extent(gnss, origin, checks)
     report_gnss_time_gaps(gnss.t, checks)
     metadata = {**dataset.metadata, "input_checks": list(checks)}
     with np.errstate(invalid="ignore"):
@@ -181,14 +184,13 @@ FRAME_EXTENT_M = 100_000.0
 EARTH_RADIUS_M = 6.371e6
 
 
-def _warn_frame_extent(gnss: GnssData, origin: Origin, checks: list[str]) -> None:
+def _warn_frame_extent(enu: np.ndarray, origin: Origin, checks: list[str]) -> None:
     """An error for an origin away from every fix (a mistaken one), a warning for fixes
-    that reach beyond :data:`FRAME_EXTENT_M`."""
-    from fgins.geodesy import lla_to_enu
-
-    if not len(gnss.t):
+    (``enu``: their positions in the origin's frame) that reach beyond
+    :data:`FRAME_EXTENT_M`."""
+    if not len(enu):
         return
-    distance = np.hypot(*lla_to_enu(gnss.lla, origin)[:, :2].T)
+    distance = np.hypot(*enu[:, :2].T)
     reach = float(np.nanmax(distance)) if np.any(np.isfinite(distance)) else 0.0
     nearest = float(np.nanmin(distance)) if np.any(np.isfinite(distance)) else 0.0
     if nearest > FRAME_EXTENT_M:

@@ -1106,17 +1106,16 @@ def test_fixes_far_from_the_origin_say_the_frame_is_approximate_there(reach_km, 
     """Gravity is taken where the vehicle is, so tens of km are exact; beyond 100 km the
     heights of gravity and barometer are approximate: a track reaching that far is said,
     with the distance and how far the tangent plane lies below the surface there."""
-    from fgins.datatypes import GnssData, Origin
-    from fgins.geodesy import enu_to_lla
+    from fgins.datatypes import Origin
+    from fgins.geodesy import enu_to_lla, lla_to_enu
     from fgins.io.validate import _warn_frame_extent
 
     origin = Origin(47.0, 8.0, 500.0)
     east = np.linspace(0.0, reach_km * 1000.0, 200)
     fall = (1.09 * east) ** 2 / (2 * 6.371e6)  # along the surface: the plane's fall below it
     lla = enu_to_lla(np.column_stack([east, 0.42 * east, -fall]), origin)
-    gnss = GnssData(t=np.arange(200.0), lla=lla)
     notes: list[str] = []
-    _warn_frame_extent(gnss, origin, notes)
+    _warn_frame_extent(lla_to_enu(lla, origin), origin, notes)
     assert bool(notes) == warned, notes
     if warned:
         reach = float(np.hypot(east[-1], 0.42 * east[-1]))
@@ -1282,3 +1281,63 @@ def test_a_log_without_any_height_says_the_vertical_is_unknown(tmp_path):
         error = np.hypot(east - np.interp(t, truth.time, truth.east),
                          north - np.interp(t, truth.time, truth.north))  # fmt: skip
         assert np.sqrt(np.mean(error**2)) < 1.0, method
+
+
+# --- the antimeridian -------------------------------------------------------------------------
+
+
+def _turned_about_the_axis(folder: Path, to: Path, degrees: float, origin_too: bool) -> None:
+    """``folder``'s drive turned ``degrees`` east about the Earth's axis: the same drive for
+    the IMU (gravity and the Earth's rate do not change), its fixes (and, if
+    ``origin_too``, its [origin]) at other longitudes, wrapped to [-180, 180)."""
+    import re
+    import shutil
+
+    shutil.copytree(folder, to)
+    for name in ("gnss.csv", "truth.csv"):
+        table = pd.read_csv(to / name, dtype=str, keep_default_na=False)
+        lon = (table["lon"].astype(float) + degrees + 180.0) % 360.0 - 180.0
+        table["lon"] = [f"{value:.10f}" for value in lon]
+        table.to_csv(to / name, index=False)
+    if origin_too:
+        text = (to / "config.toml").read_text()
+        lon = float(re.search(r"\[origin\]\nlat = \S+\nlon = (\S+)", text).group(1))
+        turned = (lon + degrees + 180.0) % 360.0 - 180.0
+        (to / "config.toml").write_text(
+            re.sub(r"(\[origin\]\nlat = \S+\n)lon = \S+", rf"\g<1>lon = {turned:.10f}", text)
+        )
+
+
+def test_a_drive_across_the_antimeridian_is_the_same_drive(tmp_path):
+    """Turning a drive about the Earth's axis changes nothing an IMU sees, so one that crosses
+    the 180th meridian (longitudes jumping from 179.99 to -179.99) gives the same trajectory
+    in its frame, and its longitudes the turned truth's. With the sim folder's [origin] left
+    where it was (12,000 km away), the error names the origin: the turn check, which ran
+    before, called it "the gyro does not see the turns"."""
+    import fgins
+
+    drive = tmp_path / "drive"
+    assert main(["sim", "car-urban", "-o", str(drive), "--duration", "90", "--seed", "4"]) == 0
+    lon = pd.read_csv(drive / "gnss.csv")["lon"]
+    degrees = 180.0 - float(lon.min() + lon.max()) / 2.0  # 180 in the middle of the drive
+    _turned_about_the_axis(drive, tmp_path / "turned", degrees, origin_too=True)
+    turned_lon = pd.read_csv(tmp_path / "turned" / "gnss.csv")["lon"]
+    assert turned_lon.max() > 179.99 and turned_lon.min() < -179.99  # it does cross
+
+    here = fgins.smooth(fgins.load(drive, progress=False), method="batch", progress=False)
+    there = fgins.smooth(fgins.load(tmp_path / "turned", progress=False), method="batch", progress=False)
+    assert np.max(np.abs(here.position - there.position)) < 0.01
+    assert np.max(np.abs(here.position_std - there.position_std)) < 0.01
+    out = tmp_path / "out.csv"
+    there.write(out)
+    written = pd.read_csv(out)
+    truth = pd.read_csv(tmp_path / "turned" / "truth.csv")
+    assert written["lon"].between(-180.0, 180.0).all()
+    at = np.searchsorted(truth["time"].to_numpy(), written["time"].to_numpy() - 1e-9)
+    at = np.clip(at, 0, len(truth) - 1)
+    gap = (written["lon"].to_numpy() - truth["lon"].to_numpy()[at] + 180.0) % 360.0 - 180.0
+    assert np.percentile(np.abs(gap) * 111e3 * np.cos(np.radians(48.1)), 95) < 3.0  # metres
+
+    _turned_about_the_axis(drive, tmp_path / "origin_left", degrees, origin_too=False)
+    with pytest.raises(InputError, match=r"frame: the origin .* lies [\d,]+ km from the nearest fix"):
+        load_dataset([str(tmp_path / "origin_left")])
