@@ -876,6 +876,24 @@ def _check_same_drive(trajectory: Trajectory, dataset: Dataset, what: str) -> No
         )
 
 
+def _own_outages(dataset: Dataset, reference: Trajectory | None) -> list[tuple[float, float]]:
+    """The GNSS outages built into the data (a sim folder's [scenario] outages), in seconds
+    after t0, when the benchmark can score them: against a truth, each holding no GNSS epoch
+    (they were left out of the data). ``fgins sim aircraft-ekf`` writes its 60 s outage so:
+    the default windows around it withheld nothing there and the benchmark stopped."""
+    import numpy as np
+
+    absolute = dataset.metadata.get("scenario_outages_t") or []
+    if reference is None or not absolute:
+        return []
+    t = dataset.gnss.t
+    own = []
+    for start, end in absolute:
+        if t[0] < start < t[-1] and not np.any((t >= start) & (t < end)):
+            own.append((float(start - dataset.t0), float(min(end, t[-1]) - dataset.t0)))
+    return own
+
+
 def _truth_for(dataset: Dataset, truth: Any) -> Trajectory | None:
     from fgins.io.trajectory_csv import read_trajectory_csv
 
@@ -964,8 +982,10 @@ def bench(
     methods : sequence of str, default ("batch", "isam2", "ekf", "ekf-rts")
         Methods to run; ``isam2`` also contributes its online estimate (``isam2-online``).
     outages : list of (start, end), optional
-        Outage windows in seconds after t0. Default: ``outage_duration`` s every
-        ``outage_period`` s from ``outage_start`` s while they fit in the GNSS span.
+        Outage windows in seconds after t0. Default: the data's own outages where they
+        can be scored (a sim folder's ``[scenario] outages``, against its truth), else
+        ``outage_duration`` s every ``outage_period`` s from ``outage_start`` s while they
+        fit in the GNSS span, less those where the data have no GNSS epoch (said).
     config : path or RunConfig, optional
         Overrides the configuration chosen by :func:`load`.
     truth : Trajectory, path, "auto" or None, default "auto"
@@ -1016,17 +1036,35 @@ def bench(
     run_config = run_config.checked()  # a RunConfig changed in code is checked again
     dataset = _checked_input(dataset, run_config.smoother.vehicle)
     windows = _windows(outages)
-    if not windows:
+    from fgins.outages import empty_windows, overlapping_windows
+
+    reference = _truth_for(dataset, truth)
+    own = [] if windows else _own_outages(dataset, reference)
+    if own:
+        windows = own
+    elif not windows:
         span = float(dataset.gnss.t[-1] - dataset.t0)
         windows = periodic_windows(outage_duration, outage_period, outage_start, span)
-    from fgins.outages import empty_windows, overlapping_windows
+        # The protocol's windows are not the user's: one that falls where the data have no
+        # GNSS already (a sim folder's outage without its truth, a receiver's gap) is left
+        # out and said; an explicit window there stays an error.
+        empty = empty_windows(dataset, windows)
+        if empty and len(empty) < len(windows):
+            kept = [w for w in windows if not empty_windows(dataset, [w])]
+            warnings.warn(
+                f"bench: {len(empty)} of the {len(windows)} default outage windows fall where "
+                f"the data have no GNSS epoch and are left out ({empty[0]})",
+                FginsWarning,
+                stacklevel=2,
+            )
+            windows = kept
 
     overlaps = overlapping_windows(windows)
     if overlaps:
         # Each window is scored as its own outage: two that run into each other would score
         # parts of one longer outage (twice where they overlap).
         raise ConfigError(overlaps[0] + "; benchmark windows must be apart")
-    empty = empty_windows(dataset, windows)
+    empty = [] if own else empty_windows(dataset, windows)
     if empty or not windows:
         # A benchmark of outages with no outage in it measures nothing (outside tester:
         # exit 0 and a table of NaN).
@@ -1034,7 +1072,6 @@ def bench(
             (empty[0] + f" ({len(empty)} of {len(windows)} windows)") if empty
             else "no outage window fits in the GNSS span: give outages inside the drive"
         )
-    reference = _truth_for(dataset, truth)
     name = dataset.name.replace(":", "-") or "input"
     case = BenchCase(name, dataset, run_config, windows, truth=reference)
     run_case(case, methods, progress=progress)
@@ -1047,6 +1084,9 @@ def bench(
         {
             "reference": "truth" if reference is not None else "withheld GNSS",
             "outages": windows,
+            # Where the windows come from: given, the data's own (a sim folder's
+            # [scenario] outages) or the default protocol.
+            "outages_from": "given" if _windows(outages) else ("data" if own else "protocol"),
             "baseline": baseline,
         }
     )

@@ -393,7 +393,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
     reference = (
         "simulator truth" if table.attrs["reference"] == "truth" else "the withheld GNSS fixes"
     )
-    print(f"\nreference: {reference}; outages {table.attrs['outages']}")
+    source = {"data": " (the data's own, from the sim folder's [scenario])",
+              "protocol": f" ({args.outage_duration:g} s every {args.outage_period:g} s from "
+              f"{args.outage_start:g} s)"}.get(table.attrs.get("outages_from", ""), "")  # fmt: skip
+    print(f"\nreference: {reference}; outages {table.attrs['outages']}{source}")
     print(
         f"benchmark wall time {time.perf_counter() - started:.1f} s; results in {args.output_dir}/"
     )

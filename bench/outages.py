@@ -17,6 +17,7 @@ import numpy as np
 from fgins.bench.metrics import Errors, errors_against, relative_position_error
 from fgins.config import RunConfig
 from fgins.datatypes import Dataset, FginsError, Trajectory
+from fgins.factors.gnss import position_sigmas
 from fgins.io.atomic import atomic_path
 from fgins.outages import in_windows, outage_mask
 from fgins.pipeline import run_method
@@ -97,6 +98,7 @@ def run_case(case: BenchCase, methods: list[str], progress: bool = False) -> Ben
                     case.dataset.gnss_enu(),
                     case.dataset.t0,
                     case.windows,
+                    reference_std=position_sigmas(case.dataset.gnss, case.config.gnss),
                 )
             metrics = errors.summary()
             if case.truth is not None:

@@ -8,6 +8,7 @@ and the frame origin); ``truth.csv`` in it is never read here.
 from __future__ import annotations
 
 import csv
+import math
 import tomllib
 from collections.abc import Iterable
 from pathlib import Path
@@ -674,7 +675,28 @@ def read_csv_dataset(paths: list[Path]) -> Dataset:
         vehicle=config.get("scenario", {}).get("vehicle"),
         warnings=warnings,
         accel_array=accel_array,
+        metadata=_scenario_outages(config, float(imu.t[0]) if len(imu.t) else None),
     )
+
+
+def _scenario_outages(config: dict[str, Any], start: float | None) -> dict[str, Any]:
+    """The GNSS outages ``fgins sim`` built into the folder's data (its [scenario] table:
+    seconds from the run's first sample), as absolute times: ``fgins bench`` scores them by
+    default. Only well-formed windows; the table describes the run and is otherwise not read
+    (an edited one must not stop a solve)."""
+    scenario = config.get("scenario")
+    windows = scenario.get("outages") if isinstance(scenario, dict) else None
+    if start is None or not isinstance(windows, list):
+        return {}
+    kept = []
+    for window in windows:
+        if (
+            isinstance(window, list) and len(window) == 2
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in window)
+            and math.isfinite(window[0]) and math.isfinite(window[1]) and window[0] < window[1]
+        ):  # fmt: skip
+            kept.append((start + float(window[0]), start + float(window[1])))
+    return {"scenario_outages_t": kept} if kept else {}
 
 
 def _read_accel_array(path: Path, config: dict[str, Any], warnings: list[str]) -> AccelArrayData:
