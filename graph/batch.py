@@ -76,6 +76,7 @@ def _fall_back(
     for name, start in restarts:
         if name == source:
             continue
+        problem.restart()  # gravity and stops as the fixes give them, not the last solve
         try:
             candidate = (*solve_from(problem, start()), name)
         except FginsError:
@@ -85,7 +86,8 @@ def _fall_back(
         if not is_suspect(candidate[0]):
             break
     report, result, graph, taken = best
-    # The preintegration must be the one about the kept solution's biases.
+    # The preintegration must be the one about the kept solution's biases (and gravity).
+    problem.gravity_moved(result)
     bias = bias_estimates(result, problem.n_keyframes)
     problem.preintegrate_all(bias[:, :3], bias[:, 3:], False)
     if taken != source:

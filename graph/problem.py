@@ -96,6 +96,23 @@ class Problem:
     _gravity_params: dict[tuple, gtsam.PreintegrationCombinedParams] = field(
         default_factory=dict, repr=False
     )
+    # The fixes' gravity and plane fall, which a new start returns to (restart)
+    _fixes_gravity: np.ndarray = field(init=False, repr=False)
+    _fixes_baro_fall: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        self._fixes_gravity = self.interval_gravity.copy()
+        self._fixes_baro_fall = self.baro_fall.copy()
+
+    def restart(self) -> None:
+        """Forget what earlier solutions set before a solve from a new start: gravity and
+        the plane fall go back to the fixes' (a diverged estimate's far-off or NaN positions
+        left them wrong: a gyro-free IMU's batch start, after an iSAM2 pass that diverged,
+        began at an error of 1e36 instead of 1e8 and took 599 iterations), no stops. The
+        preintegration is the start's to make."""
+        self.interval_gravity = self._fixes_gravity.copy()
+        self.baro_fall = self._fixes_baro_fall.copy()
+        self.zupt_keyframes.clear()
 
     @property
     def n_keyframes(self) -> int:
@@ -633,7 +650,8 @@ class Problem:
         )
         gravity = gravity_enu(0.5 * (position[:-1] + position[1:]), self.dataset.origin)
         change = np.max(np.abs(gravity - self.interval_gravity), axis=1)
-        moved = np.flatnonzero(change > GRAVITY_REDO_M_S2)
+        # Not where the positions are not finite (a diverged estimate): no gravity there.
+        moved = np.flatnonzero((change > GRAVITY_REDO_M_S2) & np.all(np.isfinite(gravity), axis=1))
         self.interval_gravity[moved] = gravity[moved]
         return moved
 

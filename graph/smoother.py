@@ -51,8 +51,9 @@ def smooth(
 ) -> Trajectory:
     """Smooth ``dataset`` with ``method`` ('batch', 'isam2' or 'isam2-online').
 
-    ``initial_guess`` (batch): keyframe times -> states there, e.g. a Kalman filter's; the
-    pipeline chooses the filter that matches the input.
+    ``initial_guess``: keyframe times -> states there, e.g. a Kalman filter's; the pipeline
+    chooses the filter that matches the input. The batch starts from it; iSAM2 solves from
+    it only where its own final estimate does not fit.
     """
     started = time.perf_counter()
     problem = build_problem(dataset, config, gnss_mask, progress=progress)
@@ -60,8 +61,11 @@ def smooth(
     if method == "batch":
         trajectory = smooth_batch(problem, progress, initial_guess)
     elif method in ("isam2", "isam2-online"):
-        trajectory, other = smooth_isam2(problem, progress, online_first=method == "isam2-online")
-        trajectory.info["online"] = other
+        trajectory, other = smooth_isam2(
+            problem, progress, online_first=method == "isam2-online", initial_guess=initial_guess
+        )
+        if other is not None:  # None: the online pass failed (said in the summary)
+            trajectory.info["online"] = other
     else:
         raise FginsError(f"unknown factor-graph method {method!r}")
     trajectory.timings["build"] = built - started

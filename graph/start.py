@@ -85,6 +85,7 @@ def initial_values(
     start's biases.
     """
     n = problem.n_keyframes
+    problem.restart()
     try:
         if initial_guess is None:
             return Start(keyframe_filter(problem, progress), "keyframe EKF"), []
