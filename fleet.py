@@ -186,7 +186,9 @@ def smooth_drive(drive: Drive, options: FleetOptions, out_dir: str) -> dict[str,
         "smooth_seconds": None,
         "imu_samples_per_s": None,
         "h_rms_aided_m": None,
+        "chi2_per_dof": None,
         "warnings": 0,
+        "warning_lines": [],
         "output": None,
         "error": None,
     }
@@ -218,13 +220,21 @@ def _smooth_and_write(drive: Drive, options: FleetOptions, output: Path) -> dict
     trajectory.write(output)
     # Horizontal RMS against the drive's own GNSS at the epochs the smoother was given.
     errors = errors_against(trajectory, dataset.gnss.t, dataset.gnss_enu(), dataset.t0, windows)
+    # What the input checks repaired and what the solve found doubtful (an inconsistent
+    # fit, a diverged filter): `fgins smooth` prints both; a fleet counted only the first,
+    # so a drive whose fit said "the reported sigmas are too small" looked clean.
+    found = trajectory.summary()
+    lines = [*dataset.warnings, *found.get("fit_warnings", [])]
+    chi2 = found.get("chi2_per_dof")
     return {
         "method": trajectory.method or options.method,
         "states": len(trajectory),
         "smooth_seconds": elapsed,
         "imu_samples_per_s": len(dataset.imu) / max(elapsed, 1e-9),
         "h_rms_aided_m": errors.summary()["h_rms_aided"],
-        "warnings": len(dataset.warnings),
+        "chi2_per_dof": float(chi2) if chi2 is not None else None,
+        "warnings": len(lines),
+        "warning_lines": [str(line) for line in lines],
         "output": str(output),
     }
 
@@ -443,17 +453,18 @@ def _number(value: Any, fmt: str) -> str:
 def markdown_table(summaries: list[dict[str, Any]]) -> str:
     """The summaries as a markdown table, one row per drive, in input order."""
     header = (
-        "| drive | method | states | seconds | IMU samples/s | aided h RMS (m) | warnings "
-        "| result |"
+        "| drive | method | states | seconds | IMU samples/s | aided h RMS (m) | chi2/dof "
+        "| warnings | result |"
     )
-    lines = [header, "|---|---|---:|---:|---:|---:|---:|---|"]
+    lines = [header, "|---|---|---:|---:|---:|---:|---:|---:|---|"]
     for s in summaries:
         result = f"FAILED: {s['error']}" if s.get("error") else Path(s["output"]).name
         result = result.replace("|", "\\|")
         lines.append(
             f"| {s['drive']} | {s['method']} | {s.get('states', 0)} "
             f"| {_number(s.get('seconds'), '.2f')} | {_number(s.get('imu_samples_per_s'), ',.0f')} "
-            f"| {_number(s.get('h_rms_aided_m'), '.3f')} | {s.get('warnings', 0)} | {result} |"
+            f"| {_number(s.get('h_rms_aided_m'), '.3f')} | {_number(s.get('chi2_per_dof'), '.2f')} "
+            f"| {s.get('warnings', 0)} | {result} |"
         )
     return "\n".join(lines)
 
@@ -472,5 +483,8 @@ def print_report(result: FleetResult, out_dir: Path, stream: TextIO | None = Non
     stream = stream or sys.stdout  # looked up at call time (tests and callers redirect it)
     print(markdown_table(result.summaries), file=stream)
     print(file=stream)
+    for summary in result.summaries:  # one line each, as `fgins smooth` says them
+        for line in summary.get("warning_lines") or []:
+            print(f"warning: {summary['drive']}: {line}", file=stream)
     print(timing_line(result), file=stream)
     print(f"summaries in {out_dir / FLEET_JSON}", file=stream)

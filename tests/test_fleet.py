@@ -219,3 +219,39 @@ def _in_group(process: psutil.Process, group: int) -> bool:
         return os.getpgid(process.pid) == group and process.status() != psutil.STATUS_ZOMBIE
     except (ProcessLookupError, PermissionError, psutil.NoSuchProcess):
         return False
+
+
+def test_a_drive_whose_fit_is_doubtful_says_so_in_the_fleet(
+    drives, scheduler_address, tmp_path, capsys
+):
+    """The fleet counted the input checks' warnings only: a drive whose solve found its fit
+    doubtful (here its GNSS sigmas configured 3x too small: the scatter is said and the
+    sigmas scaled) looked as clean as the rest. Every warning `fgins smooth` prints for a
+    drive is now in its fleet.json entry, counted in the table and printed as one line under
+    it, and the table has the fit's chi2/dof."""
+    doubtful = tmp_path / "doubtful"
+    shutil.copytree(drives[0], doubtful)
+    config = (doubtful / "config.toml").read_text()
+    (doubtful / "config.toml").write_text(
+        config.replace("[gnss]\n", "[gnss]\nsigma_m = [1.1, 1.1, 1.8]\n", 1)
+    )
+    assert main(["smooth", str(doubtful), "-o", str(tmp_path / "alone.csv"), "--no-progress"]) == 0
+    said = [
+        line[len("warning: ") :]
+        for line in capsys.readouterr().err.splitlines()
+        if line.startswith("warning: ")
+    ]
+    assert any("scatter" in line for line in said), said
+
+    out = tmp_path / "fleet"
+    argv = ["fleet", str(drives[0]), str(doubtful), "-o", str(out), "--no-progress"]
+    assert main([*argv, "--scheduler", scheduler_address]) == 0
+    printed = capsys.readouterr().out
+    report = {d["drive"]: d for d in json.loads((out / "fleet.json").read_text())["drives"]}
+    entry = report["doubtful"]
+    assert entry["warning_lines"] == said and entry["warnings"] == len(said)
+    assert report[drives[0].name]["warning_lines"] == [] and report[drives[0].name]["warnings"] == 0
+    assert 0.2 < entry["chi2_per_dof"] < 3.0 and 0.2 < report[drives[0].name]["chi2_per_dof"] < 3.0
+    for line in said:
+        assert f"warning: doubtful: {line}" in printed
+    assert "| chi2/dof |" in printed
