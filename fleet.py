@@ -13,7 +13,6 @@ a one-line error; it never stops the rest of the fleet.
 from __future__ import annotations
 
 import contextlib
-import json
 import logging
 import math
 import os
@@ -85,7 +84,9 @@ class FleetResult:
         return self.speedup / self.workers if self.workers else float("nan")
 
     def to_json(self) -> dict[str, Any]:
-        return _json_safe(
+        from fgins.io.atomic import json_safe
+
+        return json_safe(
             {
                 "method": self.method,
                 "scheduler": self.scheduler,
@@ -423,21 +424,9 @@ def run_fleet(
 
 
 def write_fleet_json(result: FleetResult, path: Path) -> None:
-    from fgins.io.atomic import atomic_path
+    from fgins.io.atomic import write_json
 
-    with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(result.to_json(), indent=2) + "\n")
-
-
-def _json_safe(value: Any) -> Any:
-    """NaN/inf are not JSON: write them as null."""
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {k: _json_safe(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_json_safe(v) for v in value]
-    return value
+    write_json(path, result.to_json())
 
 
 # ---------------------------------------------------------------------------------------------

@@ -7,7 +7,6 @@ a markdown table with ratios against a baseline method measured in the same run,
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,7 +17,7 @@ from fgins.bench.metrics import Errors, errors_against, relative_position_error
 from fgins.config import RunConfig
 from fgins.datatypes import Dataset, FginsError, Trajectory
 from fgins.factors.gnss import position_sigmas
-from fgins.io.atomic import atomic_path
+from fgins.io.atomic import atomic_path, write_json
 from fgins.outages import in_windows, outage_mask
 from fgins.pipeline import run_method
 
@@ -201,8 +200,7 @@ def write_results(cases: list[BenchCase], out_dir: Path, baseline: str = "ekf") 
         }
         for case in cases
     }
-    with atomic_path(out_dir / "outages.json") as tmp:
-        tmp.write_text(json.dumps(payload, indent=2, default=float))
+    write_json(out_dir / "outages.json", payload)  # NaN (an unknown metric) as null
     with atomic_path(out_dir / "outages.md") as tmp:
         tmp.write_text(markdown_table(cases, baseline) + "\n")
     for case in cases:

@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import contextlib
+import json
+import math
 import os
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 from fgins.datatypes import OutputError
 
@@ -46,3 +49,24 @@ def _cannot_write(target: Path, exc: OSError) -> OutputError:
     full was an "internal error", and the API raised a bare OSError)."""
     reason = exc.strerror or str(exc)
     return OutputError(f"cannot write {target}: {reason}")
+
+
+def json_safe(value: Any) -> Any:
+    """``value`` as JSON can carry it: NaN and inf (which JSON has not; Python would write
+    ``NaN``, which other readers refuse) as null, numpy scalars and arrays as numbers and
+    lists, tuples as lists."""
+    if hasattr(value, "tolist") and not isinstance(value, (str, bytes)):
+        value = value.tolist()  # numpy scalar or array
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {str(k): json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(v) for v in value]
+    return value
+
+
+def write_json(path: str | Path, value: Any) -> None:
+    """``value`` (see :func:`json_safe`) as indented JSON, written atomically."""
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(json_safe(value), indent=2, allow_nan=False) + "\n")

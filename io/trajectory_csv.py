@@ -11,6 +11,7 @@ import pymap3d
 from fgins.datatypes import InputError, Origin, Trajectory
 from fgins.geodesy import (
     enu_to_lla,
+    lla_to_enu,
     local_to_origin_rotation,
     roll_pitch_heading_to_rotation,
     rotation_to_roll_pitch_heading,
@@ -243,55 +244,71 @@ def _format_column(x: np.ndarray, fmt: str) -> np.ndarray:
 def read_trajectory_csv(path: str | Path, origin: Origin | None = None) -> Trajectory:
     """Read a trajectory CSV (e.g. simulator ``truth.csv``) back into a :class:`Trajectory`.
 
+    Needs ``time`` and a position: ``lat,lon,alt`` (taken in ``origin``'s frame when it is
+    given) or ``east,north,up``. Velocity, attitude and sigma columns are read where present,
+    NaN where not: another simulator's truth has no sigmas (an independent flight simulator's
+    truth.csv stopped ``fgins bench`` with "missing trajectory column(s) std_east, ...").
     Without ``origin`` the ENU origin is recovered from the first row's lat/lon/alt and ENU.
     """
     path = Path(path)
     try:
         with path.open() as handle:
-            header = handle.readline().strip().split(",")
+            header = [name.strip() for name in handle.readline().strip().split(",")]
         data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
     except (OSError, ValueError) as exc:
         raise InputError(f"{path}: not a readable trajectory CSV ({exc})") from None
-    missing = [c for c in COLUMNS if c not in header]
-    if missing:
-        raise InputError(f"{path}: missing trajectory column(s) {', '.join(missing)}")
+    has_lla = all(c in header for c in ("lat", "lon", "alt"))
+    has_enu = all(c in header for c in ("east", "north", "up"))
+    if "time" not in header or not (has_lla or (has_enu and origin is not None)):
+        position = "lat, lon, alt" if origin is None else "lat, lon, alt (or east, north, up)"
+        raise InputError(f"{path}: a trajectory CSV needs the columns time and {position}")
+    if data.shape[1] != len(header):
+        raise InputError(f"{path}: {data.shape[1]} values per row for {len(header)} columns")
     col = {name: data[:, header.index(name)] for name in header}
-    if origin is None:
+    n = len(data)
+    if has_lla and origin is None and has_enu:
         lat, lon, alt = pymap3d.enu2geodetic(
             -col["east"][0], -col["north"][0], -col["up"][0],
             col["lat"][0], col["lon"][0], col["alt"][0],
         )  # fmt: skip
         origin = Origin(float(lat), float(lon), float(alt))
-    rotation = np.array(
-        [
-            roll_pitch_heading_to_rotation(r, p, h)
-            for r, p, h in zip(col["roll_deg"], col["pitch_deg"], col["heading_deg"], strict=True)
-        ]
-    )
+        position = np.column_stack([col["east"], col["north"], col["up"]])
+    elif has_lla:
+        # In the caller's frame, whatever origin the file's own east/north/up are about.
+        origin = origin or Origin(float(col["lat"][0]), float(col["lon"][0]), float(col["alt"][0]))
+        position = lla_to_enu(np.column_stack([col["lat"], col["lon"], col["alt"]]), origin)
+    else:
+        position = np.column_stack([col["east"], col["north"], col["up"]])
+    assert origin is not None
+    lat_lon = (col["lat"], col["lon"]) if has_lla else tuple(
+        enu_to_lla(position, origin)[:, i] for i in range(2)
+    )  # fmt: skip
     # Velocity and attitude columns are in the local level at each point (trajectory_table).
-    to_nav = local_to_origin_rotation(col["lat"], col["lon"], origin)
-    rotation = to_nav @ rotation
-    velocity = np.einsum(
-        "nij,nj->ni", to_nav, np.column_stack([col["vel_east"], col["vel_north"], col["vel_up"]])
-    )
-    std = np.column_stack([col["std_east"], col["std_north"], col["std_up"]])
-    cov = np.zeros((len(data), 3, 3))
-    for i in range(3):
-        cov[:, i, i] = std[:, i] ** 2
+    to_nav = local_to_origin_rotation(lat_lon[0], lat_lon[1], origin)
 
-    def optional(names: list[str]) -> np.ndarray | None:
-        if all(n in col for n in names):
-            return np.column_stack([col[n] for n in names])
+    def columns(names: list[str]) -> np.ndarray | None:
+        if all(name in col for name in names):
+            return np.column_stack([col[name] for name in names])
         return None
 
+    attitude = columns(["roll_deg", "pitch_deg", "heading_deg"])
+    rotation = np.full((n, 3, 3), np.nan)
+    if attitude is not None:
+        rotation = to_nav @ np.array([roll_pitch_heading_to_rotation(*row) for row in attitude])
+    velocity = columns(["vel_east", "vel_north", "vel_up"])
+    velocity = np.full((n, 3), np.nan) if velocity is None else np.einsum("nij,nj->ni", to_nav, velocity)
+    std = columns(["std_east", "std_north", "std_up"])
+    cov = np.zeros((n, 3, 3))
+    for i in range(3):
+        cov[:, i, i] = np.nan if std is None else std[:, i] ** 2
     return Trajectory(
         t=col["time"],
-        position=np.column_stack([col["east"], col["north"], col["up"]]),
+        position=position,
         velocity=velocity,
         rotation=rotation,
         origin=origin,
         method=path.stem,
-        gyro_bias=optional(EXTRA_COLUMNS[:3]),
-        accel_bias=optional(EXTRA_COLUMNS[3:6]),
+        gyro_bias=columns(EXTRA_COLUMNS[:3]),
+        accel_bias=columns(EXTRA_COLUMNS[3:6]),
         position_cov=cov,
     )

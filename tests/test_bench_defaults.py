@@ -119,3 +119,65 @@ def test_the_3_sigma_column_against_withheld_fixes_counts_their_own_sigma(aircra
     assert table.set_index("method").loc["ekf", "within_3sigma_outage"] == pytest.approx(
         float(np.mean(error <= 3 * combined)), abs=1e-9
     )
+
+
+def test_another_simulators_truth_without_sigmas_or_attitude_scores_alike(tmp_path):
+    """An independent simulator's truth.csv need not carry fgins's sigma or attitude columns,
+    nor east/north/up about the same origin: `fgins bench` stopped with "missing trajectory
+    column(s) std_east, ..." on one. Positions from lat/lon/alt score alike; the attitude
+    metrics it cannot give are null in outages.json, which stays strict JSON."""
+    import json
+
+    folder = tmp_path / "drive"
+    assert cli.main(["sim", "car-urban", "-o", str(folder), "--duration", "70", "--seed", "5"]) == 0
+    full = fgins.bench(
+        fgins.load(folder, progress=False),
+        ["ekf"],
+        outages=[(30.0, 50.0)],
+        output_dir=tmp_path / "full",
+    )
+    full_metrics = json.loads((tmp_path / "full" / "outages.json").read_text())["drive"]["methods"][
+        "ekf"
+    ]
+    truth = pd.read_csv(folder / "truth.csv")
+    for name, columns in {
+        "lla_only": ["time", "lat", "lon", "alt"],
+        "lla_velocity": ["time", "lat", "lon", "alt", "vel_east", "vel_north", "vel_up"],
+        "shifted_enu": [
+            "time",
+            "lat",
+            "lon",
+            "alt",
+            "east",
+            "north",
+            "up",
+            "roll_deg",
+            "pitch_deg",
+            "heading_deg",
+        ],
+    }.items():
+        other = tmp_path / name
+        shutil.copytree(folder, other)
+        table = truth[columns].copy()
+        if name == "shifted_enu":  # its own frame 1 km away: not the dataset's
+            table["east"] += 1000.0
+            table["north"] -= 500.0
+        table.to_csv(other / "truth.csv", index=False)
+        out = tmp_path / f"bench_{name}"
+        scored = fgins.bench(
+            fgins.load(other, progress=False), ["ekf"], outages=[(30.0, 50.0)], output_dir=out
+        )
+        assert scored.loc[0, "h_rms_outage_m"] == pytest.approx(
+            full.loc[0, "h_rms_outage_m"], abs=1e-3
+        ), name
+        payload = json.loads(
+            (out / "outages.json").read_text(),
+            parse_constant=lambda c: pytest.fail(f"{c} in outages.json"),
+        )
+        metrics = payload[other.name]["methods"]["ekf"]
+        if "roll_deg" not in columns:
+            assert metrics["heading_rms_deg"] is None
+        else:
+            assert metrics["heading_rms_deg"] == pytest.approx(
+                full_metrics["heading_rms_deg"], abs=1e-6
+            )
