@@ -479,16 +479,15 @@ def _estimate(isam: gtsam.ISAM2, factorization: str) -> gtsam.Values:
     )
 
 
-def _refined_by_lm(
-    problem: Problem, report: SolveReport, estimate: gtsam.Values
+def _refit(
+    problem: Problem, report: SolveReport, start: Callable[[], tuple[gtsam.Values, str]]
 ) -> tuple[gtsam.Values, gtsam.NonlinearFactorGraph] | None:
-    """(solution, graph) of Levenberg-Marquardt on the same problem from iSAM2's final
-    estimate when that does not fit (a vehicle that never moves: its heading is
-    unobservable, the online heading swung by tens of degrees between updates and left the
-    gyro bias 3 mrad/s off, chi2/dof 4469); None when LM does no better. ``report`` then
-    says so (its fallback) and carries LM's fit."""
+    """(solution, graph) of Levenberg-Marquardt on the same graph from ``start()`` (its
+    values and what they are), when the iSAM2 estimate does not fit; None when that fits no
+    better. ``report`` then says so (its fallback) and carries LM's fit."""
     try:
-        refined, solution, graph = solve_with_stops(problem, *solve_from(problem, estimate))
+        values, label = start()
+        refined, solution, graph = solve_with_stops(problem, *solve_from(problem, values))
     except FginsError:
         return None
     if not refined.final_error < report.final_error:
@@ -496,8 +495,8 @@ def _refined_by_lm(
     before = report.chi2_per_dof
     _took_lm(
         report, refined,
-        f"the iSAM2 estimate did not fit the data (chi2/dof {before:.3g}): refined by "
-        f"Levenberg-Marquardt on the same graph ({refined.iterations} iterations)",
+        f"the iSAM2 estimate did not fit the data (chi2/dof {before:.3g}): solved by "
+        f"Levenberg-Marquardt on the same graph from {label} ({refined.iterations} iterations)",
     )  # fmt: skip
     report.converged = refined.converged
     return solution, graph
@@ -536,31 +535,12 @@ def _without_gnss_faults(
     return (values, graph), faults
 
 
-def _refined_from_batch_start(
-    problem: Problem, report: SolveReport, initial_guess: InitialGuess | None, progress: bool
-) -> tuple[gtsam.Values, gtsam.NonlinearFactorGraph] | None:
-    """(solution, graph) of Levenberg-Marquardt on the same graph from the batch's start
-    (:func:`fgins.graph.start.initial_values`) when the iSAM2 estimate does not fit; None
-    when that fits no better. An online pass that diverged can leave LM from its estimate
-    in another basin: a gyro-free IMU through two 30 s outages ended at chi2/dof 6.5 and 89
-    m inside them after 600 iterations, where the batch's start gives 0.43 and 7 m in 23.
-    ``report`` then says so and carries that fit."""
-    try:
-        start, _ = initial_values(problem, initial_guess, progress)
-        candidate, solution, graph = solve_with_stops(problem, *solve_from(problem, start.values))
-    except FginsError:
-        return None
-    if not candidate.final_error < report.final_error:
-        return None
-    before = report.chi2_per_dof
-    _took_lm(
-        report, candidate,
-        f"the iSAM2 estimate did not fit the data (chi2/dof {before:.3g}): solved by "
-        f"Levenberg-Marquardt on the same graph from the batch's start ({start.source}, "
-        f"{candidate.iterations} iterations)",
-    )  # fmt: skip
-    report.converged = candidate.converged
-    return solution, graph
+def _batch_start(
+    problem: Problem, initial_guess: InitialGuess | None, progress: bool
+) -> tuple[gtsam.Values, str]:
+    """The batch's start (:func:`fgins.graph.start.initial_values`) and what it is."""
+    start, _ = initial_values(problem, initial_guess, progress)
+    return start.values, f"the batch's start ({start.source})"
 
 
 def _refined(
@@ -571,12 +551,17 @@ def _refined(
     progress: bool,
 ) -> tuple[gtsam.Values, gtsam.NonlinearFactorGraph] | None:
     """A final estimate that does not fit, solved again: from the batch's start, and where
-    that does not fit either, from the iSAM2 estimate (a vehicle that never moves); the
-    better fit is kept, the preintegration left about its biases. None when neither does
-    better than the iSAM2 estimate."""
-    refined = _refined_from_batch_start(problem, report, initial_guess, progress)
+    that does not fit either, from the iSAM2 estimate; the better fit is kept, the
+    preintegration left about its biases. None when neither does better than the iSAM2
+    estimate. An online pass that diverged can leave LM from its estimate in another basin:
+    a gyro-free IMU through two 30 s outages ended at chi2/dof 6.5 and 89 m inside them
+    after 600 iterations, where the batch's start gives 0.43 and 7 m in 23."""
+    refined = _refit(problem, report, lambda: _batch_start(problem, initial_guess, progress))
     if is_suspect(report):
-        from_estimate = _refined_by_lm(problem, report, estimate)
+        # A vehicle that never moves: its heading is unobservable, the online heading swung
+        # by tens of degrees between updates and left the gyro bias 3 mrad/s off (chi2/dof
+        # 4469); LM from that estimate fits.
+        from_estimate = _refit(problem, report, lambda: (estimate, "the iSAM2 estimate"))
         refined = from_estimate if from_estimate is not None else refined
     kept = refined[0] if refined is not None else estimate
     problem.gravity_moved(kept)
@@ -609,7 +594,7 @@ def smooth_isam2(
         report = SolveReport(solver="iSAM2", final_error=math.inf, converged=False)
         cause = _first_line(failure).split("; no output written")[0]
         report.fallback = f"the online pass failed ({cause}): no online estimate"
-        refined = _refined_from_batch_start(problem, report, initial_guess, progress)
+        refined = _refit(problem, report, lambda: _batch_start(problem, initial_guess, progress))
         if refined is None:
             raise failure
         isam = result = online_states = online = None
