@@ -203,9 +203,16 @@ def test_reports_say_what_happened():
     trajectory = run_method(dataset, config, "batch", gnss_mask=mask, progress=False)
     counts = trajectory.info["gnss_counts"]
     assert counts["withheld"] == int((~mask).sum()) > 0
-    assert counts["used"] + counts["withheld"] + counts["gated_pdop"] + counts[
-        "gated_quality"
-    ] + counts["outside_imu_span"] + counts["decimated"] == counts["total"] == len(dataset.gnss)
+    assert (
+        counts["used"]
+        + counts["withheld"]
+        + counts["gated_pdop"]
+        + counts["gated_quality"]
+        + counts["outside_imu_span"]
+        + counts["decimated"]
+        == counts["total"]
+        == len(dataset.gnss)
+    )
     assert f"{counts['withheld']} withheld by outage" in trajectory.info["gnss_gating"]
     assert "rejected" not in trajectory.info["gnss_rejected"]
     assert trajectory.info["gnss_rejected_times"] == []
@@ -319,3 +326,39 @@ def test_a_kalman_baseline_on_gnss_from_another_clock_says_so(method, tmp_path):
         if notes:
             assert notes[0].startswith(f"{method}: ")
     assert 0.3 < medians[0.0] < 2.0, medians
+
+
+def test_an_online_pass_that_fails_leaves_the_final_estimate_to_the_batch_start(monkeypatch):
+    """Where both iSAM2 online runs fail (an indeterminate state: a gyro-free IMU with sparse
+    GNSS lost one at keyframe 195), `--method isam2` wrote nothing although the final
+    estimate is one LM solve of the same graph away. Now that solve runs from the batch's
+    start and says so; no online estimate exists (none is offered, `isam2-online` is the
+    error)."""
+    import fgins.graph.isam2 as isam2
+
+    config_run = SCENARIOS["car-urban"](seed=4, duration_s=60.0)
+    from fgins.config import config_for_dataset
+
+    config = config_for_dataset(config_run.dataset)
+    batch = run_method(config_run.dataset, config, "batch", progress=False)
+
+    def fails(*_args, **_kwargs):
+        raise FginsError(
+            "iSAM2: estimate at keyframe 12 (t = 12.0 s) failed even with QR factorization: "
+            "Indeterminate linear system; no output written. Try --method batch"
+        )
+
+    monkeypatch.setattr(isam2, "run_isam2", fails)
+    final = run_method(config_run.dataset, config, "isam2", progress=False)
+    summary = final.summary()
+    assert "the online pass failed (iSAM2: estimate at keyframe 12" in summary["fallback"]
+    assert (
+        "no online estimate" in summary["fallback"]
+        and "no output written" not in summary["fallback"]
+    )
+    assert "from the batch's start" in summary["fallback"]
+    assert "online" not in final.info
+    assert np.max(np.abs(final.position - batch.position)) < 0.05
+    assert np.all(final.position_std > 0)
+    with pytest.raises(FginsError, match="keyframe 12"):
+        run_method(config_run.dataset, config, "isam2-online", progress=False)
