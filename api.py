@@ -907,10 +907,15 @@ def _truth_for(dataset: Dataset, truth: Any) -> Trajectory | None:
         # A simulator folder holds its exact truth beside the sensor files.
         inputs = dataset.metadata.get("inputs", [])
         if len(inputs) == 1 and (Path(inputs[0]) / "truth.csv").is_file():
-            return read_trajectory_csv(Path(inputs[0]) / "truth.csv", dataset.origin)
+            return read_trajectory_csv(
+                Path(inputs[0]) / "truth.csv", dataset.origin,
+                enu_about_origin=bool(dataset.metadata.get("origin_stated")),
+            )  # fmt: skip
         return None
     elif isinstance(truth, (str, os.PathLike)):
-        reference = read_trajectory_csv(truth, dataset.origin)
+        reference = read_trajectory_csv(
+            truth, dataset.origin, enu_about_origin=bool(dataset.metadata.get("origin_stated"))
+        )
     else:
         raise ConfigError(
             f"bench(): truth must be a Trajectory, a trajectory CSV's path, \"auto\" or None, "

@@ -675,7 +675,11 @@ def read_csv_dataset(paths: list[Path]) -> Dataset:
         vehicle=config.get("scenario", {}).get("vehicle"),
         warnings=warnings,
         accel_array=accel_array,
-        metadata=_scenario_outages(config, float(imu.t[0]) if len(imu.t) else None),
+        metadata={
+            **_scenario_outages(config, float(imu.t[0]) if len(imu.t) else None),
+            # A stated origin: a truth given in east/north/up alone is taken about it.
+            **({"origin_stated": True} if origin_table else {}),
+        },
     )
 
 

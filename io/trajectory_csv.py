@@ -241,14 +241,20 @@ def _format_column(x: np.ndarray, fmt: str) -> np.ndarray:
     return out
 
 
-def read_trajectory_csv(path: str | Path, origin: Origin | None = None) -> Trajectory:
+def read_trajectory_csv(
+    path: str | Path, origin: Origin | None = None, *, enu_about_origin: bool = False
+) -> Trajectory:
     """Read a trajectory CSV (e.g. simulator ``truth.csv``) back into a :class:`Trajectory`.
 
     Needs ``time`` and a position: ``lat,lon,alt`` (taken in ``origin``'s frame when it is
-    given) or ``east,north,up``. Velocity, attitude and sigma columns are read where present,
-    NaN where not: another simulator's truth has no sigmas (an independent flight simulator's
-    truth.csv stopped ``fgins bench`` with "missing trajectory column(s) std_east, ...").
-    Without ``origin`` the ENU origin is recovered from the first row's lat/lon/alt and ENU.
+    given), or ``east,north,up`` alone where the caller knows them to be about ``origin``
+    (``enu_about_origin``: a sim folder's stated [origin]; otherwise their origin is unknown:
+    an independent car simulator's truth, about its own origin 2.6 m from the first fix,
+    scored every epoch 2 m off). Velocity, attitude and sigma columns are read where
+    present, NaN where not: another simulator's truth has no sigmas (an independent flight
+    simulator's truth.csv stopped ``fgins bench`` with "missing trajectory column(s)
+    std_east, ..."). Without ``origin`` the ENU origin is recovered from the first row's
+    lat/lon/alt and ENU.
     """
     path = Path(path)
     try:
@@ -259,9 +265,11 @@ def read_trajectory_csv(path: str | Path, origin: Origin | None = None) -> Traje
         raise InputError(f"{path}: not a readable trajectory CSV ({exc})") from None
     has_lla = all(c in header for c in ("lat", "lon", "alt"))
     has_enu = all(c in header for c in ("east", "north", "up"))
-    if "time" not in header or not (has_lla or (has_enu and origin is not None)):
-        position = "lat, lon, alt" if origin is None else "lat, lon, alt (or east, north, up)"
-        raise InputError(f"{path}: a trajectory CSV needs the columns time and {position}")
+    if "time" not in header or not (has_lla or (has_enu and origin is not None and enu_about_origin)):
+        unknown = (
+            " (its east, north, up are about an origin the file does not give)" if has_enu else ""
+        )
+        raise InputError(f"{path}: a trajectory CSV needs the columns time and lat, lon, alt{unknown}")
     if data.shape[1] != len(header):
         raise InputError(f"{path}: {data.shape[1]} values per row for {len(header)} columns")
     col = {name: data[:, header.index(name)] for name in header}

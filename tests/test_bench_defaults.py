@@ -181,3 +181,31 @@ def test_another_simulators_truth_without_sigmas_or_attitude_scores_alike(tmp_pa
             assert metrics["heading_rms_deg"] == pytest.approx(
                 full_metrics["heading_rms_deg"], abs=1e-6
             )
+
+
+def test_a_truth_in_east_north_up_alone_needs_a_stated_origin(tmp_path):
+    """East/north/up without lat/lon/alt are about some origin: the folder's stated [origin]
+    (as `fgins sim` writes both), else unknown. An independent car simulator's truth, about
+    its own origin 2.6 m from the first fix (the default origin), scored every epoch 2 m off
+    (0 % within 3 sigma) when taken about the first fix: an error now, naming the cause."""
+    import re
+
+    folder = tmp_path / "drive"
+    assert cli.main(["sim", "car-urban", "-o", str(folder), "--duration", "70", "--seed", "6"]) == 0
+    full = fgins.bench(fgins.load(folder, progress=False), ["ekf"], outages=[(30.0, 50.0)])
+    truth = pd.read_csv(folder / "truth.csv")
+    truth[["time", "east", "north", "up", "vel_east", "vel_north", "vel_up"]].to_csv(
+        folder / "truth.csv", index=False
+    )
+    stated = fgins.bench(fgins.load(folder, progress=False), ["ekf"], outages=[(30.0, 50.0)])
+    assert stated.loc[0, "h_rms_outage_m"] == pytest.approx(full.loc[0, "h_rms_outage_m"], abs=1e-3)
+
+    config = (folder / "config.toml").read_text()
+    (folder / "config.toml").write_text(
+        re.sub(r"\[origin\]\nlat = \S+\nlon = \S+\nalt = \S+\n", "", config)
+    )
+    assert "[origin]" not in (folder / "config.toml").read_text()
+    with pytest.raises(
+        fgins.InputError, match=r"truth\.csv: .*needs the columns time and lat, lon, alt \(its east"
+    ):
+        fgins.bench(fgins.load(folder, progress=False), ["ekf"], outages=[(30.0, 50.0)])
