@@ -626,7 +626,7 @@ def _align_at(
         # and the gravity that tilt leaks into the forward axis outweighed the acceleration
         # it tested: a car driving ahead was aligned reversing).
         up_now = _level_up(imu, t0)
-        if travel == AHEAD_OR_BACK and _travels_backward(
+        if travel != ANY_DIRECTION and _travels_backward(
             imu, gnss_t[window], gnss_enu[window], velocity[:2], forward_axis, up_now
         ):
             forward = -forward  # reversing: the body's forward axis points against the track
@@ -706,7 +706,10 @@ def _rest_attitude(
             dataset, gnss_t, gnss_enu, moving_speed, t0, up_body,
             rest_rate=_rest_rate_about(imu, t0, up_body, g) if static else None,
             gyro_bias_sigma=gyro_bias_sigma,
-            forward_axis=forward_axis if travel == AHEAD_OR_BACK else None,
+            # Not only a car's: any vehicle whose nose is its forward axis can back (an
+            # aircraft's pushback, a vehicle of unstated kind reversing out of a bay, whose
+            # heading from the track was 180 deg off: 67 of 141 fixes called faults).
+            forward_axis=forward_axis if travel != ANY_DIRECTION else None,
             rest_force=specific_force if static else None,
         )  # fmt: skip
         if travel == ANY_DIRECTION:

@@ -24,7 +24,8 @@ A fix stays out only where the solution without it, that solution's uncertainty 
 still cannot reach it: a fix pulled off by its faulty neighbours comes back; one beside a long
 exclusion is judged against a dead-reckoned, uncertain solution and comes back too. Where
 more than :data:`MAX_FAULT_FRACTION` of the fixes are candidates, the fixes are not faulty,
-their sigmas are too small (the GNSS report says so): nothing is excluded. Without a robust
+their sigmas are too small (the GNSS report says so): nothing is excluded; where the rounds
+grow the set beyond that fraction, the solution is wrong, not the fixes: nothing either. Without a robust
 kernel (``--robust none``, every fix at full weight) or with ``[gnss] fault_exclusion =
 false``, nothing either. Cost: nothing on a drive without large residuals, one solve per
 round (at most :data:`MAX_ROUNDS`) otherwise.
@@ -143,6 +144,17 @@ def exclude_gnss_faults(
         if not back and not out:
             break
         proposal = (excluded - back) | out
+        if len(proposal) > MAX_FAULT_FRACTION * len(keyframes):
+            # Each round leaves more out: the solution, not the fixes, is wrong (a car that
+            # reversed for its first 200 m started with its heading turned round: 67 of 141
+            # fixes went out, the fit stayed at chi2/dof 4.4). Nothing is left out.
+            outcome.note = (
+                f"GNSS fault exclusion: none; leaving fixes out put ever more beyond "
+                f"{FAULT_SIGMA:g} sigma ({len(proposal)} of {len(keyframes)}): the solution, "
+                "not the fixes, is at fault"
+            )
+            excluded = set()
+            break
     problem.exclude_gnss(excluded)
     if not excluded:
         return result, graph, outcome
