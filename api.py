@@ -972,9 +972,9 @@ def bench(
     config: str | os.PathLike[str] | RunConfig | None = None,
     truth: Trajectory | str | os.PathLike[str] | None = "auto",
     baseline: str | None = None,
-    outage_duration: float = 30.0,
-    outage_period: float = 90.0,
-    outage_start: float = 60.0,
+    outage_duration: float | None = None,
+    outage_period: float | None = None,
+    outage_start: float | None = None,
     output_dir: str | os.PathLike[str] | None = None,
     progress: bool = False,
 ) -> pd.DataFrame:
@@ -988,9 +988,10 @@ def bench(
         Methods to run; ``isam2`` also contributes its online estimate (``isam2-online``).
     outages : list of (start, end), optional
         Outage windows in seconds after t0. Default: the data's own outages where they
-        can be scored (a sim folder's ``[scenario] outages``, against its truth), else
-        ``outage_duration`` s every ``outage_period`` s from ``outage_start`` s while they
-        fit in the GNSS span, less those where the data have no GNSS epoch (said).
+        can be scored (a sim folder's ``[scenario] outages``, against its truth) and no
+        protocol number is given, else ``outage_duration`` (30) s every ``outage_period``
+        (90) s from ``outage_start`` (60) s while they fit in the GNSS span, less those
+        where the data have no GNSS epoch (said).
     config : path or RunConfig, optional
         Overrides the configuration chosen by :func:`load`.
     truth : Trajectory, path, "auto" or None, default "auto"
@@ -1023,8 +1024,8 @@ def bench(
 
     _check_arguments(
         "bench", dataset=(dataset, "dataset"), config=(config, "config?"),
-        baseline=(baseline, "text?"), outage_duration=(outage_duration, "number"),
-        outage_period=(outage_period, "number"), outage_start=(outage_start, "number"),
+        baseline=(baseline, "text?"), outage_duration=(outage_duration, "number?"),
+        outage_period=(outage_period, "number?"), outage_start=(outage_start, "number?"),
         output_dir=(output_dir, "path?"), progress=(progress, "bool"),
     )  # fmt: skip
     methods = check_methods(methods, baseline)
@@ -1044,12 +1045,19 @@ def bench(
     from fgins.outages import empty_windows, overlapping_windows
 
     reference = _truth_for(dataset, truth)
-    own = [] if windows else _own_outages(dataset, reference)
+    # The protocol's windows where asked for (any of its three numbers given), else the
+    # data's own outages where they can be scored, else the protocol's defaults.
+    asked = (outage_duration, outage_period, outage_start)
+    protocol = tuple(
+        default if value is None else float(value)
+        for value, default in zip(asked, (30.0, 90.0, 60.0), strict=True)
+    )
+    own = [] if windows or any(v is not None for v in asked) else _own_outages(dataset, reference)
     if own:
         windows = own
     elif not windows:
         span = float(dataset.gnss.t[-1] - dataset.t0)
-        windows = periodic_windows(outage_duration, outage_period, outage_start, span)
+        windows = periodic_windows(*protocol, span)
         # The protocol's windows are not the user's: one that falls where the data have no
         # GNSS already (a sim folder's outage without its truth, a receiver's gap) is left
         # out and said; an explicit window there stays an error.
@@ -1092,6 +1100,7 @@ def bench(
             # Where the windows come from: given, the data's own (a sim folder's
             # [scenario] outages) or the default protocol.
             "outages_from": "given" if _windows(outages) else ("data" if own else "protocol"),
+            "protocol": protocol,
             "baseline": baseline,
         }
     )

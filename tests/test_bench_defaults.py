@@ -209,3 +209,27 @@ def test_a_truth_in_east_north_up_alone_needs_a_stated_origin(tmp_path):
         fgins.InputError, match=r"truth\.csv: .*needs the columns time and lat, lon, alt \(its east"
     ):
         fgins.bench(fgins.load(folder, progress=False), ["ekf"], outages=[(30.0, 50.0)])
+
+
+def test_a_protocol_number_given_asks_for_the_protocol_over_the_datas_own_outages(
+    aircraft, tmp_path, capsys
+):
+    """`--outage-duration 40` on a folder with its own outage: the user asked for the
+    protocol's windows (the own outage had taken over silently); the one that falls in the
+    data's own gap is left out and said."""
+    folder, start = aircraft
+    code = cli.main(["bench", str(folder), "--methods", "ekf", "--outage-duration", "40",
+                     "--no-progress", "-o", str(tmp_path / "bench")])  # fmt: skip
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    assert "(40 s every 90 s from 60 s)" in captured.out
+    assert "the data's own" not in captured.out
+    dataset = fgins.load(folder, progress=False)
+    with pytest.warns(
+        fgins.FginsWarning, match="default outage windows fall where the data have no GNSS"
+    ):
+        table = fgins.bench(
+            dataset, ["ekf"], outage_start=start + 10.0, outage_duration=20.0, outage_period=50.0
+        )
+    assert table.attrs["outages_from"] == "protocol"
+    assert table.attrs["protocol"] == (20.0, 50.0, start + 10.0)
