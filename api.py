@@ -897,6 +897,8 @@ def _own_outages(dataset: Dataset, reference: Trajectory | None) -> list[tuple[f
 def _truth_for(dataset: Dataset, truth: Any) -> Trajectory | None:
     from fgins.io.trajectory_csv import read_trajectory_csv
 
+    stated = bool(dataset.metadata.get("origin_stated"))  # a truth's bare ENU is about it
+
     if truth is None:
         return None
     if isinstance(truth, Trajectory):
@@ -907,15 +909,10 @@ def _truth_for(dataset: Dataset, truth: Any) -> Trajectory | None:
         # A simulator folder holds its exact truth beside the sensor files.
         inputs = dataset.metadata.get("inputs", [])
         if len(inputs) == 1 and (Path(inputs[0]) / "truth.csv").is_file():
-            return read_trajectory_csv(
-                Path(inputs[0]) / "truth.csv", dataset.origin,
-                enu_about_origin=bool(dataset.metadata.get("origin_stated")),
-            )  # fmt: skip
+            return read_trajectory_csv(Path(inputs[0]) / "truth.csv", dataset.origin, enu_about_origin=stated)
         return None
     elif isinstance(truth, (str, os.PathLike)):
-        reference = read_trajectory_csv(
-            truth, dataset.origin, enu_about_origin=bool(dataset.metadata.get("origin_stated"))
-        )
+        reference = read_trajectory_csv(truth, dataset.origin, enu_about_origin=stated)
     else:
         raise ConfigError(
             f"bench(): truth must be a Trajectory, a trajectory CSV's path, \"auto\" or None, "
@@ -1061,16 +1058,16 @@ def bench(
         # The protocol's windows are not the user's: one that falls where the data have no
         # GNSS already (a sim folder's outage without its truth, a receiver's gap) is left
         # out and said; an explicit window there stays an error.
-        empty = empty_windows(dataset, windows)
+        said = [empty_windows(dataset, [window]) for window in windows]
+        empty = [line for lines in said for line in lines]
         if empty and len(empty) < len(windows):
-            kept = [w for w in windows if not empty_windows(dataset, [w])]
             warnings.warn(
                 f"bench: {len(empty)} of the {len(windows)} default outage windows fall where "
                 f"the data have no GNSS epoch and are left out ({empty[0]})",
                 FginsWarning,
                 stacklevel=2,
             )
-            windows = kept
+            windows = [window for window, lines in zip(windows, said, strict=True) if not lines]
 
     overlaps = overlapping_windows(windows)
     if overlaps:

@@ -15,7 +15,7 @@ from fgins.datatypes import FginsError, Trajectory
 from fgins.graph.gnss_faults import exclude_gnss_faults, with_every_fix
 from fgins.graph.gyro_scale import correct_gyro_scale
 from fgins.graph.isam2 import run_isam2
-from fgins.graph.problem import Problem, bias_estimates
+from fgins.graph.problem import Problem
 from fgins.graph.reports import (
     extra_states,
     gnss_report,
@@ -86,10 +86,7 @@ def _fall_back(
         if not is_suspect(candidate[0]):
             break
     report, result, graph, taken = best
-    # The preintegration must be the one about the kept solution's biases (and gravity).
-    problem.gravity_moved(result)
-    bias = bias_estimates(result, problem.n_keyframes)
-    problem.preintegrate_all(bias[:, :3], bias[:, 3:], False)
+    problem.preintegrate_about(result)  # the kept solution's, not the last start's
     if taken != source:
         report.initial_error = first.initial_error
         report.iterations += first.iterations

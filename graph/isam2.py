@@ -22,7 +22,7 @@ from fgins.factors.values import put_bias, put_double, put_pose, put_vector
 from fgins.graph.gnss_faults import FaultExclusion, exclude_gnss_faults, with_every_fix
 from fgins.graph.gyro_scale import correct_gyro_scale
 from fgins.graph.output import KeyframeStates
-from fgins.graph.problem import Problem, bias_estimates
+from fgins.graph.problem import Problem
 from fgins.graph.reports import (
     extra_states,
     gnss_report,
@@ -563,10 +563,7 @@ def _refined(
         # 4469); LM from that estimate fits.
         from_estimate = _refit(problem, report, lambda: (estimate, "the iSAM2 estimate"))
         refined = from_estimate if from_estimate is not None else refined
-    kept = refined[0] if refined is not None else estimate
-    problem.gravity_moved(kept)
-    bias = bias_estimates(kept, problem.n_keyframes)
-    problem.preintegrate_all(bias[:, :3], bias[:, 3:], False)
+    problem.preintegrate_about(refined[0] if refined is not None else estimate)
     return refined
 
 

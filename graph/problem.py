@@ -655,6 +655,14 @@ class Problem:
         self.interval_gravity[moved] = gravity[moved]
         return moved
 
+    def preintegrate_about(self, values: gtsam.Values) -> None:
+        """Make the preintegration the one of the solution ``values``, which a solve from
+        another start may have left otherwise: gravity where its positions are, every
+        interval about its biases."""
+        self.gravity_moved(values)
+        bias = bias_estimates(values, self.n_keyframes)
+        self.preintegrate_all(bias[:, :3], bias[:, 3:], False)
+
     def preintegrate_all(self, accel_bias: np.ndarray, gyro_bias: np.ndarray, progress: bool) -> None:
         """Every interval about the bias estimate at its first keyframe (K, 3) each."""
         from tqdm import tqdm  # imported on use, not with the module (import time)
