@@ -30,7 +30,7 @@ def _quiet_reference(imu, times, noise, before_s, after_s):
     rate = imu.rate_hz
     gyro_threshold = max(4.0 * noise.gyro_noise * np.sqrt(rate), 0.005)
     accel_threshold = max(4.0 * noise.accel_noise * np.sqrt(rate), 0.05)
-    turn_threshold = max(3.0 * noise.gyro_bias_prior, 0.01)
+    turn_threshold = max(stationary.TURN_BIAS_SIGMAS * noise.gyro_bias_prior, 0.01)
     lo = np.searchsorted(imu.t, times - before_s)
     hi = np.searchsorted(imu.t, times + after_s)
     quiet = np.zeros(len(times), dtype=bool)
