@@ -167,11 +167,12 @@ def test_pipeline_and_bad_input(uav_loop):
         PlanarKfOptions(max_block_s=0.0)
 
 
-def test_a_planar_fit_too_stiff_for_kitti_is_said():
-    """On the KITTI drive the planar filter's track misses the fixes it used by 0.56 m RMS
-    while it claims 0.22 m and the fixes 0.3 m (residual over claimed variance 2.2, checked
-    here from its output): its uncertainties are too small, and that is now said (it was
-    silent). The 15-state EKF+RTS on the same drive fits within its sigmas and says nothing."""
+def test_the_planar_fit_on_kitti_is_within_its_sigmas():
+    """On the KITTI drive the planar filter's track missed the fixes it used by 0.56 m RMS
+    while it claimed 0.22 m and the fixes 0.3 m (residual over claimed variance 2.2, checked
+    here from its output); that much was said. The cause was its first tilt, taken braking on
+    a slope (see test_a_drive_that_starts_on_a_slope_...): it now fits within its sigmas, as
+    the 15-state EKF+RTS does, and neither has anything to say."""
     from fgins.baseline.measurements import select_gnss
     from fgins.config import config_for_dataset
     from fgins.io.inputs import load_dataset
@@ -179,7 +180,7 @@ def test_a_planar_fit_too_stiff_for_kitti_is_said():
     dataset = load_dataset(["demo:kitti"], progress=False)
     config = config_for_dataset(dataset)
     epochs = select_gnss(dataset, config, None)
-    for method, stiff in (("planar-kf", True), ("ekf-rts", False)):
+    for method in ("planar-kf", "ekf-rts"):
         track = run_method(dataset, config, method, progress=False)
         near = np.clip(np.searchsorted(track.t, epochs.t), 0, len(track) - 1)
         residual = (track.at(epochs.t) - epochs.position)[:, :2]
@@ -188,7 +189,7 @@ def test_a_planar_fit_too_stiff_for_kitti_is_said():
         )
         consistency = float(np.mean(residual**2 / claimed))
         notes = [w for w in track.info.get("fit_warnings", []) if "scatter" in w]
-        assert (consistency > 1.5) == stiff and bool(notes) == stiff, (method, consistency, notes)
+        assert consistency < 1.5 and not notes, (method, consistency, notes)
 
 
 def _independent_car(folder, seed: int, hilly: bool) -> list[tuple[float, float]]:
@@ -295,3 +296,38 @@ def test_the_planar_sigma_covers_an_unestimated_bias_through_an_outage(scenario,
         errors.horizontal[ends],
         errors.horizontal_std[ends],
     )
+
+
+@pytest.mark.parametrize(("slope_deg", "seed"), [(5.0, 1), (-4.0, 2)])
+def test_a_drive_that_starts_on_a_slope_is_not_read_as_accelerating_all_along(tmp_path, slope_deg, seed):
+    """The planar model levels the accelerometer by the tilt it starts with. A car that
+    starts on a 4-5 deg slope and then drives on the flat read g sin(slope) (0.7-0.85 m/s^2)
+    as acceleration all drive long: the fixes held its track (20 % slow between them, as on
+    KITTI, which starts braking on a slope), and a 40 s outage ended 350-440 m off against a
+    12-15 m sigma. The input's constant error against the fixes' change of speed is now taken
+    out (it is the first tilt's, found to within 0.1 m/s^2 of g sin(slope))."""
+    import sys
+    from pathlib import Path
+
+    import fgins
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from independent_sim import (
+        FIVE_TURNS,
+        INDUSTRIAL,
+        CarProfile,
+        _ramp,
+        outage_rms_and_sigma,
+        write_drive,
+    )
+
+    slope = np.radians(slope_deg)
+    profile = CarProfile(steps=[(2, 8, 12.0)], turns=FIVE_TURNS, gamma=lambda t: slope * (1 - _ramp(t, 12.0, 6.0)))
+    write_drive(tmp_path, profile, 240.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0, gnss_rate=1.0, seed=seed)
+    dataset = fgins.load(tmp_path / "imu.csv", tmp_path / "gnss.csv", config=tmp_path / "cfg.toml", vehicle="car")
+    outage = [(85.0, 125.0)]
+    track = fgins.smooth(dataset, "planar-kf", gnss_outage=outage, progress=False)
+    rms, sigma = outage_rms_and_sigma(track, tmp_path, outage)
+    assert track.info["forward_accel_offset_m_s2"] == pytest.approx(-9.81 * np.sin(slope), abs=0.1)
+    assert rms < 10.0, rms
+    assert rms < 2.0 * sigma, (rms, sigma)
