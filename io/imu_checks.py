@@ -5,11 +5,14 @@ Two halves, one policy for every format:
 * :func:`imu_from_samples` turns a reader's arrays into :class:`ImuData` (the data model cannot
   hold NaN rows or non-increasing times, so these row repairs happen while the samples are put
   into it; every reader calls this one function, with the same rules and messages).
-* :func:`flag_suspect` finds gaps and linearly interpolated stretches in an :class:`ImuData`.
+* :func:`flag_suspect` finds gaps, linearly interpolated stretches and saturated runs (a
+  channel held at its measuring range) in an :class:`ImuData`.
   It is called by the input-validation layer (:mod:`fgins.io.validate`) for every source.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -216,8 +219,53 @@ def imu_from_samples(
     return ImuData(t=t, gyro=gyro, accel=accel)
 
 
+# A channel saturates at its measuring range: its samples sit on one extreme value, several
+# in a row, while the motion goes on beyond it. Ranges start at +-125 deg/s (2.2 rad/s) and
+# +-2 g; below these floors a repeated extreme is an IMU at rest, not a range.
+SATURATION_FLOOR = {"gyro": 1.5, "accel": 15.0}  # rad/s, m/s^2
+SATURATION_MIN_RUN = 3  # samples in a row on the extreme
+CHANNELS = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
+
+
+@dataclass(frozen=True)
+class Saturation:
+    """Runs of one channel's samples held at its extreme value (the sensor's range)."""
+
+    channel: str
+    extreme: float
+    runs: list[tuple[int, int]]  # sample index ranges [first, last]
+
+    @property
+    def samples(self) -> int:
+        return sum(b - a + 1 for a, b in self.runs)
+
+
+def find_saturation(data: np.ndarray) -> list[Saturation]:
+    """Channels of ``data`` (N, 6: gyro then accel) that sit on their maximum or minimum
+    value for SATURATION_MIN_RUN samples in a row, beyond SATURATION_FLOOR. Real noise never
+    repeats a large value exactly; a clipped sensor does, run after run."""
+    found = []
+    for j, channel in enumerate(CHANNELS):
+        column = data[:, j]
+        floor = SATURATION_FLOOR[channel.split("_")[0]]
+        for extreme in {float(np.max(column)), float(np.min(column))}:
+            if abs(extreme) < floor:
+                continue
+            at = np.abs(column - extreme) <= 1e-9 * abs(extreme)
+            edges = np.diff(np.concatenate([[0], at.astype(np.int8), [0]]))
+            runs = [
+                (int(a), int(b) - 1)
+                for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True)
+                if b - a >= SATURATION_MIN_RUN
+            ]
+            if runs:
+                found.append(Saturation(channel, extreme, runs))
+    return found
+
+
 def flag_suspect(imu: ImuData, warnings: list[str], *, label: str = "imu") -> ImuData:
-    """``imu`` with gaps and linearly filled stretches added to ``suspect`` (one line each)."""
+    """``imu`` with gaps, linearly filled stretches and saturated runs added to ``suspect``
+    (one line each)."""
     t = imu.t
     suspect: list[tuple[float, float]] = list(imu.suspect)
     gaps = find_gaps(t)
@@ -238,6 +286,24 @@ def flag_suspect(imu: ImuData, warnings: list[str], *, label: str = "imu") -> Im
             + " s); treated as gaps with inflated noise"
         )
         suspect.extend(fills)
+    last = len(t) - 1
+    for found in find_saturation(np.column_stack([imu.gyro, imu.accel])):
+        # A held sample stands for its interval up to the next one.
+        spans = [(float(t[a]), float(t[min(b + 1, last)])) for a, b in found.runs]
+        unit, shown = (
+            ("deg/s", np.degrees(found.extreme))
+            if found.channel.startswith("gyro")
+            else ("g", found.extreme / 9.80665)
+        )
+        warnings.append(
+            f"{label}: {found.channel} sits on {found.extreme:+.6g} ({shown:+.4g} {unit}) in "
+            f"{len(spans)} run(s) of {SATURATION_MIN_RUN} or more samples ({found.samples} "
+            f"samples, {sum(b - a for a, b in spans):.2f} s, first at t-t_imu0 = "
+            f"{spans[0][0] - t[0]:.1f} s): the sensor saturated at its measuring range and the "
+            "motion beyond it is lost; those stretches are treated as gaps with inflated "
+            "noise (set the IMU to a wider range)"
+        )
+        suspect.extend(spans)
     return ImuData(
         t=imu.t, gyro=imu.gyro, accel=imu.accel, suspect=sorted(set(suspect)), frame=imu.frame
     )
