@@ -501,11 +501,13 @@ def grade_spread(
     velocity = epochs.velocity[:, :2]
     known = np.all(np.isfinite(velocity), axis=1)
 
-    receiver_speed = known.mean() >= 0.8
-    if receiver_speed:
-        speed_sigma = float(np.nanmedian(epochs.velocity_sigma[:, :2])) if np.isfinite(epochs.velocity_sigma[:, :2]).any() else 0.0
-    else:  # a chord of two fixes
-        speed_sigma = np.sqrt(2.0) * float(np.nanmedian(epochs.position_sigma[:, :2])) / GRADE_CHORD_S
+    receiver_speed = known.mean() >= 0.8  # else a chord of two fixes GRADE_CHORD_S apart
+    sigmas = (
+        epochs.velocity_sigma[:, :2]
+        if receiver_speed
+        else np.sqrt(2.0) * epochs.position_sigma[:, :2] / GRADE_CHORD_S
+    )
+    speed_sigma = float(np.median(sigmas[np.isfinite(sigmas)])) if np.isfinite(sigmas).any() else 0.0
 
     def speed(at: np.ndarray) -> np.ndarray:
         if receiver_speed:
@@ -526,8 +528,9 @@ def grade_spread(
     if use.sum() < GRADE_MIN_WINDOWS:
         return None
     mismatch = (felt[use] - (end[use] - start[use])) / GRADE_WINDOW_S
-    # RMS about the median (a constant grade is the first tilt's, and harmless): the grade
-    # changes are a few windows of a drive, which a robust spread would discard.
+    # The median is the constant error (the first tilt's, the bias); the spread is an RMS
+    # about it, not a robust one: the grade changes are a few windows of a drive, which a
+    # robust spread would discard.
     offset = float(np.median(mismatch))
     spread = float(np.sqrt(np.mean((mismatch - offset) ** 2)))
     # Each window's change of speed differences two speeds of that sigma.
