@@ -125,19 +125,27 @@ def test_a_gyro_saturated_at_its_range_is_said_and_bridged(tmp_path, range_deg_s
 
 def test_saturation_is_a_run_on_the_extreme_not_a_large_or_repeated_value():
     """Clipped channels (either sign, gyro or accelerometer) are found with their runs; a
-    smooth peak of 800 deg/s, and an IMU at rest whose coarse samples repeat, are not."""
+    noisy peak of 800 deg/s, an IMU at rest whose coarse samples repeat, and a noise-free
+    simulation's steady 3 rad/s roll (its rate repeated exactly) are not."""
     from fgins.io.imu_checks import find_saturation
 
     rng = np.random.default_rng(0)
     t = np.arange(0.0, 20.0, 0.01)
+
+    def noisy(signal, sigma):
+        return signal + rng.normal(0.0, sigma, t.size)
+
     data = np.column_stack([
-        14.0 * np.exp(-((t - 5.0) ** 2)),  # 800 deg/s peak, smooth
+        noisy(14.0 * np.exp(-((t - 5.0) ** 2)), 0.01),  # 800 deg/s peak
         np.round(rng.normal(0.0, 0.002, t.size), 2),  # at rest, quantised to 0.01 rad/s
-        np.clip(6.0 * np.sin(t), -4.3633, 4.3633),  # a +-250 deg/s gyro, clipped both ways
-        np.clip(30.0 * np.exp(-((t - 12.0) ** 2) / 0.01), None, 19.6133),  # +2 g, one pothole
+        np.clip(noisy(6.0 * np.sin(t), 0.01), -4.3633, 4.3633),  # a +-250 deg/s gyro, clipped
+        np.clip(noisy(30.0 * np.exp(-((t - 12.0) ** 2) / 0.01), 0.05), None, 19.6133),  # +2 g pothole
         rng.normal(0.0, 0.05, t.size),
         9.81 + rng.normal(0.0, 0.05, t.size),
     ])  # fmt: skip
     found = {(s.channel, round(s.extreme, 3)): s for s in find_saturation(data)}
     assert set(found) == {("gyro_z", 4.363), ("gyro_z", -4.363), ("accel_x", 19.613)}, found
     assert len(found["gyro_z", 4.363].runs) == 4 and found["accel_x", 19.613].samples >= 3
+    ramp = np.clip(t - 2.0, 0.0, 1.0) * np.clip(12.0 - t, 0.0, 1.0)
+    noise_free = np.column_stack([3.0 * ramp, 0 * t, 0.5 * np.sin(t), 0 * t, 9.81 * np.sin(0.3 * ramp), 9.81 + 0 * t])
+    assert find_saturation(noise_free) == []
