@@ -11,7 +11,7 @@ Inputs, from the IMU through the alignment's tilt (:func:`fgins.alignment.initia
   acceleration exactly (it is ``accel_x - g sin(pitch)`` for a pure pitch). Its constant
   error (the first tilt against the drive's usual one, the accelerometer's bias along the
   track) is the median of that input against the fixes' change of speed over 20-s windows
-  (:func:`grade_spread`), and is taken out; the spread about it (grade changes) is the
+  (:func:`forward_accel_error`), and is taken out; the spread about it (grade changes) is the
   speed's unestimated bias;
 * yaw rate: the vertical component of ``R_tilt @ gyro`` minus the Earth rate's vertical part.
 
@@ -312,7 +312,7 @@ def run_planar_kf(
     # a slope: the tilt read there (pitch -4.7 deg against ~0.5 deg after) was -0.96 m/s^2
     # of "acceleration" all drive long; its speed ran 20 % low with every fix and 30 s
     # outages ended 173 m off (max 475 m) with 10 % of the epochs within 3 sigma.
-    found = grade_spread(imu.t, inputs.forward_accel, epochs)
+    found = forward_accel_error(imu.t, inputs.forward_accel, epochs)
     offset = found.offset if found is not None else 0.0
     accel_variance = found.variance if found is not None else noise.accel_bias_prior**2
     bias_variance = np.array([0.0, 0.0, 0.0, accel_variance, noise.gyro_bias_prior**2])
@@ -489,7 +489,7 @@ class ForwardAccelError:
         return max(self.spread**2 - self.noise**2, 0.0) + self.spread**2 / self.windows
 
 
-def grade_spread(
+def forward_accel_error(
     t_imu: np.ndarray, forward_accel: np.ndarray, epochs: GnssEpochs
 ) -> ForwardAccelError | None:
     """The forward acceleration's error against the fixes (:class:`ForwardAccelError`); None
@@ -535,12 +535,12 @@ def grade_spread(
     spread = float(np.sqrt(np.mean((mismatch - offset) ** 2)))
     # Each window's change of speed differences two speeds of that sigma.
     noise = np.sqrt(2.0) * speed_sigma / GRADE_WINDOW_S
-    return ForwardAccelError(offset, spread, len(mismatch), float(np.nan_to_num(noise)))
+    return ForwardAccelError(offset, spread, len(mismatch), float(noise))
 
 
 def grade_note(spread: float | None) -> str | None:
     """A warning when the drive's grade changes enough to mislead the planar model (a
-    :func:`grade_spread` beyond GRADE_SPREAD_M_S2); None otherwise."""
+    :func:`forward_accel_error` beyond GRADE_SPREAD_M_S2); None otherwise."""
     if spread is None or spread <= GRADE_SPREAD_M_S2:
         return None
     return (

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fgins.config import STANDARD_GRAVITY
 from fgins.datatypes import ImuData, InputError
 
 GAP_FACTOR = 3.0  # a gap is a sample interval longer than this many nominal periods
@@ -31,6 +32,13 @@ def find_gaps(t: np.ndarray, factor: float = GAP_FACTOR) -> list[tuple[float, fl
     nominal = float(np.median(dt))
     idx = np.flatnonzero(dt > factor * nominal)
     return [(float(t[i]), float(t[i + 1])) for i in idx]
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """(first, one past the last) index of each run of True in ``mask``."""
+    edges = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+    starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    return [(int(a), int(b)) for a, b in zip(starts, stops, strict=True)]
 
 
 def find_linear_fills(
@@ -50,8 +58,7 @@ def find_linear_fills(
     straight = np.all(curvature <= 1e-4 * scale + 1e-9, axis=1)
     # straight[i] says samples i, i+1, i+2 are collinear.
     fills: list[tuple[float, float]] = []
-    edges = np.diff(np.concatenate([[0], straight.astype(np.int8), [0]]))
-    for start, stop in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True):
+    for start, stop in _runs(straight):
         t_start, t_stop = float(t[start]), float(t[stop + 1])
         if t_stop - t_start >= min_duration_s:
             fills.append((t_start, t_stop))
@@ -268,12 +275,7 @@ def find_saturation(data: np.ndarray) -> list[Saturation]:
             if abs(extreme) < floor:
                 continue
             at = np.abs(column - extreme) <= 1e-9 * abs(extreme)
-            edges = np.diff(np.concatenate([[0], at.astype(np.int8), [0]]))
-            runs = [
-                (int(a), int(b) - 1)
-                for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True)
-                if b - a >= SATURATION_MIN_RUN
-            ]
+            runs = [(a, b - 1) for a, b in _runs(at) if b - a >= SATURATION_MIN_RUN]
             if runs:
                 found.append(Saturation(channel, extreme, runs))
     return found
@@ -309,7 +311,7 @@ def flag_suspect(imu: ImuData, warnings: list[str], *, label: str = "imu") -> Im
         unit, shown = (
             ("deg/s", np.degrees(found.extreme))
             if found.channel.startswith("gyro")
-            else ("g", found.extreme / 9.80665)
+            else ("g", found.extreme / STANDARD_GRAVITY)
         )
         warnings.append(
             f"{label}: {found.channel} sits on {found.extreme:+.6g} ({shown:+.4g} {unit}) in "
