@@ -1076,7 +1076,10 @@ def _heading_from_acceleration(
         >= ACCEL_HEADING_DISTANCE_M
     )
     far = far[gnss_t[far] > t0]
-    if not len(far):
+    if not len(far) or gnss_t[far[0]] > t0 + MAX_ACCEL_HEADING_S - ACCEL_HEADING_EXTRA_S:
+        # No motion inside the fit's window (a multirotor hovering 70 s before it flies):
+        # the fit would lay out noise and bias drift, and found headings 70-150 deg off with
+        # sigmas of 40-50 deg.
         return None
     t_end = min(float(gnss_t[far[0]]) + ACCEL_HEADING_EXTRA_S, t0 + MAX_ACCEL_HEADING_S)
     inside = (imu.t >= t0) & (imu.t <= t_end)

@@ -47,6 +47,7 @@ from fgins.antenna_verdict import (
     drift_time_base,
     typical_speed,
 )
+from fgins.baseline.heading_consider import HeadingGate
 from fgins.baseline.measurements import (
     AntennaStates,
     GnssEpochs,
@@ -207,6 +208,7 @@ class FilterSetup:
     gyro_at: np.ndarray  # (segments, 3) IMU sample held over each segment
     accel_at: np.ndarray
     counts: dict[str, int]
+    heading: HeadingGate  # whether a block couples the heading into the velocity
     # Each GNSS update's normalised innovation squared per dimension (the filter's own
     # consistency: ~1 for a filter whose covariance holds, see :func:`median_nis`).
     gnss_nis: list[float] = field(default_factory=list)
@@ -313,6 +315,9 @@ def prepare_filter(
         gyro_at=imu.gyro[segments.sample],
         accel_at=imu.accel[segments.sample],
         counts=counts,
+        heading=HeadingGate(
+            gravity=float(-frame.gravity[2]), accel_noise=noise.accel_noise, nhc=aiding.nhc
+        ),
         antenna=antenna,
     )
 
@@ -388,17 +393,32 @@ class FilterRecorder:
         self.gyro_bias[rows] = nodes.gyro_bias[:-1]
 
     def block_noise(
-        self, b: int, span: slice, central: BlockNominal
+        self, b: int, span: slice, central: BlockNominal, cov: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
         """Phi and Q of block ``b`` about the propagation ``central`` (augmented states
-        included); Phi is recorded for the RTS smoother."""
-        phi, q = self._block_noise(b, span, central)
+        included); Phi is recorded for the RTS smoother. With ``cov`` (the covariance at the
+        block's start), a heading the block's motion cannot tell is decoupled
+        (:class:`fgins.baseline.heading_consider.HeadingGate`)."""
+        phi, q = self._block_noise(b, span, central, cov)
         self.transition[b] = phi
         return phi, q
 
     def _block_noise(
+        self, b: int, span: slice, central: BlockNominal, cov: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        setup = self.setup
+        phi, q = self._transition(b, span, central)
+        if cov is not None:
+            phi, q = setup.heading.transition(
+                phi, q, cov, central.specific_force_nav, setup.segments.dt[span],
+                central.rotation[0], central.velocity[0],
+            )  # fmt: skip
+        return setup.block_process_noise(b, phi, q)
+
+    def _transition(
         self, b: int, span: slice, central: BlockNominal
     ) -> tuple[np.ndarray, np.ndarray]:
+        """The block's 15-state Phi and Q."""
         setup = self.setup
         dt = setup.segments.dt[span]
         if self.transition_steps is None:
@@ -410,7 +430,7 @@ class FilterRecorder:
                 central, dt, setup.frame, setup.noise, setup.white_scale[span],
                 self.transition_steps,
             )  # fmt: skip
-        return setup.block_process_noise(b, phi, q)
+        return phi, q
 
     def _counts(self) -> dict[str, int]:
         setup = self.setup
@@ -621,9 +641,9 @@ class NodeSampler(FilterRecorder):
         self.gyro_bias[rows] = nodes.gyro_bias[local]
 
     def block_noise(
-        self, b: int, span: slice, central: BlockNominal
+        self, b: int, span: slice, central: BlockNominal, cov: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
-        return self._block_noise(b, span, central)
+        return self._block_noise(b, span, central, cov)
 
     def finish(self, state: NominalState, rejected_times: list[float]) -> SampledNodes:  # type: ignore[override]
         last = len(self.setup.segments.start)  # the final node: the last a-posteriori state
@@ -822,7 +842,7 @@ def _ekf_forward(
                 np.broadcast_to(about.accel_bias, held), np.broadcast_to(about.gyro_bias, held),
             ),
         )  # fmt: skip
-        phi, q = recorder.block_noise(b, span, nominal)
+        phi, q = recorder.block_noise(b, span, nominal, cov)
         if reference is None:
             return nominal.end(state), phi @ cov @ phi.T + q
         assert anchors is not None

@@ -13,6 +13,7 @@ from statistics import NormalDist
 
 import numpy as np
 
+from fgins.baseline.heading_consider import HEADING_UNKNOWN_RAD, YAW
 from fgins.baseline.mechanization import (
     ATT,
     GYRO_BIAS,
@@ -205,7 +206,9 @@ def huber_variances(
     return variance * factor, int((u > k).sum())
 
 
-def reset_jacobian(phi: np.ndarray, dim: int = STATE_DIM) -> np.ndarray:
+def reset_jacobian(
+    phi: np.ndarray, dim: int = STATE_DIM, heading_unknown: bool = False
+) -> np.ndarray:
     """Covariance reset after injecting an attitude correction ``phi`` (first order).
 
     The error is global (``R_true = Exp(e) R``) and the correction is injected on the left
@@ -214,6 +217,11 @@ def reset_jacobian(phi: np.ndarray, dim: int = STATE_DIM) -> np.ndarray:
     right-multiplied error)."""
     g = np.eye(dim)
     g[ATT, ATT] += 0.5 * skew_batch(phi)
+    if heading_unknown:
+        # First order in the heading error too: for one of tens of degrees it is no
+        # longer a coupling but noise, which would teach the tilt a heading (and the tilt,
+        # seen in the velocity, would teach it back).
+        g[YAW, ATT.start : YAW] = g[ATT.start : YAW, YAW] = 0.0
     return g
 
 
@@ -244,8 +252,9 @@ def kalman_update(
     )
     gain = np.linalg.solve(s, jacobian @ cov).T
     dx = gain @ residual
+    heading_unknown = bool(cov[YAW, YAW] > HEADING_UNKNOWN_RAD**2)
     i_kh = np.eye(len(cov)) - gain @ jacobian
     cov = i_kh @ cov @ i_kh.T + (gain * variance) @ gain.T
-    reset = reset_jacobian(dx[ATT], len(cov))
+    reset = reset_jacobian(dx[ATT], len(cov), heading_unknown)
     cov = reset @ cov @ reset.T
     return state.boxplus(dx), 0.5 * (cov + cov.T)
