@@ -259,6 +259,9 @@ def initial_alignment(
 
 
 MAX_LEAD_S = 2.0  # first usable fix this long after the IMU starts: align there, carry back
+# The start's fit spans at most this much of the first fixes (sparse fixes: see _align_at).
+MAX_FIT_SPAN_S = 10.0
+UNKNOWN_START_SPEED_SIGMA = 20.0  # m/s: a vehicle moving at one lone fix, speed unknown
 # Motion over the alignment window that no GNSS drift at rest fakes (a receiver converging
 # after a cold start moves its fix by metres; the first-motion heading uses the same 20 m).
 MIN_CRUISE_DISTANCE_M = 20.0
@@ -575,7 +578,13 @@ def _align_at(
 
     window = gnss_t <= max(gnss_t[0], t0) + fit_window_s
     if window.sum() < 3:
-        window = np.arange(len(gnss_t)) < 3
+        # Sparse fixes (GNSS at 0.2 Hz): the first three, where they lie close enough in time
+        # for one line or parabola to stand for the motion. Fixes 40 s apart did not: a car
+        # at rest was started 80 m from its first fix at a 2 m sigma, the batch 67 m off
+        # there (35 m RMS at sigmas of 1.7 m) and the fixes blamed.
+        first_three = np.arange(len(gnss_t)) < 3
+        if gnss_t[first_three][-1] - gnss_t[0] <= MAX_FIT_SPAN_S:
+            window = first_three
     # Accelerometer average over the first second of IMU data from t0.
     first = (imu.t >= t0) & (imu.t <= t0 + 1.0)
     if first.sum() < 10:
@@ -585,10 +594,14 @@ def _align_at(
     # A quiet IMU does not accelerate: a line through the fixes, not a parabola. Its two
     # parameters leave the trimmed fit (_fit_inliers) enough fixes to find two multipath
     # outliers among 7 (a parabola through 5 noisy fixes fits one of them as well).
-    position, velocity, acceleration, speed_sigma = _gnss_fit_with_sigma(
-        gnss_t[window], gnss_enu[window], t0,
-        _stated_fix_sigma(dataset), degree=1 if static else None,
-    )  # fmt: skip
+    if window.sum() >= 2:
+        position, velocity, acceleration, speed_sigma = _gnss_fit_with_sigma(
+            gnss_t[window], gnss_enu[window], t0,
+            _stated_fix_sigma(dataset), degree=1 if static else None,
+        )  # fmt: skip
+    else:  # one fix: where the vehicle is, not how it moves
+        position, velocity, acceleration = gnss_enu[0].copy(), np.zeros(3), np.zeros(3)
+        speed_sigma = math.inf
     receiver = _receiver_velocity(dataset, gnss_t[window], t0)
     if receiver is not None:  # Doppler: centimetres per second where positions give m/s
         velocity, acceleration, speed_sigma = receiver
@@ -660,6 +673,8 @@ def _align_at(
     velocity_sigma = 0.5
     if static and speed > 2.0 * speed_sigma:
         velocity_sigma = max(velocity_sigma, speed)
+    if not static and not math.isfinite(speed_sigma):
+        velocity_sigma = UNKNOWN_START_SPEED_SIGMA  # moving, and one fix cannot say how
     return Alignment(
         t=t0,
         rotation=rotation,

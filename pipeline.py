@@ -238,10 +238,10 @@ def _filter_fit_note(
     when the fixes scatter about its track far beyond their sigmas
     (:func:`fgins.gnss_scatter.gnss_scatter`, the graph's check too): said beside the
     others only when the heights alone scatter, which names a cause they cannot (feet)."""
-    from fgins.baseline.measurements import select_gnss
+    from fgins.baseline.measurements import chi2_quantile, select_gnss
 
     epochs = select_gnss(dataset, config, gnss_mask)
-    if len(epochs.t) < 10 or len(trajectory) < 2:
+    if len(epochs.t) == 0 or len(trajectory) < 2:
         return []
     nearest = np.clip(np.searchsorted(trajectory.t, epochs.t), 0, len(trajectory) - 1)
     lever = np.asarray(config.gnss.lever_arm_m, dtype=float)
@@ -253,7 +253,11 @@ def _filter_fit_note(
     heights_only = [note for note in scatter_notes if "heights scatter" in note]
     z2 = whitened[:, :2] ** 2
     chi2 = float(np.nanmean(z2))
-    if np.isfinite(chi2) and chi2 > FILTER_FIT_CHI2_MAX:
+    # However few the fixes: EKF+RTS with two fixes 179 s apart ended 2.2 km from the
+    # second at a 5 m sigma without a word. Few fixes need a wider bound (chi-square's
+    # 99.9 % over their components).
+    bound = max(FILTER_FIT_CHI2_MAX, chi2_quantile(0.999, z2.size) / z2.size)
+    if np.isfinite(chi2) and chi2 > bound:
         planar = (
             "its planar model reads the forward acceleration as if the vehicle kept its first "
             "tilt (a hill's grade or a bank is taken for acceleration: 0.8 m/s^2 at 8 %), or "
@@ -268,6 +272,8 @@ def _filter_fit_note(
             "and GNSS on different clocks: --time-offset), it took a crawl for a stop, or the "
             "GNSS sigmas are too small: compare --method batch, which checks its own fit"
         ), *heights_only]
+    if len(epochs.t) < 10:  # too few for the statistics below
+        return scatter_notes
     nis = float(trajectory.info.get("gnss_nis_median", math.nan))
     components = 3 * (int(trajectory.info.get("gnss_updates", 0)) + int(trajectory.info.get("velocity_updates", 0)))  # type: ignore[call-overload]
     downweighted = int(trajectory.info.get("huber_downweighted", 0)) / max(components, 1)  # type: ignore[call-overload]

@@ -62,6 +62,7 @@ class FaultExclusion:
     times: list[float] = field(default_factory=list)
     rounds: int = 0
     note: str | None = None
+    warning: str | None = None  # the solution does not fit its fixes: said as a warning
     t0: float = 0.0  # the first GNSS epoch's time, which the summary counts from
 
     def info(self, used: int) -> dict[str, object]:
@@ -85,6 +86,8 @@ class FaultExclusion:
             )
         if self.note:
             out["gnss_excluded"] = self.note
+        if self.warning:
+            out["fit_warnings"] = [self.warning]
         return out
 
 
@@ -114,7 +117,14 @@ def exclude_gnss_faults(
     if len(candidates) > MAX_FAULT_FRACTION * len(keyframes):
         outcome.note = (
             f"GNSS fault exclusion: none; {len(candidates)} of {len(keyframes)} fixes lie beyond "
-            f"{FAULT_SIGMA:g} sigma, too many to be faults: their sigmas are too small"
+            f"{FAULT_SIGMA:g} sigma, too many to be faults: their sigmas are too small, or the "
+            "solution is wrong"
+        )
+        outcome.warning = (
+            f"GNSS: the solution misses {len(candidates)} of its {len(keyframes)} fixes by more "
+            f"than {FAULT_SIGMA:g} sigma: their sigmas are too small for this receiver, or the "
+            "solution is wrong (fixes too sparse for this IMU to bridge, its biases or noise "
+            "set too small, the clocks offset: --time-offset); its sigmas are not to be trusted"
         )
         return result, graph, outcome
     excluded: set[int] = set()
