@@ -19,7 +19,8 @@ import numpy as np
 
 from fgins import __version__, api
 from fgins.config import IMU_PRESETS, RunConfig
-from fgins.datatypes import Dataset, FginsError, Trajectory
+from fgins.datatypes import Dataset, FginsError, OutputError, Trajectory
+from fgins.entry import interruption
 from fgins.io.inputs import check_time_offset
 from fgins.outages import parse_windows
 from fgins.pipeline import METHODS
@@ -29,17 +30,105 @@ PLOT_SUFFIXES = api.PLOT_SUFFIXES
 GNSS_OUTPUT_SUFFIXES = (".csv", ".geojson", ".kml", ".tum")
 
 
+#: Where the options given so far are noted on the namespace argparse fills: dest -> the
+#: option string and value of its first occurrence.
+_GIVEN = "_fgins_given"
+
+
+def _first_occurrence(
+    namespace: argparse.Namespace, action: argparse.Action, option: str | None, value: object
+) -> tuple[str, object] | None:
+    """Note this occurrence of ``action``; return the earlier one (option string, value) if
+    the option was given before on this command line, else None."""
+    given = namespace.__dict__.setdefault(_GIVEN, {})
+    earlier = given.get(action.dest)
+    if earlier is None:
+        given[action.dest] = (option or "/".join(action.option_strings), value)
+    return earlier
+
+
+class _Once(argparse.Action):
+    """A single-value option that may be given once: a second occurrence (``--config a.toml
+    --config b.toml``, ``-o a.csv -o b.csv``) is one ``fgins: error:`` line and exit 2, not
+    argparse's silent last-wins (outside tester: a tactical config dropped without a word)."""
+
+    def __call__(
+        self,
+        parser: argparse.ArgumentParser,
+        namespace: argparse.Namespace,
+        values: object,
+        option_string: str | None = None,
+    ) -> None:
+        earlier = _first_occurrence(namespace, self, option_string, values)
+        if earlier is not None:
+            first_option, first_value = earlier
+            name = (
+                option_string if option_string == first_option
+                else "/".join(self.option_strings)
+            )  # fmt: skip
+            parser.exit(
+                2,
+                f"fgins: error: {name} given twice ({first_value} and {values}); give it once\n",
+            )
+        setattr(namespace, self.dest, values)
+
+
+class _AppendWindows(argparse.Action):
+    """``--gnss-outage``, repeatable: each occurrence adds its windows (``--gnss-outage 10:20
+    --gnss-outage 50:60`` is ``10:20,50:60``); the first replaces the default (demo's
+    150:180). The list is joined in the comma form by :func:`_joined_outages`."""
+
+    def __call__(
+        self,
+        parser: argparse.ArgumentParser,
+        namespace: argparse.Namespace,
+        values: object,
+        option_string: str | None = None,
+    ) -> None:
+        if _first_occurrence(namespace, self, option_string, values) is None:
+            setattr(namespace, self.dest, [values])
+        else:
+            getattr(namespace, self.dest).append(values)
+
+
+def _joined_outages(args: argparse.Namespace) -> None:
+    """Every ``--gnss-outage`` given, as one ``A:B,C:D`` string; each occurrence is checked
+    on its own first (an empty one is an error, not skipped by the join)."""
+    given = getattr(args, "gnss_outage", None)
+    if isinstance(given, list):
+        for text in given:
+            parse_windows(text)
+        args.gnss_outage = ",".join(given)
+
+
+def _check_output(path: Path, *args: object, suffixes=OUTPUT_SUFFIXES, **kwargs) -> Path:
+    """``api.check_output``, but an existing folder is named as such first (outside tester:
+    ``-o out`` with a folder ``out`` said "output format must be one of ...")."""
+    try:
+        folder = path.is_dir()
+    except OSError:  # a name the system refuses to look at (too long): api.check_output says so
+        folder = False
+    if folder:
+        raise OutputError(
+            f"{path}: is a folder; give a file name (ending in {', '.join(suffixes)})"
+        )
+    return api.check_output(path, *args, suffixes=suffixes, **kwargs)
+
+
 def _add_sensor_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "--config", type=Path, help="run configuration TOML ([imu], [gnss], [smoother])"
-    )
-    parser.add_argument("--imu-preset", choices=sorted(IMU_PRESETS), help="IMU grade preset")
+        "--config", type=Path, action=_Once,
+        help="run configuration TOML ([imu], [gnss], [smoother])",
+    )  # fmt: skip
     parser.add_argument(
-        "--vehicle", choices=["car", "aircraft", "uav", "pedestrian", "other"],
+        "--imu-preset", choices=sorted(IMU_PRESETS), action=_Once, help="IMU grade preset"
+    )
+    parser.add_argument(
+        "--vehicle", choices=["car", "aircraft", "uav", "pedestrian", "other"], action=_Once,
         help="vehicle type (land-vehicle constraints apply to car)",
     )  # fmt: skip
     parser.add_argument(
-        "--robust", choices=["huber", "cauchy", "none"],
+        "--robust", choices=["huber", "cauchy", "none"], action=_Once,
         help="robust GNSS kernel against outliers: Huber k=2 or Cauchy k=3 (in sigmas), or "
         "none (every fix at full weight); default Huber k=4",
     )  # fmt: skip
@@ -74,43 +163,56 @@ def build_parser() -> argparse.ArgumentParser:
         help="demo:kitti | FILE.mcap | ROS bag (.bag, ROS 2 bag folder) | UBX log | NMEA + "
         "imu.csv | imu.csv gnss.csv | 'fgins sim' folder",
     )  # fmt: skip
-    smooth.add_argument("--method", choices=METHODS, default="batch")
+    smooth.add_argument("--method", choices=METHODS, default="batch", action=_Once)
     smooth.add_argument(
-        "--gnss-outage", metavar="A:B[,C:D...]",
-        help="withhold GNSS epochs with A <= t - t0 < B (seconds after the first GNSS epoch)",
+        "--gnss-outage", metavar="A:B[,C:D...]", action=_AppendWindows,
+        help="withhold GNSS epochs with A <= t - t0 < B (seconds after the first GNSS epoch); "
+        "may be repeated",
     )  # fmt: skip
     smooth.add_argument(
-        "-o", "--output", type=Path, required=True, help="OUT.csv|.geojson|.kml|.mcap|.tum"
-    )
+        "-o", "--output", type=Path, required=True, action=_Once,
+        help="OUT.csv|.geojson|.kml|.mcap|.tum",
+    )  # fmt: skip
     smooth.add_argument(
         "--online", action="store_true",
         help="with --method isam2: write the online (filtered) estimate instead of the final one",
     )  # fmt: skip
-    smooth.add_argument("--plot", type=Path, help="also write a PNG: track and error vs time")
     smooth.add_argument(
-        "--time-offset", type=float, default=0.0,
+        "--plot", type=Path, action=_Once, help="also write a PNG: track and error vs time"
+    )
+    smooth.add_argument(
+        "--time-offset", type=float, default=0.0, action=_Once,
         help="seconds added to the GNSS times (any input; e.g. -18 for GPS time against UTC)",
     )  # fmt: skip
-    smooth.add_argument("--imu-topic", help="MCAP: IMU topic (default: chosen by schema)")
-    smooth.add_argument("--gnss-topic", help="MCAP: GNSS topic (default: chosen by schema)")
+    smooth.add_argument(
+        "--imu-topic", action=_Once, help="MCAP: IMU topic (default: chosen by schema)"
+    )
+    smooth.add_argument(
+        "--gnss-topic", action=_Once, help="MCAP: GNSS topic (default: chosen by schema)"
+    )
     smooth.add_argument(
         "--with-input", action="store_true", help="MCAP output: copy input channels"
     )
     _add_sensor_options(smooth)
 
     demo = sub.add_parser("demo", help="smooth the built-in KITTI drive with one 30 s GNSS outage")
-    demo.add_argument("-o", "--output-dir", type=Path, default=Path("out"))
-    demo.add_argument("--method", choices=METHODS, default="batch")
-    demo.add_argument("--gnss-outage", default="150:180")
+    demo.add_argument("-o", "--output-dir", type=Path, default=Path("out"), action=_Once)
+    demo.add_argument("--method", choices=METHODS, default="batch", action=_Once)
+    demo.add_argument(
+        "--gnss-outage", default="150:180", metavar="A:B[,C:D...]", action=_AppendWindows,
+        help="GNSS outage windows (default 150:180); may be repeated",
+    )  # fmt: skip
     _add_sensor_options(demo)
 
     sim = sub.add_parser(
         "sim", help="simulate a scenario: imu.csv, gnss.csv, config.toml, truth.csv"
     )
     sim.add_argument("scenario", help="scenario name ('fgins sim list' lists them)")
-    sim.add_argument("-o", "--output-dir", type=Path)
-    sim.add_argument("--seed", type=int, default=0)
-    sim.add_argument("--duration", type=float, help="shorten the scenario (seconds)")
+    sim.add_argument("-o", "--output-dir", type=Path, action=_Once)
+    sim.add_argument("--seed", type=int, default=0, action=_Once)
+    sim.add_argument(
+        "--duration", type=float, action=_Once, help="shorten the scenario (seconds)"
+    )
     sim.add_argument(
         "--set", action="append", default=[], metavar="KEY=VALUE", help="scenario option"
     )
@@ -119,18 +221,32 @@ def build_parser() -> argparse.ArgumentParser:
         "bench", help="outage benchmark: every method on the same data and outages"
     )
     bench.add_argument("inputs", nargs="+", metavar="INPUT", help="as for smooth")
-    bench.add_argument("--methods", default="batch,isam2,ekf,ekf-rts")
-    bench.add_argument("--gnss-outage", metavar="A:B[,C:D...]", help="explicit windows")
+    bench.add_argument("--methods", default="batch,isam2,ekf,ekf-rts", action=_Once)
+    bench.add_argument(
+        "--gnss-outage", metavar="A:B[,C:D...]", action=_AppendWindows,
+        help="explicit windows; may be repeated",
+    )  # fmt: skip
     # The protocol's defaults (30 s every 90 s from 60 s) live in api.bench: any of these
     # given asks for the protocol over a sim folder's own outages.
-    bench.add_argument("--outage-duration", type=float, help="protocol window length, s (default 30)")
-    bench.add_argument("--outage-period", type=float, help="protocol window spacing, s (default 90)")
-    bench.add_argument("--outage-start", type=float, help="protocol's first window, s after t0 (default 60)")
     bench.add_argument(
-        "--baseline",
+        "--outage-duration", type=float, action=_Once,
+        help="protocol window length, s (default 30)",
+    )  # fmt: skip
+    bench.add_argument(
+        "--outage-period", type=float, action=_Once,
+        help="protocol window spacing, s (default 90)",
+    )  # fmt: skip
+    bench.add_argument(
+        "--outage-start", type=float, action=_Once,
+        help="protocol's first window, s after t0 (default 60)",
+    )  # fmt: skip
+    bench.add_argument(
+        "--baseline", action=_Once,
         help="method of --methods the ratios are taken against (default: ekf if run, else the first)",
     )
-    bench.add_argument("-o", "--output-dir", type=Path, default=Path("out/bench"))
+    bench.add_argument(
+        "-o", "--output-dir", type=Path, default=Path("out/bench"), action=_Once
+    )
     _add_sensor_options(bench)
 
     fleet = sub.add_parser(
@@ -142,24 +258,25 @@ def build_parser() -> argparse.ArgumentParser:
         "@LIST.txt with one drive per line (relative to the list's folder)",
     )  # fmt: skip
     fleet.add_argument(
-        "-o", "--output-dir", type=Path, required=True,
+        "-o", "--output-dir", type=Path, required=True, action=_Once,
         help="folder for <drive>.<format> and fleet.json",
     )  # fmt: skip
-    fleet.add_argument("--method", choices=METHODS, default="batch")
+    fleet.add_argument("--method", choices=METHODS, default="batch", action=_Once)
     fleet.add_argument(
-        "--format", choices=["csv", "geojson", "kml", "mcap"], default="csv",
+        "--format", choices=["csv", "geojson", "kml", "mcap"], default="csv", action=_Once,
         help="output format of each drive",
     )  # fmt: skip
     fleet.add_argument(
-        "--workers", type=int, help="local worker processes (default: number of CPUs)"
-    )
+        "--workers", type=int, action=_Once,
+        help="local worker processes (default: number of CPUs)",
+    )  # fmt: skip
     fleet.add_argument(
-        "--scheduler", metavar="tcp://HOST:PORT",
+        "--scheduler", metavar="tcp://HOST:PORT", action=_Once,
         help="use an existing Dask scheduler (workers must see the same paths)",
     )  # fmt: skip
     fleet.add_argument(
-        "--gnss-outage", metavar="A:B[,C:D...]",
-        help="withhold GNSS epochs with A <= t - t0 < B in every drive",
+        "--gnss-outage", metavar="A:B[,C:D...]", action=_AppendWindows,
+        help="withhold GNSS epochs with A <= t - t0 < B in every drive; may be repeated",
     )  # fmt: skip
     _add_sensor_options(fleet)
 
@@ -167,8 +284,8 @@ def build_parser() -> argparse.ArgumentParser:
         "convert", help="write GNSS fixes of a log as gnss.csv/.geojson/.kml or a TUM reference"
     )
     convert.add_argument("input", type=Path)
-    convert.add_argument("-o", "--output", type=Path, required=True)
-    convert.add_argument("--time-offset", type=float, default=0.0)
+    convert.add_argument("-o", "--output", type=Path, required=True, action=_Once)
+    convert.add_argument("--time-offset", type=float, default=0.0, action=_Once)
     convert.add_argument(
         "--imu", action="store_true", help="UBX: write the receiver's IMU as imu.csv instead"
     )
@@ -223,13 +340,24 @@ def _report(dataset: Dataset, trajectory: Trajectory) -> None:
         print(f"NHC misalignment (deg): {summary['nhc_misalignment_deg']}", file=sys.stderr)
 
 
+def _check_demo_alone(inputs: list[str]) -> None:
+    """``demo:kitti demo:kitti``: named here, as a repeated file is (the loader's "give it
+    alone, not with ..." had no other input to name)."""
+    if inputs.count("demo:kitti") > 1:
+        raise FginsError(
+            "demo:kitti given twice (once is enough): it is a whole drive on its own (IMU and "
+            "GNSS); give it once, alone"
+        )
+
+
 def cmd_smooth(args: argparse.Namespace) -> int:
+    _check_demo_alone(args.inputs)
     # Every output is checked before any work (a bad path is not found after the solve).
-    args.output = api.check_output(args.output, args.inputs)
+    args.output = _check_output(args.output, args.inputs)
     if args.with_input:
         api._check_with_input(args.inputs, args.output)
     if args.plot:
-        args.plot = api.check_output(
+        args.plot = _check_output(
             args.plot, [*args.inputs, args.output], suffixes=PLOT_SUFFIXES, what="plot"
         )
     windows = parse_windows(args.gnss_outage)
@@ -376,6 +504,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
     from fgins.bench.outages import frame_to_markdown
 
+    _check_demo_alone(args.inputs)
     methods = api.check_methods(args.methods, args.baseline)  # before any work
     for flag, value in (("--outage-duration", args.outage_duration),
                         ("--outage-period", args.outage_period),
@@ -446,10 +575,10 @@ def cmd_convert(args: argparse.Namespace) -> int:
     if args.imu:
         from fgins.io.ubx import convert_ubx_imu
 
-        args.output = api.check_output(args.output, [args.input], suffixes=(".csv",), what="IMU output")
+        args.output = _check_output(args.output, [args.input], suffixes=(".csv",), what="IMU output")
         print(convert_ubx_imu(args.input, args.output), file=sys.stderr)
         return 0
-    args.output = api.check_output(args.output, [args.input], suffixes=GNSS_OUTPUT_SUFFIXES, what="GNSS output")
+    args.output = _check_output(args.output, [args.input], suffixes=GNSS_OUTPUT_SUFFIXES, what="GNSS output")
     gnss, warnings = _read_gnss_only(args.input, check_time_offset(args.time_offset))
     from fgins.io.gnss_checks import check_gnss_records
 
@@ -525,7 +654,7 @@ def cmd_inspect(args: argparse.Namespace) -> int:
     from fgins.io.inputs import check_not_empty, looks_like_nmea
 
     check_not_empty(path)
-    if path.suffix.lower() == ".mcap":
+    if path.suffix.lower() == ".mcap" or _has_mcap_magic(path):
         from fgins.io.mcap import summarize_mcap
 
         print(summarize_mcap(path))
@@ -544,10 +673,28 @@ def cmd_inspect(args: argparse.Namespace) -> int:
     if path.suffix.lower() == ".csv" and not looks_like_nmea(path):
         print(_summarize_csv(path))
         return 0
+    if path.is_file() and not looks_like_nmea(path):
+        from fgins.io.csv_pair import read_header
+
+        # Binary content that is no format fgins reads (random bytes, a PNG): the one
+        # check smooth makes, not an "NMEA log ... not usable" summary with exit 0.
+        read_header(path)
     from fgins.io.nmea import summarize_nmea
 
     print(summarize_nmea(path))
     return 0
+
+
+def _has_mcap_magic(path: Path) -> bool:
+    """An MCAP recording under another name (``drive.bin``), by its magic bytes."""
+    from fgins.datatypes import InputError
+    from fgins.io.mcap_stream import check_magic
+
+    try:
+        check_magic(path)
+    except (InputError, OSError):
+        return False
+    return True
 
 
 def _rate(t: np.ndarray) -> float:
@@ -689,6 +836,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         with warnings.catch_warnings():
             # The CLI prints every finding itself, as counted one-line `warning:`s.
             warnings.simplefilter("ignore", api.FginsWarning)
+            _joined_outages(args)
             code = COMMANDS[args.command](args)
             sys.stdout.flush()  # a closed pipe shows here, not at the interpreter's exit
             return code
@@ -707,6 +855,16 @@ def _dispatch(args: argparse.Namespace) -> int:
         print("fgins: error: out of memory", file=sys.stderr)
         return 1
     except Exception as exc:  # the promise is one line, not a traceback
+        # A signal that landed while a module initialised comes back wrapped (GTSAM's import:
+        # "ImportError: initialization failed" from a KeyboardInterrupt inside numpy's):
+        # still an interruption, not an internal error (outside tester: rc 1 at ~1 s).
+        stop = interruption(exc, (KeyboardInterrupt, _Terminated))
+        if isinstance(stop, _Terminated):
+            print("fgins: terminated (SIGTERM)", file=sys.stderr)
+            return 143
+        if stop is not None:
+            print("fgins: interrupted", file=sys.stderr)
+            return 130
         if args.debug:
             raise
         if isinstance(exc, OSError) and exc.errno is not None:

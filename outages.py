@@ -27,7 +27,12 @@ def parse_windows(text: str | None) -> list[tuple[float, float]]:
             raise FginsError(
                 f"--gnss-outage: {part!r} is not START:END in seconds (e.g. 60:90)"
             ) from None
-        if not (np.isfinite(start) and np.isfinite(end)) or end <= start:
+        if not (np.isfinite(start) and np.isfinite(end)):
+            raise FginsError(
+                f"--gnss-outage: window {part!r}: START and END must be finite numbers of "
+                "seconds (e.g. 60:90)"
+            )
+        if end <= start:
             raise FginsError(f"--gnss-outage: window {part!r} must have START < END")
         windows.append((start, end))
     return windows
