@@ -260,7 +260,7 @@ def with_antenna_corrected(
             )
         if offset is None and arm is None and lag is None:
             break
-        if lag is not None:
+        if lag is not None and (offset is None or abs(float(offset)) <= abs(float(lag))):  # type: ignore[arg-type]
             # The velocities' delay alone first: the check models it to first order (the
             # acceleration times the delay), and what is left, the second derivative times
             # half its square, lies along the track in turns as a vertical arm's velocity
