@@ -614,15 +614,17 @@ def _read_gnss_only(path: Path, time_offset: float):
     from fgins.io.inputs import check_not_empty
 
     check_not_empty(path)
+    from fgins.io.mcap_stream import is_mcap
     from fgins.io.rosbag import is_rosbag, read_rosbag_gnss
 
-    if path.suffix.lower() == ".mcap" or is_rosbag(path):
+    mcap = path.suffix.lower() == ".mcap" or is_mcap(path)  # an MCAP by its magic, any name
+    if mcap or is_rosbag(path):
         from dataclasses import replace
 
         from fgins.io.mcap import read_mcap_gnss
 
         # A receiver's log needs no IMU; --time-offset shifts its fixes as smooth does.
-        reader = read_mcap_gnss if path.suffix.lower() == ".mcap" else read_rosbag_gnss
+        reader = read_mcap_gnss if mcap else read_rosbag_gnss
         gnss, warnings = reader(path)
         return (replace(gnss, t=gnss.t + time_offset) if time_offset else gnss), warnings
     from fgins.io.ubx import looks_like_ubx, read_ubx_gnss
@@ -654,7 +656,9 @@ def cmd_inspect(args: argparse.Namespace) -> int:
     from fgins.io.inputs import check_not_empty, looks_like_nmea
 
     check_not_empty(path)
-    if path.suffix.lower() == ".mcap" or _has_mcap_magic(path):
+    from fgins.io.mcap_stream import is_mcap
+
+    if path.suffix.lower() == ".mcap" or is_mcap(path):  # an MCAP by its magic, any name
         from fgins.io.mcap import summarize_mcap
 
         print(summarize_mcap(path))
@@ -683,18 +687,6 @@ def cmd_inspect(args: argparse.Namespace) -> int:
 
     print(summarize_nmea(path))
     return 0
-
-
-def _has_mcap_magic(path: Path) -> bool:
-    """An MCAP recording under another name (``drive.bin``), by its magic bytes."""
-    from fgins.datatypes import InputError
-    from fgins.io.mcap_stream import check_magic
-
-    try:
-        check_magic(path)
-    except (InputError, OSError):
-        return False
-    return True
 
 
 def _rate(t: np.ndarray) -> float:

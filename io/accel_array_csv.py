@@ -20,6 +20,7 @@ The ordinary IMU the rest of fgins consumes is *derived* by the front end
 from __future__ import annotations
 
 import csv
+import itertools
 import math
 import re
 from pathlib import Path
@@ -53,6 +54,22 @@ def is_accel_array_header(header: list[str]) -> bool:
     return all(m is not None and int(m.group(1)) == i + 1 for i, m in enumerate(numbers))
 
 
+def _is_comment(row: list[str]) -> bool:
+    return bool(row) and row[0].lstrip().startswith("#")
+
+
+def _is_data(row: list[str]) -> bool:
+    """Every cell a number or blank, at least one a number."""
+    cells = [cell.strip() for cell in row]
+    if not any(cells):
+        return False
+    try:
+        [float(cell) for cell in cells if cell]
+    except ValueError:
+        return False
+    return True
+
+
 def read_accel_array_csv(
     path: str | Path, warnings: list[str] | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -63,18 +80,36 @@ def read_accel_array_csv(
     """
     path = Path(path)
     warnings = [] if warnings is None else warnings
+    comments = 0
     try:
-        with path.open(newline="") as handle:
+        with path.open(newline="", encoding="utf-8-sig") as handle:
             reader = csv.reader(handle)
-            header = [name.strip().lower() for name in next(reader, [])]
-            if not is_accel_array_header(header):
-                raise InputError(
-                    f"{path}: header must be time,a1,...,aN (accelerometer array readings)"
-                )
+            first = next(reader, [])
+            leading: list[list[str]] = []
+            while first and _is_comment(first):  # '#' comment lines before the header
+                leading.append(first)
+                first = next(reader, [])
             rows: list[list[float]] = []
+            if leading and _is_data(first) and len(leading[-1]) > 1:
+                # the header written as a comment ("# time,a1,...", numpy.savetxt's default)
+                header_row = leading.pop()
+                header_row[0] = header_row[0].lstrip().lstrip("#")
+                pending = [first]
+            else:
+                header_row, pending = first, []
+            comments = len(leading)
+            header = [name.strip().lower() for name in header_row]
+            if not is_accel_array_header(header):
+                after = f" (after {comments} '#' comment line(s))" if comments else ""
+                raise InputError(
+                    f"{path}: header must be time,a1,...,aN (accelerometer array readings){after}"
+                )
             bad = 0
-            for row in reader:
+            for row in itertools.chain(pending, reader):
                 if not row or all(not cell.strip() for cell in row):
+                    continue
+                if _is_comment(row):
+                    comments += 1
                     continue
                 try:
                     values = [float(cell) for cell in row]
@@ -89,6 +124,8 @@ def read_accel_array_csv(
         raise InputError(f"{path}: cannot read ({exc.strerror})") from None
     except UnicodeDecodeError:
         raise InputError(f"{path}: not a text CSV file") from None
+    if comments:
+        warnings.append(f"{path.name}: skipped {comments} '#' comment line(s)")
     if bad:
         warnings.append(f"{path.name}: dropped {bad} malformed or incomplete reading row(s)")
     if len(rows) < 3:

@@ -8,9 +8,11 @@ and the frame origin); ``truth.csv`` in it is never read here.
 from __future__ import annotations
 
 import csv
+import difflib
 import math
 import tomllib
 from collections.abc import Iterable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NoReturn
 
@@ -48,6 +50,9 @@ BARO_COLUMNS = ["time", "pressure_pa"]
 KNOWN_NUMERIC_COLUMNS = frozenset(
     [*IMU_COLUMNS, *GNSS_REQUIRED, *GNSS_OPTIONAL, *BARO_COLUMNS, "baro_height", "wheel_speed"]
 )
+# An MCAP file's first bytes (fgins.io.mcap_stream.MCAP_MAGIC; not imported: CSV reading
+# needs no mcap library).
+MCAP_MAGIC = b"\x89MCAP0\r\n"
 # The files a `fgins sim` folder holds that are inputs (config.toml is read separately).
 # Byte-order marks of UTF-16 text (little, big endian).
 UTF16_BOMS = (b"\xff\xfe", b"\xfe\xff")
@@ -62,20 +67,53 @@ def _utf16_without_bom(start: bytes) -> bool:
     return False
 
 
-def read_header(path: Path) -> list[str]:
-    """The header's column names, lower case. A UTF-8 byte-order mark (spreadsheet exports)
-    and quotes around the names are dropped; a header separated by ';' or tabs, not commas,
-    is an error that says so (its cells would be misread, e.g. decimal commas)."""
+@dataclass(frozen=True)
+class CsvHeader:
+    """Where a CSV file's header is: its column names (lower case), the physical lines
+    before the data (the header and any ``#`` comment lines before it) and how many of those
+    are comments (a header written as a ``#`` comment, numpy.savetxt's default, is not
+    counted: it is the header)."""
+
+    columns: list[str]
+    skip: int = 1
+    comments: int = 0
+
+
+def _is_comment(line: str) -> bool:
+    return line.lstrip().startswith("#")
+
+
+def _looks_like_data(line: str) -> bool:
+    """Every cell of ``line`` a number or blank, at least one a number: a data row."""
+    cells = [cell.strip() for cell in line.strip().split(",")]
+    return any(cells) and all(not c or _python_float(c) is not None for c in cells)
+
+
+def read_csv_header(path: Path) -> CsvHeader:
+    """The header of a CSV file (see :class:`CsvHeader`). ``#`` comment lines before it are
+    skipped; when the first other line is already data, the last comment is the header
+    (``# time,gyro_x,...`` as numpy.savetxt writes it). A UTF-8 byte-order mark (spreadsheet
+    exports) and quotes around the names are dropped; a header separated by ';' or tabs, not
+    commas, is an error that says so (its cells would be misread, e.g. decimal commas)."""
+    comments: list[str] = []
     try:
         with path.open("rb") as raw:
-            start = raw.read(4)
-        if start[:2] in UTF16_BOMS or _utf16_without_bom(start):
+            start = raw.read(8)
+        if start[:2] in UTF16_BOMS or _utf16_without_bom(start[:4]):
             raise InputError(
                 f"{path}: UTF-16 text (a spreadsheet's 'Unicode text' export); fgins reads "
                 "UTF-8 or ASCII comma-separated files (re-save as CSV UTF-8)"
             )
+        if start == MCAP_MAGIC:
+            raise InputError(
+                f"{path}: an MCAP recording (by its magic bytes), not a CSV file; an MCAP is a "
+                "whole drive (IMU and GNSS): give it alone"
+            )
         with path.open(newline="", encoding="utf-8-sig") as handle:
             first = handle.readline()
+            while first and _is_comment(first):
+                comments.append(first)
+                first = handle.readline()
     except OSError as exc:
         raise InputError(f"{path}: cannot read ({exc.strerror})") from None
     except UnicodeDecodeError:
@@ -83,6 +121,10 @@ def read_header(path: Path) -> list[str]:
             f"{path}: binary content that is none of the formats fgins reads (CSV, NMEA 0183, "
             "u-blox UBX, MCAP)"
         ) from None
+    skip = len(comments) + 1
+    if comments and _looks_like_data(first) and "," in comments[-1]:
+        first = comments.pop().lstrip().lstrip("#")  # the header, written as a comment
+        skip -= 1
     if "," not in first:
         for separator, name in ((";", "semicolons"), ("\t", "tabs")):
             if separator in first:
@@ -90,7 +132,13 @@ def read_header(path: Path) -> list[str]:
                     f"{path}: the fields are separated by {name}; fgins reads comma-separated "
                     "files with '.' as the decimal point (re-export as CSV)"
                 )
-    return [name.strip().strip('"').strip().lower() for name in first.strip().split(",")]
+    columns = [name.strip().strip('"').strip().lower() for name in first.strip().split(",")]
+    return CsvHeader(columns=columns, skip=skip, comments=len(comments))
+
+
+def read_header(path: Path) -> list[str]:
+    """The header's column names, lower case (see :func:`read_csv_header`)."""
+    return read_csv_header(path).columns
 
 
 def csv_kind(path: Path) -> str | None:
@@ -115,10 +163,13 @@ def _read_columns(path: Path, warnings: list[str]) -> dict[str, np.ndarray]:
 
     A row is skipped silently when every cell is blank, and dropped and counted as malformed
     when its number of fields differs from the header's or a cell is not a number to Python's
-    ``float``. Vectorised with pyarrow's CSV reader (issue 9: the per-cell Python loop cost
-    ~18 s on a 1 h, 200 Hz drive); the numbers are the bits Python's ``float`` gives.
+    ``float``. A line that begins with '#' (before the header or among the rows) is a
+    comment: skipped, and all of them counted in one note. Vectorised with pyarrow's CSV
+    reader (issue 9: the per-cell Python loop cost ~18 s on a 1 h, 200 Hz drive); the
+    numbers are the bits Python's ``float`` gives.
     """
-    header = read_header(path)
+    layout = read_csv_header(path)
+    header = layout.columns
     repeated = sorted({name for name in header if header.count(name) > 1})
     if repeated:  # which copy is meant cannot be told; the last one silently won
         raise InputError(
@@ -127,9 +178,16 @@ def _read_columns(path: Path, warnings: list[str]) -> dict[str, np.ndarray]:
         )
     textable = [name not in KNOWN_NUMERIC_COLUMNS for name in header]
     try:
-        table, bad, ignored, text = _parse_table(path, len(header), textable)
+        table, bad, ignored, text, comments = _parse_table(
+            path, len(header), textable, skip=layout.skip
+        )
     except _Fallback:
-        table, bad, ignored, text = _parse_table_python(path, len(header), textable)
+        table, bad, ignored, text, comments = _parse_table_python(
+            path, len(header), textable, skip=layout.skip
+        )
+    comments += layout.comments
+    if comments:  # one note, before any error about the rows
+        warnings.append(f"{path.name}: skipped {comments} '#' comment line(s)")
     if bad > len(table) and not (len(table) == 0 and text):  # text columns: named below
         # Most rows unusable: what is left would be blamed on something else (time spans
         # that do not overlap, too few samples; outside tester).
@@ -172,17 +230,26 @@ def _python_float(text: str) -> float | None:
         return None
 
 
-def _count_wrong_width(lines: list[str]) -> int:
-    """Rows of the wrong width are malformed unless all their cells are blank (csv's view)."""
-    return sum(any(cell.strip() for row in csv.reader([text]) for cell in row) for text in lines)
+def _count_wrong_width(lines: list[str]) -> tuple[int, int]:
+    """(malformed, comments) of the rows of the wrong width: a row that begins with '#' is a
+    comment; the others are malformed unless all their cells are blank (csv's view)."""
+    comments = sum(_is_comment(text) for text in lines)
+    bad = sum(
+        any(cell.strip() for row in csv.reader([text]) for cell in row)
+        for text in lines
+        if not _is_comment(text)
+    )
+    return bad, comments
 
 
 def _parse_table(
-    path: Path, n_columns: int, textable: list[bool] | None = None
-) -> tuple[np.ndarray, int, list[int], list[int]]:
+    path: Path, n_columns: int, textable: list[bool] | None = None, skip: int = 1
+) -> tuple[np.ndarray, int, list[int], list[int], int]:
     """(rows x columns table, malformed-row count, text columns ignored, text columns that
-    made rows malformed) through pyarrow. A column that holds no number at all (a comment)
-    is text: ignored when ``textable`` says so (fgins does not read it), its cells NaN."""
+    made rows malformed, '#' comment rows skipped) through pyarrow, from the data after the
+    first ``skip`` lines. A column that holds no number at all (a comment) is text: ignored
+    when ``textable`` says so (fgins does not read it), its cells NaN. A row whose first
+    cell begins with '#' is a comment: skipped and counted, never a malformed row."""
     textable = [False] * n_columns if textable is None else textable
     import pyarrow as pa
     import pyarrow.compute as pc
@@ -199,7 +266,7 @@ def _parse_table(
         wrong_width.clear()
         return pacsv.read_csv(
             path,
-            read_options=pacsv.ReadOptions(skip_rows=1, column_names=names),
+            read_options=pacsv.ReadOptions(skip_rows=skip, column_names=names),
             parse_options=pacsv.ParseOptions(invalid_row_handler=on_invalid),
             convert_options=pacsv.ConvertOptions(
                 column_types={name: column_type for name in names}, **options
@@ -215,7 +282,7 @@ def _parse_table(
     except (pa.ArrowNotImplementedError, UnicodeDecodeError) as exc:
         raise _Fallback from exc
     if numbers is not None:
-        bad = _count_wrong_width(wrong_width)
+        bad, comments = _count_wrong_width(wrong_width)
         n_rows = numbers.num_rows
         table = np.empty((n_rows, n_columns))
         blank_row = np.ones(n_rows, dtype=bool)
@@ -223,12 +290,18 @@ def _parse_table(
             column = numbers.column(name)
             blank_row &= np.asarray(column.is_null(), dtype=bool)
             table[:, i] = column.to_numpy(zero_copy_only=False)  # nulls -> NaN
-        return table[~blank_row], bad, [], []
+        return table[~blank_row], bad, [], [], comments
     try:
         raw = read(pa.string(), strings_can_be_null=False, quoted_strings_can_be_null=False)
     except (pa.ArrowInvalid, pa.ArrowNotImplementedError, UnicodeDecodeError) as exc:
         raise _Fallback from exc
-    bad = _count_wrong_width(wrong_width)
+    bad, comments = _count_wrong_width(wrong_width)
+    if n_columns and raw.num_rows:
+        first = pc.utf8_ltrim_whitespace(raw.column(names[0]).combine_chunks())
+        comment = np.asarray(pc.starts_with(first, "#"), dtype=bool)
+        if comment.any():
+            comments += int(np.count_nonzero(comment))
+            raw = raw.filter(pa.array(~comment))
     n_rows = raw.num_rows
     table = np.empty((n_rows, n_columns))
     blank_row = np.ones(n_rows, dtype=bool)
@@ -264,23 +337,27 @@ def _parse_table(
         blank_row &= blank
     keep = ~blank_row & ~failed
     bad += int(np.count_nonzero(failed & ~blank_row))
-    return table[keep], bad, ignored, text
+    return table[keep], bad, ignored, text, comments
 
 
 def _parse_table_python(
-    path: Path, n_columns: int, textable: list[bool] | None = None
-) -> tuple[np.ndarray, int, list[int], list[int]]:
+    path: Path, n_columns: int, textable: list[bool] | None = None, skip: int = 1
+) -> tuple[np.ndarray, int, list[int], list[int], int]:
     """The reference reader (Python's csv, cell by cell), for files pyarrow rejects; the
     same result as :func:`_parse_table`."""
     textable = [False] * n_columns if textable is None else textable
     rows: list[list[str]] = []
-    bad = 0
+    bad = comments = 0
     try:
         with path.open(newline="") as handle:
+            for _ in range(skip):
+                handle.readline()
             reader = csv.reader(handle)
-            next(reader, None)
             for row in reader:
                 if not row or all(not cell.strip() for cell in row):
+                    continue
+                if _is_comment(row[0]):
+                    comments += 1
                     continue
                 if len(row) != n_columns:
                     bad += 1
@@ -307,7 +384,8 @@ def _parse_table_python(
             bad += 1
         else:
             table.append(row)
-    return np.array(table, dtype=float).reshape(len(table), n_columns), bad, ignored, text
+    table_array = np.array(table, dtype=float).reshape(len(table), n_columns)
+    return table_array, bad, ignored, text, comments
 
 
 def _read_required(
@@ -321,10 +399,31 @@ def _read_required(
     return columns
 
 
+def _warn_unknown_columns(
+    path: Path, columns: Iterable[str], known: list[str], warnings: list[str]
+) -> None:
+    """One counted warning naming the numeric columns fgins does not read in this file,
+    each with the known column it is closest to (a misspelt ``std_est`` was ignored without
+    a word and the result changed; outside tester). Text columns are said by the reader."""
+    unknown = [name for name in columns if name not in known]
+    if not unknown:
+        return
+    named = []
+    for name in unknown[:8]:
+        close = difflib.get_close_matches(name, known, n=1, cutoff=0.6)
+        named.append(f"{name} (did you mean {close[0]}?)" if close else name)
+    more = f" and {len(unknown) - 8} more" if len(unknown) > 8 else ""
+    warnings.append(
+        f"{path.name}: {len(unknown)} unknown column(s) ignored: {', '.join(named)}{more}; "
+        f"the columns read are {','.join(known)}"
+    )
+
+
 def read_imu_csv(path: str | Path, warnings: list[str] | None = None) -> ImuData:
     path = Path(path)
     warnings = [] if warnings is None else warnings
     columns = _read_required(path, warnings, "IMU", IMU_COLUMNS)
+    _warn_unknown_columns(path, columns, IMU_COLUMNS, warnings)
     gyro = np.column_stack([columns[f"gyro_{a}"] for a in "xyz"])
     accel = np.column_stack([columns[f"accel_{a}"] for a in "xyz"])
     _check_time_resolution(path, columns["time"])
@@ -365,10 +464,51 @@ def _check_time_resolution(path: Path, t: np.ndarray) -> None:
 
 
 def read_gnss_csv(path: str | Path, warnings: list[str] | None = None) -> GnssData:
+    """The fixes of a ``gnss.csv`` (rows without a time or a position dropped, counted)."""
+    return read_gnss_csv_epochs(path, warnings)[0]
+
+
+def _warn_partial_std(path: Path, columns: dict[str, np.ndarray], warnings: list[str]) -> None:
+    """Some but not all of std_east/std_north/std_up: the missing axes' 1-sigma comes from
+    the DOP model (UERE x DOP, or [gnss] default_sigma_m), said rather than silent."""
+    names = ["std_east", "std_north", "std_up"]
+    given = [name for name in names if name in columns]
+    if not given or len(given) == 3:
+        return
+    missing = [name for name in names if name not in given]
+    # As fgins.factors.gnss.position_sigmas fills a missing axis: east/north UERE x HDOP,
+    # up UERE x VDOP (else PDOP, else 1.5 HDOP), else [gnss] default_sigma_m.
+    horizontal = "UERE x hdop" if "hdop" in columns else "[gnss] default_sigma_m (no hdop column)"
+    vertical_dops = [name for name in ("vdop", "pdop", "hdop") if name in columns]
+    vertical = (
+        f"UERE x {' else '.join(vertical_dops)}" if vertical_dops
+        else "[gnss] default_sigma_m (no DOP column)"
+    )  # fmt: skip
+    used = "; ".join(
+        f"{name.removeprefix('std_')} from {vertical if name == 'std_up' else horizontal}"
+        for name in missing
+    )
+    warnings.append(
+        f"{path.name}: {', '.join(missing)} missing beside {', '.join(given)}: {used} "
+        "(give all three std columns, or none)"
+    )
+
+
+def read_gnss_csv_epochs(
+    path: str | Path, warnings: list[str] | None = None
+) -> tuple[GnssData, float]:
+    """The fixes of a ``gnss.csv`` and the time of its first epoch, usable or not (the
+    earliest row with a time, with a position or not): the t0 of ``--gnss-outage`` windows
+    (``Dataset.metadata["gnss_first_epoch_t"]``), as the NMEA, UBX and MCAP readers give it
+    for epochs without a fix; NaN without any time."""
     path = Path(path)
     warnings = [] if warnings is None else warnings
     columns = _read_required(path, warnings, "GNSS", GNSS_REQUIRED)
+    _warn_unknown_columns(path, columns, GNSS_REQUIRED + GNSS_OPTIONAL, warnings)
+    _warn_partial_std(path, columns, warnings)
     t = columns["time"]
+    timed = t[np.isfinite(t)]
+    first_epoch_t = float(timed.min()) if timed.size else math.nan
     lla = np.column_stack([columns["lat"], columns["lon"], columns["alt"]])
     # Latitude and longitude without a height (a 2-D fix, an empty alt cell) is kept: the
     # validation layer gives it a held height with a large vertical sigma.
@@ -422,7 +562,7 @@ def read_gnss_csv(path: str | Path, warnings: list[str] | None = None) -> GnssDa
         if fill.any():
             velocity = np.full((len(index), 3), np.nan) if velocity is None else velocity
             velocity[fill, :2] = _velocity_from_speed_course(speed[fill], course[fill])[:, :2]
-    return GnssData(
+    gnss = GnssData(
         t=t[index],
         lla=lla[index],
         velocity=velocity,
@@ -435,6 +575,7 @@ def read_gnss_csv(path: str | Path, warnings: list[str] | None = None) -> GnssDa
         speed=column("speed"),
         course=column("course"),
     )
+    return gnss, first_epoch_t
 
 
 def _velocity_from_speed_course(speed: np.ndarray, course: np.ndarray) -> np.ndarray:
@@ -452,6 +593,7 @@ def read_odometer_csv(path: str | Path, warnings: list[str] | None = None) -> Od
     path = Path(path)
     warnings = [] if warnings is None else warnings
     columns = _read_columns(path, warnings)
+    _warn_unknown_columns(path, columns, ["time", "wheel_speed"], warnings)
     t, speed = columns["time"], columns["wheel_speed"]
     keep = np.isfinite(t) & np.isfinite(speed)
     if not keep.all():
@@ -470,6 +612,8 @@ def read_baro_csv(path: str | Path, warnings: list[str] | None = None) -> BaroDa
     path = Path(path)
     warnings = [] if warnings is None else warnings
     columns = _read_columns(path, warnings)
+    known = ["time", "pressure_pa"] if "pressure_pa" in columns else ["time", "baro_height"]
+    _warn_unknown_columns(path, columns, known, warnings)
     t = columns["time"]
     pressure = columns.get("pressure_pa")
     height = columns.get("baro_height")
@@ -619,8 +763,15 @@ def read_csv_dataset(paths: list[Path]) -> Dataset:
         if kind is None:
             if path.name == "truth.csv":
                 continue
+            layout = read_csv_header(path)
+            after = ""
+            if layout.comments and layout.columns == [""]:
+                after = f" (the file holds only {layout.comments} '#' comment line(s))"
+            elif layout.comments:
+                after = f" (the first line after {layout.comments} '#' comment line(s))"
             raise InputError(
-                f"{path}: unrecognised CSV header; expected imu.csv ({','.join(IMU_COLUMNS)}), "
+                f"{path}: unrecognised CSV header{after}; expected imu.csv "
+                f"({','.join(IMU_COLUMNS)}), "
                 f"gnss.csv ({','.join(GNSS_REQUIRED)},...), baro.csv (time,pressure_pa or "
                 "time,baro_height) or wheel.csv (time,wheel_speed)"
             )
@@ -652,7 +803,7 @@ def read_csv_dataset(paths: list[Path]) -> Dataset:
             config = {**config, "imu": derived_noise}
     else:
         imu = read_imu_csv(by_kind["imu"], warnings)
-    gnss = read_gnss_csv(by_kind["gnss"], warnings)
+    gnss, first_epoch_t = read_gnss_csv_epochs(by_kind["gnss"], warnings)
     baro = read_baro_csv(by_kind["baro"], warnings) if "baro" in by_kind else None
     odometer = read_odometer_csv(by_kind["odometer"], warnings) if "odometer" in by_kind else None
     if len(gnss) == 0:
@@ -679,6 +830,9 @@ def read_csv_dataset(paths: list[Path]) -> Dataset:
             **_scenario_outages(config, float(imu.t[0]) if len(imu.t) else None),
             # A stated origin: a truth given in east/north/up alone is taken about it.
             **({"origin_stated": True} if origin_table else {}),
+            # The t0 of outage windows: rows with a time but no position (dropped above)
+            # do not move it, as NMEA/UBX/MCAP epochs without a fix do not (Dataset.t0).
+            "gnss_first_epoch_t": first_epoch_t,
         },
     )
 

@@ -37,11 +37,23 @@ def _is_ubx(item: str) -> bool:
     return path.is_file() and looks_like_ubx(path)
 
 
+def _is_mcap(item: str | Path) -> bool:
+    """An MCAP file: by its magic bytes whatever its name (drive.bin), or named .mcap (one
+    with other bytes is then refused by the MCAP reader as "not an MCAP file")."""
+    from fgins.io.mcap_stream import is_mcap
+
+    path = Path(item)
+    return is_mcap(path) or (path.suffix.lower() == ".mcap" and path.is_file())
+
+
 def _is_bag(item: str) -> bool:
-    """A ROS 1 bag, a ROS 2 bag folder, or a .db3 / metadata.yaml of one (io/rosbag)."""
+    """A ROS 1 bag, a ROS 2 bag folder, or a .db3 / metadata.yaml of one (io/rosbag); a
+    file that begins with the MCAP magic is an MCAP whatever its name."""
+    from fgins.io.mcap_stream import is_mcap
     from fgins.io.rosbag import is_rosbag
 
-    return is_rosbag(Path(item))
+    path = Path(item)
+    return is_rosbag(path) and not is_mcap(path)
 
 
 def _bag_storage(path: Path) -> Path:
@@ -148,7 +160,7 @@ def _parse(
     topics = [f"--{name}-topic" for name, topic in (("imu", imu_topic), ("gnss", gnss_topic))
               if topic is not None]  # fmt: skip
     if topics and not any(item.lower().endswith((".mcap", ".ubx")) or _is_ubx(item)
-                          or _is_bag(item) for item in inputs):  # fmt: skip
+                          or _is_mcap(item) or _is_bag(item) for item in inputs):  # fmt: skip
         raise InputError(
             f"{' and '.join(topics)} {'choose' if len(topics) > 1 else 'chooses'} channels of an "
             "MCAP file (or the MCAP IMU beside a UBX log); these inputs have no topics: leave "
@@ -179,7 +191,8 @@ def _parse(
                 f"with {', '.join(others)}"
             )
         paths = [_bag_storage(bags[0])]
-    if len(paths) == 1 and paths[0].suffix.lower() == ".mcap" and paths[0].is_file():
+    mcaps = [p for p in paths if _is_mcap(p)]
+    if len(paths) == 1 and mcaps:
         from fgins.io.mcap import read_mcap
 
         result = read_mcap(paths[0], imu_topic=imu_topic, gnss_topic=gnss_topic, progress=progress)
@@ -198,18 +211,60 @@ def _parse(
         return result.dataset
     from fgins.io.ubx import looks_like_ubx
 
-    ubx = [p for p in paths if p.is_file() and looks_like_ubx(p)]
+    ubx = [p for p in paths if p.is_file() and p not in mcaps and looks_like_ubx(p)]
     if ubx:
         from fgins.io.ubx import load_ubx_dataset
 
         others = [p for p in paths if p not in ubx]
         return load_ubx_dataset(ubx, others, imu_topic=imu_topic, progress=progress)
+    if mcaps:
+        _refuse_mcap_with_others(mcaps, [p for p in paths if p not in mcaps])
     nmea = [p for p in paths if p.is_file() and looks_like_nmea(p)]
     if nmea:
         return _nmea_with_imu(nmea, [p for p in paths if p not in nmea], time_offset_s)
     from fgins.io.csv_pair import read_csv_dataset
 
     return read_csv_dataset(paths)
+
+
+def _refuse_mcap_with_others(mcaps: list[Path], others: list[Path]) -> None:
+    """An MCAP recording is read alone (a whole drive: IMU and GNSS topics), or as the IMU
+    beside a UBX log; given with anything else it is refused in one line that says what to
+    do instead (outside tester: it was called "none of the formats fgins reads")."""
+    from fgins.io.csv_pair import csv_kind
+
+    first = mcaps[0]
+    if len(mcaps) > 1:
+        if first.resolve() == mcaps[1].resolve():
+            raise InputError(f"{mcaps[1]}: given twice (once is enough)")
+        raise InputError(
+            f"{len(mcaps)} MCAP recordings given ({', '.join(map(str, mcaps))}); fgins reads "
+            "one recording: give one of them (or merge them first with mcap merge)"
+        )
+    whole = f"{first}: an MCAP recording is a whole drive (IMU and GNSS topics), read alone"
+    kinds = {}
+    for path in others:
+        try:
+            kinds[path] = csv_kind(path) if path.is_file() else None
+        except InputError:
+            kinds[path] = None
+    imu = [p for p, kind in kinds.items() if kind == "imu"]
+    gnss = [p for p, kind in kinds.items() if kind == "gnss"]
+    if imu and not gnss and len(others) == 1:
+        raise InputError(
+            f"{whole}, not with {imu[0]}; to use that IMU with the recording's fixes, write "
+            f"them out with `fgins convert {first} -o gnss.csv` and give {imu[0]} gnss.csv"
+        )
+    if gnss and not imu and len(others) == 1:
+        raise InputError(
+            f"{whole}, not with {gnss[0]}: fgins takes an MCAP's IMU only with the "
+            "recording's own GNSS topic (--gnss-topic picks one) or beside a u-blox UBX log; "
+            "give the MCAP alone"
+        )
+    raise InputError(
+        f"{whole}; give it alone, not with {', '.join(map(str, others))} (beside a u-blox UBX "
+        "log it gives the IMU)"
+    )
 
 
 def _nmea_with_imu(nmea: list[Path], others: list[Path], time_offset_s: float) -> Dataset:

@@ -359,6 +359,35 @@ def _fgins_output_only(scan: TopicScan) -> str:
     return ""
 
 
+def _refuse_truncated_without_messages(scan: TopicScan) -> None:
+    """A recording cut off (or damaged) before its first complete message: the error says
+    so and where reading stopped, not only that a channel is missing."""
+    outcome = scan.outcome
+    if not outcome.truncated or outcome.messages:
+        return
+    what = (
+        f"a damaged record at byte {outcome.damaged_record_at} of {outcome.cut_at}"
+        if outcome.damaged_record_at >= 0
+        else f"file truncated at byte {outcome.cut_at}"
+    )
+    channels = f" ({len(scan.channels)} channel(s) declared before it)" if scan.channels else ""
+    raise InputError(
+        f"{scan.path}: {what}: no complete message before it{channels}, nothing to read; the "
+        "recording was cut off (or damaged) before its data: give a complete copy"
+    )
+
+
+def _cut_note(scan: TopicScan, what: str) -> str:
+    """'; the file is truncated ...' for a missing channel of a cut-off recording, else ''."""
+    outcome = scan.outcome
+    if not outcome.truncated or outcome.damaged_record_at >= 0 or outcome.data_end_seen:
+        return ""
+    return (
+        f"; the file is truncated at byte {outcome.cut_at} after {outcome.messages} "
+        f"message(s): the {what} channel may be in the part that was cut off"
+    )
+
+
 def assemble_gnss(scan: TopicScan, need_imu: bool) -> tuple[GnssData, Any]:
     """The GNSS fixes (with velocity) of a finished scan and the IMU accumulator (None when
     there is none and ``need_imu`` is false); truncation and damage reported."""
@@ -394,21 +423,34 @@ def assemble_gnss(scan: TopicScan, need_imu: bool) -> tuple[GnssData, Any]:
     damage = damage_warning(path, scan.outcome)
     if damage:
         warnings.append(damage)
+    for acc in scan.accumulators.values():
+        # Read in log-time order whatever order the file stores the messages in (a valid
+        # MCAP may hold its chunks out of order; it looked like "the log mixes clocks").
+        backwards = acc.put_in_log_time_order()
+        if backwards:
+            report.append(
+                f"{acc.topic}: messages stored out of log-time order ({backwards} step(s) "
+                "back); read in log-time order"
+            )
     for cid, why in sorted(scan.skipped.items()):
         topic = scan.channels[cid].topic
         report.append(f"skipped {topic}: {why} ({scan.counts.get(cid, 0)} messages)")
     imu_acc = _accumulator_for(scan, ROLE_IMU)
     gnss_acc = _accumulator_for(scan, ROLE_GNSS)
+    if (imu_acc is None and need_imu) or gnss_acc is None:
+        _refuse_truncated_without_messages(scan)
     if imu_acc is None and need_imu:
         raise InputError(
             f"{path}: no IMU channel (sensor_msgs/msg/Imu) found; record the IMU topic "
             f"or give an IMU CSV{_fgins_output_only(scan)}{_unreadable(scan, ROLE_IMU)}"
+            f"{_cut_note(scan, 'IMU')}"
         )
     if gnss_acc is None:
         raise InputError(
             f"{path}: no GNSS channel (NavSatFix, GPSFix, foxglove.LocationFix, "
             f"nmea_msgs/Sentence) found; record a GNSS topic or give an NMEA/GNSS CSV"
             f"{_fgins_output_only(scan)}{_unreadable(scan, ROLE_GNSS)}"
+            f"{_cut_note(scan, 'GNSS')}"
         )
     for acc in scan.accumulators.values():
         if acc.decode_errors:

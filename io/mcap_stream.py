@@ -78,6 +78,7 @@ class StreamOutcome:
     data_end_seen: bool = False
 
 
+MCAP_MAGIC = b"\x89MCAP0\r\n"  # opens (and closes) every MCAP file
 _CHUNK_OPCODE = 0x06
 _MESSAGE_OPCODE = 0x05
 _SCHEMA_OPCODE = 0x03
@@ -370,7 +371,7 @@ def _ends_with_magic(file: Any, size: int) -> bool:
     if size < 16:
         return False
     file.seek(size - 8)
-    return bool(file.read(8) == b"\x89MCAP0\r\n")
+    return bool(file.read(8) == MCAP_MAGIC)
 
 
 def _count(records: Any, outcome: StreamOutcome) -> Iterator[Any]:
@@ -404,10 +405,28 @@ def read_summary(path: Path) -> Any:
     return summary
 
 
+def is_mcap(path: Path) -> bool:
+    """Whether ``path`` is a file that begins with the MCAP magic bytes, whatever its name
+    (a file cut inside the 8 magic bytes counts when what is there matches them)."""
+    try:
+        if not path.is_file():
+            return False
+        with open(path, "rb") as file:
+            head = file.read(len(MCAP_MAGIC))
+    except OSError:
+        return False
+    return len(head) >= 5 and MCAP_MAGIC.startswith(head)
+
+
 def check_magic(path: Path) -> None:
     if not path.is_file():
         raise InputError(f"{path}: no such file; check the path")
     with open(path, "rb") as file:
         head = file.read(8)
-    if head != b"\x89MCAP0\r\n":
+    if len(head) < len(MCAP_MAGIC) and len(head) >= 2 and MCAP_MAGIC.startswith(head):
+        raise InputError(
+            f"{path}: file truncated at byte {len(head)}, inside the MCAP magic bytes: nothing "
+            "to read; the recording was cut off before its data: give a complete copy"
+        )
+    if head != MCAP_MAGIC:
         raise InputError(f"{path}: not an MCAP file (bad magic bytes); give a .mcap recording")

@@ -273,11 +273,34 @@ class Accumulator:
         self.topic = topic
         self.schema_name = schema_name
         self.t = array("d")
+        self.log_ns = array("q")  # each row's log time: the order a recording is read in
         self.stamp_fallbacks = 0  # header stamp zero -> log time used
         self.decode_errors = 0
 
     def __len__(self) -> int:
         return len(self.t)
+
+    def put_in_log_time_order(self) -> int:
+        """Reorder the rows by log time (ties by time), as the ``mcap`` reader's
+        ``iter_messages(log_time_order=True)`` yields them: a recording whose messages are
+        stored in another order (valid MCAP: chunks written out of order) then reads as the
+        same drive stored in order. Returns the number of steps back in log time found."""
+        log_ns = np.frombuffer(self.log_ns, dtype=np.int64)
+        if log_ns.size != len(self.t):  # rows not recorded one per message: left as read
+            return 0
+        backwards = int(np.count_nonzero(np.diff(log_ns) < 0))
+        if backwards:
+            order = np.lexsort((np.frombuffer(self.t, dtype=float), log_ns))
+            if not self._permute(order):
+                return 0
+            self.t = _reordered(self.t, order, "d")
+            self.log_ns = _reordered(self.log_ns, order, "q")
+        return backwards
+
+    def _permute(self, order: np.ndarray) -> bool:
+        """Reorder the subclass's own per-row arrays (``t`` and ``log_ns`` are done after);
+        False: they cannot be, the rows stay as read."""
+        return True
 
     def time(self, stamp_ns: int, log_time_ns: int, use_header_stamp: bool) -> float:
         if use_header_stamp and stamp_ns > 0:
@@ -307,11 +330,16 @@ class ImuAccumulator(Accumulator):
     def add_raw(self, data: bytes, log_time: int, use_header_stamp: bool) -> None:
         stamp, values = self.read_values(data)
         self.t.append(self.time(stamp, log_time, use_header_stamp))
+        self.log_ns.append(log_time)
         self.values.extend(values)
         if len(self.t) <= self.COVARIANCE_SAMPLES:
             gyro_diag, accel_diag = self.read_covariances(data)
             self.gyro_var.append(_known_variance(gyro_diag))
             self.accel_var.append(_known_variance(accel_diag))
+
+    def _permute(self, order: np.ndarray) -> bool:
+        self.values = _reordered(self.values, order, "d", width=6)
+        return True
 
     def noise_config(self, rate_hz: float) -> dict[str, float]:
         """White-noise densities from the messages' covariances ({} when they carry none).
@@ -392,8 +420,13 @@ class FixAccumulator(Accumulator):
             self.no_fix += 1
             return
         self.t.append(t)
+        self.log_ns.append(log_time)
         self.rows.extend((lat, lon, alt, *std, quality, hdop, vdop, pdop, *velocity))
         self.rows.extend((speed, course, sats))
+
+    def _permute(self, order: np.ndarray) -> bool:
+        self.rows = _reordered(self.rows, order, "d", width=len(self.COLUMNS))
+        return True
 
 
 class VelocityAccumulator(Accumulator):
@@ -411,7 +444,12 @@ class VelocityAccumulator(Accumulator):
             std = tuple(math.sqrt(v) if v > 0 else math.nan for v in diag)  # type: ignore[assignment]
         linear = twist.linear
         self.t.append(self.time(_ros_stamp_ns(msg), log_time, use_header_stamp))
+        self.log_ns.append(log_time)
         self.rows.extend((float(linear.x), float(linear.y), float(linear.z), *std))
+
+    def _permute(self, order: np.ndarray) -> bool:
+        self.rows = _reordered(self.rows, order, "d", width=6)
+        return True
 
 
 class BaroAccumulator(Accumulator):
@@ -421,7 +459,12 @@ class BaroAccumulator(Accumulator):
 
     def add(self, msg: Any, log_time: int, use_header_stamp: bool) -> None:
         self.t.append(self.time(_ros_stamp_ns(msg), log_time, use_header_stamp))
+        self.log_ns.append(log_time)
         self.pressure.append(float(msg.fluid_pressure))
+
+    def _permute(self, order: np.ndarray) -> bool:
+        self.pressure = _reordered(self.pressure, order, "d")
+        return True
 
 
 class NmeaAccumulator(Accumulator):
@@ -438,13 +481,36 @@ class NmeaAccumulator(Accumulator):
         sentence = str(msg.sentence).strip()
         t = self.time(_ros_stamp_ns(msg), log_time, use_header_stamp)
         self.t.append(t)
+        self.log_ns.append(log_time)
         if sentence[3:6] == "GGA":
             self.fix_stamps.append(t)
         self.file.write(sentence + "\n")
 
+    def _permute(self, order: np.ndarray) -> bool:
+        """Rewrite the sentence file in the new order (when it holds one line per message)."""
+        self.close()
+        lines = self.path.read_text(encoding="ascii", errors="replace").splitlines()
+        if len(lines) != order.size:
+            return False
+        lines = [lines[k] for k in order]
+        self.path.write_text("".join(line + "\n" for line in lines), encoding="ascii")
+        t = np.frombuffer(self.t, dtype=float)[order]
+        self.fix_stamps = array("d", (float(t[k]) for k, line in enumerate(lines)
+                                      if line[3:6] == "GGA"))  # fmt: skip
+        return True
+
     def close(self) -> None:
         if not self.file.closed:
             self.file.close()
+
+
+def _reordered(values: array, order: np.ndarray, typecode: str, width: int = 1) -> array:
+    """``values`` (rows of ``width`` items) with its rows in ``order``, as an array."""
+    dtype = np.int64 if typecode == "q" else float
+    rows = np.frombuffer(values, dtype=dtype).reshape(-1, width)[order]
+    out = array(typecode)
+    out.frombytes(np.ascontiguousarray(rows).tobytes())
+    return out
 
 
 _ACCUMULATOR_BY_ROLE: dict[str, type[Accumulator]] = {

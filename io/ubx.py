@@ -1317,7 +1317,9 @@ def load_ubx_dataset(
     imu = None
     imu_from = result.imu_source
     for other in others:
-        if other.is_file() and other.suffix.lower() == ".mcap":
+        from fgins.io.mcap_stream import is_mcap
+
+        if other.is_file() and (other.suffix.lower() == ".mcap" or is_mcap(other)):
             from fgins.io.mcap import read_mcap
 
             mcap = read_mcap(other, imu_topic=imu_topic, progress=progress)
