@@ -669,7 +669,7 @@ def mounting_from_drive(dataset: Dataset, config: RunConfig, run: Rerun) -> tupl
     24) where the true mounting gives 0.5 m."""
     if not config.smoother.nhc or dataset.accel_array is not None:
         return config, None  # no vehicle-frame constraint (or derived rates: too noisy)
-    from fgins.mounting import adopted_mounting, check_mounting
+    from fgins.mounting import adopted_mounting, check_mounting, default_axes_note
 
     rpy = config.smoother.imu_to_vehicle_rpy_deg
     given = "imu_to_vehicle_rpy_deg" in config.explicit_smoother_keys or any(rpy)
@@ -705,8 +705,10 @@ def mounting_from_drive(dataset: Dataset, config: RunConfig, run: Rerun) -> tupl
             f"{turned_deg:.2f} deg"
         )
     moved_deg = _forward_angle_deg(smoother.imu_to_vehicle_rpy_deg, rpy)
-    if moved_deg <= holds_deg:
-        return original, finding if given else None  # it holds after all (a rough fit)
+    if moved_deg <= holds_deg:  # it holds after all (a rough fit)
+        # A default off in roll alone (an FRD IMU given no mounting) is said all the same:
+        # the car constraints do not see it, the output's roll does (outside tester).
+        return original, finding if given else default_axes_note(dataset, rpy)
     shown = ", ".join(f"{a:.2f}" for a in smoother.imu_to_vehicle_rpy_deg)
     if given:
         return config, (

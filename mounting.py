@@ -796,15 +796,32 @@ def _mean_grade_deg(dataset) -> float | None:
     return float(np.degrees(np.arctan(np.mean(climb[moving] / speed[moving]))))
 
 
-def _tilt_note(dataset, rpy_deg, forward: np.ndarray, up: np.ndarray) -> str | None:
-    """A warning when the configured mounting's up axis lies more than TILT_WARN_DEG from
+def default_axes_note(dataset, rpy_deg) -> str | None:
+    """For a mounting nobody gave whose forward axis holds: the up-axis note where the IMU's
+    up lies more than CONVENTION_TILT_DEG from the default's (an FRD IMU: 180 deg; one on
+    its side: 90), another axis convention rather than a road's bank (a highway's curves
+    lean gravity's mean direction by a few degrees)."""
+    found = _forward_axis(dataset)
+    if found is None:
+        return None
+    up = _gravity_axis(dataset, found.forward)
+    return _tilt_note(dataset, rpy_deg, found.forward, up, CONVENTION_TILT_DEG)
+
+
+CONVENTION_TILT_DEG = 30.0
+
+
+def _tilt_note(
+    dataset, rpy_deg, forward: np.ndarray, up: np.ndarray, warn_deg: float = TILT_WARN_DEG
+) -> str | None:
+    """A warning when the configured mounting's up axis lies more than ``warn_deg`` from
     gravity's mean direction in IMU axes, on a drive whose mean grade is near zero."""
     mean_grade = _mean_grade_deg(dataset)
     if mean_grade is None or abs(mean_grade) > MAX_MEAN_GRADE_DEG:
         return None
     configured = mounting_rotation(rpy_deg)
     tilt = float(np.degrees(np.arccos(np.clip(configured[2] @ up, -1.0, 1.0))))
-    if tilt <= TILT_WARN_DEG:
+    if tilt <= warn_deg:
         return None
     # The constraints zero the lateral and vertical velocity alike: a mounting off in roll
     # alone (an FRD IMU given no mounting: 180 deg) leaves them as they are, to the bit.
