@@ -128,17 +128,11 @@ def _note_constant_channels(imu, checks: list[str]) -> None:
                 )
 
 
-def check_units(
-    imu,
-    gnss: GnssData,
-    origin: Origin,
-    checks: list[str],
-    *,
-    has_accel_array: bool,
-    body_follows_track: bool = True,
-) -> None:
-    if not has_accel_array:
-        _note_constant_channels(imu, checks)
+def check_accel_units(imu, *, has_accel_array: bool) -> None:
+    """The accelerometer's unit from its median specific-force norm (gravity's 9.8 m/s^2):
+    in g, swapped with the gyro's columns, or another unit or scale. Before the checks that
+    compare the IMU with the track: an accelerometer in mg read as a car turning at 100
+    times its speed, and was called lat/lon in radians (outside tester)."""
     accel_norm = np.linalg.norm(imu.accel, axis=1)
     median_accel = float(np.median(accel_norm))
     median_gyro = float(np.median(np.linalg.norm(imu.gyro, axis=1)))
@@ -171,9 +165,22 @@ def check_units(
             f"imu: the accelerometer's median specific-force norm is {median_accel:.4g}, not "
             f"the ~9.8 m/s^2 of gravity: a wrong unit or scale factor; give accel_x..z in m/s^2"
         )
+
+
+def check_units(
+    imu,
+    gnss: GnssData,
+    origin: Origin,
+    checks: list[str],
+    *,
+    has_accel_array: bool,
+    body_follows_track: bool = True,
+) -> None:
+    if not has_accel_array:
+        _note_constant_channels(imu, checks)
     if has_accel_array:
         # Rates derived from an accelerometer array carry a large, ramping bias by nature;
-        # their unit follows from the accelerometers', checked above.
+        # their unit follows from the accelerometers' (check_accel_units, run before).
         return
     gyro_norm = np.linalg.norm(imu.gyro, axis=1)
     routine = float(np.percentile(gyro_norm, 90))

@@ -64,6 +64,7 @@ from fgins.io.motion_checks import (
     FREE_BODY_VEHICLES,
     SHORT_IMU_S,
     TurnsDisagree,
+    check_accel_units,
     check_clock_offset,
     check_frozen_position,
     check_gnss_velocity,
@@ -117,6 +118,7 @@ def _validated(dataset: Dataset, vehicle: str | None) -> Dataset:
     # from the drive (an [origin] 168 deg of longitude off was called "the gyro does not see
     # the turns").
     _warn_frame_extent(enu, origin, checks)
+    check_accel_units(imu, has_accel_array=dataset.accel_array is not None)
     up = mean_up(imu)
     check_frozen_position(gnss, enu, imu, up)
     check_time_bases(imu.t, gnss.t, checks, n_read=len(dataset.gnss))

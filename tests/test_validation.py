@@ -207,6 +207,17 @@ def test_accel_in_g_is_an_error(tmp_path, name, seed):
         load_dataset(_pair(tmp_path, data))
 
 
+@pytest.mark.parametrize(("name", "seed"), [("car-urban", 0), ("highway", 1), ("aircraft-ekf", 2)])
+def test_accel_in_mg_is_called_an_accelerometer_unit_not_the_fixes(tmp_path, name, seed):
+    """An accelerometer in mg (x 102): on the urban car the track-scale check, which reads
+    the turns' centripetal acceleration, ran first and said "the fixes move 82.9 times
+    slower ...: give lat/lon in degrees" (outside tester)."""
+    run = _run(name, seed, 120)
+    data = _with_imu(run.dataset, accel_scale=1000 / 9.80665)
+    with pytest.raises(InputError, match=r"accelerometer's median specific-force norm is (9|10)\d\d"):
+        load_dataset(_pair(tmp_path, data))
+
+
 @pytest.mark.parametrize(("name", "seed"), [("car-urban", 0), ("aircraft-ekf", 2), ("uav-loop-baro", 1)])
 @pytest.mark.parametrize("accel_in_g", [False, True])
 def test_swapped_gyro_and_accel_columns_are_an_error_that_says_so(tmp_path, name, seed, accel_in_g):
