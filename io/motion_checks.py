@@ -544,6 +544,69 @@ def check_frozen_position(gnss: GnssData, enu: np.ndarray, imu, up: np.ndarray) 
         )
 
 
+def drop_frozen_runs(
+    gnss: GnssData, enu: np.ndarray, imu, up: np.ndarray, checks: list[str]
+) -> tuple[GnssData, np.ndarray]:
+    """The fixes without the repeats of frozen stretches: FROZEN_RUN_MIN or more fixes in a
+    row at one position (to 1 cm) while the vehicle moved (the IMU turned or accelerated
+    over them, or the next fix lies FROZEN_JUMP_M or more away), each stretch's first fix
+    kept; said in one line. A receiver that repeats its last fix for 20 s is no multipath:
+    left in, the fault exclusion took those fixes out only after a gyro scale of -2.3 % had
+    been read from them (2.6 m RMS where the drive gives 0.34 m; outside tester). A vehicle
+    at rest under a receiver's static hold repeats its fix too, and keeps it."""
+    finite = np.all(np.isfinite(enu[:, :2]), axis=1)
+    same = finite[1:] & finite[:-1] & np.all(np.abs(np.diff(enu[:, :2], axis=0)) <= FROZEN_SPREAD_M, axis=1)
+    keep = np.ones(len(gnss.t), dtype=bool)
+    dropped_runs = []
+    for a, b in _runs(same):  # fixes a .. b are one position
+        if b - a + 1 < FROZEN_RUN_MIN:
+            continue
+        after = b + 1 if b + 1 < len(gnss.t) and finite[b + 1] else None
+        jumped = after is not None and float(np.linalg.norm(enu[after, :2] - enu[b, :2])) >= FROZEN_JUMP_M
+        inside = (imu.t >= gnss.t[a]) & (imu.t <= gnss.t[b])
+        if not (jumped or _imu_moves(imu.gyro[inside], imu.accel[inside], imu.t[inside], up)):
+            continue
+        keep[a + 1 : b + 1] = False
+        dropped_runs.append((float(gnss.t[a] - gnss.t[0]), float(gnss.t[b] - gnss.t[a]), b - a))
+    if not dropped_runs:
+        return gnss, enu
+    checks.append(
+        f"gnss: {len(dropped_runs)} stretch(es) where the fixes repeat one position while the "
+        f"vehicle moves ({sum(n for *_, n in dropped_runs)} repeated fixes left out, at t - t0 = "
+        + ", ".join(f"{start:.0f} s for {span:.0f} s" for start, span, _ in dropped_runs[:5])
+        + "): a frozen position output (a receiver repeating its last fix)"
+    )
+    return gnss.subset(keep), enu[keep]
+
+
+FROZEN_RUN_MIN = 5
+FROZEN_JUMP_M = 10.0
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """[first, last] index pairs (into the array ``mask`` was made from, one longer) of the
+    runs of True in ``mask`` (pairwise equalities): the elements first .. last are equal."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(np.int8), [0]])))
+    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
+
+
+def _imu_moves(gyro: np.ndarray, accel: np.ndarray, t: np.ndarray, up: np.ndarray) -> bool:
+    """Whether the IMU turned or accelerated (1-s means, as check_frozen_position judges)."""
+    if len(t) < 3:
+        return False
+    n = max(round(1.0 / float(np.median(np.diff(t)))), 1)
+    blocks = len(t) // n
+    if blocks < 1:
+        return False
+    yaw = (gyro[: blocks * n].reshape(blocks, n, 3).mean(axis=1)) @ up
+    force = accel[: blocks * n].reshape(blocks, n, 3).mean(axis=1)
+    horizontal = force - np.outer(force @ up, up)
+    return bool(
+        np.max(np.abs(yaw)) > TURNING_RATE_RAD_S
+        or np.max(np.linalg.norm(horizontal - np.median(horizontal, axis=0), axis=1)) > MOVING_ACCEL_M_S2
+    )
+
+
 def check_track_scale_by_turns(gnss: GnssData, enu: np.ndarray, imu, up: np.ndarray) -> None:
     """Fixes that move far slower than the IMU's turns say, without velocity columns to
     compare with: in a turn the horizontal specific force is at least speed x yaw rate (1-s

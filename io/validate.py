@@ -73,6 +73,7 @@ from fgins.io.motion_checks import (
     check_units,
     check_wheel_speed,
     clock_offset_explains_turns,
+    drop_frozen_runs,
     mean_up,
 )
 
@@ -121,6 +122,7 @@ def _validated(dataset: Dataset, vehicle: str | None) -> Dataset:
     check_accel_units(imu, has_accel_array=dataset.accel_array is not None)
     up = mean_up(imu)
     check_frozen_position(gnss, enu, imu, up)
+    gnss, enu = drop_frozen_runs(gnss, enu, imu, up, checks)
     check_time_bases(imu.t, gnss.t, checks, n_read=len(dataset.gnss))
     if vehicle not in FREE_BODY_VEHICLES:  # after the time bases: a time unit shrinks speeds too
         check_track_scale_by_turns(gnss, enu, imu, up)
