@@ -20,7 +20,7 @@ import numpy as np
 from fgins import __version__, api
 from fgins.config import IMU_PRESETS, RunConfig
 from fgins.datatypes import Dataset, FginsError, OutputError, Trajectory
-from fgins.entry import interruption
+from fgins.interrupts import interruption
 from fgins.io.inputs import check_time_offset
 from fgins.outages import parse_windows
 from fgins.pipeline import METHODS

@@ -315,9 +315,7 @@ def prepare_filter(
         gyro_at=imu.gyro[segments.sample],
         accel_at=imu.accel[segments.sample],
         counts=counts,
-        heading=HeadingGate(
-            gravity=float(-frame.gravity[2]), accel_noise=noise.accel_noise, nhc=aiding.nhc
-        ),
+        heading=HeadingGate(gravity=float(-frame.gravity[2]), accel_noise=noise.accel_noise),
         antenna=antenna,
     )
 
@@ -381,7 +379,8 @@ class FilterRecorder:
             )
             state, cov = gnss_update(g, state, cov, self._gyro[sample])
             self.setup.aiding.fix_applied(t)
-        return self.setup.aiding.update(k, state, cov)
+            self.setup.heading.fix_applied()
+        return self.setup.aiding.update(k, state, cov, self.setup.heading.decoupled)
 
     def store_nodes(self, span: slice, nodes: NominalState) -> None:
         """Nominal states at the nodes of a block (all but its end node)."""
@@ -684,6 +683,12 @@ class GnssUpdater:
     rejected_times: list[float] = field(default_factory=list)
     nis: list[float] = field(default_factory=list)  # per update, over its dimension
     antenna: AntennaStates | None = None  # FilterSetup.antenna
+    heading: HeadingGate | None = None  # FilterSetup.heading
+
+    @property
+    def heading_unknown(self) -> bool:
+        """The motion cannot tell the heading at this boundary (FilterSetup.heading)."""
+        return self.heading is not None and self.heading.decoupled
 
     @classmethod
     def for_setup(
@@ -699,6 +704,7 @@ class GnssUpdater:
             counts=setup.counts,
             nis=setup.gnss_nis,
             antenna=setup.antenna,
+            heading=setup.heading,
             **extra,
         )
 
@@ -750,7 +756,7 @@ class _Updater(GnssUpdater):
             return state, cov
         variance, s = screened
         self.count_update(lin)
-        return kalman_update(state, cov, lin.residual, h, variance, s)
+        return kalman_update(state, cov, lin.residual, h, variance, s, self.heading_unknown)
 
 
 # Prediction over block b (its IMU span given) from the a-posteriori state and covariance at

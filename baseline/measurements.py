@@ -13,7 +13,7 @@ from statistics import NormalDist
 
 import numpy as np
 
-from fgins.baseline.heading_consider import HEADING_UNKNOWN_RAD, YAW
+from fgins.baseline.heading_consider import YAW
 from fgins.baseline.mechanization import (
     ATT,
     GYRO_BIAS,
@@ -241,10 +241,13 @@ def kalman_update(
     jacobian: np.ndarray,
     variance: np.ndarray,
     innovation_cov: np.ndarray | None = None,
+    heading_unknown: bool = False,
 ) -> tuple[NominalState, np.ndarray]:
     """Closed-loop linear update: inject ``K r`` into the nominal state, Joseph-form covariance
     and the attitude reset. ``innovation_cov`` (H P H^T + R) may be passed when the caller has
-    it already (gating); ``jacobian`` has as many columns as ``cov``."""
+    it already (gating); ``jacobian`` has as many columns as ``cov``. ``heading_unknown``:
+    the motion cannot tell the heading (:mod:`fgins.baseline.heading_consider`), and the
+    reset leaves it uncoupled."""
     s = (
         jacobian @ cov @ jacobian.T + np.diag(variance)
         if innovation_cov is None
@@ -252,7 +255,6 @@ def kalman_update(
     )
     gain = np.linalg.solve(s, jacobian @ cov).T
     dx = gain @ residual
-    heading_unknown = bool(cov[YAW, YAW] > HEADING_UNKNOWN_RAD**2)
     i_kh = np.eye(len(cov)) - gain @ jacobian
     cov = i_kh @ cov @ i_kh.T + (gain * variance) @ gain.T
     reset = reset_jacobian(dx[ATT], len(cov), heading_unknown)

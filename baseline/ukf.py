@@ -205,7 +205,7 @@ class _UnscentedUpdater(GnssUpdater):
         gain = np.linalg.solve(s, cross.T).T
         correction = gain @ innovation
         cov = cov - gain @ s @ gain.T
-        reset = reset_jacobian(correction[ATT], len(cov))
+        reset = reset_jacobian(correction[ATT], len(cov), self.heading_unknown)
         cov = reset @ cov @ reset.T
         self.count_update(lin)
         return state.boxplus(correction), 0.5 * (cov + cov.T)

@@ -124,12 +124,16 @@ class VehicleAiding:
         self._last_fix = float(t)
 
     def update(
-        self, k: int, state: NominalState, cov: np.ndarray
+        self, k: int, state: NominalState, cov: np.ndarray, heading_unknown: bool = False
     ) -> tuple[NominalState, np.ndarray]:
-        """Apply the pseudo-measurements due at boundary ``k`` (after any GNSS update)."""
+        """Apply the pseudo-measurements due at boundary ``k`` (after any GNSS update);
+        ``heading_unknown``: as :func:`kalman_update`'s."""
         t = float(self.times[k])
         if self.nhc and t >= self._last_nhc + self.nhc_min_interval_s - 1e-9:
-            state, cov = kalman_update(state, cov, *self.nhc_measurement(k, state, len(cov)))
+            state, cov = kalman_update(
+                state, cov, *self.nhc_measurement(k, state, len(cov)),
+                heading_unknown=heading_unknown,
+            )  # fmt: skip
             self._last_nhc = t
             self.counts["nhc_updates"] += 1
         speed = float(np.linalg.norm(state.velocity))
@@ -156,11 +160,16 @@ class VehicleAiding:
             else:
                 self._last_zero_rate = t
                 self.counts["zero_rate_updates"] += 1
-            state, cov = kalman_update(state, cov, residual, h, variance)
+            state, cov = kalman_update(
+                state, cov, residual, h, variance, heading_unknown=heading_unknown
+            )
             self.counts["zupt_updates"] += 1
             self.zupt_times.append(t)
         if np.isfinite(self.baro_height[k]):
-            state, cov = kalman_update(state, cov, *self.baro_measurement(k, state, len(cov)))
+            state, cov = kalman_update(
+                state, cov, *self.baro_measurement(k, state, len(cov)),
+                heading_unknown=heading_unknown,
+            )  # fmt: skip
             self.counts["baro_updates"] += 1
         self._recent.add(
             t, float(np.linalg.norm(state.velocity)), stationary.speed_sigma(cov[VEL, VEL])
