@@ -259,7 +259,8 @@ def initial_alignment(
 
 
 MAX_LEAD_S = 2.0  # first usable fix this long after the IMU starts: align there, carry back
-# The start's fit spans at most this much of the first fixes (sparse fixes: see _align_at).
+# The start's fit spans at most this much of the first fixes, unless the IMU stays steady over
+# them (sparse fixes: see _align_at).
 MAX_FIT_SPAN_S = 10.0
 UNKNOWN_START_SPEED_SIGMA = 20.0  # m/s: a vehicle moving at one lone fix, speed unknown
 # Motion over the alignment window that no GNSS drift at rest fakes (a receiver converging
@@ -583,8 +584,9 @@ def _align_at(
         # at rest was started 80 m from its first fix at a 2 m sigma, the batch 67 m off
         # there (35 m RMS at sigmas of 1.7 m) and the fixes blamed.
         first_three = np.arange(len(gnss_t)) < 3
-        if gnss_t[first_three][-1] - gnss_t[0] <= MAX_FIT_SPAN_S:
-            window = first_three
+        end = float(gnss_t[first_three][-1])
+        if end - gnss_t[0] <= MAX_FIT_SPAN_S or _steady(imu, t0, end):
+            window = first_three  # a steady IMU: at rest or cruising, a line fits it
     # Accelerometer average over the first second of IMU data from t0.
     first = (imu.t >= t0) & (imu.t <= t0 + 1.0)
     if first.sum() < 10:
@@ -819,6 +821,32 @@ def _with_heading(rotation: np.ndarray, heading_deg: float, forward_axis: np.nda
     turn = np.radians(current - heading_deg)  # counter-clockwise about up lowers the heading
     c, s = np.cos(turn), np.sin(turn)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ rotation
+
+
+def _steady(imu, t0: float, t1: float) -> bool:
+    """Whether the IMU's 1-s means stay within STEADY_FORCE_M_S2 (specific force, per axis)
+    and STEADY_RATE_RAD_S (rates) of their mean from ``t0`` to ``t1``: at rest or at one
+    velocity (an aircraft cruising), where a line through the fixes is the motion."""
+    inside = (imu.t >= t0) & (imu.t <= t1)
+    t = imu.t[inside]
+    if len(t) < 3:
+        return False
+    n = max(round(1.0 / float(np.median(np.diff(t)))), 1)
+    blocks = len(t) // n
+    if blocks < 2:
+        return False
+    means = [
+        values[inside][: blocks * n].reshape(blocks, n, 3).mean(axis=1)
+        for values in (imu.accel, imu.gyro)
+    ]
+    return bool(
+        np.max(np.abs(means[0] - means[0].mean(axis=0))) < STEADY_FORCE_M_S2
+        and np.max(np.abs(means[1] - means[1].mean(axis=0))) < STEADY_RATE_RAD_S
+    )
+
+
+STEADY_FORCE_M_S2 = 0.1
+STEADY_RATE_RAD_S = 0.01
 
 
 def _imu_static(gyro: np.ndarray, accel: np.ndarray, gravity: float) -> bool:

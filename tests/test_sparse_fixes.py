@@ -50,12 +50,16 @@ def _z(track, folder: Path) -> tuple[float, float]:
     return float(np.sqrt(np.mean(de**2 + dn**2))), float(np.sqrt(np.mean(z2 / 2)))
 
 
-@pytest.fixture(scope="module", params=["car-urban, 5 fixes in 180 s", "independent, 0.1 Hz"])
+@pytest.fixture(scope="module", params=["car-urban, 5 fixes in 180 s", "independent, 0.1 Hz",
+                                        "aircraft cruising, 0.1 Hz"])  # fmt: skip
 def drive(request, tmp_path_factory) -> Path:
     folder = tmp_path_factory.mktemp("sparse") / "drive"
     if request.param.startswith("car-urban"):
         write_sim_dir(SCENARIOS["car-urban"](seed=0, duration_s=180.0), folder)
         _keep_fixes(folder, lambda t: np.isin(np.round(t), [0, 40, 100, 140, 179]))
+    elif request.param.startswith("aircraft"):  # 60 s without fixes from 120 s too
+        write_sim_dir(SCENARIOS["aircraft-ekf"](seed=0, duration_s=200.0, outage_start_s=120.0), folder)
+        _keep_fixes(folder, lambda t: np.isclose(t % 10.0, 0.0))
     else:
         write_drive(folder, hilly_drive(), 180.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
                     gnss_rate=1.0, seed=5)  # fmt: skip
