@@ -894,6 +894,42 @@ def _own_outages(dataset: Dataset, reference: Trajectory | None) -> list[tuple[f
     return own
 
 
+def _hollow_windows(
+    dataset: Dataset, config: RunConfig, windows: list[tuple[float, float]]
+) -> list[tuple[tuple[float, float], str]]:
+    """The windows that hold GNSS epochs but none the run would use (each gated: no
+    position, outside the IMU span, fix quality, PDOP), each with why."""
+    from fgins.factors.gnss import gate_epochs
+    from fgins.outages import in_windows
+
+    gnss, imu = dataset.gnss, dataset.imu
+    out = []
+    for window in windows:
+        inside = in_windows(gnss.t, dataset.t0, [window])
+        if not inside.any():
+            continue  # no epoch at all: empty_windows's case
+        gate = gate_epochs(
+            gnss.subset(inside), config.gnss, imu_span=(float(imu.t[0]), float(imu.t[-1]))
+        )
+        if gate.usable.any():
+            continue
+        reasons = [
+            f"{n} {what}"
+            for n, what in (
+                (gate.rejected_pdop, f"by PDOP > {gate.pdop_max:g}" if gate.pdop_max else "by PDOP"),
+                (gate.rejected_quality, "by fix quality"),
+                (gate.rejected_position, "without a position"),
+                (gate.outside_span, "outside the IMU time span"),
+            )
+            if n
+        ]
+        out.append(
+            ((float(window[0]), float(window[1])),
+             f"its {int(inside.sum())} GNSS epochs are all gated already: {', '.join(reasons)}")
+        )  # fmt: skip
+    return out
+
+
 def _truth_for(dataset: Dataset, truth: Any) -> Trajectory | None:
     from fgins.io.trajectory_csv import read_trajectory_csv
 
@@ -1015,7 +1051,13 @@ def bench(
     -------
     >>> table = fgins.bench(fgins.load("demo:kitti"), methods=["ekf", "ekf-rts"])  # doctest: +SKIP
     """
-    from fgins.bench.outages import BenchCase, results_frame, run_case, write_results
+    from fgins.bench.outages import (
+        BenchCase,
+        check_bench_dir,
+        results_frame,
+        run_case,
+        write_results,
+    )
     from fgins.config import RunConfig
     from fgins.outages import periodic_windows
 
@@ -1038,8 +1080,17 @@ def bench(
         run_config = configure(dataset, config, **(dataset.metadata.get("run_choices") or {}))
     run_config = run_config.checked()  # a RunConfig changed in code is checked again
     dataset = _checked_input(dataset, run_config.smoother.vehicle)
+    if "ekf18" in methods and dataset.accel_array is None:
+        # Known before any solve: not a run of the others and a row of nothing.
+        raise ConfigError(
+            f"--methods ekf18: {dataset.name or 'the input'} has an ordinary IMU; ekf18 needs "
+            "accelerometer-array readings (accel_array.csv): leave it out of --methods (ekf "
+            "is the filter for an ordinary IMU)"
+        )
     windows = _windows(outages)
     from fgins.outages import empty_windows, overlapping_windows
+
+    said: list[str] = []  # warnings, also returned in attrs["warnings"] (the CLI prints them)
 
     reference = _truth_for(dataset, truth)
     # The protocol's windows where asked for (any of its three numbers given), else the
@@ -1058,16 +1109,14 @@ def bench(
         # The protocol's windows are not the user's: one that falls where the data have no
         # GNSS already (a sim folder's outage without its truth, a receiver's gap) is left
         # out and said; an explicit window there stays an error.
-        said = [empty_windows(dataset, [window]) for window in windows]
-        empty = [line for lines in said for line in lines]
+        found = [empty_windows(dataset, [window]) for window in windows]
+        empty = [line for lines in found for line in lines]
         if empty and len(empty) < len(windows):
-            warnings.warn(
+            said.append(
                 f"bench: {len(empty)} of the {len(windows)} default outage windows fall where "
-                f"the data have no GNSS epoch and are left out ({empty[0]})",
-                FginsWarning,
-                stacklevel=2,
+                f"the data have no GNSS epoch and are left out ({empty[0]})"
             )
-            windows = [window for window, lines in zip(windows, said, strict=True) if not lines]
+            windows = [window for window, lines in zip(windows, found, strict=True) if not lines]
 
     overlaps = overlapping_windows(windows)
     if overlaps:
@@ -1082,13 +1131,45 @@ def bench(
             (empty[0] + f" ({len(empty)} of {len(windows)} windows)") if empty
             else "no outage window fits in the GNSS span: give outages inside the drive"
         )
+    # A window whose fixes are all gated already (PDOP, fix quality) withholds nothing the
+    # run would have used: the run is the same as without it, no outage test (outside
+    # tester: car-urban's default 60:90 inside its PDOP stretch, scored as an outage).
+    hollow = [] if own else _hollow_windows(dataset, run_config, windows)
+    for window, why in hollow:
+        said.append(
+            f"bench: window {window[0]:g}:{window[1]:g} s withholds no usable GNSS fix ({why}): "
+            "the run is the same without it; left out of the scores"
+        )
+    if hollow:
+        left = {window for window, _ in hollow}
+        windows = [w for w in windows if (float(w[0]), float(w[1])) not in left]
+        if not windows:
+            (start, end), why = hollow[0]
+            raise ConfigError(
+                f"window {start:g}:{end:g} s withholds no usable GNSS fix ({why}; {len(hollow)} "
+                f"of {len(hollow)} windows): no outage to score; give windows where the data "
+                "have fixes the run uses"
+            )
     name = dataset.name.replace(":", "-") or "input"
+    if output_dir is not None:
+        check_bench_dir(output_dir, [name])  # before any solve
     case = BenchCase(name, dataset, run_config, windows, truth=reference)
+    case.left_out = [(window, why) for window, why in hollow]
     run_case(case, methods, progress=progress)
     if not case.results:
         raise FginsError(
             f"bench: no method produced a result ({'; '.join(case.failures)}); nothing written"
         )
+    for method, why in case.failed.items():
+        said.append(f"bench: {method} produced no result ({why}); its row says so")
+    rows = {result.method for result in case.results}
+    if baseline not in rows:
+        said.append(
+            f"bench: the baseline {baseline} produced no result: the RMS / {baseline} column "
+            "is n/a"
+        )
+    for line in said:
+        warnings.warn(line, FginsWarning, stacklevel=2)
     frame = results_frame([case], baseline=baseline)
     frame.attrs.update(
         {
@@ -1099,6 +1180,8 @@ def bench(
             "outages_from": "given" if _windows(outages) else ("data" if own else "protocol"),
             "protocol": protocol,
             "baseline": baseline,
+            "outages_left_out": [window for window, _ in hollow],
+            "warnings": said,
         }
     )
     if output_dir is not None:

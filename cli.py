@@ -480,6 +480,11 @@ def cmd_sim(args: argparse.Namespace) -> int:
         raise FginsError(
             "--duration and --set duration_s both given; they set the same length: keep one"
         )
+    # The folder is checked before the simulation (a path under a file, a folder of other
+    # data): one line and exit 2, as every command's output, not the system's "File exists".
+    from fgins.sim.writer import check_out_dir
+
+    check_out_dir(args.output_dir)
     _, run = api._simulate(args.scenario, args.output_dir, args.seed, args.duration, options)
     print(
         f"{args.scenario}: wrote {args.output_dir} ({len(run.dataset.imu)} IMU samples, "
@@ -502,7 +507,7 @@ def _parse_value(text: str) -> object:
 def cmd_bench(args: argparse.Namespace) -> int:
     import time
 
-    from fgins.bench.outages import frame_to_markdown
+    from fgins.bench.outages import check_bench_dir, frame_to_markdown
 
     _check_demo_alone(args.inputs)
     methods = api.check_methods(args.methods, args.baseline)  # before any work
@@ -512,6 +517,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
         if value is not None and not math.isfinite(value):
             raise FginsError(f"{flag} {value:g}: must be a finite number of seconds")
     api.check_output(args.output_dir / "outages.json", args.inputs, suffixes=(".json",))
+    # A folder of an earlier benchmark is rewritten whole; one holding anything else is not
+    # written into (as `fgins sim`): said now, before the solves.
+    check_bench_dir(args.output_dir)
     windows = parse_windows(args.gnss_outage)
     started = time.perf_counter()
     dataset = _load(args, args.inputs)
@@ -520,6 +528,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
         outage_duration=args.outage_duration, outage_period=args.outage_period,
         outage_start=args.outage_start, output_dir=args.output_dir, progress=_progress(args),
     )  # fmt: skip
+    for line in table.attrs.get("warnings", []):
+        print(f"warning: {line.removeprefix('bench: ')}", file=sys.stderr)
     print(frame_to_markdown(table, baseline=table.attrs["baseline"]))
     reference = (
         "simulator truth" if table.attrs["reference"] == "truth" else "the withheld GNSS fixes"
@@ -528,7 +538,12 @@ def cmd_bench(args: argparse.Namespace) -> int:
     source = {"data": " (the data's own, from the sim folder's [scenario])",
               "protocol": f" ({protocol[0]:g} s every {protocol[1]:g} s from {protocol[2]:g} s)"
               }.get(table.attrs.get("outages_from", ""), "")  # fmt: skip
-    print(f"\nreference: {reference}; outages {table.attrs['outages']}{source}")
+    left_out = table.attrs.get("outages_left_out") or []
+    dropped = (
+        f"; left out (no usable fix withheld): {', '.join(f'{a:g}:{b:g}' for a, b in left_out)}"
+        if left_out else ""
+    )  # fmt: skip
+    print(f"\nreference: {reference}; outages {table.attrs['outages']}{source}{dropped}")
     print(
         f"benchmark wall time {time.perf_counter() - started:.1f} s; results in {args.output_dir}/"
     )

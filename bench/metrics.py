@@ -110,3 +110,51 @@ def relative_position_error(
     ends_index = np.array(ends)
     error = np.diff(trajectory.at(t[ends_index]), axis=0) - np.diff(ref[ends_index], axis=0)
     return float(np.sqrt(np.mean(np.sum(error**2, axis=1))))
+
+
+def used_fixes(trajectory: Trajectory, dataset, config) -> np.ndarray:
+    """Bool mask over ``dataset.gnss``: the fixes the run that made ``trajectory`` used.
+
+    Every fix the smoother was given and kept: not withheld by the run's outage windows
+    (``info["run"]["gnss_outage"]``), through the gates of ``config.gnss`` (position, IMU
+    span, fix quality, PDOP: :func:`fgins.factors.gnss.select_epochs`, as the methods count),
+    not thinned to the keyframe spacing (the graph's ``decimated``), and neither left out as a
+    fault (``gnss_excluded_times``, batch and iSAM2) nor rejected by a filter's innovation
+    gate (``rejected_times``). Those last are matched to the nearest fix (a run that moved
+    the fixes' times reports them moved, by well under half the fix spacing)."""
+    from fgins.factors.gnss import select_epochs
+    from fgins.outages import outage_mask
+
+    gnss_t = np.asarray(dataset.gnss.t, dtype=float)
+    run = trajectory.info.get("run")
+    windows = list(run.get("gnss_outage", [])) if isinstance(run, dict) else []
+    used, _ = select_epochs(dataset, config.gnss, outage_mask(dataset, windows))
+    used = used.copy()
+    counts = trajectory.info.get("gnss_counts")
+    if isinstance(counts, dict) and counts.get("decimated"):
+        # The graph keeps a fix only at least min_keyframe_interval_s after the last kept one.
+        interval = config.smoother.min_keyframe_interval_s
+        last = -np.inf
+        for i in np.flatnonzero(used):
+            if gnss_t[i] - last >= interval - 1e-9:
+                last = gnss_t[i]
+            else:
+                used[i] = False
+    left_out = [
+        float(t)
+        for key in ("gnss_excluded_times", "rejected_times")
+        for t in (trajectory.info.get(key) or [])
+    ]
+    if left_out and used.any():
+        candidates = np.flatnonzero(used)
+        for t in left_out:
+            used[candidates[np.argmin(np.abs(gnss_t[candidates] - t))]] = False
+    return used
+
+
+def h_rms_at_used_fixes(trajectory: Trajectory, dataset, config) -> float:
+    """Horizontal RMS (m) of ``trajectory`` at the fixes its run used (:func:`used_fixes`),
+    against those fixes: the aided fit, with no gated or faulty fix in it."""
+    used = used_fixes(trajectory, dataset, config)
+    errors = errors_against(trajectory, dataset.gnss.t[used], dataset.gnss_enu()[used], dataset.t0, [])
+    return errors.summary()["h_rms_aided"]

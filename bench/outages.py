@@ -42,6 +42,10 @@ class BenchCase:
     truth: Trajectory | None = None
     results: list[MethodResult] = field(default_factory=list)
     failures: list[str] = field(default_factory=list)  # "method: why", one per failed method
+    # Method -> why it produced no result (a row that says so in the table and the JSON).
+    failed: dict[str, str] = field(default_factory=dict)
+    # Windows left out of the scores, each with why (one that withholds no usable fix).
+    left_out: list[tuple[tuple[float, float], str]] = field(default_factory=list)
 
 
 def _truth_errors(
@@ -80,8 +84,10 @@ def run_case(case: BenchCase, methods: list[str], progress: bool = False) -> Ben
                 case.dataset, case.config, method, gnss_mask=mask, progress=progress
             )
         except FginsError as exc:
-            print(f"  {case.name}: {method} unavailable: {exc}")
+            # Recorded (a row of the table and of outages.json); the caller says it as a
+            # warning: printed here on stdout it was lost among the results (outside tester).
             case.failures.append(f"{method}: {exc}")
+            case.failed[method] = str(exc)
             continue
         wall = time.perf_counter() - started
         variants = [(method, trajectory)]
@@ -136,13 +142,14 @@ def _attitude_bias_errors(trajectory: Trajectory, truth: Trajectory) -> dict[str
 # Benchmark table: (column, unit-suffixed name, metric key or None for computed columns).
 FRAME_COLUMNS = (
     "case", "method", "h_rms_outage_m", "h_max_outage_m", "h_end_outage_m", "h_rms_aided_m",
-    "rpe_100m_m", "within_3sigma_outage", "wall_s", "imu_samples_per_s", "rms_ratio",
+    "rpe_100m_m", "within_3sigma_outage", "wall_s", "imu_samples_per_s", "rms_ratio", "error",
 )  # fmt: skip
 
 
 def results_frame(cases: list[BenchCase], baseline: str = "ekf"):  # -> pandas.DataFrame
     """One row per case and method (:data:`FRAME_COLUMNS`); ``rms_ratio`` is the outage RMS
-    over ``baseline``'s in the same case (NaN without it)."""
+    over ``baseline``'s in the same case (NaN without it). A method that produced no result
+    is a row of NaN metrics whose ``error`` says why (None on the others)."""
     import pandas as pd
 
     rows = []
@@ -160,9 +167,12 @@ def results_frame(cases: list[BenchCase], baseline: str = "ekf"):  # -> pandas.D
                     case.name, result.method, m["h_rms_outage"], m["h_max_outage"],
                     m["h_end_outage_mean"], m["h_rms_aided"], m.get("rpe_100m", float("nan")),
                     m.get("within_3sigma_outage", float("nan")), result.wall_s,
-                    m["imu_samples_per_s"], ratio,
+                    m["imu_samples_per_s"], ratio, None,
                 )
             )  # fmt: skip
+        nan = float("nan")
+        for method, why in case.failed.items():
+            rows.append((case.name, method, *[nan] * 9, why))
     return pd.DataFrame(rows, columns=list(FRAME_COLUMNS))
 
 
@@ -174,29 +184,103 @@ def frame_to_markdown(frame, baseline: str = "ekf") -> str:
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for row in frame.itertuples(index=False):
+        error = getattr(row, "error", None)
+        if isinstance(error, str):
+            # A method that produced no result: the row says why, its numbers are n/a.
+            why = "failed: " + " ".join(error.split()).replace("|", "\\|")
+            lines.append(f"| {row.case} | {row.method} | {why} |" + " n/a |" * 8)
+            continue
+        ratio = f"{row.rms_ratio:.2f}" if np.isfinite(row.rms_ratio) else "n/a"
         lines.append(
             f"| {row.case} | {row.method} | {row.h_rms_outage_m:.2f} | {row.h_max_outage_m:.2f} | "
             f"{row.h_end_outage_m:.2f} | {row.h_rms_aided_m:.2f} | {row.rpe_100m_m:.2f} | "
             f"{100 * row.within_3sigma_outage:.0f}% | {row.wall_s:.2f} | "
-            f"{row.imu_samples_per_s:,.0f} | {row.rms_ratio:.2f} |"
+            f"{row.imu_samples_per_s:,.0f} | {ratio} |"
         )
     return "\n".join(lines)
 
 
 def markdown_table(cases: list[BenchCase], baseline: str = "ekf") -> str:
-    """One row per case and method; ratios against ``baseline`` in the same case."""
-    return frame_to_markdown(results_frame(cases, baseline), baseline)
+    """One row per case and method; ratios against ``baseline`` in the same case; then a
+    line for each window left out of the scores, with why."""
+    lines = [frame_to_markdown(results_frame(cases, baseline), baseline)]
+    for case in cases:
+        for (start, end), why in case.left_out:
+            lines.append(f"\n{case.name}: window {start:g}:{end:g} s left out of the scores: {why}")
+    return "\n".join(lines)
+
+
+#: The files ``fgins bench -o DIR`` writes besides one ``<case>.png`` per case.
+BENCH_FILES = ("outages.json", "outages.md")
+
+
+def _earlier_cases(folder: Path) -> list[str] | None:
+    """The cases of the ``outages.json`` an earlier ``fgins bench`` wrote in ``folder``, or
+    None when it holds none (or one that is not a benchmark's)."""
+    import json
+
+    try:
+        payload = json.loads((folder / "outages.json").read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(payload, dict) or not all(
+        isinstance(v, dict) and "methods" in v for v in payload.values()
+    ):
+        return None
+    return [str(name) for name in payload]
+
+
+def check_bench_dir(out_dir: str | Path, cases: list[str] | tuple[str, ...] = ()) -> None:
+    """``out_dir`` may receive a benchmark: a new or empty folder, or one an earlier
+    ``fgins bench`` wrote (its outages.json, outages.md and case plots, replaced by this run's:
+    an earlier case's plot is removed, never left beside another run's table). Anything else
+    in it is not the benchmark's to replace: an :class:`OutputError`, before any work (as
+    ``fgins sim`` treats its folder). ``cases``: this run's case names (their plots)."""
+    from fgins.datatypes import OutputError
+
+    folder = Path(out_dir)
+    if folder.exists() and not folder.is_dir():
+        raise OutputError(f"{folder}: exists and is not a folder; choose another -o")
+    if not folder.is_dir():
+        return
+    entries = sorted(entry.name for entry in folder.iterdir())
+    if not entries:
+        return
+    earlier = _earlier_cases(folder)
+    own = {*BENCH_FILES, *(f"{c}.png" for c in [*(earlier or []), *cases])}
+    foreign = [name for name in entries if name not in own]
+    shown = ", ".join((foreign or entries)[:4]) + (" ..." if len(foreign or entries) > 4 else "")
+    if earlier is None:
+        raise OutputError(
+            f"{folder}: the folder is not empty ({shown}) and was not written by fgins bench; "
+            "give a new or empty folder (nothing was written)"
+        )
+    if foreign:
+        raise OutputError(
+            f"{folder}: a folder fgins bench wrote that now also holds other files ({shown}); "
+            "rewriting it would leave them beside a different benchmark: move them, or give "
+            "a new or empty folder (nothing was written)"
+        )
 
 
 def write_results(cases: list[BenchCase], out_dir: Path, baseline: str = "ekf") -> None:
     from fgins.bench.plots import plot_outage_errors
 
+    check_bench_dir(out_dir, [case.name for case in cases])
+    earlier = _earlier_cases(out_dir) or []
     out_dir.mkdir(parents=True, exist_ok=True)
     payload = {
         case.name: {
             "windows": case.windows,
             "reference": "truth" if case.truth is not None else "withheld GNSS",
-            "methods": {r.method: {**r.metrics, "wall_s": r.wall_s} for r in case.results},
+            "methods": {
+                **{r.method: {**r.metrics, "wall_s": r.wall_s} for r in case.results},
+                # A method that produced no result: recorded with why, not left out.
+                **{method: {"error": why} for method, why in case.failed.items()},
+            },
+            "windows_left_out": [
+                {"window": list(window), "why": why} for window, why in case.left_out
+            ],
         }
         for case in cases
     }
@@ -205,6 +289,9 @@ def write_results(cases: list[BenchCase], out_dir: Path, baseline: str = "ekf") 
         tmp.write_text(markdown_table(cases, baseline) + "\n")
     for case in cases:
         plot_outage_errors(case, out_dir / f"{case.name}.png")
+    # An earlier run's plots of other cases: not this benchmark's, not left beside it.
+    for name in set(earlier) - {case.name for case in cases}:
+        (out_dir / f"{name}.png").unlink(missing_ok=True)
 
 
 @dataclass
