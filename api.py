@@ -343,9 +343,10 @@ def _simulate(
     )  # fmt: skip
     try:
         from fgins.sim.scenarios import SCENARIOS
-        from fgins.sim.writer import write_sim_dir
+        from fgins.sim.writer import check_out_dir, write_sim_dir
     except ImportError:
         raise FginsError("the simulator is not available in this build") from None
+    check_sim_output(output_dir, check_out_dir)
     if scenario not in SCENARIOS:
         raise ConfigError(f"unknown scenario {scenario!r}; choose one of {', '.join(SCENARIOS)}")
     options = dict(options or {})
@@ -606,6 +607,17 @@ def _check_name_lengths(path: str | os.PathLike[str], target: Path) -> None:
                 + (f", {NAME_MAX_BYTES} less the temporary name written first" if last else "")
                 + ")"
             )
+
+
+def check_sim_output(output_dir: str | os.PathLike[str], check_out_dir) -> None:
+    """``fgins sim``'s folder, before anything is simulated: ``check_out_dir`` (the sim
+    writer's rules: new, empty or its own), and a new one must be creatable, not under a
+    file: the output check's one line (as ``fgins smooth -o``), not the system's "File
+    exists" / "Not a directory"."""
+    folder = Path(output_dir).expanduser()
+    check_out_dir(folder)
+    if not folder.is_dir():  # the place of its config.toml: a writable folder, not a file
+        check_output(folder / "config.toml", suffixes=(".toml",))
 
 
 def check_output(

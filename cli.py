@@ -480,11 +480,8 @@ def cmd_sim(args: argparse.Namespace) -> int:
         raise FginsError(
             "--duration and --set duration_s both given; they set the same length: keep one"
         )
-    # The folder is checked before the simulation (a path under a file, a folder of other
-    # data): one line and exit 2, as every command's output, not the system's "File exists".
-    from fgins.sim.writer import check_out_dir
-
-    check_out_dir(args.output_dir)
+    # api._simulate checks the folder before simulating (a path under a file, a folder of
+    # other data): one line and exit 2, as every command's output, not "File exists".
     _, run = api._simulate(args.scenario, args.output_dir, args.seed, args.duration, options)
     print(
         f"{args.scenario}: wrote {args.output_dir} ({len(run.dataset.imu)} IMU samples, "

@@ -84,18 +84,12 @@ def _is_sim_folder(folder: Path) -> bool:
 def check_out_dir(folder: str | Path) -> None:
     """A new or empty folder, or one an earlier ``fgins sim`` wrote (rewritten whole: its
     files that this run does not make are removed, so an old baro.csv cannot join a new
-    drive). Anything else is the user's data and is never written over. A new folder must
-    be creatable: under a file it is the output check's one line (as ``fgins smooth -o``),
-    not the system's "File exists" / "Not a directory"."""
-    from fgins.api import check_output
-
+    drive). Anything else is the user's data and is never written over. (Whether a new
+    folder can be made at all, not under a file, is fgins.api's output check: the caller's.)"""
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
         raise InputError(f"{folder}: exists and is not a folder; choose another output path")
     if not folder.is_dir():
-        # The place of its config.toml: the nearest existing folder on the path must be a
-        # writable folder, not a file; no name too long (api.check_output's checks).
-        check_output(folder / "config.toml", suffixes=(".toml",))
         return
     entries = sorted(entry.name for entry in folder.iterdir())
     if not entries:
