@@ -435,7 +435,12 @@ def cmd_demo(args: argparse.Namespace) -> int:
         )
     else:
         print("  horizontal error inside the outage: not measured (no GNSS epoch withheld)")
-    print(f"  horizontal RMS at GNSS epochs used: {summary['h_rms_aided']:.3f} m")
+    # At the fixes the run used (not those it gated or left out as faults), as fgins fleet.
+    from fgins.bench.metrics import h_rms_at_used_fixes
+
+    config = dataset.metadata.get("run_config") or api.configure(dataset)
+    aided = h_rms_at_used_fixes(trajectory, dataset, config)
+    print(f"  horizontal RMS at GNSS epochs used: {aided:.3f} m")
     if "within_3sigma_outage" in summary:
         print(
             f"  outage epochs inside the reported 3-sigma: {100 * summary['within_3sigma_outage']:.0f}%"
