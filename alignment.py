@@ -29,7 +29,7 @@ import numpy as np
 from fgins.config import SmootherConfig
 from fgins.datatypes import Dataset, InputError
 from fgins.geodesy import normal_gravity, so3_exp, triad
-from fgins.io.imu_checks import GAP_FACTOR
+from fgins.io.imu_checks import GAP_FACTOR, second_means
 from fgins.mounting import mounting_rotation
 
 
@@ -828,17 +828,11 @@ def _steady(imu, t0: float, t1: float) -> bool:
     and STEADY_RATE_RAD_S (rates) of their mean from ``t0`` to ``t1``: at rest or at one
     velocity (an aircraft cruising), where a line through the fixes is the motion."""
     inside = (imu.t >= t0) & (imu.t <= t1)
-    t = imu.t[inside]
-    if len(t) < 3:
+    if inside.sum() < 3:
         return False
-    n = max(round(1.0 / float(np.median(np.diff(t)))), 1)
-    blocks = len(t) // n
-    if blocks < 2:
+    means = second_means(imu.t[inside], imu.accel[inside], imu.gyro[inside])
+    if means is None or len(means[0]) < 2:
         return False
-    means = [
-        values[inside][: blocks * n].reshape(blocks, n, 3).mean(axis=1)
-        for values in (imu.accel, imu.gyro)
-    ]
     return bool(
         np.max(np.abs(means[0] - means[0].mean(axis=0))) < STEADY_FORCE_M_S2
         and np.max(np.abs(means[1] - means[1].mean(axis=0))) < STEADY_RATE_RAD_S

@@ -34,11 +34,27 @@ def find_gaps(t: np.ndarray, factor: float = GAP_FACTOR) -> list[tuple[float, fl
     return [(float(t[i]), float(t[i + 1])) for i in idx]
 
 
-def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+def true_runs(mask: np.ndarray) -> list[tuple[int, int]]:
     """(first, one past the last) index of each run of True in ``mask``."""
     edges = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
     starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
     return [(int(a), int(b)) for a, b in zip(starts, stops, strict=True)]
+
+
+def second_means(
+    t: np.ndarray, *series: np.ndarray, min_samples: int = 1
+) -> list[np.ndarray] | None:
+    """Each of ``series`` (N, 3), sampled at ``t``, averaged over consecutive 1-s blocks (at
+    least ``min_samples`` samples each; a last partial block left out), or None when not one
+    block fits. The IMU's motion as its checks judge it: turns and accelerations that last,
+    not vibration."""
+    if len(t) < 2:
+        return None
+    n = max(round(1.0 / float(np.median(np.diff(t)))), min_samples)
+    blocks = len(t) // n
+    if blocks < 1:
+        return None
+    return [values[: blocks * n].reshape(blocks, n, values.shape[1]).mean(axis=1) for values in series]
 
 
 def find_linear_fills(
@@ -58,7 +74,7 @@ def find_linear_fills(
     straight = np.all(curvature <= 1e-4 * scale + 1e-9, axis=1)
     # straight[i] says samples i, i+1, i+2 are collinear.
     fills: list[tuple[float, float]] = []
-    for start, stop in _runs(straight):
+    for start, stop in true_runs(straight):
         t_start, t_stop = float(t[start]), float(t[stop + 1])
         if t_stop - t_start >= min_duration_s:
             fills.append((t_start, t_stop))
@@ -275,7 +291,7 @@ def find_saturation(data: np.ndarray) -> list[Saturation]:
             if abs(extreme) < floor:
                 continue
             at = np.abs(column - extreme) <= 1e-9 * abs(extreme)
-            runs = [(a, b - 1) for a, b in _runs(at) if b - a >= SATURATION_MIN_RUN]
+            runs = [(a, b - 1) for a, b in true_runs(at) if b - a >= SATURATION_MIN_RUN]
             if runs:
                 found.append(Saturation(channel, extreme, runs))
     return found

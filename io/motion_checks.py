@@ -12,6 +12,7 @@ import numpy as np
 
 from fgins.datatypes import GnssData, InputError, Origin, median_interval
 from fgins.io.gnss_checks import fix_sigma
+from fgins.io.imu_checks import second_means, true_runs
 
 # Units. In rad/s no vehicle's rate is routinely (10 % of the time) above 10 rad/s; integrated
 # over a turn the GNSS track shows, a rad/s gyro gives ~1x the turn, a deg/s one 57x.
@@ -517,13 +518,10 @@ def check_frozen_position(gnss: GnssData, enu: np.ndarray, imu, up: np.ndarray) 
     xy = enu[finite, :2]
     if float(np.max(np.ptp(xy, axis=0))) > FROZEN_SPREAD_M:
         return
-    rate = 1.0 / float(np.median(np.diff(imu.t)))
-    n = max(round(rate), 5)
-    blocks = len(imu.t) // n
-    if blocks < 3:
+    means = second_means(imu.t, imu.gyro, imu.accel, min_samples=5)
+    if means is None or len(means[0]) < 3:
         return
-    gyro = imu.gyro[: blocks * n].reshape(blocks, n, 3).mean(axis=1)
-    accel = imu.accel[: blocks * n].reshape(blocks, n, 3).mean(axis=1)
+    gyro, accel = means
     yaw_rate = gyro @ up
     turning = float(np.percentile(np.abs(yaw_rate - np.median(yaw_rate)), 95))
     horizontal = accel - np.outer(accel @ up, up)
@@ -558,7 +556,7 @@ def drop_frozen_runs(
     same = finite[1:] & finite[:-1] & np.all(np.abs(np.diff(enu[:, :2], axis=0)) <= FROZEN_SPREAD_M, axis=1)
     keep = np.ones(len(gnss.t), dtype=bool)
     dropped_runs = []
-    for a, b in _runs(same):  # fixes a .. b are one position
+    for a, b in true_runs(same):  # fixes a .. b are one position
         if b - a + 1 < FROZEN_RUN_MIN:
             continue
         after = b + 1 if b + 1 < len(gnss.t) and finite[b + 1] else None
@@ -583,23 +581,12 @@ FROZEN_RUN_MIN = 5
 FROZEN_JUMP_M = 10.0
 
 
-def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    """[first, last] index pairs (into the array ``mask`` was made from, one longer) of the
-    runs of True in ``mask`` (pairwise equalities): the elements first .. last are equal."""
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(np.int8), [0]])))
-    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
-
-
 def _imu_moves(gyro: np.ndarray, accel: np.ndarray, t: np.ndarray, up: np.ndarray) -> bool:
     """Whether the IMU turned or accelerated (1-s means, as check_frozen_position judges)."""
-    if len(t) < 3:
+    means = second_means(t, gyro, accel) if len(t) >= 3 else None
+    if means is None:  # fewer than 3 samples, or not one block
         return False
-    n = max(round(1.0 / float(np.median(np.diff(t)))), 1)
-    blocks = len(t) // n
-    if blocks < 1:
-        return False
-    yaw = (gyro[: blocks * n].reshape(blocks, n, 3).mean(axis=1)) @ up
-    force = accel[: blocks * n].reshape(blocks, n, 3).mean(axis=1)
+    yaw, force = means[0] @ up, means[1]
     horizontal = force - np.outer(force @ up, up)
     return bool(
         np.max(np.abs(yaw)) > TURNING_RATE_RAD_S
