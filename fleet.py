@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from fgins.datatypes import FginsError, InputError
+from fgins.io.atomic import check_command_folder
 
 FORMATS = ("csv", "geojson", "kml", "mcap")
 FLEET_JSON = "fleet.json"
@@ -457,27 +458,12 @@ def check_fleet_dir(folder: Path, outputs: set[str]) -> set[str]:
     file this fleet does not write is removed once it is done). Anything else in it is not the
     fleet's to replace: an :class:`InputError` before any work, as ``fgins sim`` treats its
     folder. ``outputs``: this fleet's drive file names. Returns the earlier drive files."""
-    if not folder.is_dir():
-        return set()
-    entries = sorted(entry.name for entry in folder.iterdir())
-    if not entries:
+    if not folder.is_dir() or not any(folder.iterdir()):
         return set()
     earlier = _earlier_outputs(folder)
     own = {FLEET_JSON, *(earlier or ()), *outputs}
-    foreign = [name for name in entries if name not in own]
-    shown = ", ".join((foreign or entries)[:4]) + (" ..." if len(foreign or entries) > 4 else "")
-    if earlier is None:
-        raise InputError(
-            f"{folder}: the folder is not empty ({shown}) and was not written by fgins fleet; "
-            "give a new or empty folder (nothing was written)"
-        )
-    if foreign:
-        raise InputError(
-            f"{folder}: a folder fgins fleet wrote that now also holds other files ({shown}); "
-            "rewriting it would leave them beside a different fleet: move them, or give a new "
-            "or empty folder (nothing was written)"
-        )
-    return earlier
+    check_command_folder(folder, "fleet", own, earlier is not None, "fleet", InputError)
+    return earlier or set()
 
 
 def write_fleet_json(result: FleetResult, path: Path) -> None:

@@ -237,30 +237,16 @@ def check_bench_dir(out_dir: str | Path, cases: list[str] | tuple[str, ...] = ()
     in it is not the benchmark's to replace: an :class:`OutputError`, before any work (as
     ``fgins sim`` treats its folder). ``cases``: this run's case names (their plots)."""
     from fgins.datatypes import OutputError
+    from fgins.io.atomic import check_command_folder
 
     folder = Path(out_dir)
     if folder.exists() and not folder.is_dir():
         raise OutputError(f"{folder}: exists and is not a folder; choose another -o")
     if not folder.is_dir():
         return
-    entries = sorted(entry.name for entry in folder.iterdir())
-    if not entries:
-        return
     earlier = _earlier_cases(folder)
     own = {*BENCH_FILES, *(f"{c}.png" for c in [*(earlier or []), *cases])}
-    foreign = [name for name in entries if name not in own]
-    shown = ", ".join((foreign or entries)[:4]) + (" ..." if len(foreign or entries) > 4 else "")
-    if earlier is None:
-        raise OutputError(
-            f"{folder}: the folder is not empty ({shown}) and was not written by fgins bench; "
-            "give a new or empty folder (nothing was written)"
-        )
-    if foreign:
-        raise OutputError(
-            f"{folder}: a folder fgins bench wrote that now also holds other files ({shown}); "
-            "rewriting it would leave them beside a different benchmark: move them, or give "
-            "a new or empty folder (nothing was written)"
-        )
+    check_command_folder(folder, "bench", own, earlier is not None, "benchmark")
 
 
 def write_results(cases: list[BenchCase], out_dir: Path, baseline: str = "ekf") -> None:

@@ -14,6 +14,39 @@ from typing import Any
 from fgins.datatypes import OutputError
 
 
+def check_command_folder(
+    folder: Path,
+    command: str,
+    own: set[str],
+    written_by_it: bool,
+    what: str,
+    error: type[Exception] = OutputError,
+) -> None:
+    """The rule of the commands that write a folder (``fgins sim``, ``bench``, ``fleet``):
+    it may be new or empty, or one an earlier run of ``command`` wrote (``written_by_it``)
+    holding only names in ``own`` (what that run or this one writes). Anything else in it is
+    the user's and is never written over or beside: one ``error`` line, before any work.
+    ``what``: what a rewrite would leave the user's files beside ("drive", "benchmark")."""
+    if not folder.is_dir():
+        return
+    entries = sorted(entry.name for entry in folder.iterdir())
+    if not entries:
+        return
+    foreign = [name for name in entries if name not in own]
+    shown = ", ".join((foreign or entries)[:4]) + (" ..." if len(foreign or entries) > 4 else "")
+    if not written_by_it:
+        raise error(
+            f"{folder}: the folder is not empty ({shown}) and was not written by fgins "
+            f"{command}; give a new or empty folder (nothing was written)"
+        )
+    if foreign:
+        raise error(
+            f"{folder}: a folder fgins {command} wrote that now also holds other files "
+            f"({shown}); rewriting it would leave them beside a different {what}: move them, "
+            "or give a new or empty folder (nothing was written)"
+        )
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; move it into place only if the block succeeds."""

@@ -20,7 +20,7 @@ from fgins.io.accel_array_csv import (
     accel_array_table,
     write_accel_array_csv,
 )
-from fgins.io.atomic import atomic_path
+from fgins.io.atomic import atomic_path, check_command_folder
 from fgins.io.csv_pair import write_baro_csv, write_gnss_csv, write_imu_csv
 from fgins.io.trajectory_csv import write_trajectory_csv
 from fgins.sim.scenarios import SimRun
@@ -89,25 +89,11 @@ def check_out_dir(folder: str | Path) -> None:
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
         raise InputError(f"{folder}: exists and is not a folder; choose another output path")
-    if not folder.is_dir():
-        return
-    entries = sorted(entry.name for entry in folder.iterdir())
-    if not entries:
-        return
-    foreign = [name for name in entries if name not in SIM_FILES]
-    shown = ", ".join((foreign or entries)[:4]) + (" ..." if len(foreign or entries) > 4 else "")
-    if foreign and _is_sim_folder(folder):
-        # An output the user wrote beside a simulated drive (a track.csv): never removed.
-        raise InputError(
-            f"{folder}: a folder fgins sim wrote that now also holds other files ({shown}); "
-            "rewriting it would leave them beside a different drive: move them, or give a new "
-            "or empty folder (nothing was written)"
-        )
-    if foreign or not _is_sim_folder(folder):
-        raise InputError(
-            f"{folder}: the folder is not empty ({shown}) and was not written by fgins sim; "
-            "give a new or empty folder (nothing was written)"
-        )
+    # An output the user wrote beside a simulated drive (a track.csv) is never removed.
+    check_command_folder(
+        folder, "sim", set(SIM_FILES), folder.is_dir() and _is_sim_folder(folder), "drive",
+        InputError,
+    )  # fmt: skip
 
 
 def write_sim_dir(run: SimRun, out_dir: str | Path) -> None:
