@@ -17,6 +17,18 @@ def shared_dir() -> Path | None:
     return None
 
 
+@pytest.fixture
+def no_loading(monkeypatch):
+    """fgins.api.load refused: a command that must stop on its arguments or its output path
+    before it reads any input fails the test if it loads one."""
+    from fgins import api
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("the input was loaded although the command was refused first")
+
+    monkeypatch.setattr(api, "load", refuse)
+
+
 @pytest.fixture(scope="session")
 def kitti():
     from fgins.io.kitti import read_kitti

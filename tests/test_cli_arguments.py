@@ -26,13 +26,6 @@ def drive(tmp_path_factory) -> Path:
     )
 
 
-@pytest.fixture
-def no_loading(monkeypatch):
-    def refuse(*args, **kwargs):
-        raise AssertionError("the input was loaded although the arguments are unusable")
-
-    monkeypatch.setattr(api, "load", refuse)
-
 
 # --- --with-input needs an MCAP input (item 07) ----------------------------------------------
 

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 import fgins
-from fgins import api, cli, entry
+from fgins import cli, entry
 from fgins.cli import main
 from fgins.tests.cli_checks import cli_error
 
@@ -26,13 +26,6 @@ def drive(tmp_path_factory) -> Path:
         "car-urban", tmp_path_factory.mktemp("cli_repeats") / "drive", duration=20, seed=3
     )
 
-
-@pytest.fixture
-def no_loading(monkeypatch):
-    def refuse(*args, **kwargs):
-        raise AssertionError("the input was loaded although the arguments are unusable")
-
-    monkeypatch.setattr(api, "load", refuse)
 
 
 def _argparse_refusal(capsys, argv: list[str]) -> str:

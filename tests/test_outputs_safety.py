@@ -35,13 +35,6 @@ def _digest(folder: Path) -> dict[str, str]:
     }
 
 
-@pytest.fixture
-def no_loading(monkeypatch):
-    def refuse(*args, **kwargs):
-        raise AssertionError("the input was loaded although the output is unusable")
-
-    monkeypatch.setattr(api, "load", refuse)
-
 
 def _refused(capsys, argv: list[str], message: str) -> None:
     error = cli_error(capsys, argv)
