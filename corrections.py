@@ -114,12 +114,83 @@ def noise_from_data(dataset: Dataset, config: RunConfig, run: Rerun) -> tuple[Ru
                 f"{sensor} {excess[sensor]:.3g} {unit}/sqrt(Hz), {excess[sensor] / configured:.1f}"
                 f" times the configured {configured:.3g}"
             )
+    graded = _bias_of_grade(config, excess)
+    imu.update(graded.values)
     return replace(config, imu=imu), (
         f"imu: at rest ({measured.rest_s:.0f} s of the log) the IMU reads more white noise "
         f"than configured (over {NOISE_EXCESS:g} times): {'; '.join(said)}. Vibration or a "
-        "noisier sensor: the measured noise is used (a floor: a moving vehicle vibrates more). "
-        "[imu] noise_from_data = false keeps the configured noise"
+        "noisier sensor: the measured noise is used (a floor: a moving vehicle vibrates more)"
+        f"{graded.said}. [imu] noise_from_data = false keeps the configured noise"
     )
+
+
+@dataclass(frozen=True)
+class _GradedBias:
+    values: dict[str, float]  # [imu] keys set
+    said: str  # "" or "; ..." appended to the noise warning
+
+
+def _bias_of_grade(config: RunConfig, excess: dict[str, float]) -> _GradedBias:
+    """The bias instability and turn-on bias of the grade (the IMU preset) whose white noise
+    is nearest to what a sensor reads at rest, where that grade's white noise is itself more
+    than NOISE_EXCESS times the configured one (a sensor of another grade than configured,
+    not a vehicle that vibrates: cars 1.3-2 times a datasheet's accelerometer noise stay in
+    their grade) and its bias terms are larger than the configured ones (never smaller).
+
+    A sensor's white noise and its bias stability go together (the presets' ratios span the
+    grades); the bias terms cannot be read at rest. A navigation preset on a consumer IMU
+    (150 times the gyro's configured noise at rest) took the measured white noise but kept
+    biases walking 0.005 deg/h: chi2/dof 39, 14.6 m off the truth, and every antenna and
+    clock check read the bias drift as something else; with the consumer grade's bias terms
+    the same drive solves as with the right preset."""
+    from fgins.config import IMU_PRESETS, imu_noise_from_config
+    from fgins.noise_at_rest import NOISE_EXCESS
+
+    configured = config.imu_noise()
+    tau = config.imu.get("bias_correlation_time_s")
+    values: dict[str, float] = {}
+    said = []
+    for sensor, white, walk, prior, keys in (
+        ("gyro", "gyro_noise", "gyro_bias_rw", "gyro_bias_prior",
+         ("gyro_bias_instability_deg_per_hr", "gyro_bias_rw_rad_per_s_per_sqrt_s", "gyro_turn_on_bias_deg_per_s")),
+        ("accel", "accel_noise", "accel_bias_rw", "accel_bias_prior",
+         ("accel_bias_instability_mg", "accel_bias_rw_m_per_s2_per_sqrt_s", "accel_turn_on_bias_mg")),
+    ):  # fmt: skip
+        if sensor not in excess:
+            continue
+        grades = {
+            name: imu_noise_from_config({"preset": name, **({} if tau is None else {"bias_correlation_time_s": tau})})
+            for name in IMU_PRESETS
+        }
+        name = min(grades, key=lambda n: abs(math.log(getattr(grades[n], white) / excess[sensor])))
+        grade = grades[name]
+        if getattr(grade, white) <= NOISE_EXCESS * getattr(configured, white):
+            continue
+        instability_key, walk_key, prior_key = keys
+        taken = []
+        if getattr(grade, walk) > getattr(configured, walk):
+            values[walk_key] = getattr(grade, walk)
+            taken.append(f"bias instability {IMU_PRESETS[name][instability_key]:g} {_UNITS[instability_key]}")
+        if getattr(grade, prior) > getattr(configured, prior):
+            values[prior_key] = IMU_PRESETS[name][prior_key]
+            taken.append(f"turn-on bias {IMU_PRESETS[name][prior_key]:.3g} {_UNITS[prior_key]}")
+        if taken:
+            said.append(f"{sensor} {' and '.join(taken)}")
+    if not said:
+        return _GradedBias({}, "")
+    return _GradedBias(
+        values,
+        "; noise of another grade than configured has its biases too: the nearest preset's "
+        f"{', '.join(said)} are used",
+    )
+
+
+_UNITS = {
+    "gyro_bias_instability_deg_per_hr": "deg/h",
+    "gyro_turn_on_bias_deg_per_s": "deg/s",
+    "accel_bias_instability_mg": "mg",
+    "accel_turn_on_bias_mg": "mg",
+}
 
 
 # A solved turn-on bias this many of its prior sigmas from zero (on any axis) says the prior

@@ -114,6 +114,7 @@ def test_a_vibrating_imu_gets_the_noise_it_shows(tmp_path, white, rate, seed):
                             "batch", gnss_outage=OUTAGES)  # fmt: skip
     said = [w for w in measured.info.get("fit_warnings", []) if "white noise" in w]
     assert len(said) == 1 and "accel" in said[0] and "noise_from_data = false" in said[0], said
+    assert "another grade" not in said[0]  # vibration, not a sensor of another grade
     assert not any("white noise" in w for w in datasheet.info.get("fit_warnings", []))
     rms_datasheet, sigma_datasheet = outage_rms_and_sigma(datasheet, tmp_path, OUTAGES)
     rms_measured, sigma_measured = outage_rms_and_sigma(measured, tmp_path, OUTAGES)
