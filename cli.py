@@ -383,19 +383,22 @@ def cmd_smooth(args: argparse.Namespace) -> int:
         f"-> {args.output}",
         file=sys.stderr,
     )
-    if args.plot:
-        try:
-            api.plot(trajectory, dataset, gnss_outage=windows, path=args.plot,
-                     title=f"{dataset.name}: {trajectory.method}")  # fmt: skip
-        except KeyboardInterrupt:
-            # The trajectory is complete and in place; only the plot is missing.
-            print(
-                f"fgins: interrupted while plotting: {args.output} is complete, {args.plot} "
-                "was not written",
-                file=sys.stderr,
-            )
-            return 130
+    if args.plot and not _plotted(trajectory, dataset, windows, args.output, args.plot):
+        return 130
     return 0
+
+
+def _plotted(trajectory, dataset, windows, written: Path, png: Path) -> bool:
+    """Plot ``trajectory`` into ``png``; False (said) when interrupted: the trajectory in
+    ``written`` is complete and in place, only the plot is missing."""
+    try:
+        api.plot(trajectory, dataset, gnss_outage=windows, path=png,
+                 title=f"{dataset.name}: {trajectory.method}")  # fmt: skip
+    except KeyboardInterrupt:
+        print(f"fgins: interrupted while plotting: {written} is complete, {png} was not written",
+              file=sys.stderr)  # fmt: skip
+        return False
+    return True
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -412,8 +415,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
     trajectory.write(out_csv)
     gnss_enu = dataset.gnss_enu()
     errors = errors_against(trajectory, dataset.gnss.t, gnss_enu, dataset.t0, windows)
-    api.plot(trajectory, dataset, gnss_outage=windows, path=out_png,
-             title=f"{dataset.name}: {trajectory.method}")  # fmt: skip
+    if not _plotted(trajectory, dataset, windows, out_csv, out_png):
+        return 130
     summary = errors.summary()
     print(
         f"fgins demo: KITTI drive ({len(dataset.imu)} IMU samples, {len(dataset.gnss)} GNSS epochs, "

@@ -253,3 +253,19 @@ def test_ctrl_c_while_the_cli_is_imported_is_one_line(monkeypatch, capsys):
     monkeypatch.setitem(sys.modules, "fgins.cli", Importing("fgins.cli"))
     assert entry.main() == 130
     assert capsys.readouterr().err == "fgins: interrupted\n"
+
+
+def test_ctrl_c_while_the_demo_plots_says_the_trajectory_is_complete(tmp_path, capsys, monkeypatch):
+    """The demo's plot interrupted likewise: its CSV complete, the PNG named as missing
+    (outside tester: the demo left kitti_ekf.csv without its PNG and said nothing)."""
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(api, "plot", interrupted)
+    code = main(["demo", "--method", "ekf", "--output-dir", str(tmp_path)])
+    stderr = capsys.readouterr().err
+    out, png = tmp_path / "kitti_ekf.csv", tmp_path / "kitti_ekf.png"
+    assert code == 130
+    assert f"interrupted while plotting: {out} is complete, {png} was not written" in stderr
+    assert out.exists() and not png.exists()
