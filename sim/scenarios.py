@@ -499,9 +499,11 @@ def mems_car_pdop(seed: int = 0, **options: Any) -> SimRun:
         origin=Origin(48.1372, 11.5755, 520.0),
         gnss_model=gnss_model,
         description=(
-            "Urban car, consumer MEMS IMU 20 Hz, GNSS 2 Hz (UERE 3 m x DOP). From "
-            f"{start:g} s for 30 s the geometry degrades to PDOP > 5 and the fixes are biased "
-            f"by {offset} m (ENU): a gate on PDOP should reject them."
+            "Urban car, consumer MEMS IMU 20 Hz, GNSS 2 Hz (UERE 3 m x DOP). "
+            + (f"From {start:g} s for {min(30.0, duration - start):g} s the geometry degrades to "
+               f"PDOP > 5 and the fixes are biased by {offset} m (ENU): a gate on PDOP should "
+               "reject them." if start < duration else
+               f"No stretch of PDOP > 5 (set for {start:g} s on, after the run).")
         ),
     )
 
@@ -529,7 +531,8 @@ def uav_loop_baro(seed: int = 0, **options: Any) -> SimRun:
         baro_model=BaroModel(rate_hz=20.0, noise_m=0.3, bias_rw_m_per_sqrt_s=0.01),
         description=(
             "Loop of radius 25 m at 11 km/h; consumer IMU and barometer at 20 Hz, GNSS "
-            f"{gnss_rate:g} Hz with UERE 2 m x DOP (HDOP ~1, 2.5 from 90 to 120 s)."
+            f"{gnss_rate:g} Hz with UERE 2 m x DOP (HDOP ~1"
+            + (f", 2.5 from 90 to {min(120.0, duration):g} s)." if duration > 90.0 else ").")
         ),
     )
 
@@ -541,6 +544,15 @@ def _grade(name: str, options: dict[str, Any], default: str = "consumer-mems") -
             f"scenario {name}: grade must be one of {', '.join(GRADES)}, got {grade!r}"
         )
     return grade
+
+
+def _dop_text(stretches: tuple[DopStretch, ...], duration_s: float, default: str) -> str:
+    """"HDOP 3.5 at 60-95 s and 7 at 180-200 s" for the stretches a run of ``duration_s``
+    reaches (a shortened run's description names no stretch it does not hold), or
+    ``default``."""
+    held = [f"{s.hdop:g} at {s.start_s:g}-{min(s.end_s, duration_s):g} s" for s in stretches
+            if s.start_s < duration_s]  # fmt: skip
+    return f"HDOP {' and '.join(held)}" if held else default
 
 
 def car_urban(seed: int = 0, **options: Any) -> SimRun:
@@ -567,9 +579,10 @@ def car_urban(seed: int = 0, **options: Any) -> SimRun:
         origin=Origin(48.1372, 11.5755, 520.0),
         gnss_model=gnss_model,
         description=(
-            f"Urban car, {grade} IMU {setup.rate_hz:g} Hz, GNSS 1 Hz (UERE 3 m x DOP, HDOP 3.5 "
-            "at 60-95 s and 7 at 180-200 s), velocity 0.2 m/s, antenna lever arm (0.5, 0, 1.2) "
-            "m (vehicle FLU), 2 % outliers of 25 m. " + _setup_description(setup)
+            f"Urban car, {grade} IMU {setup.rate_hz:g} Hz, GNSS 1 Hz (UERE 3 m x DOP, "
+            f"{_dop_text(gnss_model.dop_stretches, duration, 'open sky')}), velocity 0.2 m/s, "
+            "antenna lever arm (0.5, 0, 1.2) m (vehicle FLU), 2 % outliers of 25 m. "
+            + _setup_description(setup)
         ),
         setup=setup,
     )
@@ -598,7 +611,7 @@ def highway(seed: int = 0, **options: Any) -> SimRun:
         gnss_model=gnss_model,
         description=(
             f"Highway at 27-32 m/s, {grade} IMU {setup.rate_hz:g} Hz, GNSS 1 Hz (UERE 2.5 m x "
-            "DOP, an overpass stretch with HDOP 2.5 at 150-165 s), velocity 0.1 m/s. "
+            f"DOP, {_dop_text(gnss_model.dop_stretches, duration, 'open sky')}), velocity 0.1 m/s. "
             + _setup_description(setup)
         ),
         setup=setup,

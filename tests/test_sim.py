@@ -594,3 +594,15 @@ def test_sim_never_writes_over_a_folder_it_did_not_write(tmp_path: Path) -> None
     write_sim_dir(SCENARIOS["car-urban"](seed=1, duration_s=20), folder)
     assert not (folder / "baro.csv").exists()
     assert read_csv_dataset([folder]).baro is None
+
+
+@pytest.mark.parametrize("name", ["aircraft-ekf", "mems-car-pdop", "uav-loop-baro", "car-urban", "highway"])
+def test_a_shortened_run_describes_only_what_it_holds(name) -> None:
+    """A run cut to 70 s names no stretch or outage time beyond it (outside tester: a 150 s
+    car-urban said 'HDOP 7 at 180-200 s')."""
+    import re
+
+    description = SCENARIOS[name](0, duration_s=70.0).description
+    times = [float(x) for pair in re.findall(r"(\d+(?:\.\d+)?)-(\d+(?:\.\d+)?) s", description) for x in pair]
+    times += [float(x) for x in re.findall(r"(?:from|at) (\d+(?:\.\d+)?)(?: s| to)", description)]
+    assert all(t <= 70.0 for t in times), description
