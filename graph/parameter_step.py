@@ -128,19 +128,19 @@ def parameter_step(
     except RuntimeError:
         return None
 
-    def back_transposed(column: dict[int, np.ndarray] | gtsam.VectorValues) -> gtsam.VectorValues:
+    zeros = {key: np.zeros(dims[key]) for key in all_keys}
+
+    def back_transposed(column: dict[int, np.ndarray]) -> np.ndarray:
         vector = gtsam.VectorValues()
         for key in all_keys:
-            if isinstance(column, gtsam.VectorValues):
-                vector.insert(key, -column.at(key))
-            else:
-                vector.insert(key, column.get(key, np.zeros(dims[key])))
-        return bayes_net.backSubstituteTranspose(vector)
+            vector.insert(key, column.get(key, zeros[key]))
+        # Every result holds the same keys, so .vector() orders them alike (key order).
+        return bayes_net.backSubstituteTranspose(vector).vector()
 
-    w = [back_transposed({key: block[:, c] for key, block in u.items()}) for c in range(count)]
-    w_r = back_transposed(gradient)
-    information -= np.array([[w[a].dot(w[b]) for b in range(count)] for a in range(count)])
-    rhs -= np.array([w[a].dot(w_r) for a in range(count)])
+    w = np.column_stack([back_transposed({key: block[:, c] for key, block in u.items()}) for c in range(count)])
+    w_r = back_transposed({key: -gradient.at(key) for key in all_keys})
+    information -= w.T @ w
+    rhs -= w.T @ w_r
     try:
         covariance = np.linalg.inv(information)
     except np.linalg.LinAlgError:
