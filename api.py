@@ -1219,7 +1219,8 @@ def plot(
     from fgins.bench.plots import plot_track_and_errors
 
     if isinstance(trajectories, (str, bytes, dict)):  # iterating it would judge its parts
-        raise ConfigError(
+        # a wrong-type argument, as trajectories[i] below (README "Errors"): InputError
+        raise InputError(
             f"plot(): trajectories must be a Trajectory (from fgins.smooth) or a list of them, "
             f"not {type(trajectories).__name__}"
         )

@@ -595,6 +595,8 @@ def cmd_convert(args: argparse.Namespace) -> int:
     if args.imu:
         from fgins.io.ubx import convert_ubx_imu
 
+        _refuse_builtin_input(args.input, "convert --imu")
+
         args.output = _check_output(args.output, [args.input], suffixes=(".csv",), what="IMU output")
         print(convert_ubx_imu(args.input, args.output), file=sys.stderr)
         return 0
@@ -628,7 +630,35 @@ def _write_gnss_tum(gnss, path: Path) -> None:
     write_gnss_tum(gnss.t, gnss.lla, Origin(*map(float, gnss.lla[0])), path)
 
 
+def _refuse_builtin_input(path: Path, command: str) -> None:
+    """A ``demo:...`` name given to a command that reads it not: said as such, not "no such
+    file"."""
+    if not str(path).startswith("demo:"):
+        return
+    if str(path) != "demo:kitti":
+        raise FginsError(f"{path}: unknown built-in input; the demo input is demo:kitti")
+    if command == "inspect":
+        raise FginsError(
+            "demo:kitti is the built-in KITTI drive, not a log file: inspect reads a file "
+            "(NMEA, UBX, MCAP, a ROS bag, a CSV) or a sim folder; `fgins convert demo:kitti -o "
+            "fixes.csv` writes its GNSS fixes, `fgins smooth demo:kitti` smooths it"
+        )
+    raise FginsError(
+        "convert --imu writes the IMU of a u-blox UBX log; demo:kitti is the built-in KITTI "
+        "drive (leave out --imu to write its GNSS fixes)"
+    )
+
+
 def _read_gnss_only(path: Path, time_offset: float):
+    if str(path) == "demo:kitti":
+        from dataclasses import replace
+
+        from fgins.io.kitti import parse_kitti
+
+        dataset = parse_kitti()  # the fixes as smooth reads them (checked by the caller)
+        gnss = dataset.gnss
+        return (replace(gnss, t=gnss.t + time_offset) if time_offset else gnss), dataset.warnings
+    _refuse_builtin_input(path, "convert")
     if not path.exists():
         raise FginsError(f"{path}: no such file")
     from fgins.io.inputs import check_not_empty
@@ -671,6 +701,7 @@ def _read_gnss_only(path: Path, time_offset: float):
 
 def cmd_inspect(args: argparse.Namespace) -> int:
     path: Path = args.input
+    _refuse_builtin_input(path, "inspect")
     if not path.exists():
         raise FginsError(f"{path}: no such file")
     from fgins.io.inputs import check_not_empty, looks_like_nmea
@@ -687,6 +718,9 @@ def cmd_inspect(args: argparse.Namespace) -> int:
 
     if is_rosbag(path):
         print(summarize_rosbag(path))
+        return 0
+    if path.is_dir():
+        print(_summarize_folder(path))
         return 0
     from fgins.io.ubx import looks_like_ubx, summarize_ubx
 
@@ -707,6 +741,21 @@ def cmd_inspect(args: argparse.Namespace) -> int:
 
     print(summarize_nmea(path))
     return 0
+
+
+def _summarize_folder(path: Path) -> str:
+    """``fgins inspect FOLDER``: a ``fgins sim`` folder's CSVs, each as ``inspect FILE.csv``
+    says it (a ROS 2 bag folder is the bag's; any other folder is no log)."""
+    from fgins.io.csv_pair import SIM_FOLDER_FILES
+
+    files = [path / name for name in SIM_FOLDER_FILES if (path / name).is_file()]
+    if not files:
+        raise FginsError(
+            f"{path}: is a folder, not a log: inspect takes one log file (NMEA, u-blox UBX, "
+            f"MCAP, ROS bag, a CSV), a ROS 2 bag folder or a folder written by fgins sim (none "
+            f"of {', '.join(SIM_FOLDER_FILES)} here); give a file in it"
+        )
+    return "\n".join([f"fgins sim folder {path}", *(_summarize_csv(f) for f in files)])
 
 
 def _rate(t: np.ndarray) -> float:

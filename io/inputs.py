@@ -177,6 +177,13 @@ def _parse(
         )
     if any(item.startswith("demo:") for item in inputs):
         raise InputError(f"unknown built-in input among {inputs}; the demo input is demo:kitti")
+    if "" in inputs:
+        # Path("") is "." (the current folder): what it read would depend on the cwd
+        number = inputs.index("") + 1
+        raise InputError(
+            f"empty input path (input {number} of {len(inputs)}); give a file or folder "
+            '("." for the current folder)'
+        )
     paths = [Path(item) for item in inputs]
     for path in paths:
         if not path.exists():

@@ -16,7 +16,9 @@ Where the receiver's clock jumps back and new positions reuse times already seen
 position of each time is kept and the others counted (as for two receivers in one log).
 
 A GGA with a fix quality but 0 satellites used is no fix (a receiver coasting on its last
-position; gpsd reports such epochs as mode 1): its position is not used, counted.
+position; gpsd reports such epochs as mode 1): its position is not used, counted. So is a GGA
+with an empty quality field, and an epoch the receiver marks "no fix" (RMC status V, GSA
+mode 1) where no sentence claims a fix (see :func:`_receiver_says_no_fix`).
 
 Heights are ellipsoidal: MSL altitude + geoid separation; where the receiver leaves the
 separation empty the EGM2008 grid of :mod:`fgins.io.geoid` supplies it (counted).
@@ -110,6 +112,8 @@ class _Epoch:
         "repeat_distance",
         "repeat_talker",
         "resolution_ms",
+        "said_fix",
+        "said_no_fix",
         "speed",
         "std",
         "tod",
@@ -133,6 +137,11 @@ class _Epoch:
         # the date of an RMC with status V: the receiver's guess (its start-up default)
         self.untrusted_date: tuple[int, int, int] | None = None
         self.gga_no_satellites = False  # GGA: quality > 0 with 0 satellites used
+        # the receiver's own word on the epoch, any talker (see _receiver_says_no_fix): a fix
+        # (GGA/GNS quality > 0, RMC/GLL status A, GSA mode 2/3) or no fix (RMC status V, GSA
+        # mode 1)
+        self.said_fix = False
+        self.said_no_fix = False
         self.dops: tuple[float, float, float] | None = None  # pdop, hdop, vdop from GSA
         self.gga_hdop = math.nan
         self.num_sats = -1
@@ -398,10 +407,10 @@ class _Reader:
             return
         epoch = self._epoch_at(f[0])
         lat, lon = _lat_lon(f, 1)
-        # An empty quality field with a position present is a fix (as gpsd reads it); only an
-        # explicit 0 marks the position invalid.
+        # An empty quality field is no fix (MyGuide 3100 sends its "no fix" epochs so, next
+        # to RMC status V and GSA mode 1; gpsd reports them as mode 1), as is 0.
         quality_text = f[5].strip()
-        quality = int(quality_text) if quality_text.isdigit() else (1 if not quality_text else 0)
+        quality = int(quality_text) if quality_text.isdigit() else 0
         sats = _field(f, 6)
         if sats.isdigit():
             epoch.num_sats = int(sats)
@@ -414,6 +423,7 @@ class _Reader:
         if valid and sats.isdigit() and int(sats) == 0:
             valid = False
             epoch.gga_no_satellites = True
+        epoch.said_fix |= valid
         self._set_position(epoch, "GGA", (lat, lon, alt, sep, quality, valid))
 
     def _on_gns(self, f: list[str]) -> None:
@@ -429,6 +439,7 @@ class _Reader:
             epoch.gga_hdop = _num(_field(f, 7))
         valid = quality > 0 and math.isfinite(lat) and math.isfinite(lon)
         sep = _num(_field(f, 9))
+        epoch.said_fix |= valid
         self._set_position(epoch, "GNS", (lat, lon, _num(_field(f, 8)), sep, quality, valid))
 
     def _on_rmc(self, f: list[str]) -> None:
@@ -446,10 +457,12 @@ class _Reader:
                     epoch.date = (year, month, day)
                 else:
                     epoch.untrusted_date = (year, month, day)
+        epoch.said_no_fix |= f[1] == "V"
         lat, lon = _lat_lon(f, 2)
         mode = _mode_quality(_field(f, 11))
         valid = f[1] == "A" and mode != 0 and math.isfinite(lat) and math.isfinite(lon)
         quality = mode if mode > 0 else 1
+        epoch.said_fix |= valid
         self._set_position(epoch, "RMC", (lat, lon, math.nan, math.nan, quality, valid))
         self._set_motion(epoch, _num(_field(f, 6)) * KNOT_M_S, _num(_field(f, 7)))
 
@@ -461,6 +474,7 @@ class _Reader:
         mode = _mode_quality(_field(f, 6))
         valid = f[5] == "A" and mode != 0 and math.isfinite(lat) and math.isfinite(lon)
         quality = mode if mode > 0 else 1
+        epoch.said_fix |= valid
         self._set_position(epoch, "GLL", (lat, lon, math.nan, math.nan, quality, valid))
 
     def _on_zda(self, f: list[str]) -> None:
@@ -484,6 +498,8 @@ class _Reader:
         epoch = self._untimed_epoch()
         if epoch is None:
             return
+        epoch.said_fix |= f[1].strip() in ("2", "3")
+        epoch.said_no_fix |= f[1].strip() == "1"
         pdop, hdop, vdop = (_num(_field(f, i)) for i in (14, 15, 16))
         if any(math.isfinite(d) for d in (pdop, hdop, vdop)):
             epoch.dops = (pdop, hdop, vdop)
@@ -498,6 +514,16 @@ class _Reader:
         kmh = _num(_field(f, 6))
         speed = knots * KNOT_M_S if math.isfinite(knots) else kmh * KMH_M_S
         self._set_motion(epoch, speed, course)
+
+
+def _receiver_says_no_fix(epoch: _Epoch) -> bool:
+    """The receiver itself marks the epoch "no fix" (RMC status V, GSA mode 1) and none of
+    its sentences claims a fix (GGA/GNS quality > 0, RMC/GLL status A, GSA mode 2/3: a
+    multi-constellation receiver sends a GSA per system, and a Garmin in simulator mode RMC
+    V next to a quality-8 GGA, which gpsd reports as a fix). gpsd reports such epochs as
+    mode 1 (MyGuide 3100: GGA with an empty quality, RMC V, GSA 1): a position there is the
+    receiver's last or dead-reckoned guess, not a fix."""
+    return epoch.said_no_fix and not epoch.said_fix
 
 
 def _epoch_position(
@@ -682,13 +708,16 @@ def _assemble(path: Path, reader: _Reader, time_offset_s: float) -> NmeaResult:
     without_fix = 0
     no_satellites = 0
     conflicts = _Conflicts(kept=_kept_talker(epochs))
+    receiver_no_fix = 0
     for t, epoch in zip(seconds, epochs, strict=True):
-        position, speed, course = _resolve(epoch, conflicts)
+        said_no_fix = _receiver_says_no_fix(epoch)
+        position, speed, course = (None, 0.0, 0.0) if said_no_fix else _resolve(epoch, conflicts)
         if position is None:
             without_fix += 1
-            no_satellites += epoch.gga_no_satellites
+            receiver_no_fix += said_no_fix
+            no_satellites += epoch.gga_no_satellites and not said_no_fix
             gga = epoch.positions.get("GGA")
-            quality_histogram[gga[4] if gga else 0] += 1
+            quality_histogram[gga[4] if gga and not said_no_fix else 0] += 1
             continue
         lat, lon, alt, sep, quality = position
         quality_histogram[quality] += 1
@@ -740,12 +769,18 @@ def _assemble(path: Path, reader: _Reader, time_offset_s: float) -> NmeaResult:
         [speed * np.sin(course_rad), speed * np.cos(course_rad), np.full(len(table), np.nan)]
     )
     if without_fix:
-        why = (
-            f" ({no_satellites} of them GGA with a fix quality but 0 satellites used: no fix, "
-            "as gpsd reads them)"
-            if no_satellites
-            else ""
-        )
+        reasons = []
+        if receiver_no_fix:
+            reasons.append(
+                f"{receiver_no_fix} of them marked no fix by the receiver (RMC status V or GSA "
+                "mode 1 with no sentence saying otherwise)"
+            )
+        if no_satellites:
+            reasons.append(
+                f"{no_satellites} of them GGA with a fix quality but 0 satellites used: no fix, "
+                "as gpsd reads them"
+            )
+        why = f" ({'; '.join(reasons)})" if reasons else ""
         warnings.append(f"{without_fix} epochs without a usable position were skipped{why}")
     if reader.corrupt or reader.checksum_failures:
         warnings.append(
@@ -822,7 +857,12 @@ def summarize_nmea(path: str | Path) -> str:
     except InputError as error:
         lines.append(f"  not usable: {error}")
         return "\n".join(lines)
-    gnss = result.gnss
+    from fgins.io.gnss_checks import check_gnss_records
+
+    # The records' checks ``fgins convert`` makes: DOP placeholders (0.00, 99.99) are missing
+    # in the DOP statistics too, counted in a warning; quality 6-8 fixes said.
+    checks: list[str] = []
+    gnss = check_gnss_records(result.gnss, checks)
     t = gnss.t
     period = float(np.median(np.diff(t))) if len(t) > 1 else math.nan
     lines.append(
@@ -847,5 +887,5 @@ def summarize_nmea(path: str | Path) -> str:
         else "receiver (GGA/GNS separation)"
     )
     lines.append(f"  geoid separation: {source}")
-    lines.extend(f"  warning: {w}" for w in result.warnings)
+    lines.extend(f"  warning: {w}" for w in [*result.warnings, *checks])
     return "\n".join(lines)

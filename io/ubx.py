@@ -1247,6 +1247,13 @@ def summarize_ubx(path: str | Path) -> str:
         f"{result.epochs_without_time} without a valid time)"
     )
     gnss = result.gnss
+    # The records' checks ``fgins convert`` makes (as an NMEA log's inspect): DOP
+    # placeholders (99.99) are missing in the statistics too, counted in a warning.
+    checks: list[str] = []
+    if gnss is not None:
+        from fgins.io.gnss_checks import check_gnss_records
+
+        gnss = check_gnss_records(gnss, checks)
     if gnss is None:
         lines.append("  fixes: none (no fix)")
     else:
@@ -1293,7 +1300,7 @@ def summarize_ubx(path: str | Path) -> str:
         lines.append(f"  wheel speed: {len(result.odometer.t)} samples")
     if result.wheel_ticks:
         lines.append(f"  wheel ticks: {result.wheel_ticks} values (not used: no tick scale)")
-    lines.extend(f"  warning: {w}" for w in result.warnings)
+    lines.extend(f"  warning: {w}" for w in [*result.warnings, *checks])
     return "\n".join(lines)
 
 

@@ -52,7 +52,7 @@ def test_bad_simulator_options_are_one_line(scenario, option, expect, tmp_path, 
 
 
 def test_a_mems_car_bias_offset_is_given_as_three_numbers(tmp_path):
-    run_dir = fgins.simulate("mems-car-pdop", tmp_path / "m", duration=30, bias_offset_m="[1,2,3]")
+    run_dir = fgins.simulate("mems-car-pdop", tmp_path / "m", duration=30, bias_offset_m="[1,2,3]", bias_start_s=10)
     assert "(1.0, 2.0, 3.0)" in (run_dir / "config.toml").read_text()
 
 
@@ -120,7 +120,7 @@ def test_plot_refuses_strings_dicts_and_another_drives_dataset(drive, tmp_path):
     other = fgins.load(fgins.simulate("highway", tmp_path / "hw", duration=20))
     track = fgins.smooth(dataset, "ekf")
     for bad in ("car", {"a": track}):
-        with pytest.raises(fgins.ConfigError, match="must be a Trajectory"):
+        with pytest.raises(fgins.InputError, match="must be a Trajectory"):
             fgins.plot(bad, dataset)
     with pytest.raises(fgins.ConfigError, match="was smoothed from"):
         fgins.plot(track, other)

@@ -167,7 +167,9 @@ def _gpsd_only_fix(log: str, fix: GpsdFix, problem: str) -> bool:
     # A GGA with quality 0: the receiver flags the position invalid (the brief: quality 0 is
     # not a fix); gpsd keeps the stale mode of the previous report and reports it
     # (MTK-3301 at 08:14:34.59 after an RMC 'V'; Transystem 737A+ at 07:17:34.929, 2 GGAs).
-    if re.match(r"\$..GGA,[^,]*,[^,]*,[NS],[^,]*,[EW],0,", fix.after):
+    # An empty quality field is no fix either (MiTAC myguide 3100: its RMC says 'V' and its
+    # GSA mode 1 for those epochs, and gpsd's last report of each is mode 1).
+    if re.match(r"\$..GGA,[^,]*,[^,]*,[NS],[^,]*,[EW],0?,", fix.after):
         return problem == "missing"
     # The receiver's clock jumped back (Humminbird M37: 19:41:24 -> 19:41:11) and the next
     # fixes reuse earlier times with new positions; gpsd reports both, a time series keeps
