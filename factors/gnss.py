@@ -508,8 +508,12 @@ def select_epochs(
     return usable, counts
 
 
+# Fixes a run needs at the least: the alignment's start and a second to move it.
+MIN_USABLE_FIXES = 2
+
+
 def no_usable_gnss_error(
-    dataset: Dataset, config: GnssConfig, counts: dict[str, int]
+    dataset: Dataset, config: GnssConfig, counts: dict[str, int], usable: int = 0
 ) -> InputError:
     """Why no GNSS epoch is usable, naming the actual causes: the time bases only when every
     epoch left after the outages lies outside the IMU span (all fixes gated used to be
@@ -549,4 +553,9 @@ def no_usable_gnss_error(
         )
     if outside:
         parts.append(f"{outside} outside the IMU time span")
+    if usable:  # too few, not none (a real log: 9 fixes, all of them at PDOP ~23)
+        return InputError(
+            f"{name}: only {usable} usable GNSS epoch(s) of {total} (a run needs "
+            f"{MIN_USABLE_FIXES}): " + ", ".join(parts)
+        )
     return InputError(f"{name}: no usable GNSS epoch of {total}: " + ", ".join(parts))

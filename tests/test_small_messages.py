@@ -146,3 +146,28 @@ def test_load_of_an_empty_path_is_an_input_error(tmp_path: Path, monkeypatch) ->
 def test_plot_wrong_type_trajectories_is_an_input_error(bad: object) -> None:
     with pytest.raises(fgins.InputError, match="must be a Trajectory"):
         fgins.plot(bad, None)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("method", ["batch", "ekf", "ukf"])
+def test_a_single_usable_fix_names_why_the_rest_are_not(method: str) -> None:
+    """Nine fixes, eight of them at PDOP 23 (a real MiTAC log): the error names the gate
+    (it was 'alignment needs at least 2 usable GNSS fixes')."""
+    from fgins.datatypes import Dataset, GnssData, ImuData, Origin
+    from fgins.geodesy import enu_to_lla
+
+    origin = Origin(45.0, 10.0, 100.0)
+    rng = np.random.default_rng(0)
+    t = np.arange(0.0, 12.0, 0.01)
+    imu = ImuData(t=t, gyro=rng.normal(0, 1e-3, (len(t), 3)),
+                  accel=np.array([0, 0, 9.806]) + rng.normal(0, 0.02, (len(t), 3)))  # fmt: skip
+    fix_t = np.arange(1.0, 10.0)
+    pdop = np.full(len(fix_t), 23.0)
+    pdop[4] = 1.8
+    gnss = GnssData(t=fix_t, lla=enu_to_lla(np.zeros((len(fix_t), 3)), origin),
+                    std=np.tile([2.0, 2.0, 3.0], (len(fix_t), 1)), pdop=pdop)  # fmt: skip
+    dataset = Dataset(imu=imu, gnss=gnss, origin=origin, name="mitac")
+    with pytest.raises(fgins.InputError) as error:
+        fgins.smooth(dataset, method, progress=False)
+    message = str(error.value)
+    assert "only 1 usable GNSS epoch(s) of 9 (a run needs 2)" in message, message
+    assert "8 gated by PDOP > 5" in message, message
