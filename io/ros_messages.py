@@ -214,6 +214,21 @@ def _get(msg: Any, name: str, default: Any = None) -> Any:
     return getattr(msg, name, default)
 
 
+def _has(msg: Any, name: str) -> bool:
+    """Is the (optional) field ``name`` set? An unset protobuf sub-message reads as an empty
+    default one, all zeros: foxglove-sdk's LocationFix without its velocity was read as
+    standing still (outside tester: 'km/h' refused by smooth, zeros written by convert)."""
+    if isinstance(msg, dict):
+        return msg.get(name) is not None
+    has_field = getattr(msg, "HasField", None)
+    if has_field is not None:
+        try:
+            return bool(has_field(name))
+        except ValueError:  # not a message field of this type
+            return False
+    return getattr(msg, name, None) is not None
+
+
 def _ros_stamp_ns(msg: Any) -> int:
     stamp = msg.header.stamp
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
@@ -387,8 +402,8 @@ class FixAccumulator(Accumulator):
         if self.schema_name == LOCATIONFIX:
             stamp = _foxglove_stamp_ns(msg)
             quality = 1.0
-            vel = _get(msg, "velocity")
-            if vel:  # newer LocationFix carries ENU velocity
+            vel = _get(msg, "velocity") if _has(msg, "velocity") else None
+            if vel is not None:  # newer LocationFix carries ENU velocity
                 velocity = (float(_get(vel, "x", nan)), float(_get(vel, "y", nan)))
                 velocity += (float(_get(vel, "z", nan)),)
         else:

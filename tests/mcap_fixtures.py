@@ -413,8 +413,9 @@ def imu_ros2msg_schema() -> str:
 # ------------------------------------------------------------------------------------------
 
 
-def write_foxglove_protobuf(path: Path, drive: Drive) -> Path:
-    """LocationFix (protobuf, by foxglove-sdk) + raw CDR Imu logged through the same SDK."""
+def write_foxglove_protobuf(path: Path, drive: Drive, with_velocity: bool = True) -> Path:
+    """LocationFix (protobuf, by foxglove-sdk) + raw CDR Imu logged through the same SDK;
+    ``with_velocity=False`` leaves the optional velocity unset (older LocationFix)."""
     import foxglove
     from foxglove.channels import LocationFixChannel
     from foxglove.messages import (
@@ -453,9 +454,8 @@ def write_foxglove_protobuf(path: Path, drive: Drive) -> Path:
                     altitude=float(drive.lla[k, 2]),
                     position_covariance=[float(c) for c in cov],
                     position_covariance_type=LocationFixPositionCovarianceType.DiagonalKnown,
-                    velocity=Vector3(
-                        **dict(zip("xyz", map(float, drive.velocity[k]), strict=True))
-                    ),
+                    **({"velocity": Vector3(**dict(zip("xyz", map(float, drive.velocity[k]), strict=True)))}
+                       if with_velocity else {}),
                 ),
                 log_time=ns + LOG_LATENCY_NS,
             )

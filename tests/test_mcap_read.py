@@ -209,6 +209,23 @@ def test_foxglove_protobuf_location_fix(drive: Drive, tmp_path: Path) -> None:
     assert result.warnings == []
 
 
+def test_foxglove_protobuf_location_fix_without_velocity_has_none(drive: Drive, tmp_path: Path) -> None:
+    """The optional velocity left unset is no velocity, not (0, 0, 0) (outside tester: a
+    moving drive refused for 'km/h', and convert wrote zero velocities), in smooth's reader
+    and in convert's alike."""
+    from fgins.cli import main
+
+    path = write_foxglove_protobuf(tmp_path / "foxglove.mcap", drive, with_velocity=False)
+    result = read_mcap(path, progress=False)
+    _assert_location_fixes(result.dataset, drive)
+    assert np.all(np.isnan(result.dataset.gnss.velocity))
+    out = tmp_path / "fixes.csv"
+    assert main(["convert", str(path), "-o", str(out)]) == 0
+    header, first = out.read_text().splitlines()[:2]
+    columns = dict(zip(header.split(","), first.split(","), strict=True))
+    assert all(columns.get(name, "") == "" for name in ("vel_east", "vel_north", "vel_up")), columns
+
+
 def test_foxglove_json_location_fix(drive: Drive, tmp_path: Path) -> None:
     path = write_foxglove_json(tmp_path / "json.mcap", drive)
     result = read_mcap(path, progress=False)
