@@ -132,21 +132,19 @@ def to_trajectory(
         problem.interval_gravity,
         problem.omega_earth,
         close_to_next=smoothed,
+        at=imu.t,  # rows at the IMU sample times (segment starts also include keyframe cuts)
     )
-    # Rows at the IMU sample times (segment starts also include keyframe cuts).
-    rows = np.searchsorted(dense.t, imu.t)
-    rows = np.clip(rows, 0, len(dense.t) - 1)
     return Trajectory(
         t=imu.t,
-        position=dense.position[rows],
-        velocity=dense.velocity[rows],
-        rotation=dense.rotation[rows],
+        position=dense.position,
+        velocity=dense.velocity,
+        rotation=dense.rotation,
         origin=problem.dataset.origin,
         method=method,
-        gyro_bias=dense.gyro_bias[rows],
-        accel_bias=dense.accel_bias[rows],
-        position_cov=dense.position_cov[rows],
-        velocity_cov=dense.velocity_cov[rows],
-        attitude_cov=dense.attitude_cov[rows],
+        gyro_bias=dense.gyro_bias,
+        accel_bias=dense.accel_bias,
+        position_cov=dense.position_cov,
+        velocity_cov=dense.velocity_cov,
+        attitude_cov=dense.attitude_cov,
         info=dict(problem.info),
     )
