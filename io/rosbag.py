@@ -162,6 +162,13 @@ def _open(path: Path) -> Iterator[Any]:
             hint = ""
             if path.is_file() and "index" in why.lower():
                 hint = "; a recording cut off before its index was written: run rosbag reindex"
+            elif not path.is_file() and ("malformed" in why.lower() or "not a database" in why.lower()):
+                # SQLite refuses a damaged or cut-off file as a whole: nothing of it is read.
+                hint = (
+                    "; its .db3 is damaged or cut off (a recording stopped mid-write), so reading "
+                    "stopped before its first message: `sqlite3 FILE.db3 .recover` may salvage "
+                    "the messages into a readable database"
+                )
             raise InputError(f"{path}: cannot read this {kind}: {why}{hint}") from None
         try:
             yield reader

@@ -392,3 +392,15 @@ def test_ros2_counts_reported_are_the_messages_read(tmp_path):
         "mcap_report"
     ]
     assert len(dataset.imu.t) == 2000
+
+
+def test_a_cut_db3_says_it_is_damaged_and_how_to_salvage_it(tmp_path):
+    """A .db3 cut in half: SQLite refuses it whole; the error says so and names the
+    salvage (outside tester: only 'database disk image is malformed')."""
+    drive = make_drive()
+    folder = write_bag(tmp_path / "bag", drive, "ros2-sqlite")
+    (db3,) = folder.glob("*.db3")
+    data = db3.read_bytes()
+    db3.write_bytes(data[: len(data) // 2])
+    with pytest.raises(InputError, match=r"damaged or cut off .* `sqlite3 FILE\.db3 \.recover`"):
+        load_dataset([str(folder)], progress=False)
