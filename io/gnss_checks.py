@@ -501,7 +501,8 @@ def check_time_bases(
     if outside:
         checks.append(
             f"time: {outside} of {t_gnss.size} GNSS epoch(s) lie outside the IMU time span "
-            f"({a:.3f} .. {b:.3f} s; GNSS {c:.3f} .. {d:.3f} s) and cannot be used"
+            f"({a:.3f} .. {b:.3f} s; GNSS {c:.3f} .. {d:.3f} s) as stamped: not used unless "
+            "the GNSS time correction moves them inside (the summary's count is the one used)"
         )
     # The output covers the IMU's span; where no fix brackets it, it is dead reckoning.
     first, last = float(t_gnss[inside][0]), float(t_gnss[inside][-1])
