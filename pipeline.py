@@ -213,6 +213,9 @@ def _run(
 # aircraft), 11-240 where it diverged (an IMU gap it could not bridge); the batch and
 # iSAM2 run their own chi-square checks.
 FILTER_FIT_CHI2_MAX = 5.0
+# Beyond this a Kalman baseline's output is no estimate at all: an error, as the graph's
+# own divergence check (fgins.graph.solve.CHI2_FAIL).
+FILTER_DIVERGED_CHI2 = 100.0
 # The median normalised innovation squared per dimension of its GNSS updates: 0.06 on KITTI,
 # 0.78-0.96 on every simulated scenario (cars, UAV, aircraft, constant biases, FRD axes); 7
 # with GNSS 1 s late on an urban car, 39 with 18 s (GPS against UTC), where the residuals
@@ -258,6 +261,15 @@ def _filter_fit_note(
     # 99.9 % over their components).
     bound = max(FILTER_FIT_CHI2_MAX, chi2_quantile(0.999, z2.size) / z2.size)
     if np.isfinite(chi2) and chi2 > bound:
+        if chi2 > FILTER_DIVERGED_CHI2 and method in BASELINE_METHODS:
+            # No estimate: what the batch's own divergence check refuses (an aircraft with its
+            # gyro's x and y swapped: EKF+RTS 207 km off, chi2/dof 1e11, written at exit 0).
+            raise FginsError(
+                f"{method} diverged: its track does not fit the GNSS fixes it used (horizontal "
+                f"residuals chi2/dof {chi2:.3g}, about 1 or below expected); no output written. "
+                "IMU gaps, axes or units, noise too small for this IMU, or IMU and GNSS on "
+                "different clocks (--time-offset): compare --method batch, which says more"
+            )
         planar = (
             "its planar model reads the forward acceleration as if the vehicle kept its first "
             "tilt (a hill's grade or a bank is taken for acceleration: 0.8 m/s^2 at 8 %), or "
