@@ -985,6 +985,18 @@ def trajectory_info(run: FilterRun, epochs: GnssEpochs) -> dict[str, object]:
                 " (one more abandoned: its estimate left the linearisation, or it did not "
                 "converge)"
             )
+        turned = float(run.counts.get("rts_largest_turn_deg", 0.0))  # type: ignore[arg-type]
+        if turned > RTS_NONLINEAR_DEG:
+            # The RTS correction is linear about the forward pass: one this large is no
+            # correction its covariance describes (an independent simulator's multirotor,
+            # its heading at the first hover unknown: 71 deg, the relinearised pass did not
+            # converge; 1.5-3.3 m off inside an outage with sigmas for 0.17 m, NEES 9-14).
+            info["fit_warnings"] = [
+                f"EKF+RTS: the smoother turns the filter's attitude by up to {turned:.0f} deg, "
+                "far beyond what its linear correction carries, and relinearising about the "
+                "smoothed states did not settle it: its track and sigmas are not to be trusted "
+                "there (compare --method batch, which relinearises until it converges)"
+            ]
     return info
 
 
@@ -1212,6 +1224,9 @@ def iterated_forward(
 # more than this anywhere (rad), the pass is repeated linearised about the smoothed states.
 RELINEARISE_TURNED_RAD = np.radians(2.0)
 MAX_RELINEARISED_PASSES = 3
+# Left beyond this after the relinearised passes (deg), the smoothed output is said to be
+# untrustworthy (the linear correction of a 10 deg attitude error misses by its square).
+RTS_NONLINEAR_DEG = 10.0
 
 
 def relinearised_passes(
@@ -1249,6 +1264,7 @@ def relinearised_passes(
             break
         run, turned = again, turned_again
         passes += 1
+    run.counts["rts_largest_turn_deg"] = float(np.degrees(turned))
     return run, passes
 
 
