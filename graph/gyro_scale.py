@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
+from fgins.datatypes import FginsError
 from fgins.graph.parameter_step import imu_bias_jacobians, interval_mean, parameter_step
 from fgins.graph.problem import Problem
 from fgins.graph.solve import SolveReport, is_suspect, solve_from, solve_with_stops
@@ -40,6 +41,13 @@ MIN_SCALE_SIGMAS = 5.0
 # 1.0 % (and -5.9 %) where the configured mounting was 4 deg off in yaw (an independent
 # simulator's car, no scale error): corrected, that was a false finding.
 MAX_SCALE_ERROR = 0.05
+# Beyond this and this many sigmas no gyro and no small mounting error explains it: the
+# gyro's axes are wrong (an independent simulator's car on 0.2-2 % grades with gyro_y
+# negated read +79 to +154 % at 21-70 sigmas, gyro x and y swapped +47 to +92 %: 5-130 m
+# inside outages at exit 0, unsaid). An error, no output. (A gyro_x negated on a highway,
+# +31 % at 6.8 sigmas, 1.7 m: said, as implausible.)
+GROSS_SCALE_ERROR = 0.25
+GROSS_SCALE_SIGMAS = 10.0
 MAX_ROUNDS = 3
 _BIAS_GYRO = slice(3, 6)  # ConstantBias's vector: accelerometer, then gyro
 
@@ -50,6 +58,12 @@ class ScaleEstimate:
 
     error: np.ndarray
     sigma: np.ndarray
+
+    @property
+    def implausible(self) -> np.ndarray:
+        """Axes whose determined estimate is beyond any gyro's scale error."""
+        size = np.abs(self.error)
+        return (size > MAX_SCALE_ERROR) & (size >= MIN_SCALE_SIGMAS * self.sigma)
 
     @property
     def significant(self) -> np.ndarray:
@@ -99,6 +113,20 @@ def correct_gyro_scale(
     estimate = estimate_gyro_scale(problem, graph, result)
     if estimate is None:
         return result, graph, {}
+    implausible = estimate.implausible
+    gross = (np.abs(estimate.error) > GROSS_SCALE_ERROR) & (np.abs(estimate.error) >= GROSS_SCALE_SIGMAS * estimate.sigma)
+    if gross.any():
+        found = ", ".join(
+            f"{axis} {100 * estimate.error[a]:+.0f} % +- {100 * estimate.sigma[a]:.1f}"
+            for a, axis in enumerate("xyz")
+            if gross[a]
+        )
+        raise FginsError(
+            f"imu: the gyro's turns contradict the solution's, read as scale errors of {found} "
+            "(a gyro's is within a few %): a gyro column with its sign flipped or two columns "
+            "swapped (gyro_x, gyro_y, gyro_z must be the accelerometer's right-handed axes), an "
+            "IMU mounting far off, or a solution far off the truth; no output written"
+        )
     axes = estimate.significant
     total = np.ones(3)
     for _ in range(MAX_ROUNDS if axes.any() else 0):
@@ -129,17 +157,35 @@ def correct_gyro_scale(
     return (
         result,
         graph,
-        _info(total * (1.0 + estimate.error) - 1.0, estimate.sigma, corrected_axes),
+        _info(total * (1.0 + estimate.error) - 1.0, estimate.sigma, corrected_axes, implausible),
     )
 
 
-def _info(error: np.ndarray, sigma: np.ndarray, axes: np.ndarray) -> dict[str, object]:
-    """The run summary's entries: the estimate, and a warning naming what was corrected."""
+def _info(error: np.ndarray, sigma: np.ndarray, axes: np.ndarray, implausible: np.ndarray) -> dict[str, object]:
+    """The run summary's entries: the estimate, and a warning naming what was corrected or
+    what no scale error explains."""
     info: dict[str, object] = {
         "gyro_scale_error": error.tolist(),
         "gyro_scale_sigma": sigma.tolist(),
         "gyro_scale_corrected": axes.tolist(),
     }
+    if implausible.any():
+        # Said, not corrected: a gyro axis whose sign is flipped read as a scale error of
+        # +31 % +- 4.5 on an independent simulator's highway (1.7 m inside an outage against
+        # 0.5, NEES 4.7, unsaid); a mounting 4 deg off in yaw as +6 %.
+        found = ", ".join(
+            f"{axis} {100 * error[a]:+.1f} % +- {100 * sigma[a]:.1f}"
+            for a, axis in enumerate("xyz")
+            if implausible[a]
+        )
+        info["fit_warnings"] = [
+            f"imu: the gyro's turns disagree with the solution's far beyond any gyro's scale "
+            f"error (read as a scale error of {found}; a MEMS gyro's is within "
+            f"{100 * MAX_SCALE_ERROR:.0f} %): a gyro column with its sign flipped or two "
+            "columns swapped, an IMU mounting that is off ([smoother] imu_to_vehicle_rpy_deg), "
+            "or a wrong solution; not corrected"
+        ]
+        return info
     if axes.any():
         found = ", ".join(
             f"{axis} {100 * error[a]:+.2f} % +- {100 * sigma[a]:.2f}"
