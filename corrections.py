@@ -543,6 +543,28 @@ def add_arm_uncertainty(trajectory: Trajectory, covariance: object) -> None:
     ]
 
 
+def add_mounting_uncertainty(trajectory: Trajectory, sigma_deg: float) -> None:
+    """Add the uncertainty of a mounting taken from the data (1-sigma ``sigma_deg`` about
+    the vehicle's up and across axes) to ``trajectory``'s attitude covariance (in place).
+    The car's constraints tie the IMU's heading and pitch to the track through the
+    mounting, so an error of the mounting is one of the IMU's attitude; the solves hold it
+    fixed. (An independent simulator's highway, mounting [3, -4, 25] deg taken 0.34 deg off
+    in yaw at 0.14 deg sigma: heading 0.31 deg off at a reported 0.06, NEES 35.)"""
+    if not sigma_deg or trajectory.attitude_cov is None:
+        return
+    variance = np.radians(sigma_deg) ** 2
+    forward = trajectory.rotation[:, :, 0].copy()
+    forward[:, 2] = 0.0
+    forward /= np.maximum(np.linalg.norm(forward, axis=1, keepdims=True), 1e-9)
+    across = np.stack([-forward[:, 1], forward[:, 0], np.zeros(len(forward))], axis=1)
+    up = np.zeros_like(across)
+    up[:, 2] = 1.0
+    trajectory.attitude_cov = trajectory.attitude_cov + variance * (
+        np.einsum("ni,nj->nij", up, up) + np.einsum("ni,nj->nij", across, across)
+    )
+    trajectory.info["imu_mounting_sigma_deg"] = float(sigma_deg)
+
+
 def add_time_offset_uncertainty(trajectory: Trajectory) -> None:
     """Add the uncertainty of the fixes' time offset taken from the data to ``trajectory``'s
     position covariance (in place). The solve holds the moved stamps fixed, so its
@@ -722,7 +744,9 @@ GIVEN_HOLDS_DEG = 0.5
 MISALIGNMENT_SIGNIFICANT = 3.0  # sigmas of its estimate before a misalignment turns it
 
 
-def mounting_from_drive(dataset: Dataset, config: RunConfig, run: Rerun) -> tuple[RunConfig, str | None]:
+def mounting_from_drive(
+    dataset: Dataset, config: RunConfig, run: Rerun
+) -> tuple[RunConfig, str | None, float]:
     """A car's IMU mounting against the one its turns show (fgins.mounting): the
     constraints every method applies in the vehicle frame depend on it.
 
@@ -737,9 +761,12 @@ def mounting_from_drive(dataset: Dataset, config: RunConfig, run: Rerun) -> tupl
     deg of yaw cost 32 % inside an outage, half a degree 48 % (or, by chance, helped: the
     NHC's white noise cannot hold a constant error, so the outage's drift follows it); an
     independent simulator's car given a yaw 4 deg off ran 3.8 m inside a 40 s outage (NEES
-    24) where the true mounting gives 0.5 m."""
+    24) where the true mounting gives 0.5 m.
+
+    The third value is the 1-sigma (deg) of a refined mounting taken (0 otherwise): the
+    solves hold it fixed, so :func:`add_mounting_uncertainty` adds it to the output."""
     if not config.smoother.nhc or dataset.accel_array is not None:
-        return config, None  # no vehicle-frame constraint (or derived rates: too noisy)
+        return config, None, 0.0  # no vehicle-frame constraint (or derived rates: too noisy)
     from fgins.mounting import adopted_mounting, check_mounting, default_axes_note
 
     rpy = config.smoother.imu_to_vehicle_rpy_deg
@@ -748,10 +775,10 @@ def mounting_from_drive(dataset: Dataset, config: RunConfig, run: Rerun) -> tupl
     if given:
         finding = check_mounting(dataset, rpy)  # raises beyond MOUNTING_ERROR_DEG
         if not config.smoother.mounting_from_data:
-            return config, finding
+            return config, finding, 0.0
     adopted = adopted_mounting(dataset, rpy, refine_beyond_deg=MOUNTING_REFINE_DEG)
     if adopted is None:
-        return config, finding if given else None
+        return config, finding if given else None, 0.0
     original = config
     evidence = adopted.evidence
     smoother = replace(config.smoother, imu_to_vehicle_rpy_deg=tuple(float(a) for a in adopted.rpy_deg))
@@ -763,11 +790,13 @@ def mounting_from_drive(dataset: Dataset, config: RunConfig, run: Rerun) -> tupl
         prior_deg = max(ADOPTED_MOUNTING_SIGMA_DEG, adopted.sigma_deg or 0.0)
         refined = _refined_mounting(dataset, config, run, prior_deg)
         if refined is None:  # the refining solve failed: judged as a given mounting is
-            return original, finding if given else check_mounting(dataset, rpy)
+            return original, finding if given else check_mounting(dataset, rpy), 0.0
     elif given:
-        return original, finding  # the run's own misalignment state takes up the rest
+        return original, finding, 0.0  # the run's own misalignment state takes up the rest
+    taken_sigma_deg = 0.0
     if refined is not None:
         angles, turned_deg, sigma_deg = refined
+        taken_sigma_deg = sigma_deg
         holds_deg = max(holds_deg, MISALIGNMENT_SIGNIFICANT * sigma_deg)
         smoother = replace(smoother, imu_to_vehicle_rpy_deg=angles)
         config = replace(config, smoother=smoother)
@@ -779,7 +808,7 @@ def mounting_from_drive(dataset: Dataset, config: RunConfig, run: Rerun) -> tupl
     if moved_deg <= holds_deg:  # it holds after all (a rough fit)
         # A default off in roll alone (an FRD IMU given no mounting) is said all the same:
         # the car constraints do not see it, the output's roll does (outside tester).
-        return original, finding if given else default_axes_note(dataset, rpy)
+        return original, finding if given else default_axes_note(dataset, rpy), 0.0
     shown = ", ".join(f"{a:.2f}" for a in smoother.imu_to_vehicle_rpy_deg)
     if given:
         return config, (
@@ -787,12 +816,12 @@ def mounting_from_drive(dataset: Dataset, config: RunConfig, run: Rerun) -> tupl
             f"the drive (its forward axis {moved_deg:.1f} deg off): using "
             f"imu_to_vehicle_rpy_deg = [{shown}] ({evidence}); [smoother] mounting_from_data "
             "= false keeps the configured one"
-        )
+        ), taken_sigma_deg
     return config, (
         f"imu: no IMU mounting was given, and the default {list(rpy)} does not fit the drive: "
         f"using imu_to_vehicle_rpy_deg = [{shown}] ({evidence}); set it in [smoother] to "
         "silence this"
-    )
+    ), taken_sigma_deg
 
 
 def _forward_angle_deg(rpy_a, rpy_b) -> float:

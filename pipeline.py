@@ -19,6 +19,7 @@ from fgins.corrections import (
     FILTER_FIT_FAILED,
     Rerun,
     add_arm_uncertainty,
+    add_mounting_uncertainty,
     add_time_offset_uncertainty,
     clock_correction_pending,
     mounting_from_drive,
@@ -61,7 +62,7 @@ def run_method(
     dataset = integration_samples(dataset, config)
     run = Rerun(method, gnss_mask, lambda data, cfg, how: _run(data, cfg, how, gnss_mask, progress))
     config, noise_note = noise_from_data(dataset, config, run)
-    config, mounting_note = mounting_from_drive(dataset, config, run)
+    config, mounting_note, mounting_sigma_deg = mounting_from_drive(dataset, config, run)
     config, point_note = nhc_lever_from_turns(dataset, config)
     trajectory = run.solve(dataset, config)
     # The biases are judged on a solution whose clocks fit (fixes 2 s late read as an
@@ -91,6 +92,7 @@ def run_method(
         trajectory, config, bias_note = with_turn_on_bias_widened(dataset, config, run, trajectory)
     # Last: the solves above hold a taken arm fixed, the output's uncertainty must not.
     add_arm_uncertainty(trajectory, trajectory.info.pop("gnss_lever_arm_corrected_cov_m2", None))
+    add_mounting_uncertainty(trajectory, mounting_sigma_deg)
     add_time_offset_uncertainty(trajectory)
     notes = [
         noise_note, bias_note, mounting_note, point_note, lever_note, unknown_height(dataset, trajectory),

@@ -264,6 +264,36 @@ def test_a_mounting_nobody_gave_is_taken_from_the_drive(drive, rpy, method):
     assert np.degrees(np.arccos(np.clip(forward_true @ forward_used, -1, 1))) < 0.5, angles
     expected, got = _rms(reference, drive, dataset), _rms(adopted, drive, dataset)
     assert got <= 1.1 * expected + 0.05, (expected, got)
+    # The mounting taken is uncertain, and the solves held it fixed: its sigma is in the
+    # output's heading and pitch (outside tester: a highway's heading 0.31 deg off at a
+    # reported 0.06, the mounting's 0.14 deg left out).
+    sigma = adopted.info["imu_mounting_sigma_deg"]
+    assert 0.0 < sigma < 2.0
+    widened = adopted.attitude_std_deg[:, 1:] ** 2 - reference.attitude_std_deg[:, 1:] ** 2
+    assert np.median(widened) > 0.5 * sigma**2, (np.median(widened, axis=0), sigma)
+
+
+def test_a_taken_mountings_sigma_widens_heading_and_pitch_only():
+    """Closed form: the mounting's variance adds to the heading's and the pitch's, not the
+    roll's (the constraints do not see a roll)."""
+    from fgins.corrections import add_mounting_uncertainty
+    from fgins.datatypes import Origin, Trajectory
+    from fgins.geodesy import so3_exp
+
+    rng = np.random.default_rng(3)
+    n = 50
+    yaw = rng.uniform(-np.pi, np.pi, n)
+    rotation = so3_exp(np.column_stack([rng.normal(0, 0.05, n), rng.normal(0, 0.05, n), yaw]))
+    covariance = np.tile(np.diag(np.radians([0.2, 0.3, 0.5]) ** 2), (n, 1, 1))
+    track = Trajectory(t=np.arange(n, dtype=float), position=np.zeros((n, 3)), velocity=np.zeros((n, 3)),
+                       rotation=rotation, origin=Origin(45.0, 10.0, 0.0), attitude_cov=covariance)  # fmt: skip
+    before = track.attitude_std_deg ** 2
+    add_mounting_uncertainty(track, 0.4)
+    added = track.attitude_std_deg ** 2 - before
+    np.testing.assert_allclose(added[:, 2], 0.16, rtol=1e-9)  # heading
+    np.testing.assert_allclose(added[:, 1], 0.16, rtol=1e-9)  # pitch (the across axis)
+    np.testing.assert_allclose(added[:, 0], 0.0, atol=1e-12)  # roll
+    assert track.info["imu_mounting_sigma_deg"] == 0.4
 
 
 @pytest.mark.parametrize("method", ["batch", "ekf-rts"])
