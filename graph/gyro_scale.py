@@ -26,7 +26,6 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from fgins.datatypes import FginsError
 from fgins.graph.parameter_step import imu_bias_jacobians, interval_mean, parameter_step
 from fgins.graph.problem import Problem
 from fgins.graph.solve import SolveReport, is_suspect, solve_from, solve_with_stops
@@ -48,6 +47,7 @@ MAX_SCALE_ERROR = 0.05
 # +31 % at 6.8 sigmas, 1.7 m: said, as implausible.)
 GROSS_SCALE_ERROR = 0.25
 GROSS_SCALE_SIGMAS = 10.0
+GROSS_SCALE_KEY = "gyro_scale_gross_error"  # info: the error the pipeline raises
 MAX_ROUNDS = 3
 _BIAS_GYRO = slice(3, 6)  # ConstantBias's vector: accelerometer, then gyro
 
@@ -115,17 +115,22 @@ def correct_gyro_scale(
         return result, graph, {}
     implausible = estimate.implausible
     gross = (np.abs(estimate.error) > GROSS_SCALE_ERROR) & (np.abs(estimate.error) >= GROSS_SCALE_SIGMAS * estimate.sigma)
+    gross_error = None
     if gross.any():
         found = ", ".join(
             f"{axis} {100 * estimate.error[a]:+.0f} % +- {100 * estimate.sigma[a]:.1f}"
             for a, axis in enumerate("xyz")
             if gross[a]
         )
-        raise FginsError(
+        # Raised by the pipeline if its last solve still reads so: a correction after this
+        # solve (turn-on bias sigmas widened) may explain it (a gyro bias 20 times its prior
+        # read as +40 % about z on the first solve, and fits once widened).
+        gross_error = (
             f"imu: the gyro's turns contradict the solution's, read as scale errors of {found} "
             "(a gyro's is within a few %): a gyro column with its sign flipped or two columns "
             "swapped (gyro_x, gyro_y, gyro_z must be the accelerometer's right-handed axes), an "
-            "IMU mounting far off, or a solution far off the truth; no output written"
+            "IMU mounting far off, gyro biases far beyond their turn-on sigmas, or a solution far "
+            "off the truth (a configured initial heading?); no output written"
         )
     axes = estimate.significant
     total = np.ones(3)
@@ -154,11 +159,10 @@ def correct_gyro_scale(
         if np.all(np.abs(estimate.error[axes]) <= estimate.sigma[axes]):
             break
     corrected_axes = axes & (total != 1.0)
-    return (
-        result,
-        graph,
-        _info(total * (1.0 + estimate.error) - 1.0, estimate.sigma, corrected_axes, implausible),
-    )
+    info = _info(total * (1.0 + estimate.error) - 1.0, estimate.sigma, corrected_axes, implausible)
+    if gross_error:
+        info[GROSS_SCALE_KEY] = gross_error
+    return result, graph, info
 
 
 def _info(error: np.ndarray, sigma: np.ndarray, axes: np.ndarray, implausible: np.ndarray) -> dict[str, object]:

@@ -148,7 +148,10 @@ def test_an_exclusion_that_keeps_growing_is_a_wrong_solution_not_faults(tmp_path
                 gnss_rate=1.0, seed=2)  # fmt: skip
     config = tmp_path / "cfg.toml"
     # The nose points at 60 deg while the car backs along 240 deg: the track's course.
-    config.write_text(config.read_text() + "\n[smoother]\ninitial_heading_deg = 240.0\n")
+    # (The gyro-scale check would refuse this wrong solution outright: off here, as the
+    # faults' own verdict is under test.)
+    config.write_text(config.read_text() + "\n[smoother]\ninitial_heading_deg = 240.0\n"
+                      "estimate_gyro_scale = false\n")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", fgins.FginsWarning)
         dataset = fgins.load(tmp_path / "imu.csv", tmp_path / "gnss.csv", config=config)
