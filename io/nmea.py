@@ -827,10 +827,15 @@ def _stats(values: np.ndarray) -> str:
     return f"{finite.min():.2f} / {np.median(finite):.2f} / {finite.max():.2f}"
 
 
+_SENTENCE_START = re.compile(rb"[$!][A-Z]{4,6},")
+
+
 def _has_dollar(path: Path) -> bool:
-    """Whether the file's first 64 KiB hold a '$' (an NMEA sentence start, even a corrupt one)."""
+    """Whether the file's first 64 KiB hold an NMEA sentence start ('$' or '!', a talker and
+    type, a comma), even of a corrupt sentence. A bare '$' is not one: a README with shell
+    prompts and prices was summarised as an NMEA log "not usable", at exit 0."""
     with path.open("rb") as handle:
-        return b"$" in handle.read(65536)
+        return _SENTENCE_START.search(handle.read(65536)) is not None
 
 
 def summarize_nmea(path: str | Path) -> str:

@@ -171,3 +171,17 @@ def test_a_single_usable_fix_names_why_the_rest_are_not(method: str) -> None:
     message = str(error.value)
     assert "only 1 usable GNSS epoch(s) of 9 (a run needs 2)" in message, message
     assert "8 gated by PDOP > 5" in message, message
+
+
+def test_inspect_of_a_text_with_dollar_signs_is_no_nmea_log(tmp_path: Path, capsys) -> None:
+    """A README (shell prompts, prices: '$' but no sentence) was summarised as an NMEA log
+    "not usable" at exit 0, while an empty file is an error: now both are errors. A log of
+    corrupt sentences (a talker and type after the '$') stays a log to inspect."""
+    text = tmp_path / "notes.txt"
+    text.write_text("Run it:\n\n    $ fgins demo\n\nIt costs $0.\n" * 20)
+    message = cli_error(capsys, ["inspect", str(text)])
+    assert "not a log fgins reads: no NMEA sentence" in message, message
+    corrupt = tmp_path / "corrupt.nmea"
+    corrupt.write_text("$GPGGA,120000.00,4807.0,N,01131.0,E,1,08,0.9,545.4,M,46.9,M,,*00\n" * 5)
+    assert main(["inspect", str(corrupt)]) == 0
+    assert "checksum failures: 5" in capsys.readouterr().out
