@@ -1323,6 +1323,12 @@ def load_ubx_dataset(
     warnings = list(result.warnings)
     imu = None
     imu_from = result.imu_source
+    if len(others) > 1:
+        # Each would replace the receiver's IMU, the last one winning unsaid.
+        raise InputError(
+            f"beside a UBX log give one IMU (an imu.csv or an MCAP), got {len(others)}: "
+            f"{', '.join(map(str, others))}"
+        )
     for other in others:
         from fgins.io.mcap_stream import is_mcap
 

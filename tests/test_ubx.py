@@ -367,6 +367,10 @@ def test_load_dataset_own_imu_or_csv_beside(tmp_path):
     again = load_dataset([str(tmp_path / "imu.csv"), str(path)], progress=False)
     assert again.metadata["imu_source"].endswith("imu.csv")
     np.testing.assert_allclose(again.imu.accel[:, 2], 9.8)
+    # Two IMUs beside it: which replaces the receiver's? Refused (the last one won, unsaid).
+    write_imu_csv(dataset.imu, tmp_path / "imu2.csv")
+    with pytest.raises(InputError, match=r"beside a UBX log give one IMU .* got 2"):
+        load_dataset([str(tmp_path / "imu.csv"), str(path), str(tmp_path / "imu2.csv")], progress=False)
 
 
 def test_cli_convert_and_inspect(tmp_path, capsys):
