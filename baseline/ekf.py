@@ -985,19 +985,36 @@ def trajectory_info(run: FilterRun, epochs: GnssEpochs) -> dict[str, object]:
                 " (one more abandoned: its estimate left the linearisation, or it did not "
                 "converge)"
             )
-        turned = float(run.counts.get("rts_largest_turn_deg", 0.0))  # type: ignore[arg-type]
+        turned = _largest_unaided_turn_deg(run, epochs)
         if turned > RTS_NONLINEAR_DEG:
-            # The RTS correction is linear about the forward pass: one this large is no
-            # correction its covariance describes (an independent simulator's multirotor,
-            # its heading at the first hover unknown: 71 deg, the relinearised pass did not
-            # converge; 1.5-3.3 m off inside an outage with sigmas for 0.17 m, NEES 9-14).
+            # The RTS correction is linear about the forward pass: one this large where no
+            # fix holds the track is no correction its covariance describes (an independent
+            # simulator's multirotor, its heading unknown until it flew inside an outage:
+            # 71 deg, the relinearised pass did not converge; 1.5-3.3 m off inside the outage
+            # with sigmas for 0.17 m, NEES 9-14). Beside the fixes they hold the track (a
+            # loop's start heading turned 22-29 deg: 0.5-0.8 m, fine).
             info["fit_warnings"] = [
-                f"EKF+RTS: the smoother turns the filter's attitude by up to {turned:.0f} deg, "
-                "far beyond what its linear correction carries, and relinearising about the "
-                "smoothed states did not settle it: its track and sigmas are not to be trusted "
-                "there (compare --method batch, which relinearises until it converges)"
+                f"EKF+RTS: the smoother turns the filter's attitude by up to {turned:.0f} deg "
+                f"more than {RTS_UNAIDED_GAP_S:g} s from any fix, far beyond what its linear "
+                "correction carries, and relinearising about the smoothed states did not settle "
+                "it: its track and sigmas are not to be trusted there (compare --method batch, "
+                "which relinearises until it converges)"
             ]
     return info
+
+
+def _largest_unaided_turn_deg(run: FilterRun, epochs: GnssEpochs) -> float:
+    """The largest attitude correction (deg) the RTS smoother makes at block boundaries more
+    than RTS_UNAIDED_GAP_S from any GNSS epoch the run used."""
+    turns = np.degrees(np.linalg.norm(rts_smooth(run)[0][:, ATT], axis=1))
+    times = np.asarray(run.segments.times, dtype=float)[: len(turns)]
+    fixes = np.sort(np.asarray(epochs.t, dtype=float))
+    if fixes.size == 0:
+        return float(turns.max(initial=0.0))
+    after = np.clip(np.searchsorted(fixes, times), 0, fixes.size - 1)
+    before = np.clip(after - 1, 0, fixes.size - 1)
+    gap = np.minimum(np.abs(fixes[after] - times), np.abs(times - fixes[before]))
+    return float(turns[gap > RTS_UNAIDED_GAP_S].max(initial=0.0))
 
 
 def filtered_output(dataset: Dataset, run: FilterRun) -> tuple[NominalState, NavCovariance]:
@@ -1227,6 +1244,7 @@ MAX_RELINEARISED_PASSES = 3
 # Left beyond this after the relinearised passes (deg), the smoothed output is said to be
 # untrustworthy (the linear correction of a 10 deg attitude error misses by its square).
 RTS_NONLINEAR_DEG = 10.0
+RTS_UNAIDED_GAP_S = 5.0  # a boundary this far from any fix used: no fix holds the track there
 
 
 def relinearised_passes(

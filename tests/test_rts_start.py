@@ -128,7 +128,8 @@ def test_an_rts_correction_beyond_its_linear_range_is_said(tmp_path, monkeypatch
     an outage: 71 deg, the relinearised pass did not settle it; 2.1 m off with sigmas for
     0.17 m, NEES 9), the run says its track and sigmas are not to be trusted. A right run's
     largest turn (here 0.003-0.3 deg) is far below the bound; lowered below it, the same run
-    says it, with the turn it measured."""
+    says it (counted only where no fix holds the track: more than 5 s from any fix used; a
+    loop's start heading turned 22-29 deg beside its fixes is 0.5-0.8 m off, fine)."""
     from fgins.baseline import ekf
 
     motion = Multirotor(heading0_deg=120.0, moves=[(3, 7, [0, 0, 12]), (12, 4, [20, 0, 0]),
@@ -142,7 +143,9 @@ def test_an_rts_correction_beyond_its_linear_range_is_said(tmp_path, monkeypatch
         turned = right.info["rts_largest_turn_deg"]
         assert turned < ekf.RTS_NONLINEAR_DEG / 10
         assert not [w for w in right.info.get("fit_warnings", []) if "linear correction" in w]
-        monkeypatch.setattr(ekf, "RTS_NONLINEAR_DEG", turned / 2)
+        monkeypatch.setattr(ekf, "RTS_NONLINEAR_DEG", 1e-9)
         said = [w for w in fgins.smooth(dataset, "ekf-rts", gnss_outage=[(10.0, 50.0)]).info["fit_warnings"]
                 if "linear correction" in w]  # fmt: skip
-    assert len(said) == 1 and said[0].startswith(f"EKF+RTS: the smoother turns the filter's attitude by up to {turned:.0f} deg")
+    assert len(said) == 1, said
+    assert said[0].startswith("EKF+RTS: the smoother turns the filter's attitude by up to ")
+    assert f"more than {ekf.RTS_UNAIDED_GAP_S:g} s from any fix" in said[0]
