@@ -117,11 +117,7 @@ def correct_gyro_scale(
     gross = (np.abs(estimate.error) > GROSS_SCALE_ERROR) & (np.abs(estimate.error) >= GROSS_SCALE_SIGMAS * estimate.sigma)
     gross_error = None
     if gross.any():
-        found = ", ".join(
-            f"{axis} {100 * estimate.error[a]:+.0f} % +- {100 * estimate.sigma[a]:.1f}"
-            for a, axis in enumerate("xyz")
-            if gross[a]
-        )
+        found = _axes_text(estimate.error, estimate.sigma, gross, (0, 1))
         # Raised by the pipeline if its last solve still reads so: a correction after this
         # solve (turn-on bias sigmas widened) may explain it (a gyro bias 20 times its prior
         # read as +40 % about z on the first solve, and fits once widened).
@@ -165,6 +161,17 @@ def correct_gyro_scale(
     return result, graph, info
 
 
+def _axes_text(error: np.ndarray, sigma: np.ndarray, mask: np.ndarray, digits: tuple[int, int]) -> str:
+    """"x +1.03 % +- 0.05, z ..." for the axes in ``mask`` (percent, with ``digits`` decimals
+    for the estimate and its sigma)."""
+    d, e = digits
+    return ", ".join(
+        f"{axis} {100 * error[a]:+.{d}f} % +- {100 * sigma[a]:.{e}f}"
+        for a, axis in enumerate("xyz")
+        if mask[a]
+    )
+
+
 def _info(error: np.ndarray, sigma: np.ndarray, axes: np.ndarray, implausible: np.ndarray) -> dict[str, object]:
     """The run summary's entries: the estimate, and a warning naming what was corrected or
     what no scale error explains."""
@@ -177,11 +184,7 @@ def _info(error: np.ndarray, sigma: np.ndarray, axes: np.ndarray, implausible: n
         # Said, not corrected: a gyro axis whose sign is flipped read as a scale error of
         # +31 % +- 4.5 on an independent simulator's highway (1.7 m inside an outage against
         # 0.5, NEES 4.7, unsaid); a mounting 4 deg off in yaw as +6 %.
-        found = ", ".join(
-            f"{axis} {100 * error[a]:+.1f} % +- {100 * sigma[a]:.1f}"
-            for a, axis in enumerate("xyz")
-            if implausible[a]
-        )
+        found = _axes_text(error, sigma, implausible, (1, 1))
         info["fit_warnings"] = [
             f"imu: the gyro's turns disagree with the solution's far beyond any gyro's scale "
             f"error (read as a scale error of {found}; a MEMS gyro's is within "
@@ -191,11 +194,7 @@ def _info(error: np.ndarray, sigma: np.ndarray, axes: np.ndarray, implausible: n
         ]
         return info
     if axes.any():
-        found = ", ".join(
-            f"{axis} {100 * error[a]:+.2f} % +- {100 * sigma[a]:.2f}"
-            for a, axis in enumerate("xyz")
-            if axes[a]
-        )
+        found = _axes_text(error, sigma, axes, (2, 2))
         info["fit_warnings"] = [
             f"imu: the gyro reads turns larger or smaller than the solution shows (scale "
             f"error {found}): corrected in the smoother (the Kalman baselines do not model "
