@@ -27,6 +27,7 @@ from fgins.datatypes import (
     GnssData,
     OdometerData,
     Trajectory,
+    level_axes,
 )
 from fgins.factors import gnss as gnss_model
 from fgins.gnss_scatter import SIGMA_AXIS_RATIO, SIGMA_TOO_SMALL
@@ -148,6 +149,10 @@ def _bias_of_grade(config: RunConfig, excess: dict[str, float]) -> _GradedBias:
 
     configured = config.imu_noise()
     tau = config.imu.get("bias_correlation_time_s")
+    grades = {
+        name: imu_noise_from_config({"preset": name, **({} if tau is None else {"bias_correlation_time_s": tau})})
+        for name in IMU_PRESETS
+    }
     values: dict[str, float] = {}
     said = []
     for sensor, white, walk, prior, keys in (
@@ -158,10 +163,6 @@ def _bias_of_grade(config: RunConfig, excess: dict[str, float]) -> _GradedBias:
     ):  # fmt: skip
         if sensor not in excess:
             continue
-        grades = {
-            name: imu_noise_from_config({"preset": name, **({} if tau is None else {"bias_correlation_time_s": tau})})
-            for name in IMU_PRESETS
-        }
         name = min(grades, key=lambda n: abs(math.log(getattr(grades[n], white) / excess[sensor])))
         grade = grades[name]
         if getattr(grade, white) <= NOISE_EXCESS * getattr(configured, white):
@@ -553,10 +554,7 @@ def add_mounting_uncertainty(trajectory: Trajectory, sigma_deg: float) -> None:
     if not sigma_deg or trajectory.attitude_cov is None:
         return
     variance = np.radians(sigma_deg) ** 2
-    forward = trajectory.rotation[:, :, 0].copy()
-    forward[:, 2] = 0.0
-    forward /= np.maximum(np.linalg.norm(forward, axis=1, keepdims=True), 1e-9)
-    across = np.stack([-forward[:, 1], forward[:, 0], np.zeros(len(forward))], axis=1)
+    _, across = level_axes(trajectory.rotation)
     up = np.zeros_like(across)
     up[:, 2] = 1.0
     trajectory.attitude_cov = trajectory.attitude_cov + variance * (

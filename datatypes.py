@@ -370,6 +370,18 @@ class Dataset:
         return vectors_local_to_nav(self.gnss.lla, self.gnss.velocity, self.origin)
 
 
+def level_axes(rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The horizontal unit directions (N, 3) of bodies' forward (x) axes and across them (to
+    the left), for body-to-ENU ``rotation`` (N, 3, 3); east where the x axis is vertical."""
+    heading = rotation[:, :2, 0]
+    norm = np.linalg.norm(heading, axis=1, keepdims=True)
+    heading = np.where(norm > 1e-9, heading / np.maximum(norm, 1e-9), [1.0, 0.0])
+    zeros = np.zeros(len(heading))
+    forward = np.stack([heading[:, 0], heading[:, 1], zeros], axis=1)
+    across = np.stack([-heading[:, 1], heading[:, 0], zeros], axis=1)
+    return forward, across
+
+
 @dataclass
 class Trajectory:
     """An estimated (or true) trajectory in the local ENU frame.
@@ -424,12 +436,7 @@ class Trajectory:
         tilt axes are horizontal, as the Euler angles' are: a heading known to 180 deg only
         (a vehicle that never moved) does not leak into the roll of a pitched body."""
         assert self.attitude_cov is not None  # filled with NaN by __post_init__
-        heading = self.rotation[:, :2, 0]
-        norm = np.linalg.norm(heading, axis=1, keepdims=True)
-        heading = np.where(norm > 1e-9, heading / np.maximum(norm, 1e-9), [1.0, 0.0])
-        zeros = np.zeros(len(heading))
-        forward = np.stack([heading[:, 0], heading[:, 1], zeros], axis=1)
-        across = np.stack([-heading[:, 1], heading[:, 0], zeros], axis=1)
+        forward, across = level_axes(self.rotation)
         cov = self.attitude_cov
         var = np.stack(
             [

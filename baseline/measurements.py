@@ -61,9 +61,7 @@ def select_gnss(dataset: Dataset, config: RunConfig, gnss_mask: np.ndarray | Non
         imu_span=(float(imu_t[0]), float(imu_t[-1])),
     )  # fmt: skip
     usable = gate.used
-    if np.count_nonzero(usable) < gnss_model.MIN_USABLE_FIXES:
-        _, counts = gnss_model.select_epochs(dataset, config.gnss, gnss_mask)
-        raise gnss_model.no_usable_gnss_error(dataset, config.gnss, counts, int(np.count_nonzero(usable)))
+    gnss_model.require_usable_fixes(dataset, config.gnss, gnss_mask, usable)
     outside = gate.outside_span
     subset = gnss.subset(usable)
     velocity_sigma = gnss_model.velocity_sigmas(subset, config.gnss)

@@ -512,6 +512,20 @@ def select_epochs(
 MIN_USABLE_FIXES = 2
 
 
+def require_usable_fixes(
+    dataset: Dataset, config: GnssConfig, gnss_mask: np.ndarray | None, usable: np.ndarray,
+    counts: dict[str, int] | None = None,
+) -> None:  # fmt: skip
+    """Raise :func:`no_usable_gnss_error` where ``usable`` holds fewer than MIN_USABLE_FIXES
+    (``counts`` from :func:`select_epochs`, computed here when not given)."""
+    found = int(np.count_nonzero(usable))
+    if found >= MIN_USABLE_FIXES:
+        return
+    if counts is None:
+        counts = select_epochs(dataset, config, gnss_mask)[1]
+    raise no_usable_gnss_error(dataset, config, counts, found)
+
+
 def no_usable_gnss_error(
     dataset: Dataset, config: GnssConfig, counts: dict[str, int], usable: int = 0
 ) -> InputError:

@@ -66,6 +66,12 @@ class ScaleEstimate:
         return (size > MAX_SCALE_ERROR) & (size >= MIN_SCALE_SIGMAS * self.sigma)
 
     @property
+    def gross(self) -> np.ndarray:
+        """Axes beyond GROSS_SCALE_ERROR at GROSS_SCALE_SIGMAS: no gyro's scale, an axis mistake."""
+        size = np.abs(self.error)
+        return (size > GROSS_SCALE_ERROR) & (size >= GROSS_SCALE_SIGMAS * self.sigma)
+
+    @property
     def significant(self) -> np.ndarray:
         """Axes to correct; none when any axis is beyond what a gyro's scale can be: the
         solution, not the gyro, is then wrong (a start heading 120 deg off, its first fit
@@ -114,7 +120,7 @@ def correct_gyro_scale(
     if estimate is None:
         return result, graph, {}
     implausible = estimate.implausible
-    gross = (np.abs(estimate.error) > GROSS_SCALE_ERROR) & (np.abs(estimate.error) >= GROSS_SCALE_SIGMAS * estimate.sigma)
+    gross = estimate.gross
     gross_error = None
     if gross.any():
         found = _axes_text(estimate.error, estimate.sigma, gross, (0, 1))

@@ -749,8 +749,7 @@ def build_problem(
     """Keyframes and GNSS assignment (preintegration comes later, about a bias estimate).
     ``gnss_mask`` withholds epochs (outages)."""
     usable, counts = gnss_model.select_epochs(dataset, config.gnss, gnss_mask)
-    if np.count_nonzero(usable) < gnss_model.MIN_USABLE_FIXES:
-        raise gnss_model.no_usable_gnss_error(dataset, config.gnss, counts, int(np.count_nonzero(usable)))
+    gnss_model.require_usable_fixes(dataset, config.gnss, gnss_mask, usable, counts)
     imu = dataset.imu
     noise, bias_notes = imu_model.conditioned_noise(
         config.imu_noise(), float(imu.t[-1] - imu.t[0])

@@ -319,7 +319,7 @@ def _fit_3d(
         for name, (accel_mistake, gyro_mistake) in hypotheses.items():
             key = gyro_mistake.tobytes()
             if key not in turned:
-                gyro = imu.gyro[lo:hi] @ gyro_mistake  # undone: rows times the transpose
+                gyro = imu.gyro[lo:hi] @ gyro_mistake
                 turned[key] = _carried(so3_exp(0.5 * (gyro[1:] + gyro[:-1]) * steps))
             carried = np.einsum("nij,nj->ni", turned[key], imu.accel[lo:hi] @ accel_mistake)
             force = _box_means(grid, times, carried, half, velocity is not None)
