@@ -459,7 +459,8 @@ def smooth(
         From :func:`load` (or any reader / the simulator).
     method : str, default "batch"
         ``batch`` (Levenberg-Marquardt over the whole drive), ``isam2`` (incremental, final
-        estimate), or a baseline: ``ekf``, ``ekf-rts``, ``ukf``, ``planar-kf``, ``ekf18``.
+        estimate), or a baseline: ``ekf``, ``ekf-rts``, ``ukf``, ``planar-kf``, ``ekf18``,
+        ``ekf18-rts`` (for an accelerometer array ``ekf`` and ``ekf-rts`` run the last two).
     config : path or RunConfig, optional
         Overrides the configuration chosen by :func:`load` (see :func:`configure`): a TOML
         file replaces load's file, with load's explicit ``imu_preset``, ``vehicle`` and
@@ -1092,12 +1093,14 @@ def bench(
         run_config = configure(dataset, config, **(dataset.metadata.get("run_choices") or {}))
     run_config = run_config.checked()  # a RunConfig changed in code is checked again
     dataset = _checked_input(dataset, run_config.smoother.vehicle)
-    if "ekf18" in methods and dataset.accel_array is None:
+    array_only = [m for m in methods if m.startswith("ekf18")]
+    if array_only and dataset.accel_array is None:
         # Known before any solve: not a run of the others and a row of nothing.
         raise ConfigError(
-            f"--methods ekf18: {dataset.name or 'the input'} has an ordinary IMU; ekf18 needs "
-            "accelerometer-array readings (accel_array.csv): leave it out of --methods (ekf "
-            "is the filter for an ordinary IMU)"
+            f"--methods {array_only[0]}: {dataset.name or 'the input'} has an ordinary IMU; "
+            f"{array_only[0]} needs accelerometer-array readings (accel_array.csv): leave it "
+            f"out of --methods ({array_only[0].replace('ekf18', 'ekf')} is the filter for an "
+            "ordinary IMU)"
         )
     windows = _windows(outages)
     from fgins.outages import empty_windows, overlapping_windows

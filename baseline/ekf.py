@@ -1004,11 +1004,17 @@ def trajectory_info(run: FilterRun, epochs: GnssEpochs) -> dict[str, object]:
 
 
 def _largest_unaided_turn_deg(run: FilterRun, epochs: GnssEpochs) -> float:
-    """The largest attitude correction (deg) the RTS smoother makes at block boundaries more
-    than RTS_UNAIDED_GAP_S from any GNSS epoch the run used."""
-    turns = np.degrees(np.linalg.norm(rts_smooth(run)[0][:, ATT], axis=1))
-    times = np.asarray(run.segments.times, dtype=float)[: len(turns)]
-    fixes = np.sort(np.asarray(epochs.t, dtype=float))
+    """The largest attitude correction (deg) the RTS smoother makes to a run."""
+    return largest_unaided_turn_deg(rts_smooth(run)[0][:, ATT], run.segments.times, epochs.t)
+
+
+def largest_unaided_turn_deg(turns: np.ndarray, times: np.ndarray, fixes: np.ndarray) -> float:
+    """The largest of the attitude corrections ``turns`` (rad vectors, one per block boundary
+    at ``times``) in deg, among the boundaries more than RTS_UNAIDED_GAP_S from any GNSS epoch
+    used (``fixes``)."""
+    turns = np.degrees(np.linalg.norm(turns, axis=1))
+    times = np.asarray(times, dtype=float)[: len(turns)]
+    fixes = np.sort(np.asarray(fixes, dtype=float))
     if fixes.size == 0:
         return float(turns.max(initial=0.0))
     after = np.clip(np.searchsorted(fixes, times), 0, fixes.size - 1)

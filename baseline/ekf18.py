@@ -41,7 +41,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgins.alignment import initial_alignment
-from fgins.baseline.ekf import IntervalSums
+from fgins.baseline.ekf import (
+    RTS_NONLINEAR_DEG,
+    RTS_UNAIDED_GAP_S,
+    IntervalSums,
+    largest_unaided_turn_deg,
+)
 from fgins.baseline.measurements import linearize_gnss, select_gnss
 from fgins.baseline.mechanization import (
     NavFrame,
@@ -56,6 +61,7 @@ from fgins.config import RunConfig, SmootherConfig
 from fgins.datatypes import AccelArrayData, Dataset, InputError, Trajectory
 from fgins.factors import stationary
 from fgins.factors.accel_array import AccelArray, rate_monomials
+from fgins.geodesy import so3_exp, so3_log
 from fgins.initial_guess import KeyframeGuess
 from fgins.mounting import mounting_rotation
 
@@ -278,9 +284,16 @@ class _NodeStore:
         self.velocity = np.empty((m, 3))
         self.position = np.empty((m, 3))
         self.rate = np.empty((m, 3))
-        shape = (n_boundaries if self.keep is None else 0, STATE_DIM, STATE_DIM)
+        full = n_boundaries if self.keep is None else 0
+        shape = (full, STATE_DIM, STATE_DIM)
         self.cov_prior = np.empty(shape)
         self.cov_post = np.empty(shape)
+        # For the RTS smoother (full output only): each block's transition and the states at
+        # every boundary before and after its updates (rotation, velocity, position, rate,
+        # the six biases), O(boundaries) memory.
+        self.transition = np.empty((max(full - 1, 0), STATE_DIM, STATE_DIM))
+        self.boundary_prior = _BoundaryStates(full)
+        self.boundary_post = _BoundaryStates(full)
 
     def _add_rate_error(self, first: int, stop: int, rates: np.ndarray) -> None:
         if self.rate_error is None:
@@ -318,6 +331,47 @@ class _NodeStore:
             self.cov_prior[k] = prior
             self.cov_post[k] = posterior
 
+    def boundary(self, k: int, prior: _State, posterior: _State) -> None:
+        if self.keep is None:
+            self.boundary_prior.put(k, prior)
+            self.boundary_post.put(k, posterior)
+
+    def block_transition(self, b: int, phi: np.ndarray) -> None:
+        if self.keep is None:
+            self.transition[b] = phi
+
+
+# (navigation state, angular rate, the six accelerometer biases) at a block boundary
+_State = tuple[NominalState, np.ndarray, np.ndarray]
+
+
+class _BoundaryStates:
+    """The filter's states at every block boundary, as arrays."""
+
+    def __init__(self, n: int) -> None:
+        self.rotation = np.empty((n, 3, 3))
+        self.velocity = np.empty((n, 3))
+        self.position = np.empty((n, 3))
+        self.rate = np.empty((n, 3))
+        self.bias = np.empty((n, STATE_DIM - BIAS.start))
+
+    def put(self, k: int, state: _State) -> None:
+        nav, rate, bias = state
+        self.rotation[k], self.velocity[k], self.position[k] = nav.rotation, nav.velocity, nav.position
+        self.rate[k], self.bias[k] = rate, bias
+
+    def from_other(self, other: _BoundaryStates, k: int, dx: np.ndarray) -> np.ndarray:
+        """The error state taking boundary k's state here to ``other``'s corrected by ``dx``
+        (the attitude error ``R_true = Exp(phi) R``; the rest additive)."""
+        out = np.empty(STATE_DIM)
+        rotation = so3_exp(dx[ATT]) @ other.rotation[k]
+        out[ATT] = so3_log(rotation @ self.rotation[k].T)
+        out[VEL] = other.velocity[k] + dx[VEL] - self.velocity[k]
+        out[POS] = other.position[k] + dx[POS] - self.position[k]
+        out[RATE] = other.rate[k] + dx[RATE] - self.rate[k]
+        out[BIAS] = other.bias[k] + dx[BIAS] - self.bias[k]
+        return out
+
 
 def run_ekf18(
     dataset: Dataset,
@@ -326,8 +380,10 @@ def run_ekf18(
     gnss_mask: np.ndarray | None = None,
     progress: bool = True,
     max_block_s: float = 1.0,
+    smooth: bool = False,
 ) -> Trajectory:
-    """The 18-state gyro-free EKF (method ``"ekf18"``), output at every array sample.
+    """The 18-state gyro-free EKF (method ``"ekf18"``), output at every array sample; with
+    ``smooth``, followed by a Rauch-Tung-Striebel smoother (:func:`run_ekf18_rts`).
 
     Needs ``dataset.accel_array`` (raw readings + geometry); ``dataset.imu`` (the front-end
     output) is used only for the initial alignment. ``info`` holds the update counts and the
@@ -339,33 +395,58 @@ def run_ekf18(
     epochs, bias = pass_.epochs, pass_.bias
     n_nodes = len(node_t)
     rotation, velocity, position, rate_out = store.rotation, store.velocity, store.position, store.rate
-    cov_prior, cov_post = store.cov_prior, store.cov_post
+    cov_start, cov_end = store.cov_post, store.cov_prior
     n_blocks = len(times) - 1
 
     # Output at the array samples: the node at each sample time; covariances interpolated
-    # between a block's a-posteriori start and a-priori end.
+    # between a block's a-posteriori start and a-priori end (smoothed: between its two
+    # boundaries' smoothed covariances).
     rows = np.clip(np.searchsorted(node_t, data.t), 0, n_nodes - 1)
     block = np.clip(np.searchsorted(times, data.t, side="right") - 1, 0, len(times) - 2)
     share = np.clip((data.t - times[block]) / (times[block + 1] - times[block]), 0.0, 1.0)
     s = share[:, None, None]
     last = data.t >= times[-1]
+    rotation, velocity, position, rate_out = rotation[rows], velocity[rows], position[rows], rate_out[rows]
+    info: dict[str, object] = {}
+    if smooth:
+        from_post, from_prior, cov_smoothed = _rts_smooth(store)
+        # Each sample's correction: from its block's start (a-posteriori) to its end
+        # (a-priori), linearly in time, as the 15-state EKF+RTS (zero after the last boundary).
+        correction = (1.0 - share[:, None]) * from_post[block] + share[:, None] * from_prior[block + 1]
+        correction[last] = 0.0
+        rotation = so3_exp(correction[:, ATT]) @ rotation
+        velocity = velocity + correction[:, VEL]
+        position = position + correction[:, POS]
+        rate_out = rate_out + correction[:, RATE]
+        cov_start = cov_end = cov_smoothed
+        turned = largest_unaided_turn_deg(from_post[:, ATT], times, epochs.t)
+        counts["rts_largest_turn_deg"] = turned
+        info["solver"] = "EKF18+RTS: one forward pass, smoothed about it (not relinearised)"
+        if turned > RTS_NONLINEAR_DEG:
+            info["fit_warnings"] = [
+                f"EKF18+RTS: the smoother turns the filter's attitude by up to {turned:.0f} deg "
+                f"more than {RTS_UNAIDED_GAP_S:g} s from any fix, far beyond what its linear "
+                "correction carries: its track and sigmas are not to be trusted there "
+                "(compare --method batch, which relinearises until it converges)"
+            ]
     nav_cov = []
     for rows_cov in (POS, VEL, ATT):  # only the 3x3 blocks the output keeps (same bits)
-        start = np.ascontiguousarray(cov_post[:, rows_cov, rows_cov])
-        end = np.ascontiguousarray(cov_prior[:, rows_cov, rows_cov])
+        start = np.ascontiguousarray(cov_start[:, rows_cov, rows_cov])
+        end = np.ascontiguousarray(cov_end[:, rows_cov, rows_cov])
         out_cov = (1.0 - s) * start[block] + s * end[block + 1]
-        out_cov[last] = cov_post[-1][rows_cov, rows_cov]
+        out_cov[last] = cov_start[-1][rows_cov, rows_cov]
         nav_cov.append(out_cov)
     counts["blocks"] = n_blocks
+    method = "ekf18-rts" if smooth else "ekf18"
     trajectory = Trajectory(
         t=data.t,
-        position=position[rows],
-        velocity=velocity[rows],
-        rotation=rotation[rows],
+        position=position,
+        velocity=velocity,
+        rotation=rotation,
         origin=dataset.origin,
-        method="ekf18",
+        method=method,
         # The rate error of the front end, as a gyro "bias": front-end rate minus filter rate.
-        gyro_bias=(dataset.imu.gyro - rate_out[rows]) if len(dataset.imu) == len(data) else None,
+        gyro_bias=(dataset.imu.gyro - rate_out) if len(dataset.imu) == len(data) else None,
         position_cov=nav_cov[0],
         velocity_cov=nav_cov[1],
         attitude_cov=nav_cov[2],
@@ -373,12 +454,52 @@ def run_ekf18(
             "gnss_gating": epochs.gating_summary,
             **counts,
             "gnss_epochs_used": len(epochs.t),
-            "accel_array_bias": bias.tolist(),
-            "angular_rate": rate_out[rows],
+            "accel_array_bias": np.asarray(bias).tolist(),
+            "angular_rate": rate_out,
+            **info,
         },
     )
     trajectory.timings["total"] = time.perf_counter() - started
     return trajectory
+
+
+def run_ekf18_rts(
+    dataset: Dataset,
+    config: RunConfig,
+    *,
+    gnss_mask: np.ndarray | None = None,
+    progress: bool = True,
+    max_block_s: float = 1.0,
+) -> Trajectory:
+    """The 18-state gyro-free EKF followed by a Rauch-Tung-Striebel smoother (method
+    ``"ekf18-rts"``; ``ekf-rts`` on an accelerometer array): one forward pass, smoothed
+    linearly about it. The 15-state EKF+RTS's relinearised passes are not repeated here; a
+    correction too large for a linear smoother, far from the fixes, is said."""
+    return run_ekf18(
+        dataset, config, gnss_mask=gnss_mask, progress=progress, max_block_s=max_block_s,
+        smooth=True,
+    )  # fmt: skip
+
+
+def _rts_smooth(store: _NodeStore) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Backward RTS pass over the block boundaries of a full forward pass: per boundary the
+    smoothed correction from the a-posteriori state, from the a-priori state, and the
+    smoothed covariance (as :func:`fgins.baseline.ekf.rts_smooth` for 15 states)."""
+    post, prior = store.boundary_post, store.boundary_prior
+    n = len(store.cov_post)
+    from_post = np.zeros((n, STATE_DIM))
+    from_prior = np.zeros((n, STATE_DIM))
+    cov_smoothed = np.empty_like(store.cov_post)
+    cov_smoothed[-1] = store.cov_post[-1]
+    from_prior[-1] = prior.from_other(post, n - 1, from_post[-1])
+    for k in range(n - 2, -1, -1):
+        # C = P+_k Phi^T (P-_k+1)^-1, computed as a solve with the symmetric P-_k+1.
+        gain = np.linalg.solve(store.cov_prior[k + 1], store.transition[k] @ store.cov_post[k]).T
+        from_post[k] = gain @ from_prior[k + 1]
+        from_prior[k] = prior.from_other(post, k, from_post[k])
+        cov = store.cov_post[k] + gain @ (cov_smoothed[k + 1] - store.cov_prior[k + 1]) @ gain.T
+        cov_smoothed[k] = 0.5 * (cov + cov.T)
+    return from_post, from_prior, cov_smoothed
 
 
 @dataclass
@@ -512,12 +633,13 @@ def _ekf18_pass(
 
     def boundary(k: int) -> None:
         nonlocal last_fix
-        prior = cov
+        prior, prior_state = cov, (nav, rate, bias)
         if gnss_at[k] >= 0:
             gnss_update(k)
             last_fix = float(times[k])
         vehicle_updates(k)
         store.covariance(k, prior, cov)
+        store.boundary(k, prior_state, (nav, rate, bias))
 
     boundary(0)
     n_blocks = len(times) - 1
@@ -543,6 +665,7 @@ def _ekf18_pass(
             model, nominal.rotation[:-1], nominal.specific_force_nav, mean_rate, dt, frame
         )
         phi_block, q_block = compose_transitions(phi, q)
+        store.block_transition(b, phi_block)
         cov = phi_block @ cov @ phi_block.T + q_block
         cov = 0.5 * (cov + cov.T)
         nav = nominal.end(nav)
