@@ -284,3 +284,48 @@ def test_comment_rows_on_both_parsers_and_the_accel_array_reader(tmp_path) -> No
     found: list[str] = []
     columns = _read_columns(path, found)
     assert columns["time"].size == 10 and found == ["accel_array.csv: skipped 1 '#' comment line(s)"]
+
+
+@pytest.mark.parametrize("damage", ["nul_tail", "nul_line", "open_quote", "open_quote_late"])
+def test_a_damaged_csv_loses_only_the_damaged_row(sim_folder: Path, tmp_path, damage) -> None:
+    """A logger that died with a pre-allocated file leaves NUL padding; a hand edit leaves
+    one '"' that never closes. Both crashed every command ("internal error: field larger
+    than field limit"), or one open quote swallowed every row after it into one cell (a
+    gnss.csv's last 70 rows, counted as "1 malformed row", 38 m off at exit 0; outside
+    tester). Now exactly the damaged line is dropped and counted, on both parsers."""
+    lines = (sim_folder / "imu.csv").read_bytes().split(b"\n")
+    n_rows = sum(1 for line in lines[1:] if line)
+    at = {"nul_tail": None, "nul_line": 600, "open_quote": 300, "open_quote_late": n_rows - 20}[damage]
+    if damage == "nul_tail":
+        data = b"\n".join(lines) + b"\x00" * 300_000
+        n_rows += 1  # the padding is one more, damaged line
+    elif damage == "nul_line":
+        data = b"\n".join([*lines[:at], b"\x00" * 200_000, *lines[at:]])
+        n_rows += 1  # the NUL line is the extra, damaged row
+    else:
+        lines[at] = lines[at].replace(b",", b',"', 1)
+        data = b"\n".join(lines)
+    path = tmp_path / "imu.csv"
+    path.write_bytes(data)
+    warnings: list[str] = []
+    columns = _read_columns(path, warnings)
+    assert columns["time"].size == n_rows - 1
+    assert warnings == ["imu.csv: dropped 1 malformed row(s)"]
+    header_lines = 1
+    fast = _parse_table(path, 7, skip=header_lines)
+    slow = _parse_table_python(path, 7, skip=header_lines) if "quote" in damage else fast
+    np.testing.assert_array_equal(fast[0], slow[0])
+    assert fast[1] == slow[1] == 1
+    dataset = fgins.load(path, sim_folder / "gnss.csv")  # through the API: no csv.Error
+    assert len(dataset.imu) == n_rows - 1
+
+
+def test_quoted_numbers_still_read_as_numbers(sim_folder: Path, tmp_path) -> None:
+    """Every cell quoted (a spreadsheet's export): quotes that close on their line are CSV."""
+    frame = pd.read_csv(sim_folder / "gnss.csv")
+    path = tmp_path / "gnss.csv"
+    frame.to_csv(path, index=False, quoting=1)  # csv.QUOTE_ALL
+    warnings: list[str] = []
+    columns = _read_columns(path, warnings)
+    assert not warnings
+    np.testing.assert_allclose(columns["lat"], frame["lat"].to_numpy())
