@@ -398,6 +398,8 @@ def _plotted(trajectory, dataset, windows, written: Path, png: Path) -> bool:
         print(f"fgins: interrupted while plotting: {written} is complete, {png} was not written",
               file=sys.stderr)  # fmt: skip
         return False
+    except FginsError as exc:  # a place that refused the file after the check (outside tester)
+        raise type(exc)(f"{exc}: {written} is complete, only the plot was not written") from None
     return True
 
 

@@ -160,3 +160,20 @@ def test_cli_numbers_are_named_by_their_flags_and_bench_shows_its_signature(
         ["bench", str(drive), "--outage-duration", "nan", "-o", str(tmp_path / "b")], capsys
     )
     assert list(inspect.signature(fgins.bench).parameters)[:3] == ["dataset", "methods", "outages"]
+
+
+def test_a_plot_the_system_refuses_after_the_solve_says_the_csv_is_complete(drive, tmp_path, capsys, monkeypatch):
+    """A place that passes the check but refuses the file (a pseudo file system): exit 2 and
+    the trajectory CSV, complete, in place; the error now says so (it read as a failed run)."""
+    from fgins import api
+    from fgins.datatypes import OutputError
+
+    def refuse(*args, **kwargs):
+        raise OutputError("cannot write /proc/x.png: No such file or directory")
+
+    monkeypatch.setattr(api, "plot", refuse)
+    out = tmp_path / "out.csv"
+    assert cli.main(["smooth", str(drive), "-o", str(out), "--plot", str(tmp_path / "x.png"), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.startswith("fgins: error: cannot write") and f"{out} is complete" in err, err
+    assert out.stat().st_size > 0
