@@ -70,6 +70,11 @@ from fgins.io.ros_messages import (
 # Channel metadata that marks channels fgins wrote (see fgins.io.mcap_writer).
 PRODUCER_KEY, PRODUCER_FGINS = "producer", "fgins"
 
+# Log times (ns) are unsigned 64-bit in MCAP; one beyond a signed 64-bit integer (year 2262)
+# comes only from corrupt bytes, and broke the readers' int64 arrays (an internal error on a
+# damaged recording; outside tester). Such a message is counted as damaged, not read.
+LOG_TIME_LIMIT = 2**63
+
 
 @dataclass
 class McapResult:
@@ -288,6 +293,9 @@ class TopicScan:
         self.counts[cid] = self.counts.get(cid, 0) + 1
         acc = self.accumulators.get(cid)
         if acc is None:
+            return
+        if not 0 <= log_time < LOG_TIME_LIMIT:  # corrupt bytes: a record no recorder writes
+            acc.decode_errors += 1
             return
         try:
             if isinstance(acc, ImuAccumulator):
@@ -641,7 +649,7 @@ def summarize_mcap(path: str | Path, *, progress: bool = False) -> str:
     channels: dict[int, Channel] = {}
     log_times: dict[int, array] = {}
     for record in stream_records(path, outcome, progress, f"inspecting {path.name}"):
-        if isinstance(record, Message):
+        if isinstance(record, Message) and 0 <= record.log_time < LOG_TIME_LIMIT:
             log_times.setdefault(record.channel_id, array("q")).append(record.log_time)
         elif isinstance(record, Schema):
             schemas.setdefault(record.id, record)

@@ -429,3 +429,35 @@ def test_a_damaged_chunk_is_counted_and_the_chunks_after_it_read(
     assert 0 < lost <= len(good_stamps) // len(spans) + 2  # at most that chunk
     if compression == "":  # uncompressed, payload bytes damaged: only its CRC tells
         assert "CRC fails" in outcome.damaged[0].why and outcome.damaged[0].dropped > 0
+
+
+@pytest.mark.parametrize("seed", [9, 201, 206])
+def test_corrupt_bytes_in_a_recording_never_end_in_an_internal_error(tmp_path, seed):
+    """300 random bytes overwritten in a ROS 2 MCAP: a message's log time beyond 64 signed
+    bits broke the readers' arrays ("internal error: int too big to convert" in inspect,
+    "operands could not be broadcast" in smooth; outside tester). Every reader now either
+    reads the rest (damage counted) or stops with a one-line user error."""
+    import random
+
+    import fgins
+    from fgins.datatypes import FginsError
+    from fgins.io.mcap import summarize_mcap
+    from fgins.sim.scenarios import SCENARIOS
+    from fgins.tests.mcap_fixtures import drive_from_dataset, write_bag
+
+    run = SCENARIOS["car-urban"](seed=4, duration_s=60.0, start_time_s=1_700_000_000.0)
+    write_bag(tmp_path / "good", drive_from_dataset(run.dataset, 1_700_000_000.0), "ros2-mcap")
+    data = bytearray(next((tmp_path / "good").glob("*.mcap")).read_bytes())
+    random.seed(seed)
+    for _ in range(300):
+        data[random.randrange(100, len(data))] = random.randrange(256)
+    path = tmp_path / "damaged.mcap"
+    path.write_bytes(bytes(data))
+    try:
+        assert "damaged.mcap" in summarize_mcap(path)
+    except FginsError:
+        pass
+    try:
+        fgins.load(path)
+    except FginsError as exc:
+        assert "\n" not in str(exc)
