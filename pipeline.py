@@ -100,19 +100,20 @@ def run_method(
     # given). The whole run again on the moved stamps, from the configuration as given,
     # while a pass moves them.
     found: list[float] = []
+    mover = trajectory  # the last pass that moved the stamps
     while len(found) < CLOCK_PASSES - 1 and (moved := _fixes_moved(trajectory)) is not None:
-        found.append(moved)
         retimed = replace(
             dataset,
-            gnss=replace(dataset.gnss, t=dataset.gnss.t + sum(found)),
-            metadata={**dataset.metadata, GNSS_STAMPS_MOVED_KEY: sum(found)},
+            gnss=replace(dataset.gnss, t=dataset.gnss.t + sum(found) + moved),
+            metadata={**dataset.metadata, GNSS_STAMPS_MOVED_KEY: sum(found) + moved},
         )
         try:
-            trajectory = _corrected_solution(retimed, config, method, gnss_mask, progress)
+            again = _corrected_solution(retimed, config, method, gnss_mask, progress)
         except FginsError:  # the pass before stands
-            found.pop()
             break
-    return _passes_said(trajectory, found) if found else trajectory
+        found.append(moved)
+        mover, trajectory = trajectory, again
+    return _passes_said(trajectory, mover, found) if found else trajectory
 
 
 CLOCK_PASSES = 3
@@ -127,33 +128,38 @@ def _fixes_moved(trajectory: Trajectory) -> float | None:
     return moved
 
 
-def _passes_said(trajectory: Trajectory, found: list[float]) -> Trajectory:
-    """The last pass's ``trajectory`` (its stamps moved by ``sum(found)`` before it ran) with
-    the total correction in its info and messages, and one line for the passes."""
-    info = trajectory.info
-    before = sum(found)
-    last = _fixes_moved(trajectory) or 0.0
-    total = before + last
+def _moved_phrase(moved: float) -> str:
+    """How fgins.corrections.with_antenna_corrected says a move of the fixes' stamps."""
+    return f"the fixes' times moved by {moved:+.3f} s (as --time-offset {moved:+.3f})"
+
+
+def _passes_said(last: Trajectory, mover: Trajectory, found: list[float]) -> Trajectory:
+    """The last pass (its stamps moved by ``sum(found)`` before it ran) with the total move in
+    its info and in the clock's lines: its own where it moved them again, else those of the
+    pass before (``mover``, which moved them by ``found[-1]``)."""
+    info = last.info
+    own = _fixes_moved(last)
+    steps = [*found, *([own] if own else [])]
+    total = sum(steps)
     info["gnss_time_offset_corrected_s"] = total
-    info["gnss_time_offset_passes_s"] = [*found, last]
-    if not last:  # the last pass moved nothing: its output has no offset uncertainty yet
-        add_time_offset_uncertainty(trajectory)
-    own = f"the fixes' times moved by {last:+.3f} s (as --time-offset {last:+.3f})"
-    said = [
-        str(w).replace(own, f"the fixes' times moved by {total:+.3f} s in all (as --time-offset {total:+.3f})")
-        for w in info.get("fit_warnings", [])
-    ]
-    steps = ", then ".join(f"{x:+.3f} s" for x in [*found, *([last] if last else [])])
-    line = (
-        f"GNSS time: the fixes' stamps are {abs(total):.3f} s {'late' if total < 0 else 'early'} "
-        f"against the IMU's: moved by {total:+.3f} s in all (as --time-offset {total:+.3f}; "
-        f"{steps}: each time the whole drive was judged again on the moved stamps, the IMU "
-        "mounting, the car's constraint point, the fixes' sigmas and faults taken from the "
-        "drive as configured, since on the wrong stamps they absorb part of the delay; [gnss] "
-        "time_offset_from_data = false keeps the stamps)"
+    info["gnss_time_offset_passes_s"] = steps
+    if not own:  # the last pass moved nothing: its output has no offset uncertainty yet
+        add_time_offset_uncertainty(last)
+    in_all = (
+        f"the fixes' times moved by {total:+.3f} s in all (as --time-offset {total:+.3f}; "
+        f"{', then '.join(f'{x:+.3f} s' for x in steps)}, the whole drive judged again on "
+        "the moved stamps each time: a mounting, a constraint point or sigmas read on wrong "
+        "stamps absorb part of a delay)"
     )
-    info["fit_warnings"] = [line, *said]
-    return trajectory
+    said = [str(w) for w in info.get("fit_warnings", [])]
+    if own:
+        info["fit_warnings"] = [w.replace(_moved_phrase(own), in_all) for w in said]
+        return last
+    phrase = _moved_phrase(found[-1])
+    clock = [str(w).replace(phrase, in_all) for w in mover.info.get("fit_warnings", []) if phrase in str(w)]
+    at = max((i + 1 for i, w in enumerate(said) if w.startswith("GNSS")), default=0)
+    info["fit_warnings"] = [*said[:at], *clock, *said[at:]]
+    return last
 
 
 def _corrected_solution(
