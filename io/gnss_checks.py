@@ -166,6 +166,7 @@ def check_gnss(gnss: GnssData, origin: Origin, checks: list[str]) -> tuple[GnssD
     # The kept fixes' positions and sigmas, for both checks of the track as a whole.
     xyz, sigma = _ecef(gnss.lla), fix_sigma(gnss)
     _reject_persistent_jumps(gnss, xyz, sigma)
+    _reject_steps_against_velocities(gnss, xyz, sigma)
     _reject_impossible_track_speed(gnss, xyz, sigma)
     _warn_radians(gnss, checks)
     if not _geodetic_ok(np.array([[origin.lat, origin.lon, origin.alt]]))[0]:
@@ -381,6 +382,70 @@ def _reject_persistent_jumps(gnss: GnssData, xyz: np.ndarray, sigma: np.ndarray)
             f"t={gnss.t[i + 1]:.3f} ({distance[i] / max(dt[i], 1e-9):.0f} m/s, faster than any "
             f"vehicle) and stays there ({off.size} such jump(s)); the log mixes two receivers or "
             "datums: split it"
+        )
+
+
+# A step of the positions against the fixes' own velocities (datum, base-station or receiver
+# switched in one log): at least this far, this many sigmas of the two fixes, between fixes
+# at most STEP_MAX_DT_S apart (the velocities' trapezoid is exact to centimetres there), and
+# still there STEP_HOLD_S later (a multipath run of 10-30 s comes back: the fault exclusion
+# takes it).
+STEP_MIN_M = 20.0
+STEP_SIGMAS = 5.0
+STEP_MAX_DT_S = 2.0
+STEP_HOLD_S = 60.0
+
+
+def _reject_steps_against_velocities(gnss: GnssData, xyz: np.ndarray, sigma: np.ndarray) -> None:
+    """A position step the fixes' own velocities do not make, that stays: two sources of
+    positions in one log. An outside tester's gnss.csv moved 100 m north from t = 40 s on:
+    every check passed (100 m/s is a speed some vehicle flies), the smoother took an antenna
+    arm and a clock offset from the step and ran 7-56 m off where the fixes were right, at
+    exit 0. O(N)."""
+    if gnss.velocity is None or len(gnss) < 3:
+        return
+    lat, lon = np.radians(gnss.lla[:, 0]), np.radians(gnss.lla[:, 1])
+    e, n, u = gnss.velocity[:, 0], gnss.velocity[:, 1], gnss.velocity[:, 2]
+    u = np.nan_to_num(u)  # a receiver without vertical velocity: heights judged by sigma
+    velocity = np.column_stack([
+        -np.sin(lon) * e - np.sin(lat) * np.cos(lon) * n + np.cos(lat) * np.cos(lon) * u,
+        np.cos(lon) * e - np.sin(lat) * np.sin(lon) * n + np.cos(lat) * np.sin(lon) * u,
+        np.cos(lat) * n + np.sin(lat) * u,
+    ])  # fmt: skip
+    dt = np.diff(gnss.t)
+    gap = np.diff(xyz, axis=0) - 0.5 * (velocity[1:] + velocity[:-1]) * dt[:, None]
+    size = np.linalg.norm(gap, axis=1)
+    change = np.linalg.norm(velocity[1:] - velocity[:-1], axis=1)
+    tolerance = STEP_SIGMAS * np.hypot(sigma[1:], sigma[:-1]) + 0.5 * dt * change
+    candidates = np.flatnonzero(
+        np.isfinite(size) & (dt <= STEP_MAX_DT_S) & (size > np.maximum(STEP_MIN_M, tolerance))
+    )
+    if not candidates.size:
+        return
+    # What the track does after each: the steps summed over the next STEP_HOLD_S (where the
+    # velocities are known), along the step. A spike or a multipath run comes back.
+    gap_sum = np.vstack([np.zeros(3), np.cumsum(np.nan_to_num(gap), axis=0)])
+    steps = []
+    for i in candidates:
+        end = int(np.searchsorted(gnss.t, gnss.t[i + 1] + STEP_HOLD_S, side="right")) - 1
+        if gnss.t[end] - gnss.t[i + 1] < STEP_HOLD_S:
+            continue  # too near the end to tell a step from a run of bad fixes
+        direction = gap[i] / size[i]
+        held = (gap_sum[i + 1 : end + 1] - gap_sum[i]) @ direction
+        # A step back to where the velocities put the track (the end of a run of bad fixes)
+        # undoes an earlier one: the track before it had moved away by as much.
+        start = int(np.searchsorted(gnss.t, gnss.t[i] - STEP_HOLD_S))
+        before = (gap_sum[i] - gap_sum[start : i + 1]) @ direction
+        if np.all(held > 0.5 * size[i]) and not np.any(before < -0.5 * size[i]):
+            steps.append(int(i))
+    if steps:
+        i = steps[0]
+        raise InputError(
+            f"gnss: the positions step {size[i]:.0f} m at t - t_gnss0 = {gnss.t[i + 1] - gnss.t[0]:.1f} s "
+            f"where the fixes' own velocities move them {np.linalg.norm(np.diff(xyz, axis=0)[i] - gap[i]):.1f} m, "
+            f"and stay there for at least {STEP_HOLD_S:g} s ({len(steps)} such step(s)): two "
+            "sources of positions in one log (a datum, base-station or receiver switch); split "
+            "the log at the step or correct the fixes"
         )
 
 
