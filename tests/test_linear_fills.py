@@ -46,3 +46,24 @@ def test_noise_is_never_a_fill(rate):
     # a quiet, well-quantised IMU at rest (0.001 steps): noise still on every channel
     data = np.round(rng.normal(0, 0.003, (n, 6)), 3) + np.array([0, 0, 0, 0, 0, 9.806])
     assert find_linear_fills(t, data) == []
+
+
+def test_noise_free_readings_have_no_fills_to_find():
+    """A simulation without sensor noise: its steady stretches are exactly straight, and were
+    said to be a logger's interpolated fills (with their noise inflated) on an independent
+    simulator's noise-free flights and drives. No fill can be told there; none is reported.
+    A real IMU's noise (here 1e-3) keeps the detector on, and a fill in it is found."""
+    t = np.arange(0.0, 60.0, 0.01)
+    steady = np.where(t < 20.0, 0.0, np.sin(0.3 * (t - 20.0)))  # 20 s of steady motion
+    data = np.column_stack([steady * (k + 1) + 0.1 * k for k in range(6)]) + np.column_stack(
+        [0.05 * np.sin(0.2 * t + k) for k in range(6)]
+    ) * (t >= 20.0)[:, None]
+    assert find_linear_fills(t, data) == []
+    noisy = data + np.random.default_rng(1).normal(0.0, 1e-3, data.shape)
+    assert find_linear_fills(t, noisy) == []
+    filled = noisy.copy()
+    a, b = 3000, 3200  # 2 s interpolated across a dropout
+    filled[a:b] = noisy[a] + (noisy[b] - noisy[a]) * ((t[a:b] - t[a]) / (t[b] - t[a]))[:, None]
+    (start, stop), = find_linear_fills(t, filled)
+    assert start == pytest.approx(t[a - 1], abs=0.02) or start == pytest.approx(t[a], abs=0.02)
+    assert stop == pytest.approx(t[b], abs=0.02)
