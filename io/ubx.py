@@ -807,15 +807,22 @@ class _ImuRows:
     msg_index: np.ndarray
     msg_last_tag: np.ndarray
     max_pair_gap: float = 0.0
+    repeated: int = 0  # IMU values at a tag and type already filled: dropped
 
 
-def _table(tags: np.ndarray, kinds: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(unique tags, table of raw values by tag x ESF data type 0..63, NaN where absent)."""
+def _table(tags: np.ndarray, kinds: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """(unique tags, table of raw values by tag x ESF data type 0..63, NaN where absent, the
+    number of IMU values that repeat a tag's type already filled: dropped)."""
     unique, inverse = np.unique(tags, return_inverse=True)
     table = np.full((len(unique), 64), np.nan)
-    # The first value of a type at a tag counts: assign in reverse so the first lands last.
-    table[inverse[::-1], kinds[::-1]] = values[::-1]
-    return unique.astype(float), table
+    # The first value of a type at a tag counts (numpy leaves the winner of repeated indices
+    # in one assignment unspecified: the first ones are picked explicitly).
+    cells = inverse.astype(np.int64) * 64 + kinds
+    _, first = np.unique(cells, return_index=True)
+    table[inverse[first], kinds[first]] = values[first]
+    imu = np.isin(kinds, [*GYRO_TYPES, *ACCEL_TYPES])
+    repeated = int(imu.sum() - np.isin(kinds[first], [*GYRO_TYPES, *ACCEL_TYPES]).sum())
+    return unique.astype(float), table, repeated
 
 
 def _raw_rows(scanner: _Scanner) -> _ImuRows | None:
@@ -831,8 +838,10 @@ def _raw_rows(scanner: _Scanner) -> _ImuRows | None:
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
     msg_last = np.maximum.reduceat(tags, starts)
     msg_index = np.array([index for index, _ in scanner.esf_raw])
-    unique, table = _table(tags, kinds, values)
-    return _rows_from_table(unique, table, msg_index, msg_last, ESF_RAW_TICK_S)
+    unique, table, repeated = _table(tags, kinds, values)
+    rows = _rows_from_table(unique, table, msg_index, msg_last, ESF_RAW_TICK_S)
+    rows.repeated = repeated
+    return rows
 
 
 def _meas_rows(scanner: _Scanner) -> _ImuRows | None:
@@ -843,8 +852,10 @@ def _meas_rows(scanner: _Scanner) -> _ImuRows | None:
     sizes = [len(values) for _, _, values in scanner.esf_meas]
     pairs = np.array([kv for _, _, values in scanner.esf_meas for kv in values], dtype=np.int64)
     tags = np.repeat(msg_tags, sizes)
-    unique, table = _table(tags, pairs[:, 0], pairs[:, 1])
-    return _rows_from_table(unique, table, msg_index, msg_tags.copy(), ESF_MEAS_TICK_S)
+    unique, table, repeated = _table(tags, pairs[:, 0], pairs[:, 1])
+    rows = _rows_from_table(unique, table, msg_index, msg_tags.copy(), ESF_MEAS_TICK_S)
+    rows.repeated = repeated
+    return rows
 
 
 def _rows_from_table(
@@ -1088,6 +1099,12 @@ def _attach_imu(result: UbxResult, scanner: _Scanner, anchors: list[tuple[int, f
                 result.warnings.append(f"{stream}: {r.dropped} time tag(s) with only part of the "
                                        "six IMU axes and no partner: dropped (no sample "
                                        "interpolated)")  # fmt: skip
+            if r.repeated:  # two samples under one tag: which time the second has is unknown
+                result.warnings.append(
+                    f"{stream}: {r.repeated} IMU value(s) repeat the time tag of an earlier "
+                    f"one (about {r.repeated // 6} sample(s)): dropped, the first kept; the "
+                    "receiver's sensor time tags do not advance with its samples"
+                )
     if rows is None:
         return
     result.imu_source = source

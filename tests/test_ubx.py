@@ -222,6 +222,23 @@ def test_esf_raw_incomplete_tag_dropped(tmp_path):
     assert any("1 time tag(s) with only part of the six IMU axes" in w for w in result.warnings)
 
 
+def test_esf_raw_samples_sharing_a_tag_are_counted_not_silently_lost(tmp_path):
+    """Every second ESF-RAW sample carrying its predecessor's time tag: half the samples were
+    dropped without a word (outside tester). The first of each tag is kept, the rest said."""
+    n = 200
+    tags = 256 * (np.arange(n) - np.arange(n) % 2)
+    rng = np.random.default_rng(2)
+    gyro, accel = rng.normal(0, 0.1, (n, 3)), rng.normal(0, 0.5, (n, 3)) + np.array([0, 0, 9.8])
+    result = read_ubx(_write(tmp_path, _imu_log(tags, gyro, accel)))
+    assert len(result.imu) == n // 2
+    said = [w for w in result.warnings if "repeat the time tag" in w]
+    assert len(said) == 1 and f"{6 * n // 2} IMU value(s)" in said[0] and f"about {n // 2} sample(s)" in said[0]
+    np.testing.assert_allclose(result.imu.gyro, gyro[::2], atol=np.radians(2.0**-13) + 1e-12)
+    # Distinct tags: nothing said.
+    clean = read_ubx(_write(tmp_path, _imu_log(256 * np.arange(n), gyro, accel)))
+    assert not [w for w in clean.warnings if "repeat the time tag" in w]
+
+
 def test_esf_raw_with_separate_accel_and_gyro_tags_is_paired(tmp_path):
     n = 200
     out = bytearray()
