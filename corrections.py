@@ -67,6 +67,7 @@ CARRIED_KEYS = (
     "gnss_velocity_lag_corrected_s",
     "gnss_lever_arm_corrected_m",
     "gnss_lever_arm_corrected_cov_m2",
+    "gnss_time_offset_unresolved_s",
 )
 SCATTER_AFTER_MIN = 0.5
 
@@ -348,6 +349,7 @@ def with_antenna_corrected(
     arm_covariance = done_before.get("gnss_lever_arm_corrected_cov_m2")
     tried = clocks_declined = False
     declined: tuple[object, object] | None = None  # (fit before, fit with the correction)
+    declined_time = 0.0  # the time offset (s) of a declined correction
     for _ in range(ANTENNA_ROUNDS):
         info = best.info
         offset = info.get("gnss_time_offset_s") if config.gnss.time_offset_from_data else None
@@ -457,6 +459,8 @@ def with_antenna_corrected(
         if not _fits_better(corrected, best, fit_key, CORRECTION_CHI2_PER_NUMBER * taken):
             if not ((refining or offset_refined) and taken == 0):  # a refinement that gains nothing just stops
                 declined = (best.info.get(fit_key), corrected.info.get(fit_key))
+                if offset is not None:  # the clock's reading, at its largest along the drive
+                    declined_time = abs(float(offset)) + abs(drift)
             break
         best, dataset, config, fixes_moved, velocity_lag = corrected, trial, trial_config, trial_moved, trial_lag
         if arm is not None:
@@ -476,8 +480,16 @@ def with_antenna_corrected(
             best.info.get("fit_warnings", []),
             tuple(best.info.get("antenna_findings") or ()),
             f"solved again with it, the fit is no better ({fit_name} {before} -> {after}): "
-            "left as configured (GNSS sigmas set too small make small offsets look significant)",
+            "left as configured (GNSS sigmas set too small make small offsets look significant)"
+            + (
+                f"; the output's sigmas include {declined_time:.2f} s along the track, which "
+                "the fixes show and the solve could not take"
+                if declined_time
+                else ""
+            ),
         )
+        if declined_time:
+            best.info[TIME_UNRESOLVED_KEY] = declined_time
     if best is first:
         return first, dataset, config
     done, switches = [], []
@@ -616,6 +628,27 @@ def add_mounting_uncertainty(trajectory: Trajectory, sigma_deg: float) -> None:
         np.einsum("ni,nj->nij", up, up) + np.einsum("ni,nj->nij", across, across)
     )
     trajectory.info["imu_mounting_sigma_deg"] = float(sigma_deg)
+
+
+# A time offset the antenna and clock check reads at its 5 sigmas and more, whose correction
+# did not fit better (s, in a trajectory's info): the sigmas carry it.
+TIME_UNRESOLVED_KEY = "gnss_time_offset_unresolved_s"
+
+
+def add_unresolved_time_uncertainty(trajectory: Trajectory) -> None:
+    """Add a time offset the fixes show but the solve could not take
+    (``TIME_UNRESOLVED_KEY``) to ``trajectory``'s position covariance (in place), along its
+    velocity as :func:`add_time_offset_uncertainty`. An independent simulator's aircraft in
+    a 60 deg bank with its fixes 0.5 s late: the turn's fixes left out as faults, the clocks
+    read as 0.38-0.84 s, corrected no better, and the track 40 m off at sigmas of 0.3 m
+    (z 116), exit 0. A reading this size means the track may lie that far along itself."""
+    offset = trajectory.info.get(TIME_UNRESOLVED_KEY)
+    if not isinstance(offset, float) or not offset > 0.0 or trajectory.position_cov is None:
+        return
+    velocity = np.asarray(trajectory.velocity, dtype=float)
+    if velocity.shape != (len(trajectory.position_cov), 3) or not np.all(np.isfinite(velocity)):
+        return
+    trajectory.position_cov = trajectory.position_cov + offset**2 * np.einsum("ni,nj->nij", velocity, velocity)
 
 
 def add_time_offset_uncertainty(trajectory: Trajectory) -> None:

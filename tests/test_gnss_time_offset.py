@@ -441,3 +441,32 @@ def test_fixes_seconds_off_are_corrected_in_full(tmp_path, shift):
     # 10 m/s, in the reported sigmas): 0.61-0.64 m against 0.34 with true stamps; 2.8 m before.
     rms, beyond = errors(track)
     assert rms < 2.0 * right + 0.1 and beyond < 0.05, (rms, right, beyond)
+
+
+def test_a_clock_reading_the_solve_could_not_take_is_carried_in_the_sigmas():
+    """A clock offset read at 5 sigma whose correction fitted no better was left as
+    configured, and the output kept sigmas for the fixes alone: an independent simulator's
+    aircraft in a 60 deg bank, fixes 0.5 s late, came out 40 m off at sigmas of 0.3 m (z 116).
+    The reading (here 0.8 s) now widens the covariance along the velocity by exactly its
+    square times v v^T, and nothing else."""
+    from fgins.corrections import TIME_UNRESOLVED_KEY, add_unresolved_time_uncertainty
+    from fgins.datatypes import Origin, Trajectory
+
+    n = 5
+    velocity = np.tile([80.0, 0.0, 0.0], (n, 1)) * np.arange(1, n + 1)[:, None]
+    cov = np.tile(np.diag([0.09, 0.09, 0.25]), (n, 1, 1))
+    track = Trajectory(
+        t=np.arange(n, dtype=float), position=np.zeros((n, 3)), velocity=velocity,
+        rotation=np.tile(np.eye(3), (n, 1, 1)), origin=Origin(45.0, 10.0, 100.0),
+        method="batch", position_cov=cov.copy(), info={TIME_UNRESOLVED_KEY: 0.8},
+    )  # fmt: skip
+    add_unresolved_time_uncertainty(track)
+    expected = cov + 0.64 * np.einsum("ni,nj->nij", velocity, velocity)
+    np.testing.assert_allclose(track.position_cov, expected, rtol=1e-12)
+    assert np.sqrt(track.position_cov[0, 0, 0]) > 60.0  # 0.8 s at 80 m/s: the 40 m inside 1 sigma
+    untouched = Trajectory(
+        t=track.t, position=track.position, velocity=velocity, rotation=track.rotation,
+        origin=track.origin, method="batch", position_cov=cov.copy(),
+    )  # fmt: skip
+    add_unresolved_time_uncertainty(untouched)
+    np.testing.assert_array_equal(untouched.position_cov, cov)
