@@ -378,7 +378,16 @@ def check_wheel_speed(odometer, gnss: GnssData, enu: np.ndarray) -> None:
     moving = dense & clear & (close <= 0.5)
     if moving.sum() < VELOCITY_MIN_EPOCHS:
         return
-    wheel = np.abs(np.interp(t[moving], odometer.t, odometer.speed))
+    signed = np.interp(t[moving], odometer.t, odometer.speed)
+    if float(np.median(signed)) < 0.0:
+        # A car reverses for moments; one that "reverses" most of its drive has the wheel
+        # speed's sign flipped (read as a -200 % scale error, unsaid at load; outside tester).
+        raise InputError(
+            f"wheel: the wheel speed is negative at {100 * float(np.mean(signed < 0)):.0f} % of "
+            f"the {int(moving.sum())} moving fixes: its sign is flipped (wheel_speed counts "
+            "forward motion positive, reversing negative); negate the column"
+        )
+    wheel = np.abs(signed)
     ratio = float(np.median(wheel / track_speed[moving]))
     if not VELOCITY_SPEED_RATIO_RANGE[0] <= ratio <= VELOCITY_SPEED_RATIO_RANGE[1]:
         raise InputError(

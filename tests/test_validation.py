@@ -1205,6 +1205,29 @@ def test_a_wheel_speed_in_another_unit_is_named(tmp_path, unit, scale):
             load_dataset(paths)
 
 
+def test_a_wheel_speed_with_its_sign_flipped_is_named_and_reversing_is_not(tmp_path):
+    """A wheel speed negated (a driver counting backwards) passed the unit check (it judged
+    |speed|) and the batch read it as a -200 % scale error at exit 0 (outside tester). A
+    car that reverses for a stretch is fine; one "reversing" most of its drive is refused."""
+    from independent_sim import INDUSTRIAL, hilly_drive, write_drive
+
+    write_drive(tmp_path, hilly_drive(), 150.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
+                gnss_rate=1.0, seed=2, sigma_h=1.5, sigma_u=3.0)  # fmt: skip
+    truth = pd.read_csv(tmp_path / "truth.csv").iloc[::10]
+    speed = np.linalg.norm(truth[["vel_east", "vel_north", "vel_up"]].to_numpy(), axis=1)
+    paths = [str(tmp_path / name) for name in ("imu.csv", "gnss.csv", "wheel.csv")]
+    for sign, refused in ((-1.0, True), (1.0, False)):
+        wheel = sign * speed.copy()
+        if not refused:  # 20 s of the drive written as reversing: a moment, not the drive
+            wheel[(truth["time"] > 60) & (truth["time"] < 80)] *= -1.0
+        pd.DataFrame({"time": truth["time"], "wheel_speed": wheel}).to_csv(tmp_path / "wheel.csv", index=False)
+        if refused:
+            with pytest.raises(InputError, match=r"wheel: the wheel speed is negative at 100 %.*sign is flipped"):
+                load_dataset(paths)
+        else:
+            load_dataset(paths)
+
+
 def _hilly_drive_with_barometer(folder: Path):
     """The independent simulator's car over +-8 % hills (54 m of climbs and descents) and a
     5 Hz barometer's geodetic height from its truth (0.3 m noise)."""
