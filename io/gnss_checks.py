@@ -151,6 +151,7 @@ def check_gnss(gnss: GnssData, origin: Origin, checks: list[str]) -> tuple[GnssD
         gnss = gnss.subset(keep)
     gnss = check_gnss_records(gnss, checks)
     gnss = _drop_no_fix(gnss, checks)
+    _reject_rounded_positions(gnss)
     bad = _implausible_jumps(gnss.t, _ecef(gnss.lla), fix_sigma(gnss))
     if bad.all() or (~bad).sum() < 1:
         raise InputError("gnss: no two fixes agree with each other; the positions are not usable")
@@ -364,6 +365,28 @@ def check_gnss_records(gnss: GnssData, checks: list[str]) -> GnssData:
     gnss = _clean_sigmas(gnss, checks)
     _note_not_measured(gnss, checks)
     return gnss
+
+
+# Latitude and longitude rounded to this many decimals or fewer (0.0001 deg: 11 m steps, far
+# beyond any receiver's sigma) cannot place a vehicle: 3 decimals (110 m) were blamed on the
+# velocity columns' unit (outside tester). Real logs carry 6-9 (NMEA's minutes: 6-7).
+ROUNDED_MAX_DECIMALS = 4
+ROUNDED_MIN_FIXES = 10
+
+
+def _reject_rounded_positions(gnss: GnssData) -> None:
+    # Judged on fixes at several places (a receiver at rest on a round coordinate is not).
+    if len(np.unique(gnss.lla[:, :2], axis=0)) < ROUNDED_MIN_FIXES:
+        return
+    for decimals in range(ROUNDED_MAX_DECIMALS + 1):
+        scaled = gnss.lla[:, :2] * 10.0**decimals
+        if np.all(np.abs(scaled - np.round(scaled)) < 1e-6):
+            step = 111_195.0 * 10.0**-decimals
+            raise InputError(
+                f"gnss: every latitude and longitude is rounded to {decimals} decimal(s) "
+                f"(steps of {step:,.0f} m, far beyond any fix's sigma): write them with 7 or "
+                "more decimals (1 cm)"
+            )
 
 
 def _reject_persistent_jumps(gnss: GnssData, xyz: np.ndarray, sigma: np.ndarray) -> None:

@@ -1397,3 +1397,20 @@ def test_a_drive_across_the_antimeridian_is_the_same_drive(tmp_path):
     _turned_about_the_axis(drive, tmp_path / "origin_left", degrees, origin_too=False)
     with pytest.raises(InputError, match=r"frame: the origin .* lies [\d,]+ km from the nearest fix"):
         load_dataset([str(tmp_path / "origin_left")])
+
+
+@pytest.mark.parametrize("decimals", [3, 4])
+def test_positions_rounded_to_a_few_decimals_are_named(tmp_path, urban, decimals):
+    """lat/lon written with 3 decimals (110 m steps): the error blamed the velocity columns'
+    unit (outside tester). The rounding is named; 7 decimals (1 cm) load as before."""
+    from dataclasses import replace
+
+    for places, refused in ((decimals, True), (7, False)):
+        lla = urban.dataset.gnss.lla.copy()
+        lla[:, :2] = np.round(lla[:, :2], places)
+        data = replace(urban.dataset, gnss=replace(urban.dataset.gnss, lla=lla))
+        if refused:
+            with pytest.raises(InputError, match=f"rounded to {places} decimal"):
+                load_dataset(_pair(tmp_path / str(places), data))
+        else:
+            load_dataset(_pair(tmp_path / str(places), data))
