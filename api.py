@@ -367,7 +367,13 @@ def _simulate(
     folder = Path(output_dir)
     if folder.exists() and not folder.is_dir():
         raise OutputError(f"{folder}: exists and is not a folder")
-    write_sim_dir(run, folder)
+    try:
+        write_sim_dir(run, folder)
+    except OSError as exc:  # the system refused the place (it named the writer's staging folder)
+        raise OutputError(
+            f"{_shortened(str(folder))}: cannot write the simulation there "
+            f"({exc.strerror or type(exc).__name__})"
+        ) from None
     return folder, run
 
 
@@ -616,7 +622,14 @@ def check_sim_output(output_dir: str | os.PathLike[str], check_out_dir) -> None:
     file: the output check's one line (as ``fgins smooth -o``), not the system's "File
     exists" / "Not a directory"."""
     folder = Path(output_dir).expanduser()
-    check_out_dir(folder)
+    _check_name_lengths(output_dir, folder)  # before the system's "File name too long"
+    try:
+        check_out_dir(folder)
+    except OSError as exc:
+        raise OutputError(
+            f"{_shortened(str(folder))}: cannot write the simulation there "
+            f"({exc.strerror or type(exc).__name__})"
+        ) from None
     if not folder.is_dir():  # the place of its config.toml: a writable folder, not a file
         check_output(folder / "config.toml", suffixes=(".toml",))
 

@@ -177,3 +177,23 @@ def test_a_plot_the_system_refuses_after_the_solve_says_the_csv_is_complete(driv
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert err.startswith("fgins: error: cannot write") and f"{out} is complete" in err, err
     assert out.stat().st_size > 0
+
+
+def test_sim_to_a_place_the_system_refuses_is_one_line_naming_the_users_folder(tmp_path, capsys, monkeypatch):
+    """`fgins sim -o /proc/x` exited 1 naming the writer's staging folder; a 300-character
+    name exited 1 with the system's text. Both are exit 2, the user's path, the limit said."""
+    import fgins.sim.writer as writer
+
+    long_name = tmp_path / ("a" * 300)
+    assert cli.main(["sim", "car-urban", "-o", str(long_name), "--duration", "5"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "file name too long (300 bytes" in err and "\n" not in err
+
+    def refuse(run, folder):
+        raise FileNotFoundError(2, "No such file or directory", str(folder.parent / ".x.part-1"))
+
+    monkeypatch.setattr(writer, "write_sim_dir", refuse)
+    target = tmp_path / "drive"
+    assert cli.main(["sim", "car-urban", "-o", str(target), "--duration", "5"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"fgins: error: {target}: cannot write the simulation there (No such file or directory)"
