@@ -427,16 +427,16 @@ def _reject_steps_against_velocities(gnss: GnssData, xyz: np.ndarray, sigma: np.
     exit 0. O(N)."""
     if gnss.velocity is None or len(gnss) < 3:
         return
-    lat, lon = np.radians(gnss.lla[:, 0]), np.radians(gnss.lla[:, 1])
-    e, n, u = gnss.velocity[:, 0], gnss.velocity[:, 1], gnss.velocity[:, 2]
-    u = np.nan_to_num(u)  # a receiver without vertical velocity: heights judged by sigma
-    velocity = np.column_stack([
-        -np.sin(lon) * e - np.sin(lat) * np.cos(lon) * n + np.cos(lat) * np.cos(lon) * u,
-        np.cos(lon) * e - np.sin(lat) * np.sin(lon) * n + np.cos(lat) * np.sin(lon) * u,
-        np.cos(lat) * n + np.sin(lat) * u,
-    ])  # fmt: skip
+    # Horizontal only: heights have their own unit checks (an altitude in feet climbs 3.3x
+    # as fast as vel_up, read here as steps), and vertical velocities are often noisy.
+    lat, lon = np.radians(gnss.lla[:-1, 0]), np.radians(gnss.lla[:-1, 1])
+    east = np.column_stack([-np.sin(lon), np.cos(lon), np.zeros_like(lon)])
+    north = np.column_stack([-np.sin(lat) * np.cos(lon), -np.sin(lat) * np.sin(lon), np.cos(lat)])
+    moved = np.diff(xyz, axis=0)
+    moved = np.column_stack([np.einsum("ij,ij->i", moved, east), np.einsum("ij,ij->i", moved, north)])
+    velocity = gnss.velocity[:, :2]
     dt = np.diff(gnss.t)
-    gap = np.diff(xyz, axis=0) - 0.5 * (velocity[1:] + velocity[:-1]) * dt[:, None]
+    gap = moved - 0.5 * (velocity[1:] + velocity[:-1]) * dt[:, None]
     size = np.linalg.norm(gap, axis=1)
     change = np.linalg.norm(velocity[1:] - velocity[:-1], axis=1)
     tolerance = STEP_SIGMAS * np.hypot(sigma[1:], sigma[:-1]) + 0.5 * dt * change
@@ -447,7 +447,7 @@ def _reject_steps_against_velocities(gnss: GnssData, xyz: np.ndarray, sigma: np.
         return
     # What the track does after each: the steps summed over the next STEP_HOLD_S (where the
     # velocities are known), along the step. A spike or a multipath run comes back.
-    gap_sum = np.vstack([np.zeros(3), np.cumsum(np.nan_to_num(gap), axis=0)])
+    gap_sum = np.vstack([np.zeros(2), np.cumsum(np.nan_to_num(gap), axis=0)])
     steps = []
     for i in candidates:
         end = int(np.searchsorted(gnss.t, gnss.t[i + 1] + STEP_HOLD_S, side="right")) - 1
@@ -465,7 +465,7 @@ def _reject_steps_against_velocities(gnss: GnssData, xyz: np.ndarray, sigma: np.
         i = steps[0]
         raise InputError(
             f"gnss: the positions step {size[i]:.0f} m at t - t_gnss0 = {gnss.t[i + 1] - gnss.t[0]:.1f} s "
-            f"where the fixes' own velocities move them {np.linalg.norm(np.diff(xyz, axis=0)[i] - gap[i]):.1f} m, "
+            f"where the fixes' own velocities move them {np.linalg.norm(moved[i] - gap[i]):.1f} m, "
             f"and stay there for at least {STEP_HOLD_S:g} s ({len(steps)} such step(s)): two "
             "sources of positions in one log (a datum, base-station or receiver switch); split "
             "the log at the step or correct the fixes"
