@@ -59,6 +59,9 @@ FILTER_FIT_FAILED = "filter_fit_failed"
 # In a dataset's metadata: the time (s) the pipeline already moved its fixes' stamps by, in
 # a run before this one (fgins.pipeline's passes).
 GNSS_STAMPS_MOVED_KEY = "gnss_stamps_moved_s"
+# A time offset the antenna and clock check reads at its 5 sigmas and more, whose correction
+# did not fit better (s, in a trajectory's info): the sigmas carry it.
+TIME_UNRESOLVED_KEY = "gnss_time_offset_unresolved_s"
 CARRIED_KEYS = (
     "gnss_sigma_scale",
     "gnss_velocity_sigma_scale",
@@ -67,7 +70,7 @@ CARRIED_KEYS = (
     "gnss_velocity_lag_corrected_s",
     "gnss_lever_arm_corrected_m",
     "gnss_lever_arm_corrected_cov_m2",
-    "gnss_time_offset_unresolved_s",
+    TIME_UNRESOLVED_KEY,
 )
 SCATTER_AFTER_MIN = 0.5
 
@@ -495,7 +498,7 @@ def with_antenna_corrected(
     done, switches = [], []
     if fixes_moved:
         best.info["gnss_time_offset_corrected_s"] = fixes_moved
-        done.append(f"the fixes' times moved by {fixes_moved:+.3f} s (as --time-offset {fixes_moved:+.3f})")
+        done.append(moved_phrase(fixes_moved))
         if clocks_declined:
             done[-1] += " (one offset fits as well as two clocks: the IMU's clock is kept)"
     start, end = float(dataset.imu.t[0]) - imu_t0, float(dataset.imu.t[-1]) - imu_t1
@@ -525,6 +528,12 @@ def with_antenna_corrected(
     findings = first.info.get("antenna_findings") or ["GNSS antenna"]
     _carry_said(first, best, [f"{finding}: corrected, {how}" for finding in findings])  # type: ignore[union-attr]
     return best, dataset, config
+
+
+def moved_phrase(moved: float) -> str:
+    """How a move of the fixes' stamps by ``moved`` s is said (fgins.pipeline's passes find
+    it in the lines and put the total in its place)."""
+    return f"the fixes' times moved by {moved:+.3f} s (as --time-offset {moved:+.3f})"
 
 
 def _refined_arm(info: dict[str, object], taken: list[float]) -> list[float] | None:
@@ -630,11 +639,6 @@ def add_mounting_uncertainty(trajectory: Trajectory, sigma_deg: float) -> None:
     trajectory.info["imu_mounting_sigma_deg"] = float(sigma_deg)
 
 
-# A time offset the antenna and clock check reads at its 5 sigmas and more, whose correction
-# did not fit better (s, in a trajectory's info): the sigmas carry it.
-TIME_UNRESOLVED_KEY = "gnss_time_offset_unresolved_s"
-
-
 def add_unresolved_time_uncertainty(trajectory: Trajectory) -> None:
     """Add a time offset the fixes show but the solve could not take
     (``TIME_UNRESOLVED_KEY``) to ``trajectory``'s position covariance (in place), along its
@@ -643,12 +647,8 @@ def add_unresolved_time_uncertainty(trajectory: Trajectory) -> None:
     read as 0.38-0.84 s, corrected no better, and the track 40 m off at sigmas of 0.3 m
     (z 116), exit 0. A reading this size means the track may lie that far along itself."""
     offset = trajectory.info.get(TIME_UNRESOLVED_KEY)
-    if not isinstance(offset, float) or not offset > 0.0 or trajectory.position_cov is None:
-        return
-    velocity = np.asarray(trajectory.velocity, dtype=float)
-    if velocity.shape != (len(trajectory.position_cov), 3) or not np.all(np.isfinite(velocity)):
-        return
-    trajectory.position_cov = trajectory.position_cov + offset**2 * np.einsum("ni,nj->nij", velocity, velocity)
+    if isinstance(offset, float) and offset > 0.0:
+        _add_along_track(trajectory, offset)
 
 
 def add_time_offset_uncertainty(trajectory: Trajectory) -> None:
@@ -659,15 +659,22 @@ def add_time_offset_uncertainty(trajectory: Trajectory) -> None:
     the offset's sigma in the corrected solution's own check. (An independent simulator's
     fixed-wing at 60 m/s, fixes 0.5 s late, found 0.009 s short at 1.1 sigma of 0.008 s:
     0.5 m along the track, position NEES 4.1 over the flight.)"""
-    if "gnss_time_offset_corrected_s" not in trajectory.info or trajectory.position_cov is None:
+    if "gnss_time_offset_corrected_s" not in trajectory.info:
         return
     sigma = trajectory.info.get("gnss_time_offset_fit_sigma_s")
-    if not isinstance(sigma, float) or not math.isfinite(sigma) or sigma <= 0.0:
+    if isinstance(sigma, float) and math.isfinite(sigma) and sigma > 0.0:
+        _add_along_track(trajectory, sigma)
+
+
+def _add_along_track(trajectory: Trajectory, seconds: float) -> None:
+    """Add ``seconds``^2 v v^T to the position covariance (in place): the track's uncertainty
+    along itself from a time its fixes may be off by."""
+    if trajectory.position_cov is None:
         return
     velocity = np.asarray(trajectory.velocity, dtype=float)
     if velocity.shape != (len(trajectory.position_cov), 3) or not np.all(np.isfinite(velocity)):
         return
-    trajectory.position_cov = trajectory.position_cov + sigma**2 * np.einsum("ni,nj->nij", velocity, velocity)
+    trajectory.position_cov = trajectory.position_cov + seconds**2 * np.einsum("ni,nj->nij", velocity, velocity)
 
 
 def with_gnss_sigmas_scaled(

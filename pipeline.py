@@ -27,6 +27,7 @@ from fgins.corrections import (
     clock_correction_pending,
     clock_offset_first,
     mounting_from_drive,
+    moved_phrase,
     nhc_lever_from_turns,
     noise_from_data,
     with_antenna_corrected,
@@ -129,11 +130,6 @@ def _fixes_moved(trajectory: Trajectory) -> float | None:
     return moved
 
 
-def _moved_phrase(moved: float) -> str:
-    """How fgins.corrections.with_antenna_corrected says a move of the fixes' stamps."""
-    return f"the fixes' times moved by {moved:+.3f} s (as --time-offset {moved:+.3f})"
-
-
 def _passes_said(last: Trajectory, mover: Trajectory, found: list[float]) -> Trajectory:
     """The last pass (its stamps moved by ``sum(found)`` before it ran) with the total move in
     its info and in the clock's lines: its own where it moved them again, else those of the
@@ -154,9 +150,9 @@ def _passes_said(last: Trajectory, mover: Trajectory, found: list[float]) -> Tra
     )
     said = [str(w) for w in info.get("fit_warnings", [])]
     if own:
-        info["fit_warnings"] = [w.replace(_moved_phrase(own), in_all) for w in said]
+        info["fit_warnings"] = [w.replace(moved_phrase(own), in_all) for w in said]
         return last
-    phrase = _moved_phrase(found[-1])
+    phrase = moved_phrase(found[-1])
     clock = [str(w).replace(phrase, in_all) for w in mover.info.get("fit_warnings", []) if phrase in str(w)]
     at = max((i + 1 for i, w in enumerate(said) if w.startswith("GNSS")), default=0)
     info["fit_warnings"] = [*said[:at], *clock, *said[at:]]

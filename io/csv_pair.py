@@ -278,15 +278,14 @@ def _parse_table(
 
     names = [f"c{i}" for i in range(n_columns)]
     wrong_width: list[str] = []
-    source: Path | bytes = path
-    data = path.read_bytes()
-    unclosed = _unclosed_quote_lines(data, skip)
+    # Read once: scanned for unclosed quotes, then parsed from memory by pyarrow.
+    source = path.read_bytes()
+    unclosed = _unclosed_quote_lines(source, skip)
     if unclosed:  # blanked (a blank row is skipped) and counted as malformed below
-        cleaned = bytearray(data)
+        cleaned = bytearray(source)
         for start, end in unclosed:
             cleaned[start:end] = b" " * (end - start)
         source = bytes(cleaned)
-    del data
 
     def on_invalid(row) -> str:  # a row with a wrong number of fields
         wrong_width.append(row.text)
@@ -295,7 +294,7 @@ def _parse_table(
     def read(column_type, **options):
         wrong_width.clear()
         return pacsv.read_csv(
-            path if isinstance(source, Path) else pa.BufferReader(source),
+            pa.BufferReader(source),
             read_options=pacsv.ReadOptions(skip_rows=skip, column_names=names),
             parse_options=pacsv.ParseOptions(invalid_row_handler=on_invalid),
             convert_options=pacsv.ConvertOptions(

@@ -429,11 +429,10 @@ def _reject_steps_against_velocities(gnss: GnssData, xyz: np.ndarray, sigma: np.
         return
     # Horizontal only: heights have their own unit checks (an altitude in feet climbs 3.3x
     # as fast as vel_up, read here as steps), and vertical velocities are often noisy.
-    lat, lon = np.radians(gnss.lla[:-1, 0]), np.radians(gnss.lla[:-1, 1])
-    east = np.column_stack([-np.sin(lon), np.cos(lon), np.zeros_like(lon)])
-    north = np.column_stack([-np.sin(lat) * np.cos(lon), -np.sin(lat) * np.sin(lon), np.cos(lat)])
-    moved = np.diff(xyz, axis=0)
-    moved = np.column_stack([np.einsum("ij,ij->i", moved, east), np.einsum("ij,ij->i", moved, north)])
+    from fgins.geodesy import ecef_to_enu_rotation
+
+    local = ecef_to_enu_rotation(gnss.lla[:-1, 0], gnss.lla[:-1, 1])
+    moved = np.einsum("nij,nj->ni", local, np.diff(xyz, axis=0))[:, :2]  # east, north
     velocity = gnss.velocity[:, :2]
     dt = np.diff(gnss.t)
     gap = moved - 0.5 * (velocity[1:] + velocity[:-1]) * dt[:, None]
