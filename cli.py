@@ -679,6 +679,12 @@ def _read_gnss_only(path: Path, time_offset: float):
         reader = read_mcap_gnss if mcap else read_rosbag_gnss
         gnss, warnings = reader(path)
         return (replace(gnss, t=gnss.t + time_offset) if time_offset else gnss), warnings
+    if path.is_dir():
+        raise FginsError(
+            f"{path}: is a folder: convert takes one GNSS log file (NMEA, u-blox UBX, MCAP, "
+            "ROS bag) or a ROS 2 bag folder; a folder written by fgins sim holds its fixes as "
+            "gnss.csv already"
+        )
     from fgins.io.ubx import looks_like_ubx, read_ubx_gnss
 
     if looks_like_ubx(path):
@@ -734,11 +740,15 @@ def cmd_inspect(args: argparse.Namespace) -> int:
         print(_summarize_csv(path))
         return 0
     if path.is_file() and not looks_like_nmea(path):
-        from fgins.io.csv_pair import read_header
+        from fgins.io.csv_pair import csv_kind
 
         # Binary content that is no format fgins reads (random bytes, a PNG): the one
-        # check smooth makes, not an "NMEA log ... not usable" summary with exit 0.
-        read_header(path)
+        # check smooth makes, not an "NMEA log ... not usable" summary with exit 0. A CSV
+        # fgins knows under another name (a gnss.csv saved as .ubx) is read as convert and
+        # smooth read it.
+        if csv_kind(path) is not None:
+            print(_summarize_csv(path))
+            return 0
     from fgins.io.nmea import summarize_nmea
 
     print(summarize_nmea(path))

@@ -90,6 +90,7 @@ class Check:
     scalar_ok: bool = False
     hint: str = ""
     high_hint: str = ""
+    axes: str = "[x, y, z]"  # what a vec3's three numbers are, as an error names them
 
 
 def _show(value: object) -> str:
@@ -145,7 +146,11 @@ def _number(where: str, name: str, value: object, check: Check, shown: object = 
         problem = f"must be {'>' if check.strict else '>='} {check.low:g}"
         raise _fail(where, name, shown, problem + (f" ({check.hint})" if check.hint else ""))
     if check.abs_max is not None and abs(number) > check.abs_max:
-        problem = f"must be within +-{check.abs_max:g}"
+        problem = (
+            f"must be {'>' if check.strict else '>='} {check.low:g} and <= {check.abs_max:g}"
+            if check.low is not None and check.low >= 0
+            else f"must be within +-{check.abs_max:g}"
+        )
         hint = check.high_hint or check.hint
         raise _fail(where, name, shown, problem + (f" ({hint})" if hint else ""))
     return number
@@ -198,7 +203,7 @@ def check_value(where: str, name: str, value: object, check: Check) -> Any:
 
 def _expected(check: Check) -> str:
     if check.kind == "vec3":
-        return "3 numbers [x, y, z]" + (" or one number" if check.scalar_ok else "")
+        return f"3 numbers {check.axes}" + (" or one number" if check.scalar_ok else "")
     return {"number": "a number", "int": "a whole number", "bool": "true or false"}.get(
         check.kind, check.kind
     )
@@ -684,7 +689,7 @@ SMOOTHER_SCHEMA = _schema_from_fields(
         "nhc_misalignment_vertical_walk_deg_per_sqrt_s": NON_NEGATIVE,
         "nhc_misalignment_correlation_s": NON_NEGATIVE,
         "nhc_lever_arm_m": Check("vec3", abs_max=20.0, hint="metres, vehicle axes"),
-        "imu_to_vehicle_rpy_deg": Check("vec3", abs_max=360.0, hint="degrees"),
+        "imu_to_vehicle_rpy_deg": Check("vec3", abs_max=360.0, hint="degrees", axes="[roll, pitch, yaw]"),
         "zupt_sigma_m_per_s": replace(POSITIVE, hint=SIGMA_HINT),
         "zupt_max_speed_m_per_s": NON_NEGATIVE,
         "odometer_sigma_m_per_s": replace(POSITIVE, hint=SIGMA_HINT),
@@ -773,8 +778,8 @@ def load_config(
     unknown = set(table) - {"imu", "gnss", "smoother"}
     if unknown:
         sim_folder = (
-            "; it is the config.toml of a folder fgins sim wrote, which is read with the "
-            "folder: give the folder as the input instead"
+            "; [origin] and [scenario] are the config.toml of a folder fgins sim wrote: if it "
+            "is one, give the folder as the input instead (its config is read with it)"
             if {"origin", "scenario"} & unknown
             else ""
         )

@@ -442,11 +442,14 @@ def _warn_unknown_columns(
     """One counted warning naming the numeric columns fgins does not read in this file,
     each with the known column it is closest to (a misspelt ``std_est`` was ignored without
     a word and the result changed; outside tester). Text columns are said by the reader."""
-    unknown = [name for name in columns if name not in known]
+    unknown = [(place, name) for place, name in enumerate(columns, 1) if name not in known]
     if not unknown:
         return
     named = []
-    for name in unknown[:8]:
+    for place, name in unknown[:8]:
+        if not name.strip():  # an Excel export's trailing comma on every line
+            named.append(f"column {place} (no name: a trailing comma?)")
+            continue
         close = difflib.get_close_matches(name, known, n=1, cutoff=0.6)
         named.append(f"{name} (did you mean {close[0]}?)" if close else name)
     more = f" and {len(unknown) - 8} more" if len(unknown) > 8 else ""

@@ -668,7 +668,7 @@ def summarize_mcap(path: str | Path, *, progress: bool = False) -> str:
             f"{outcome.error}); everything before it is listed"
         )
     elif outcome.truncated:
-        lines.append(f"TRUNCATED: {outcome.error}; everything before the cut is listed")
+        lines.append(f"TRUNCATED at byte {outcome.cut_at}; everything before the cut is listed")
     damage = damage_warning(path, outcome)
     if damage:
         lines.append(f"DAMAGED: {damage}")
@@ -684,6 +684,11 @@ def summarize_mcap(path: str | Path, *, progress: bool = False) -> str:
         lines.append(
             f"time span: {start / 1e9:.3f} .. {end / 1e9:.3f} s ({(end - start) / 1e9:.3f} s), "
             f"{total} messages, {len(channels)} channels"
+        )
+    elif outcome.truncated and not channels:  # a cut before its first record: nothing to list
+        raise InputError(
+            f"{path}: file truncated at byte {outcome.cut_at}: no complete record after the "
+            "MCAP magic, nothing to list; the recording was cut off before its data"
         )
     else:
         lines.append(f"no messages, {len(channels)} channels")

@@ -745,6 +745,8 @@ def _assemble(path: Path, reader: _Reader, time_offset_s: float) -> NmeaResult:
         )
     if not rows:
         sentences = sum(reader.counts.values())
+        if not sentences and not reader.checksum_failures and not _has_dollar(path):
+            raise _not_a_log(path)  # a config file, a note: not an NMEA log all "corrupt"
         what = (
             "most of the file is not NMEA: another receiver protocol (SiRF, TSIP, RTCM, ...)? "
             "fgins reads NMEA 0183 and u-blox UBX logs"
@@ -838,6 +840,13 @@ def _has_dollar(path: Path) -> bool:
         return _SENTENCE_START.search(handle.read(65536)) is not None
 
 
+def _not_a_log(path: Path) -> InputError:
+    return InputError(
+        f"{path}: not a log fgins reads: no NMEA sentence, UBX frame, MCAP or bag, and no "
+        "CSV header fgins knows (imu.csv, gnss.csv, baro.csv, wheel.csv, accel_array.csv)"
+    )
+
+
 def summarize_nmea(path: str | Path) -> str:
     """A human-readable report of one NMEA log (what ``fgins inspect FILE.nmea`` prints)."""
     path = Path(path)
@@ -845,10 +854,7 @@ def summarize_nmea(path: str | Path) -> str:
     if not reader.counts and reader.checksum_failures == 0 and not _has_dollar(path):
         # Not one sentence: not an NMEA log at all (a config file, a text note), rather
         # than an NMEA log whose every line is "corrupt".
-        raise InputError(
-            f"{path}: not a log fgins reads: no NMEA sentence, UBX frame, MCAP or bag, and no "
-            "CSV header fgins knows (imu.csv, gnss.csv, baro.csv, wheel.csv, accel_array.csv)"
-        )
+        raise _not_a_log(path)
     lines = [f"NMEA log {path}"]
     by_type = ", ".join(f"{k} {v}" for k, v in sorted(reader.counts.items()))
     by_talker = ", ".join(f"{k} {v}" for k, v in sorted(reader.talkers.items()))

@@ -72,9 +72,11 @@ def ros2_metadata(folder: Path) -> dict[str, Any]:
     path = folder / ROS2_METADATA
     try:
         loaded = YAML(typ="safe").load(path.read_text(encoding="utf-8", errors="replace"))
+        if not isinstance(loaded, dict) or "rosbag2_bagfile_information" not in loaded:
+            raise TypeError("empty" if loaded is None else "no rosbag2_bagfile_information table")
         info = loaded["rosbag2_bagfile_information"]
         if not isinstance(info, dict):
-            raise TypeError("not a table")
+            raise TypeError("rosbag2_bagfile_information is not a table")
     except Exception as exc:  # any YAML or shape error: the file is not a bag's metadata
         why = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise InputError(f"{path}: not a readable ROS 2 bag metadata file ({why})") from None
@@ -137,6 +139,14 @@ def bag_path(path: Path) -> Path:
     return path
 
 
+def _damage_said(exc: BaseException) -> str:
+    """What stopped reading a damaged bag: an operating system's reason in its words, a
+    parser's failure (an AssertionError, a KeyError 96 from corrupt bytes) as what it means."""
+    if isinstance(exc, OSError):
+        return _one_line(exc)
+    return "its bytes there do not parse: a corrupted or cut-off file"
+
+
 def _one_line(exc: BaseException) -> str:
     text = str(exc).strip()
     return text.splitlines()[0] if text else type(exc).__name__
@@ -149,6 +159,8 @@ def _open(path: Path) -> Iterator[Any]:
     from rosbags.highlevel import AnyReader
 
     kind = "ROS 1 bag" if path.is_file() else "ROS 2 bag folder"
+    if not path.is_file():
+        ros2_metadata(path)  # its own words for a metadata.yaml that is no bag's (rosbags: "'NoneType' ...")
     with tempfile.TemporaryDirectory(prefix="fgins-bag-") as scratch:
         source = path
         if path.is_file() and path.suffix != ".bag":
@@ -253,7 +265,7 @@ class _BagScan(TopicScan):
             except Exception as exc:  # a damaged chunk or database: say where it stopped
                 raise InputError(
                     f"{self.path}: damaged bag: reading stopped after {done} of the "
-                    f"{total} messages of the chosen topics ({_one_line(exc)})"
+                    f"{total} messages of the chosen topics ({_damage_said(exc)})"
                 ) from None
         for role, chosen in (self.chosen or {}).items():
             indexed = sum(int(c.msgcount) for cid, c in self.connections.items()
