@@ -100,6 +100,13 @@ def _logged_twice(header, rows):
     return np.vstack([rows, rows])
 
 
+def _two_files_overlapping(header, rows):
+    """Two recordings of one span, their clocks 0.37 of a period apart, one after the other."""
+    other = rows.copy()
+    other[:, 0] += 0.37 * float(np.median(np.diff(rows[:, 0])))
+    return np.vstack([rows, other])
+
+
 def _shuffled(header, rows):
     return rows[np.random.default_rng(0).permutation(len(rows))]
 
@@ -560,6 +567,15 @@ DATA_CASES = [
             edit_imu=_shuffled,
         ),
         id="imu-rows-shuffled",
+    ),
+    pytest.param(
+        Case(
+            "imu-two-files-interleaved",
+            SMOOTH,
+            r"IMU time goes backwards at sample \d+ .* the log mixes clocks or files",
+            edit_imu=_two_files_overlapping,
+        ),
+        id="imu-two-files-interleaved",
     ),
     pytest.param(
         Case(

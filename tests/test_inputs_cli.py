@@ -91,6 +91,45 @@ def test_imu_csv_nan_and_duplicates_are_counted_backwards_time_is_an_error(tmp_p
         read_imu_csv(path, [])
 
 
+@pytest.mark.parametrize("rate_hz", [50.0, 100.0, 400.0])
+def test_corrupted_stamps_are_dropped_and_counted_not_a_refused_log(rate_hz):
+    """A few samples whose header stamp alone is corrupt (random bytes in a recording: one
+    at the start, three in a row mid-log, two at the end) are dropped and counted; the
+    samples around them, a real 2 s gap included, are kept as they were. Two files in one
+    log are still refused (an outside tester's damaged bags were refused whole as "two clocks
+    or files")."""
+    from fgins.io.imu_checks import imu_from_samples
+
+    rng = np.random.default_rng(int(rate_hz))
+    t = 1.7e9 + np.arange(6000) / rate_hz
+    t[3000:] += 2.0  # a real gap
+    gyro, accel = rng.normal(0, 0.01, (6000, 3)), rng.normal(0, 0.1, (6000, 3)) + np.array([0, 0, 9.8])
+    stamped = t.copy()
+    stray = [0, 1200, 1201, 1202, 5998, 5999]
+    stamped[stray] = t[stray] + rng.choice([-1, 1], len(stray)) * rng.uniform(0.5, 300, len(stray))
+    warnings: list[str] = []
+    imu = imu_from_samples(stamped, gyro, accel, source="imu", warnings=warnings)
+    keep = np.setdiff1d(np.arange(6000), stray)
+    np.testing.assert_array_equal(imu.t, t[keep])
+    np.testing.assert_array_equal(imu.gyro, gyro[keep])
+    assert len(warnings) == 1 and "dropped 6 IMU sample(s) whose time stamp alone" in warnings[0]
+    clean: list[str] = []
+    assert len(imu_from_samples(t, gyro, accel, source="imu", warnings=clean)) == 6000 and not clean
+    # A recorder's bursts of eight messages received seven samples late (h1's bags): sorted,
+    # every sample kept, not refused as two files nor dropped as corrupted stamps.
+    arrival = np.arange(6000)
+    for start in range(100, 5980, 300):
+        arrival[start:start + 15] = np.concatenate([arrival[start + 8:start + 15], arrival[start:start + 8]])
+    late: list[str] = []
+    imu = imu_from_samples(t[arrival], gyro[arrival], accel[arrival], source="imu", warnings=late)
+    np.testing.assert_array_equal(imu.t, t)
+    np.testing.assert_array_equal(imu.accel, accel)
+    assert len(late) == 1 and "sorted by time, their stamps one regular series" in late[0], late
+    with pytest.raises(InputError, match="mixes clocks or files"):
+        imu_from_samples(np.concatenate([t, t]), *(np.vstack([a, a]) for a in (gyro, accel)),
+                         source="imu", warnings=[])  # fmt: skip
+
+
 def test_sim_folder_and_csv_pair_in_any_order(sim_dir):
     folder = read_csv_dataset([sim_dir])
     pair = read_csv_dataset([sim_dir / "gnss.csv", sim_dir / "imu.csv"])
@@ -134,6 +173,55 @@ def test_bad_input_is_one_line_and_leaves_no_output(tmp_path, sim_dir, capsys, a
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0] and "Traceback" not in err[0]
     assert list(tmp_path.iterdir()) == []
+
+
+def _prepare(kind: str, tmp_path: Path, sim_dir: Path) -> list[str]:
+    """A user's mistake or a damaged file, and the command given it."""
+    if kind == "csv-renamed":
+        (tmp_path / "fixes.ubx").write_bytes((sim_dir / "gnss.csv").read_bytes())
+        return ["inspect", str(tmp_path / "fixes.ubx")]
+    if kind == "convert-folder":
+        return ["convert", str(sim_dir), "-o", str(tmp_path / "o.csv")]
+    if kind == "convert-toml":
+        return ["convert", str(sim_dir / "config.toml"), "-o", str(tmp_path / "o.csv")]
+    if kind in ("arw-huge", "rpy-two"):
+        line = "[imu]\ngyro_arw_deg_per_sqrt_hr = 1e30" if kind == "arw-huge" else (
+            "[smoother]\nimu_to_vehicle_rpy_deg = [0, 0]"
+        )  # fmt: skip
+        (tmp_path / "c.toml").write_text(line + "\n")
+        return ["smooth", str(sim_dir), "--config", str(tmp_path / "c.toml"), "-o", str(tmp_path / "o.csv")]
+    if kind == "bag-empty-yaml":
+        (tmp_path / "bag").mkdir()
+        (tmp_path / "bag" / "metadata.yaml").write_text("")
+        return ["inspect", str(tmp_path / "bag")]
+    if kind == "mcap-magic-only":
+        (tmp_path / "cut.mcap").write_bytes(b"\x89MCAP0\r\n")
+        return ["inspect", str(tmp_path / "cut.mcap")]
+    lines = (sim_dir / "imu.csv").read_text().splitlines()  # an Excel export's trailing commas
+    (tmp_path / "imu.csv").write_text("\n".join(line + "," for line in lines) + "\n")
+    return ["inspect", str(tmp_path / "imu.csv")]
+
+
+@pytest.mark.parametrize(
+    ("kind", "code", "said", "not_said"),
+    [
+        ("csv-renamed", 0, "GNSS, 60 fixes", "not a log"),
+        ("convert-folder", 2, "is a folder: convert takes one GNSS log file", "Is a directory"),
+        ("convert-toml", 2, "not a log fgins reads", "corrupt lines"),
+        ("arw-huge", 2, "must be > 0 and <= 100", "within"),
+        ("rpy-two", 2, "3 numbers [roll, pitch, yaw]", "[x, y, z]"),
+        ("bag-empty-yaml", 2, "not a readable ROS 2 bag metadata file (empty)", "NoneType"),
+        ("mcap-magic-only", 2, "truncated at byte 8", "EndOfFile"),
+        ("trailing-comma", 0, "column 8 (no name: a trailing comma?)", "ignored: ;"),
+    ],
+)
+def test_messages_name_the_cause(tmp_path, sim_dir, capsys, kind, code, said, not_said):
+    """An outside tester's inputs whose message named something else: a CSV under another
+    name called no log, a folder "Is a directory", a TOML "29 corrupt lines", a range for a
+    positive value as "+-100", a library's "'NoneType' object", "EndOfFile: " at exit 0."""
+    assert main(_prepare(kind, tmp_path, sim_dir)) == code
+    said_all = " ".join(capsys.readouterr())
+    assert said in said_all and not_said not in said_all and "Traceback" not in said_all
 
 
 def test_no_usable_gnss_in_span_is_a_clear_error(tmp_path, sim_dir, capsys):
