@@ -67,3 +67,30 @@ def test_noise_free_readings_have_no_fills_to_find():
     (start, stop), = find_linear_fills(t, filled)
     assert start == pytest.approx(t[a - 1], abs=0.02) or start == pytest.approx(t[a], abs=0.02)
     assert stop == pytest.approx(t[b], abs=0.02)
+
+
+STORAGES = {
+    "float32": lambda x: x.astype(np.float32).astype(float),
+    "float32-printed": lambda x: np.array([float(f"{v:.12e}") for v in x.astype(np.float32).ravel()]).reshape(x.shape),
+    "six-decimals": lambda x: np.round(x, 6),
+    "ubx-fixed-point": lambda x: np.round(x * 2**12) / 2**12,
+}
+
+
+@pytest.mark.parametrize("storage", list(STORAGES))
+@pytest.mark.parametrize("rate", [100.0, 400.0])
+def test_a_fill_is_found_in_values_stored_rounded(storage, rate):
+    """The same data stored as float32, to six decimals or in a u-blox ESF-RAW's fixed point:
+    rounded, a filled stretch bends by a quantum or two a sample, and KITTI's eight fills
+    went unseen in every such copy (an outside tester: the drive refused as a gyro with
+    swapped columns, or EKF+RTS 0.64 m inside an outage against 0.36 at exit 0). Noise
+    stored so is still never a fill."""
+    t, data, (a, b) = _noisy_with_fill(rate, 1_600_000_000_478_375_700, seed=int(rate) + 1)
+    data = data * 50 + np.array([0, 0, 0, 0, 0, 9.8])  # up to tens of m/s^2: float32's quantum grows
+    stored = STORAGES[storage](data)
+    fills = find_linear_fills(t, stored)
+    assert len(fills) == 1, fills
+    assert abs(fills[0][0] - a) <= 2 / rate and abs(fills[0][1] - b) <= 2 / rate, (fills, a, b)
+    rng = np.random.default_rng(3)
+    quiet = STORAGES[storage](rng.normal(0, 0.003, (len(t), 6)) + np.array([0, 0, 0, 0, 0, 9.806]))
+    assert find_linear_fills(t, quiet) == []
