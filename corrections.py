@@ -435,6 +435,7 @@ def with_antenna_corrected(
             corrected = run.solve(trial, trial_config)
         except FginsError:
             break
+        one_clock: Trajectory | None = None
         if first_clocks:
             # Two clocks only where they fit better than the offset alone (a latency): the
             # check is first order in the offset, and a fixed-wing's fixes 0.5 s late read
@@ -459,7 +460,26 @@ def with_antenna_corrected(
             taken -= 3
         if offset_refined:  # likewise the offset
             taken -= 1
-        if not _fits_better(corrected, best, fit_key, CORRECTION_CHI2_PER_NUMBER * taken):
+        margin = CORRECTION_CHI2_PER_NUMBER * taken
+        latency_only = one_clock if first_clocks else (None if drifting else corrected)
+        further = None
+        if latency_only is not None and offset is not None:
+            further = _offset_continued(latency_only.info, offset)
+        if further is not None and not _fits_better(corrected, best, fit_key, margin):
+            # The reading is one Gauss-Newton step about a solution that left out, as faults,
+            # the very fixes that show the delay: a fixed-wing's fixes 0.5 s late in a 60 deg
+            # bank read as 0.61 s, and solved so, the fit was worse than the faulted solution
+            # (chi2/dof 2.21 against 1.67), which kept the track 40 m off; the next step
+            # (-0.105 s, to 0.503) fits at 0.87. One step more before the verdict.
+            latency = replace(unshifted, gnss=replace(unshifted.gnss, t=unshifted.gnss.t - further))
+            try:
+                stepped = run.solve(latency, trial_config)
+            except FginsError:
+                stepped = None
+            if stepped is not None and _fits_better(stepped, best, fit_key, margin):
+                corrected, trial, trial_moved, offset = stepped, latency, fixes_moved - further, further
+                clocks_declined, drifting = clocks_declined or first_clocks, False
+        if not _fits_better(corrected, best, fit_key, margin):
             if not ((refining or offset_refined) and taken == 0):  # a refinement that gains nothing just stops
                 declined = (best.info.get(fit_key), corrected.info.get(fit_key))
                 if offset is not None:  # the clock's reading, at its largest along the drive
@@ -583,6 +603,18 @@ def _findings_reworded(warnings: list[str], findings: tuple[str, ...], then: str
 # GNSS measurements) two clocks must fit than one offset to be taken: the drift's 4 sigma
 # (fgins.antenna_verdict.CLOCK_CHI2).
 CLOCK_CHI2_GAIN = 16.0
+
+
+def _offset_continued(info: dict[str, object], offset: float) -> float | None:
+    """The fixes' offset one step on (s): ``offset`` plus what a solution with the fixes
+    moved by it still reads, where that rest shows at 2 sigma and is less than half the step
+    taken (the reading converges); else None."""
+    rest, sigma = info.get("gnss_time_offset_fit_s"), info.get("gnss_time_offset_fit_sigma_s")
+    if not (isinstance(rest, float) and isinstance(sigma, float)):
+        return None
+    if abs(rest) <= 2.0 * sigma or abs(rest) >= 0.5 * abs(offset):
+        return None
+    return offset + rest
 
 
 def _fit_total(info: dict[str, object], fit_key: str) -> float:

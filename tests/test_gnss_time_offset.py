@@ -470,3 +470,55 @@ def test_a_clock_reading_the_solve_could_not_take_is_carried_in_the_sigmas():
     )  # fmt: skip
     add_unresolved_time_uncertainty(untouched)
     np.testing.assert_array_equal(untouched.position_cov, cov)
+
+
+def test_an_offset_read_through_left_out_fixes_is_stepped_on_before_the_verdict():
+    """A closed-form fit landscape for the clock's decision (fgins.corrections): fixes 0.5 s
+    late, the solution before the correction with the turn's fixes left out as faults (chi2/dof
+    1.67 over what is left), the reading 0.608 s. Solved with 0.608 s, every fix back in, the fit
+    is 2.41, worse than the faulted one's, and the correction was declined: an independent
+    simulator's fixed-wing in a 60 deg bank stayed 40 m off. Its own reading of the rest
+    (-0.108 s) is one step more: solved there, 0.87, taken; the fixes moved by 0.500 s."""
+    from dataclasses import replace as changed
+
+    from fgins.config import RunConfig
+    from fgins.corrections import Rerun, with_antenna_corrected
+    from fgins.datatypes import Dataset, GnssData, ImuData, Origin, Trajectory
+
+    late = 0.5
+    t = np.arange(0.0, 100.0, 1.0)
+    imu = ImuData(t=np.arange(0.0, 101.0, 0.01), gyro=np.zeros((10100, 3)), accel=np.zeros((10100, 3)))
+    gnss = GnssData(t=t + late, lla=np.tile([47.0, 8.0, 400.0], (len(t), 1)))
+    dataset = Dataset(imu=imu, gnss=gnss, origin=Origin(47.0, 8.0, 400.0))
+
+    def solution(info: dict) -> Trajectory:
+        n = len(t)
+        return Trajectory(t=t, position=np.zeros((n, 3)), velocity=np.zeros((n, 3)),
+                          rotation=np.tile(np.eye(3), (n, 1, 1)), origin=dataset.origin, info=info)  # fmt: skip
+
+    def reading(rest: float) -> dict:
+        """A solve's clock check: the offset left (s), at sigma 5 ms; said at 5 sigma."""
+        out = {"gnss_time_offset_fit_s": rest, "gnss_time_offset_fit_sigma_s": 0.005}
+        if abs(rest) > 5 * 0.005:
+            out["gnss_time_offset_s"] = rest
+        return out
+
+    solves: list[float] = []
+
+    def solver(data: Dataset, config: RunConfig, method: str) -> Trajectory:
+        rest = float(data.gnss.t[0] - t[0])  # what is left of the delay after the move
+        solves.append(rest)
+        return solution({"chi2_per_dof": 0.87 + 130.0 * rest**2, "dof": 2190, **reading(rest)})
+
+    first = solution({"chi2_per_dof": 1.67, "dof": 2016, **reading(0.608),
+                      "antenna_findings": ["GNSS time: the fixes fit time stamps 0.608 s late"]})  # fmt: skip
+    best, data, _ = with_antenna_corrected(dataset, RunConfig(), Rerun("batch", None, solver), first)
+    assert best.info["gnss_time_offset_corrected_s"] == pytest.approx(-late, abs=0.005), solves
+    assert data.gnss.t[0] == pytest.approx(t[0], abs=0.005)
+    assert best.info["chi2_per_dof"] < 1.0
+    # a reading that does not converge (the rest as large as the step) is still declined
+    solves.clear()
+    first_far = changed(first, info={**first.info, **reading(0.2)})
+    declined, _, _ = with_antenna_corrected(changed(dataset, gnss=changed(gnss, t=t + 2.0)), RunConfig(),
+                                            Rerun("batch", None, solver), first_far)  # fmt: skip
+    assert "gnss_time_offset_corrected_s" not in declined.info, (solves, declined.info)
