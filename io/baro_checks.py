@@ -133,16 +133,24 @@ def check_pressure_unit(baro) -> None:
     )
 
 
-def check_baro_scale(baro, gnss: GnssData, what: str) -> None:
+def check_baro_scale(baro, gnss: GnssData, what: str, checks: list[str] | None = None):
     """The barometer's height changes against the fixes' altitude changes, where it climbs
     or descends well beyond both sensors' noise: the fixes' altitude regressed on the
     barometer's (ISA) height has a slope of ~1 (the ISA against a real day's temperature:
     +-10 %); a height column in feet gives 1/3.28 (the barometer then pulled every height
     3.3x its climbs, and only the fit's chi-square said anything). The barometer's own
     noise is small, so the fixes' noise does not bias this slope. ``what``: how the
-    barometer was given, for the message."""
+    barometer was given, for the message.
+
+    Within that range, a scale the climbs show beyond doubt (BARO_SCALE_SIGMAS, and at least
+    BARO_SCALE_MIN_ERROR) is the day's air against the standard atmosphere: the barometer's
+    heights are rescaled to the fixes' about their mean, said in ``checks``, and the
+    barometer returned so (else as given). An aircraft's 500 m climb on an ISA+20 C day
+    (heights 7 % large): the smoother's slow bias walk could not follow it, and the fixes
+    were scaled, the clocks and the gyro "corrected" instead: heights 13-18 m off at sigma
+    1.1 m, horizontal 9-34 m inside outages (outside tester)."""
     if baro is None or not len(baro.t):
-        return
+        return baro
     from fgins.factors.stationary import standard_atmosphere_height
 
     with np.errstate(invalid="ignore"):  # a height given as such: the same height back
@@ -151,7 +159,7 @@ def check_baro_scale(baro, gnss: GnssData, what: str) -> None:
     use = np.isfinite(alt) & (gnss.t >= baro.t[0]) & (gnss.t <= baro.t[-1])
     finite = np.isfinite(height)
     if use.sum() < BARO_SCALE_MIN_FIXES or finite.sum() < 2:
-        return
+        return baro
     at_fixes = np.interp(gnss.t[use], baro.t[finite], height[finite])
     sigma_up = float(np.median(fix_sigma(gnss)[use]))  # 3-D: at least the vertical
 
@@ -161,7 +169,7 @@ def check_baro_scale(baro, gnss: GnssData, what: str) -> None:
 
     spread = spread_of(at_fixes)
     if max(spread, spread_of(alt[use])) < max(BARO_SCALE_MIN_SPREAD_M, 2.0 * sigma_up):
-        return  # level by both: nothing to tell a scale from
+        return baro  # level by both: nothing to tell a scale from
     x = at_fixes - at_fixes.mean()
     y = alt[use] - alt[use].mean()
     slope = float(np.sum(x * y) / np.sum(x * x))
@@ -173,7 +181,45 @@ def check_baro_scale(baro, gnss: GnssData, what: str) -> None:
             "3.28, a negative ratio a height that falls as the fixes climb): give "
             "baro_height in metres, up positive, or pressure_pa in pascals"
         )
+    # The scale apart from a drift in time (weather, a warming sensor), which the smoother's
+    # bias walk follows: a barometer drifting 0.05 m/s through a climb read as 2.4 % scale,
+    # and rescaled so, the clocks were "corrected" from the rest (38 m inside an outage).
+    elapsed = gnss.t[use] - float(np.mean(gnss.t[use]))
+    design = np.column_stack([x, elapsed])
+    normal = design.T @ design
+    if np.linalg.cond(normal) > 1e12:
+        return baro
+    slope, _drift = np.linalg.solve(normal, design.T @ y)
+    residual = y - design @ np.array([slope, _drift])
+    scatter = 1.4826 * float(np.median(np.abs(residual - np.median(residual))))
+    # The fixes' height errors are correlated over tens of seconds (a real receiver's): the
+    # slope's sigma counts the residuals' lag-one correlation (n (1 - r) / (1 + r) independent).
+    centred = residual - residual.mean()
+    lag_one = float(np.sum(centred[1:] * centred[:-1]) / max(float(np.sum(centred * centred)), 1e-12))
+    correlated = (1.0 + max(lag_one, 0.0)) / max(1.0 - max(lag_one, 0.0), 1e-3)
+    slope_sigma = scatter * float(np.sqrt(np.linalg.inv(normal)[0, 0] * correlated))
+    if abs(slope - 1.0) < max(BARO_SCALE_MIN_ERROR, BARO_SCALE_SIGMAS * slope_sigma):
+        return baro
+    ratio = 1.0 / slope
+    mean = float(np.mean(at_fixes))
+    rescaled = mean + (height - mean) * slope
+    if checks is not None:
+        checks.append(
+            f"baro: its {what} changes {ratio:.3f} (+-{slope_sigma * ratio**2:.3f}) times as "
+            f"much as the fixes' altitude over climbs spreading {spread:.0f} m: a day's air off "
+            f"the standard atmosphere (a few % is usual); rescaled to the fixes' (x{slope:.3f} "
+            f"about {mean:.0f} m)"
+        )
+    from fgins.factors.stationary import standard_atmosphere_pressure
 
+    with np.errstate(invalid="ignore"):
+        pressure = np.where(np.isfinite(rescaled), standard_atmosphere_pressure(rescaled), np.nan)
+    return type(baro)(t=baro.t, pressure=pressure, height=None if baro.height is None else rescaled)
+
+
+# A scale taken from the climbs: beyond this many sigmas of the slope and this fraction.
+BARO_SCALE_SIGMAS = 5.0
+BARO_SCALE_MIN_ERROR = 0.005
 
 # The barometer judged only over climbs and descents of this spread (std, m) or more, and
 # twice the fixes' vertical sigma; its height scale within this range of the fixes'.

@@ -160,7 +160,7 @@ def _validated(dataset: Dataset, vehicle: str | None) -> Dataset:
     baro = checked_baro(dataset.baro, imu.t, checks)
     if not baro_heights:  # heights were checked for range and made pressures
         check_pressure_unit(baro)
-    check_baro_scale(baro, gnss, "height" if baro_heights else "pressure's ISA height")
+    baro = check_baro_scale(baro, gnss, "height" if baro_heights else "pressure's ISA height", checks)
     report_gnss_time_gaps(gnss.t, checks)
     metadata = {**dataset.metadata, "input_checks": list(checks)}
     with np.errstate(invalid="ignore"):
