@@ -27,6 +27,7 @@ MAX_REORDER_PERIODS = 5.0
 # Farther back, up to this (s), samples are a recorder's messages received late (a bag's
 # transport delivered a burst after newer ones) where their stamps, sorted, are one series.
 MAX_LATE_DELIVERY_S = 1.0
+WEEK_S = 604800.0  # GPS seconds of the week roll over to 0 after this
 
 
 def find_gaps(t: np.ndarray, factor: float = GAP_FACTOR) -> list[tuple[float, float]]:
@@ -342,6 +343,12 @@ def imu_from_samples(
         far = -dt[worst] > MAX_REORDER_PERIODS * nominal
         if far and (-dt[worst] > MAX_LATE_DELIVERY_S or not _one_series_out_of_order(t)):
             row = worst + 1
+            if WEEK_S - 3600.0 < t[row - 1] <= WEEK_S + 1.0 and t[row] < 3600.0:
+                raise InputError(
+                    f"{source}: IMU time goes from {t[row - 1]:.6f} back to {t[row]:.6f} at "
+                    f"sample {row}: GPS seconds of the week rolling over into a new week; add "
+                    f"{WEEK_S:.0f} s to the times from there on (or give GPS or POSIX seconds)"
+                )
             raise InputError(
                 f"{source}: IMU time goes backwards at sample {row} "
                 f"({t[row - 1]:.6f} -> {t[row]:.6f}); the log mixes clocks or files — sort or "

@@ -412,6 +412,19 @@ def _velocity_from_speed_course(gnss: GnssData) -> bool:
     return bool(both.any()) and bool(np.allclose(given[both], built[both], atol=1e-6))
 
 
+def _in_origin_axes(velocity: np.ndarray, lla: np.ndarray, origin: Origin) -> np.ndarray:
+    """Each fix's local-level (ENU) velocity in the origin's ENU axes, where the chords are
+    taken: near a pole east turns with the longitude (a car at the South Pole station had
+    its right velocities refused as "64 deg away ... NED order?"); elsewhere a few km turn
+    it by hundredths of a degree."""
+    from fgins.geodesy import ecef_to_enu_rotation
+
+    at_fix = ecef_to_enu_rotation(lla[:, 0], lla[:, 1])
+    to_origin = ecef_to_enu_rotation(origin.lat, origin.lon)
+    rotated = np.einsum("ij,njk,nk->ni", to_origin, np.swapaxes(at_fix, -1, -2), np.nan_to_num(velocity))
+    return np.where(np.isfinite(velocity), rotated, np.nan)
+
+
 def check_gnss_velocity(gnss: GnssData, origin: Origin) -> None:
     """The receiver's velocity against the velocity its own fixes show (see the constants)."""
     from fgins.geodesy import lla_to_enu
@@ -423,7 +436,7 @@ def check_gnss_velocity(gnss: GnssData, origin: Origin) -> None:
     if dense.sum() < VELOCITY_MIN_EPOCHS:
         return
     track = track_all[dense]
-    given = gnss.velocity[dense]
+    given = _in_origin_axes(gnss.velocity[dense], gnss.lla[dense], origin)
     track_speed = np.hypot(track[:, 0], track[:, 1])
     given_speed = np.hypot(given[:, 0], given[:, 1])
     moving = np.isfinite(given_speed) & clear[dense]

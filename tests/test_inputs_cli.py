@@ -120,6 +120,9 @@ def test_corrupted_stamps_are_dropped_and_counted_not_a_refused_log(rate_hz):
     arrival = np.arange(6000)
     for start in range(100, 5980, 300):
         arrival[start:start + 15] = np.concatenate([arrival[start + 8:start + 15], arrival[start:start + 8]])
+    week = 604800.0 - 5.0 + np.arange(6000) / rate_hz  # seconds of the week, rolling over
+    with pytest.raises(InputError, match="GPS seconds of the week rolling over into a new week; add 604800 s"):
+        imu_from_samples(np.where(week >= 604800.0, week - 604800.0, week), gyro, accel, source="imu", warnings=[])
     late: list[str] = []
     imu = imu_from_samples(t[arrival], gyro[arrival], accel[arrival], source="imu", warnings=late)
     np.testing.assert_array_equal(imu.t, t)

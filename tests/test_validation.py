@@ -1451,3 +1451,29 @@ def test_a_barometer_off_the_standard_atmosphere_is_rescaled_to_the_fixes(tmp_pa
     )
     drift = fgins.load(*base, tmp_path / "drift.csv", vehicle="car")
     assert not [w for w in drift.warnings if w.startswith("baro: its")], drift.warnings
+
+
+@pytest.mark.parametrize("lat0", [89.99, -89.995, 47.0])
+def test_local_level_velocities_near_a_pole_are_right(lat0):
+    """Each fix's velocity is east/north/up at that fix; near a pole east turns with the
+    longitude within metres, and the check compared it with chords in the origin's axes: a
+    car at the South Pole station and a flight over the North Pole had right velocities
+    refused as "NED order?". Written here with pymap3d (ECEF to each fix's ENU); swapped
+    east and north are still refused."""
+    import pymap3d
+
+    from fgins.datatypes import GnssData, Origin
+    from fgins.io.motion_checks import check_gnss_velocity
+
+    t = np.arange(0.0, 200.0, 1.0)
+    heading = np.radians(20.0)  # a straight 10 m/s track in the tangent plane at the start
+    east, north = 10.0 * t * np.sin(heading) - 600.0, 10.0 * t * np.cos(heading) - 900.0
+    lat, lon, alt = pymap3d.enu2geodetic(east, north, 0.0 * t, lat0, 30.0, 100.0)
+    vx, vy, vz = pymap3d.enu2uvw(10.0 * np.sin(heading), 10.0 * np.cos(heading), 0.0, lat0, 30.0)
+    ve, vn, vu = pymap3d.uvw2enu(vx + 0 * t, vy + 0 * t, vz + 0 * t, lat, lon)
+    lla = np.column_stack([lat, lon, alt])
+    origin = Origin(float(lat[0]), float(lon[0]), float(alt[0]))
+    std = np.tile([1.0, 1.0, 2.0], (len(t), 1))
+    check_gnss_velocity(GnssData(t=t, lla=lla, std=std, velocity=np.column_stack([ve, vn, vu])), origin)
+    with pytest.raises(InputError, match="NED order"):
+        check_gnss_velocity(GnssData(t=t, lla=lla, std=std, velocity=np.column_stack([vn, ve, vu])), origin)
