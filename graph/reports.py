@@ -403,7 +403,22 @@ def _dop_model_scale(problem: Problem, norms: np.ndarray) -> dict[str, object]:
         return out
     scale = float(np.sqrt(np.mean(norms[modelled] ** 2) / 3.0))
     out["gnss_dop_model_whitened_rms"] = scale
-    if scale < DOP_MODEL_PESSIMISTIC:
+    default = np.asarray(problem.config.gnss.default_sigma_m, dtype=float)
+    sigmas = problem.gnss_sigma[problem.gnss_used][modelled]
+    if scale < DOP_MODEL_PESSIMISTIC and np.mean(np.all(np.isclose(sigmas, default), axis=1)) > 0.5:
+        # No DOP either: the UERE table changes nothing (an outside tester followed that
+        # advice and got the same run and the same line back).
+        shown = ", ".join(f"{x:g}" for x in np.broadcast_to(default, (3,)))
+        out["fit_warnings"] = [
+            *out.get("fit_warnings", []),  # type: ignore[misc]
+            f"GNSS: {int(modelled.sum())} fixes have the default sigmas [gnss] default_sigma_m "
+            f"= [{shown}] m (no sigma or DOP in the data) and residuals of only {scale:.2f} of "
+            "them (whitened RMS): either the receiver is better and the reported "
+            f"uncertainties are up to {1.0 / max(scale, 1e-9):.1f}x pessimistic (set [gnss] "
+            "default_sigma_m or sigma_m nearer what it does), or its errors are slow and the "
+            "fit follows them",
+        ]
+    elif scale < DOP_MODEL_PESSIMISTIC:
         out["fit_warnings"] = [
             *out.get("fit_warnings", []),  # type: ignore[misc]
             f"GNSS: {int(modelled.sum())} fixes have sigmas from UERE x DOP (no GST or "

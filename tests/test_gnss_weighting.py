@@ -334,6 +334,24 @@ def test_fixes_far_better_than_their_uere_times_dop_sigmas_are_reported(tmp_path
     assert (scale < 0.4) == warned
 
 
+@pytest.mark.parametrize("default,warned", [(None, True), ("[1.0, 1.0, 1.0]", False)])
+def test_fixes_without_sigma_or_dop_name_the_default_sigma_not_the_uere(tmp_path, default, warned):
+    """Fixes with neither sigmas nor DOP take [gnss] default_sigma_m: the line said "UERE x
+    DOP ... set [gnss.uere_m]", which changes nothing there (an outside tester got the same
+    run and line back). It names default_sigma_m, and a right one makes it go."""
+    import pandas as pd
+
+    def no_sigma_no_dop(folder):
+        fixes = pd.read_csv(folder / "gnss.csv").drop(columns=["std_east", "std_north", "std_up"])
+        fixes.to_csv(folder / "gnss.csv", index=False, float_format="%.10f")
+
+    extra = "" if default is None else f"\n[gnss]\ndefault_sigma_m = {default}\n"
+    summary = _hilly_drive_summary(tmp_path, 4, extra, no_sigma_no_dop)
+    messages = [w for w in summary.get("fit_warnings", []) if "default_sigma_m" in w and "residuals" in w]
+    assert bool(messages) == warned, summary.get("fit_warnings")
+    assert not [w for w in summary.get("fit_warnings", []) if "uere_m" in w]
+
+
 @pytest.mark.parametrize(
     "sigma_m, seed, warned", [(8.0, 4, True), (6.0, 5, True), (1.0, 4, False), (2.0, 5, False)]
 )
