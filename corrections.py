@@ -17,7 +17,7 @@ from typing import TypeVar
 
 import numpy as np
 
-from fgins.antenna_verdict import ARM_CORRECTION_MAX_SIGMA_M
+from fgins.antenna_verdict import ARM_CORRECTION_MAX_SIGMA_M, LEVER_ARM_MIN_M
 from fgins.config import STANDARD_GRAVITY, RunConfig
 from fgins.datatypes import (
     AccelArrayData,
@@ -539,6 +539,16 @@ def with_antenna_corrected(
         if arm_covariance is not None:
             best.info["gnss_lever_arm_corrected_cov_m2"] = arm_covariance
         done.append(f"the lever arm set to [{', '.join(f'{x:.2f}' for x in arm_taken)}] m")
+        held = _held_arm_axes(arm_covariance)
+        if held:
+            # A level car cannot show its antenna's height above the IMU: the heights are then
+            # the antenna's, off by what the true arm has there (an outside tester's 1.2 m:
+            # heights 1.4 m off at sigma 0.2-0.3, the arm said "corrected" to 0.00).
+            done[-1] += (
+                f" (its {' and '.join(held)} part not determined by this drive and kept as "
+                "configured: positions along it are the antenna's, off the IMU's by what the "
+                "true arm has there; measure and set it)"
+            )
         switches.append("lever_arm_from_data = false the configured arm")
     before, after = first.info.get(fit_key), best.info.get(fit_key)
     how = (
@@ -603,6 +613,15 @@ def _findings_reworded(warnings: list[str], findings: tuple[str, ...], then: str
 # GNSS measurements) two clocks must fit than one offset to be taken: the drift's 4 sigma
 # (fgins.antenna_verdict.CLOCK_CHI2).
 CLOCK_CHI2_GAIN = 16.0
+
+
+def _held_arm_axes(covariance: object) -> list[str]:
+    """The IMU axes ('x', 'y', 'z') an arm taken from the data holds as configured (a zero
+    variance in its covariance: fgins.antenna_verdict's undetermined components)."""
+    if covariance is None:
+        return []
+    variance = np.diag(np.asarray(covariance, dtype=float))
+    return [axis for axis, value in zip("xyz", variance, strict=True) if value <= 0.0]
 
 
 def _offset_continued(info: dict[str, object], offset: float) -> float | None:
@@ -681,6 +700,43 @@ def add_unresolved_time_uncertainty(trajectory: Trajectory) -> None:
     offset = trajectory.info.get(TIME_UNRESOLVED_KEY)
     if isinstance(offset, float) and offset > 0.0:
         _add_along_track(trajectory, offset)
+
+
+# A time offset the fixes show at this many sigmas, under the 5 a correction needs, moving
+# them at least LEVER_ARM_MIN_M at the drive's typical speed, is carried in the sigmas.
+UNCONFIRMED_TIME_SIGMAS = 2.5
+
+
+def carry_unconfirmed_time_offset(trajectory: Trajectory) -> str | None:
+    """A time offset the last solve's check reads at UNCONFIRMED_TIME_SIGMAS or more but
+    under its 5 sigmas for a correction (correlated fix errors read so too), set as
+    ``TIME_UNRESOLVED_KEY`` (its size plus its sigma) for the output's sigmas along the track,
+    and the line saying so; None where nothing was read or it was corrected or declined.
+    An independent simulator's car at 50 m/s with fixes 50 ms late read 0.032 +- 0.010 s,
+    said nothing, and its track was 2.4 m off at sigma 0.17 (z 10; an aircraft at 250 m/s
+    with 20-50 ms: 5-12 m, z 15-36)."""
+    info = trajectory.info
+    if TIME_UNRESOLVED_KEY in info or "gnss_time_offset_corrected_s" in info:
+        return None
+    reading, sigma = info.get("gnss_time_offset_fit_s"), info.get("gnss_time_offset_fit_sigma_s")
+    if not (isinstance(reading, float) and isinstance(sigma, float) and sigma > 0.0):
+        return None
+    if abs(reading) < UNCONFIRMED_TIME_SIGMAS * sigma or abs(reading) >= 5.0 * sigma:
+        return None
+    speed = np.hypot(trajectory.velocity[:, 0], trajectory.velocity[:, 1])
+    moving = speed[speed > 1.0]
+    typical = float(np.median(moving)) if moving.size else 0.0
+    seconds = abs(reading) + sigma
+    if seconds * typical < LEVER_ARM_MIN_M:
+        return None
+    info[TIME_UNRESOLVED_KEY] = seconds
+    return (
+        f"GNSS time: the fixes fit time stamps {abs(reading):.3f} +- {sigma:.3f} s "
+        f"{'late' if reading > 0 else 'early'} against the IMU's ({abs(reading) / sigma:.1f} "
+        "sigma, under the 5 a correction needs: fixes' errors correlated over seconds read so "
+        f"too): the output's sigmas include {seconds:.3f} s along the track ({seconds * typical:.1f} m "
+        f"at {typical:.0f} m/s); if the time bases differ, give --time-offset {-reading:+.3f}"
+    )
 
 
 def add_time_offset_uncertainty(trajectory: Trajectory) -> None:

@@ -24,6 +24,7 @@ from fgins.corrections import (
     add_mounting_uncertainty,
     add_time_offset_uncertainty,
     add_unresolved_time_uncertainty,
+    carry_unconfirmed_time_offset,
     clock_correction_pending,
     clock_offset_first,
     mounting_from_drive,
@@ -208,10 +209,11 @@ def _corrected_solution(
     add_arm_uncertainty(trajectory, trajectory.info.pop("gnss_lever_arm_corrected_cov_m2", None))
     add_mounting_uncertainty(trajectory, mounting_sigma_deg)
     add_time_offset_uncertainty(trajectory)
+    unconfirmed_note = carry_unconfirmed_time_offset(trajectory)
     add_unresolved_time_uncertainty(trajectory)
     notes = [
         noise_note, bias_note, mounting_note, point_note, lever_note, unknown_height(dataset, trajectory),
-        nose_off_track(config, trajectory),
+        nose_off_track(config, trajectory), unconfirmed_note,
     ]  # fmt: skip
     if config.smoother.initial_heading_deg is None:  # else the configured heading is known
         notes.append(unobservable_heading(dataset, trajectory))
