@@ -480,6 +480,13 @@ def assemble_gnss(scan: TopicScan, need_imu: bool) -> tuple[GnssData, Any]:
                 "position covariance said to be known that is not 9 values (a 3x3 matrix): "
                 "their sigmas are taken as unknown"
             )
+        if gnss_acc.correlated_covariance:
+            warnings.append(
+                f"gnss {gnss_acc.topic}: {gnss_acc.correlated_covariance} fix message(s) with a "
+                f"position covariance whose axes correlate (|r| up to "
+                f"{gnss_acc.largest_correlation:.2f}): each axis is weighted by its own variance, "
+                "the correlation is not used"
+            )
         gnss = build_fixes(gnss_acc, warnings)
     if len(gnss) == 0:
         no_fix = getattr(gnss_acc, "no_fix", 0)

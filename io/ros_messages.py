@@ -271,6 +271,26 @@ def _std_from_covariance(covariance: Any, covariance_type: Any) -> tuple[float, 
     return tuple(math.sqrt(v) if v > 0 else v for v in diag)  # type: ignore[return-value]
 
 
+CORRELATION_SAID = 0.1  # an off-diagonal correlation of the position covariance beyond this is said
+
+
+def _correlation(covariance: Any, covariance_type: Any) -> float:
+    """The largest |correlation| between the axes of a fully known 3x3 position covariance
+    (type 3, COVARIANCE_TYPE_KNOWN; 0 for any other type, where only the diagonal means
+    anything, and when malformed or without a positive diagonal)."""
+    if isinstance(covariance_type, str):
+        covariance_type = 3 if covariance_type.upper() == "KNOWN" else 0
+    if covariance is None or len(covariance) != 9 or int(covariance_type or 0) != 3:
+        return 0.0
+    c = [float(x) for x in covariance]
+    out = 0.0
+    for i, j in ((0, 1), (0, 2), (1, 2)):
+        scale = c[4 * i] * c[4 * j]
+        if scale > 0 and math.isfinite(scale):
+            out = max(out, abs(c[3 * i + j]) / math.sqrt(scale))
+    return out
+
+
 def _malformed_covariance(covariance: Any, covariance_type: Any) -> bool:
     """A covariance said to be known whose length is not the 3x3 matrix's 9."""
     if isinstance(covariance_type, str):
@@ -391,6 +411,8 @@ class FixAccumulator(Accumulator):
         self.rows = array("d")
         self.no_fix = 0
         self.malformed_covariance = 0  # said known, not 9 values: sigmas unknown, counted
+        self.correlated_covariance = 0  # with correlated axes: their diagonal is used, counted
+        self.largest_correlation = 0.0
         self.first_t = math.inf  # of any message, with a fix or not (the t0 of outages)
 
     def add(self, msg: Any, log_time: int, use_header_stamp: bool) -> None:
@@ -424,6 +446,10 @@ class FixAccumulator(Accumulator):
         covariance_type = _get(msg, "position_covariance_type", 0)
         std = _std_from_covariance(covariance, covariance_type)
         self.malformed_covariance += _malformed_covariance(covariance, covariance_type)
+        correlation = _correlation(covariance, covariance_type)
+        if correlation > CORRELATION_SAID:
+            self.correlated_covariance += 1
+            self.largest_correlation = max(self.largest_correlation, correlation)
         lat = float(_get(msg, "latitude", nan))
         lon = float(_get(msg, "longitude", nan))
         # NaN (or no) altitude: a 2-D fix (NavSatFix's documented "no altitude"), kept; the

@@ -152,6 +152,7 @@ def write_bag(
     imu_variances: tuple[float, float] | None = None,
     publishers: int = 1,
     compression: str = "",
+    position_correlation: float = 0.0,
 ) -> Path:
     """The drive through rosbags' serializers: ``kind`` "ros2-mcap" / "ros2-sqlite" (a bag
     folder ``path``), "ros1-bag" (a ``.bag`` file ``path``) or "ros1-mcap" (an MCAP file of
@@ -250,6 +251,8 @@ def write_bag(
                 cov = np.zeros(9)
                 cov[[0, 4, 8]] = drive.std[i] ** 2
                 cov[1] = cov[3] = 0.3  # off-diagonal terms must not leak into the std
+                if position_correlation:  # a full covariance (type 3) with east-north correlated
+                    cov[1] = cov[3] = position_correlation * drive.std[i, 0] * drive.std[i, 1]
                 msg = t["sensor_msgs/msg/NavSatFix"](
                     header=_header(store, ns, "gps"),
                     status=t["sensor_msgs/msg/NavSatStatus"](
@@ -259,7 +262,7 @@ def write_bag(
                     longitude=float(drive.lla[i, 1]),
                     altitude=float(drive.lla[i, 2]),
                     position_covariance=cov,
-                    position_covariance_type=2,
+                    position_covariance_type=3 if position_correlation else 2,
                 )
                 records.append((ns, fix_conn, msg, "sensor_msgs/msg/NavSatFix"))
         else:

@@ -100,6 +100,23 @@ def test_a_malformed_location_fix_covariance_is_counted_not_silently_ignored(dri
                for w in result.warnings), result.warnings  # fmt: skip
 
 
+@pytest.mark.parametrize("correlation", [0.0, 0.6])
+def test_a_correlated_position_covariance_is_said_to_be_used_as_diagonal(drive: Drive, tmp_path: Path,
+                                                                       correlation: float) -> None:
+    """A NavSatFix covariance of type 3 (fully known) whose east and north correlate gave a
+    result identical to the diagonal one without a word (an outside tester): fgins weights
+    each axis by its own variance, now said. A diagonal-known one (type 2) says nothing,
+    whatever its off-diagonal numbers hold."""
+    path = write_ros2_bag(tmp_path / "bag", drive, with_unknown=False, position_correlation=correlation)
+    result = read_mcap(path, progress=False)
+    said = [w for w in result.warnings if "axes correlate" in w]
+    np.testing.assert_allclose(result.dataset.gnss.std, drive.std[drive.valid], rtol=1e-9)
+    if correlation:
+        assert len(said) == 1 and "|r| up to 0.60" in said[0], result.warnings
+    else:
+        assert not said, said
+
+
 def test_location_fix_stamps_in_protobufs_json_mapping_are_read(drive: Drive, tmp_path: Path) -> None:
     """protobuf's JSON mapping writes a Timestamp as an RFC 3339 string: every fix was an
     "undecodable message" while ``inspect`` listed the channel as fine."""
