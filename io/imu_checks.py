@@ -282,7 +282,9 @@ def _without_stray_stamps(
     before = np.where(at > 0, ordered[at] - ordered[np.maximum(at - 1, 0)], np.inf)
     after = np.where(at < len(t) - 1, ordered[np.minimum(at + 1, len(t) - 1)] - ordered[at], np.inf)
     closest = np.minimum(before, after)
-    stray = stray[(closest < 0.5 * period) | (closest > reach)]
+    # ... and a corrupted stamp moves its sample out of its place in the file: a sample in
+    # its place with a gap beside it is real (KITTI's first sample, 1.9 s before the second).
+    stray = stray[((closest < 0.5 * period) | (closest > reach)) & (at != stray)]
     if not stray.size or stray.size > MAX_STRAY_STAMP_SHARE * len(t):
         return t, gyro, accel
     keep = np.ones(len(t), dtype=bool)
@@ -296,6 +298,24 @@ def _without_stray_stamps(
         f"neighbours put it near {t[after] - (after - first) * period:.6f})"
     )
     return t[keep], gyro[keep], accel[keep]
+
+
+def _few_out_of_place(t: np.ndarray) -> bool:
+    """Whether sorting ``t`` moves at most MAX_STRAY_STAMP_SHARE of its samples: the fewest
+    to take out for the rest to be in order, ``len - the longest increasing run`` (patience
+    sorting, n log n). Two files one after the other move a whole stretch; messages whose log
+    time was corrupted, or a chunk read out of order, move a few."""
+    import bisect
+
+    limit = MAX_STRAY_STAMP_SHARE * len(t)
+    tails: list[float] = []
+    for value in t.tolist():
+        at = bisect.bisect_left(tails, value)
+        if at == len(tails):
+            tails.append(value)
+        else:
+            tails[at] = value
+    return len(t) - len(tails) <= limit
 
 
 def _one_series_out_of_order(t: np.ndarray) -> bool:
@@ -341,9 +361,14 @@ def imu_from_samples(
         nominal = float(np.median(positive)) if positive.size else 0.0
         worst = int(backwards[np.argmin(dt[backwards])])
         far = -dt[worst] > MAX_REORDER_PERIODS * nominal
-        if far and (-dt[worst] > MAX_LATE_DELIVERY_S or not _one_series_out_of_order(t)):
-            row = worst + 1
-            if WEEK_S - 3600.0 < t[row - 1] <= WEEK_S + 1.0 and t[row] < 3600.0:
+        # a few samples out of place, however far (a message's log time corrupted puts it
+        # at the file's start), or bursts received up to MAX_LATE_DELIVERY_S late; two files
+        # or a week's rollover put a whole stretch after a later one
+        row = worst + 1
+        rollover = WEEK_S - 3600.0 < t[row - 1] <= WEEK_S + 1.0 and t[row] < 3600.0
+        late = -dt[worst] <= MAX_LATE_DELIVERY_S
+        if far and (rollover or not (late or _few_out_of_place(t)) or not _one_series_out_of_order(t)):
+            if rollover:
                 raise InputError(
                     f"{source}: IMU time goes from {t[row - 1]:.6f} back to {t[row]:.6f} at "
                     f"sample {row}: GPS seconds of the week rolling over into a new week; add "

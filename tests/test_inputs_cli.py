@@ -106,7 +106,9 @@ def test_corrupted_stamps_are_dropped_and_counted_not_a_refused_log(rate_hz):
     gyro, accel = rng.normal(0, 0.01, (6000, 3)), rng.normal(0, 0.1, (6000, 3)) + np.array([0, 0, 9.8])
     stamped = t.copy()
     stray = [0, 1200, 1201, 1202, 5998, 5999]
-    stamped[stray] = t[stray] + rng.choice([-1, 1], len(stray)) * rng.uniform(0.5, 300, len(stray))
+    # out of order in the file, as a corrupted stamp mostly is (one beyond the log's end
+    # without a step back is a gap, which the gap checks refuse)
+    stamped[stray] = t[stray] + np.array([30.313, 211.1, -107.7, 200.3, -111.3, -57.7]) * 100.0 / rate_hz
     warnings: list[str] = []
     imu = imu_from_samples(stamped, gyro, accel, source="imu", warnings=warnings)
     keep = np.setdiff1d(np.arange(6000), stray)
@@ -115,6 +117,8 @@ def test_corrupted_stamps_are_dropped_and_counted_not_a_refused_log(rate_hz):
     assert len(warnings) == 1 and "dropped 6 IMU sample(s) whose time stamp alone" in warnings[0]
     clean: list[str] = []
     assert len(imu_from_samples(t, gyro, accel, source="imu", warnings=clean)) == 6000 and not clean
+    lone = np.concatenate([[t[0] - 1.9], t[1:]])  # a first sample 1.9 s before the rest (KITTI's)
+    assert len(imu_from_samples(lone, gyro, accel, source="imu", warnings=clean)) == 6000 and not clean
     # A recorder's bursts of eight messages received seven samples late (h1's bags): sorted,
     # every sample kept, not refused as two files nor dropped as corrupted stamps.
     arrival = np.arange(6000)
@@ -123,6 +127,12 @@ def test_corrupted_stamps_are_dropped_and_counted_not_a_refused_log(rate_hz):
     week = 604800.0 - 5.0 + np.arange(6000) / rate_hz  # seconds of the week, rolling over
     with pytest.raises(InputError, match="GPS seconds of the week rolling over into a new week; add 604800 s"):
         imu_from_samples(np.where(week >= 604800.0, week - 604800.0, week), gyro, accel, source="imu", warnings=[])
+    # one message whose log time was corrupted: first in the file, its own stamp right
+    first = np.concatenate([[2963], np.delete(np.arange(6000), 2963)])
+    moved: list[str] = []
+    imu = imu_from_samples(t[first], gyro[first], accel[first], source="imu", warnings=moved)
+    np.testing.assert_array_equal(imu.t, t)
+    assert len(moved) == 1 and "sorted by time" in moved[0], moved
     late: list[str] = []
     imu = imu_from_samples(t[arrival], gyro[arrival], accel[arrival], source="imu", warnings=late)
     np.testing.assert_array_equal(imu.t, t)

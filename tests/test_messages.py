@@ -110,7 +110,7 @@ def test_a_huge_noise_value_gets_the_upper_side_hint(tmp_path: Path) -> None:
     """Before: 1e308 got "zero white noise makes the IMU factors singular"."""
     path = tmp_path / "c.toml"
     path.write_text("[imu]\ngyro_arw_deg_per_sqrt_hr = 1e308\n")
-    with pytest.raises(ConfigError, match=r"must be within \+-100 \(far beyond any IMU") as info:
+    with pytest.raises(ConfigError, match=r"must be > 0 and <= 100 \(far beyond any IMU") as info:
         load_config(path)
     assert "zero white noise" not in str(info.value)
     path.write_text("[imu]\ngyro_arw_deg_per_sqrt_hr = 0\n")
