@@ -839,8 +839,20 @@ def read_csv_dataset(paths: list[Path]) -> Dataset:
             config_path = by_kind["accel_array"].parent / "config.toml"
         accel_array = _read_accel_array(by_kind["accel_array"], config, warnings)
         imu, derived_noise = derive_imu(accel_array)
-        if not config.get("imu"):
-            config = {**config, "imu": derived_noise}
+        given = dict(config.get("imu") or {})
+        preset_fills = set(derived_noise) - set(given) - {"preset", "rate_hz"}
+        if "preset" in given and not preset_fills:  # every key given: the preset says nothing
+            given.pop("preset")
+        if "preset" in given:
+            # A preset describes a gyro; an array's rates are its accelerometers' integral
+            # (a "preset = tactical" line alone gave the derived rates a tactical gyro's
+            # noise: every batch "diverged", blaming the vehicle and the antenna).
+            warnings.append(
+                f"[imu] preset = {given.pop('preset')!r} is not used for an accelerometer "
+                "array: the rates' noise follows from its [accel_array] noise and geometry "
+                "(the [imu] keys given explicitly are)"
+            )
+        config = {**config, "imu": {**derived_noise, **given}}
     else:
         imu = read_imu_csv(by_kind["imu"], warnings)
     gnss, first_epoch_t = read_gnss_csv_epochs(by_kind["gnss"], warnings)

@@ -464,3 +464,25 @@ def test_isam2_through_outages_ends_at_the_batch_solution(
     )
     assert summary["chi2_per_dof"] < 2.0, summary
     assert "from the batch's start" in summary["fallback"], summary["fallback"]
+
+
+def test_a_gyro_preset_beside_an_accelerometer_array_is_said_and_not_used(tmp_path: Path) -> None:
+    """A folder whose [imu] table holds only `preset = "tactical"` (the line fgins sim writes
+    first): the preset's gyro noise replaced the array's derived rate noise, and every batch
+    "diverged", blaming the vehicle and the antenna (outside tester). The derived noise is
+    kept, the preset said to be unused, and the drive solves as without the [imu] table."""
+    import re
+
+    import fgins
+
+    run = SCENARIOS["gyrofree-cube"](seed=1, duration_s=90)
+    write_sim_dir(run, tmp_path / "plain")
+    shutil.copytree(tmp_path / "plain", tmp_path / "preset")
+    config = tmp_path / "preset" / "config.toml"
+    config.write_text(re.sub(r"\[imu\]\n(.*\n)*?\n", '[imu]\npreset = "tactical"\n\n', config.read_text(), count=1))
+    assert "gyro_noise" not in config.read_text()
+    dataset = fgins.load(tmp_path / "preset")
+    assert [w for w in dataset.warnings if "is not used for an accelerometer array" in w]
+    plain = fgins.smooth(fgins.load(tmp_path / "plain"), "batch")
+    preset = fgins.smooth(dataset, "batch")
+    np.testing.assert_allclose(preset.position, plain.position, atol=1e-6)
