@@ -17,7 +17,7 @@ from typing import TypeVar
 
 import numpy as np
 
-from fgins.antenna_verdict import ARM_CORRECTION_MAX_SIGMA_M, LEVER_ARM_MIN_M
+from fgins.antenna_verdict import ARM_CORRECTION_MAX_SIGMA_M, LEVER_ARM_MIN_M, TIME_OFFSET_CHI2
 from fgins.config import STANDARD_GRAVITY, RunConfig
 from fgins.datatypes import (
     AccelArrayData,
@@ -725,7 +725,7 @@ def carry_unconfirmed_time_offset(trajectory: Trajectory) -> str | None:
     reading, sigma = info.get("gnss_time_offset_fit_s"), info.get("gnss_time_offset_fit_sigma_s")
     if not (isinstance(reading, float) and isinstance(sigma, float) and sigma > 0.0):
         return None
-    if abs(reading) < UNCONFIRMED_TIME_SIGMAS * sigma or abs(reading) >= 5.0 * sigma:
+    if abs(reading) < UNCONFIRMED_TIME_SIGMAS * sigma or abs(reading) >= math.sqrt(TIME_OFFSET_CHI2) * sigma:
         return None
     speed = np.hypot(trajectory.velocity[:, 0], trajectory.velocity[:, 1])
     moving = speed[speed > 1.0]

@@ -308,6 +308,8 @@ def _few_out_of_place(t: np.ndarray) -> bool:
     import bisect
 
     limit = MAX_STRAY_STAMP_SHARE * len(t)
+    if np.count_nonzero(np.diff(t) < 0) > 2 * limit:  # each sample moved ends at most two
+        return False  # steps back: shuffled rows are refused without the walk below
     tails: list[float] = []
     for value in t.tolist():
         at = bisect.bisect_left(tails, value)
@@ -320,8 +322,8 @@ def _few_out_of_place(t: np.ndarray) -> bool:
 
 def _one_series_out_of_order(t: np.ndarray) -> bool:
     """Whether stamps that go back are one clock's series received out of order (a bag's
-    transport delivered bursts late): sorted, no step is shorter
-    than half the period (but in one sample in a thousand). A log recorded twice repeats its
+    transport delivered bursts late): sorted, no step is shorter than half the period (but
+    in one sample in a thousand). A log recorded twice repeats its
     stamps; two overlapping files interleave; a corrupted stamp lands between two others:
     each leaves steps of a fraction of a period."""
     steps = np.diff(np.sort(t))
