@@ -47,8 +47,8 @@ One IMU sample is one sensor time tag carrying all six of gyro x/y/z and accel x
 sharing a tag (in one message or several) are merged. ESF-RAW is preferred (the raw high-rate
 stream) over ESF-MEAS. Either may send accelerometer and gyro with different time tags (ESF-MEAS
 in separate messages, 5 ms apart on the NEO-M8U): each accelerometer-only tag is paired with the
-gyro-only tag nearest to it when both are each other's nearest and closer than half the median
-tag interval; the pair gets the mean of the two tags. Unpaired or partial tags are dropped and
+gyro-only tag nearest to it, once their median offset is taken out, when both are each other's
+nearest and at most half the median tag interval apart; the pair gets the mean of the two tags. Unpaired or partial tags are dropped and
 counted; nothing is interpolated, so no sample is invented.
 
 Sensor time tags (ESF-RAW sTag: 24-bit counter wrapping at 2^24, nominally 1/25600 s;
@@ -924,12 +924,24 @@ def _pair(ta: np.ndarray, tg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         right = np.minimum(k, len(ref) - 1)
         return np.where(np.abs(ref[left] - x) <= np.abs(ref[right] - x), left, right)
 
-    a_to_g = nearest(ta, tg)
-    g_to_a = nearest(tg, ta)
-    mutual = g_to_a[a_to_g] == np.arange(len(ta))
-    close = np.abs(ta - tg[a_to_g]) < limit
-    ia = np.flatnonzero(mutual & close)
-    return ia, a_to_g[ia]
+    # The accelerometer's tags sit a fixed time from the gyro's: judged from there, so that
+    # one exactly half an interval after (5 ms at 100 Hz, the NEO-M8U's offset) is not a tie
+    # between two gyro tags, each then nobody's nearest (a 100 Hz log lost its whole IMU).
+    # Exactly half an interval, 5 ms after one gyro tag is 5 ms before the next: only the
+    # log's ends tell which, so both are tried and the one pairing more is kept.
+    lag = float(np.median(ta - tg[nearest(ta, tg)]))
+    lags = [lag, -lag] if abs(abs(lag) - limit) < 0.25 * limit else [lag]
+    best: tuple[np.ndarray, np.ndarray] = (empty, empty)
+    for candidate in lags:
+        shifted = ta - candidate
+        a_to_g = nearest(shifted, tg)
+        g_to_a = nearest(tg, shifted)
+        mutual = g_to_a[a_to_g] == np.arange(len(ta))
+        close = (np.abs(shifted - tg[a_to_g]) < limit) & (np.abs(ta - tg[a_to_g]) <= limit)
+        ia = np.flatnonzero(mutual & close)
+        if len(ia) > len(best[0]):
+            best = (ia, a_to_g[ia])
+    return best
 
 
 # ----------------------------------------------------------------------------------------------

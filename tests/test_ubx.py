@@ -297,6 +297,27 @@ def test_esf_meas_pairing_and_wheel_speed(tmp_path):
     assert result.imu.rate_hz == pytest.approx(10.0, rel=1e-6)
 
 
+@pytest.mark.parametrize("offset_ms", [-2, 2, 5, -5])
+def test_esf_meas_accelerometer_half_an_interval_from_the_gyro_is_paired(tmp_path, offset_ms):
+    """100 Hz ESF-MEAS with the accelerometer tagged 5 ms after the gyro (the NEO-M8U's
+    offset): each accelerometer tag lay exactly between two gyro tags, nobody's nearest, and
+    the log lost its whole IMU (outside tester). Paired once the fixed offset is taken out,
+    each accelerometer with the gyro of its own sample, whatever the offset's sign."""
+    out = bytearray()
+    n = 60
+    for k in range(n):
+        tag = 5_000_000 + 10 * k
+        out += esf_meas(tag, {14: 4 * k, 13: -8, 5: 16, 12: 2500})
+        out += esf_meas(tag + offset_ms, {16: 10 + k, 17: -20, 18: 10045})
+        if k % 20 == 0:
+            out += nav_pvt(T0 + 0.01 * k, LAT, LON, H)
+    result = read_ubx(_write(tmp_path, bytes(out)))
+    assert result.imu_source == "ESF-MEAS" and len(result.imu) == n, result.warnings
+    k = np.round((result.imu_tags - 5_000_000 - offset_ms / 2) / 10).astype(int)
+    np.testing.assert_allclose(result.imu_raw_gyro_deg_s[:, 0], 4 * k * 2.0**-12)  # its own gyro
+    np.testing.assert_allclose(result.imu_raw_accel[:, 0], (10 + k) * 2.0**-10)
+
+
 # -- framing, mixed streams, detection ------------------------------------------------------------
 
 
