@@ -17,7 +17,12 @@ from typing import TypeVar
 
 import numpy as np
 
-from fgins.antenna_verdict import ARM_CORRECTION_MAX_SIGMA_M, LEVER_ARM_MIN_M, TIME_OFFSET_CHI2
+from fgins.antenna_verdict import (
+    ARM_CORRECTION_MAX_SIGMA_M,
+    LEVER_ARM_MIN_M,
+    TIME_OFFSET_CHI2,
+    typical_speed,
+)
 from fgins.config import STANDARD_GRAVITY, RunConfig
 from fgins.datatypes import (
     AccelArrayData,
@@ -237,8 +242,6 @@ OFFSET_FIRST_MIN_S = 0.5
 def clock_offset_first(dataset: Dataset, config: RunConfig, trajectory: Trajectory) -> bool:
     """Is the time offset ``trajectory``'s antenna and clock check finds large enough to be
     corrected before the fixes' sigmas are judged (OFFSET_FIRST_SIGMAS)?"""
-    from fgins.antenna_verdict import typical_speed
-
     offset = trajectory.info.get("gnss_time_offset_s")
     if not config.gnss.time_offset_from_data or not isinstance(offset, float):
         return False
@@ -727,9 +730,7 @@ def carry_unconfirmed_time_offset(trajectory: Trajectory) -> str | None:
         return None
     if abs(reading) < UNCONFIRMED_TIME_SIGMAS * sigma or abs(reading) >= math.sqrt(TIME_OFFSET_CHI2) * sigma:
         return None
-    speed = np.hypot(trajectory.velocity[:, 0], trajectory.velocity[:, 1])
-    moving = speed[speed > 1.0]
-    typical = float(np.median(moving)) if moving.size else 0.0
+    typical = typical_speed(np.linalg.norm(np.asarray(trajectory.velocity)[:, :2], axis=1))
     seconds = abs(reading) + sigma
     if seconds * typical < LEVER_ARM_MIN_M:
         return None

@@ -258,7 +258,10 @@ def _without_stray_stamps(
     refused the whole recording as "two clocks or files". A gap moves every stamp after it
     alike, and the median keeps each sample on its own side."""
     steps = np.diff(t)
-    positive = np.diff(np.sort(t))  # the period of the stamps, whatever their order in the file
+    if not np.any(steps < 0) and (len(t) < 9 or not np.any(steps > 0)):
+        return t, gyro, accel
+    # the period of the stamps, whatever their order in the file (in order: no sort needed)
+    positive = np.diff(np.sort(t)) if np.any(steps < 0) else steps
     positive = positive[positive > 0]
     if len(t) < 9 or not positive.size:
         return t, gyro, accel
@@ -320,13 +323,14 @@ def _few_out_of_place(t: np.ndarray) -> bool:
     return len(t) - len(tails) <= limit
 
 
-def _one_series_out_of_order(t: np.ndarray) -> bool:
+def _one_series_out_of_order(sorted_steps: np.ndarray) -> bool:
     """Whether stamps that go back are one clock's series received out of order (a bag's
     transport delivered bursts late): sorted, no step is shorter than half the period (but
     in one sample in a thousand). A log recorded twice repeats its
     stamps; two overlapping files interleave; a corrupted stamp lands between two others:
-    each leaves steps of a fraction of a period."""
-    steps = np.diff(np.sort(t))
+    each leaves steps of a fraction of a period. ``sorted_steps``: the sorted stamps'
+    steps."""
+    steps = sorted_steps
     positive = steps[steps > 0]
     if not positive.size:
         return False
@@ -369,7 +373,7 @@ def imu_from_samples(
         row = worst + 1
         rollover = WEEK_S - 3600.0 < t[row - 1] <= WEEK_S + 1.0 and t[row] < 3600.0
         late = -dt[worst] <= MAX_LATE_DELIVERY_S
-        if far and (rollover or not (late or _few_out_of_place(t)) or not _one_series_out_of_order(t)):
+        if far and (rollover or not (late or _few_out_of_place(t)) or not _one_series_out_of_order(sorted_dt)):
             if rollover:
                 raise InputError(
                     f"{source}: IMU time goes from {t[row - 1]:.6f} back to {t[row]:.6f} at "
