@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgins.config import SmootherConfig
-from fgins.datatypes import Dataset, InputError
+from fgins.datatypes import Dataset, FginsError, InputError
 from fgins.geodesy import normal_gravity, so3_exp, triad
 from fgins.io.imu_checks import GAP_FACTOR, second_means
 from fgins.mounting import mounting_rotation
@@ -152,6 +152,36 @@ def _gnss_fit_with_sigma(
 
 
 def initial_alignment(
+    dataset: Dataset,
+    gnss_mask: np.ndarray | None = None,
+    *,
+    smoother: SmootherConfig | None = None,
+    heading_deg: float | None = None,
+    moving_speed: float = 2.0,
+    fit_window_s: float = 6.0,
+    forward_axis: np.ndarray | None = None,
+    gyro_bias_sigma: float = 0.0,
+) -> Alignment:
+    """Initial state at the first IMU sample (see :func:`_initial_alignment`); a state that is
+    not finite is an error here, not NaN handed to every estimator (which each failed
+    differently: planar-kf wrote an all-NaN track at exit 0, the EKF an SVD error)."""
+    alignment = _initial_alignment(
+        dataset, gnss_mask, smoother=smoother, heading_deg=heading_deg,
+        moving_speed=moving_speed, fit_window_s=fit_window_s, forward_axis=forward_axis,
+        gyro_bias_sigma=gyro_bias_sigma,
+    )  # fmt: skip
+    parts = (alignment.rotation, alignment.velocity, alignment.position, alignment.attitude_sigma_rad)
+    sigmas = (alignment.velocity_sigma, alignment.position_sigma)
+    if not (all(np.all(np.isfinite(x)) for x in parts) and np.all(np.isfinite(sigmas))):
+        raise FginsError(
+            f"the initial alignment at t = {alignment.t:.3f} s is not finite: a defect of "
+            "fgins's, please report it with the input (--vehicle or [smoother] "
+            "initial_heading_deg may avoid it)"
+        )
+    return alignment
+
+
+def _initial_alignment(
     dataset: Dataset,
     gnss_mask: np.ndarray | None = None,
     *,
@@ -376,7 +406,13 @@ def _straight_alignment(
     up_body = imu.accel[minutes].mean(axis=0)
     up_body = up_body / np.linalg.norm(up_body)
     candidates = gnss_t[(gnss_t >= t_from) & (gnss_t <= t_from + MAX_TURN_SEARCH_S)]
+    # Only windows the IMU covers whole: beyond its last sample the turn reads as none (the
+    # integrated yaw is held there), and an aircraft orbiting through its whole 90 s log was
+    # "aligned" after the IMU ended, every state NaN.
     candidates = np.concatenate([[t_from], candidates])
+    candidates = candidates[candidates + fit_window_s <= float(imu.t[-1])]
+    if len(candidates) == 0:
+        return None
     turned = np.abs(
         _yaw_turned(imu, up_body, 0.0, candidates + fit_window_s)
         - _yaw_turned(imu, up_body, 0.0, candidates)

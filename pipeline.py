@@ -116,10 +116,31 @@ def run_method(
             break
         found.append(moved)
         mover, trajectory = trajectory, again
-    return _passes_said(trajectory, mover, found) if found else trajectory
+    trajectory = _passes_said(trajectory, mover, found) if found else trajectory
+    _check_finite(method, trajectory)
+    return trajectory
 
 
 CLOCK_PASSES = 3
+
+
+def _check_finite(method: str, trajectory: Trajectory) -> None:
+    """Every position, velocity and position sigma finite, or an error: a solution with NaN
+    in them is never output (planar-kf from a NaN start once wrote an all-NaN track at exit
+    0, and fleet and bench counted it as a result). Not the attitude's sigmas: planar-kf
+    estimates no roll and pitch, and says so with NaN."""
+    parts = [trajectory.t, trajectory.position, trajectory.velocity]
+    parts += [trajectory.position_cov] if trajectory.position_cov is not None else []
+    bad = np.zeros(len(trajectory.t), dtype=bool)
+    for part in parts:
+        bad |= ~np.isfinite(np.asarray(part, dtype=float).reshape(len(trajectory.t), -1)).all(axis=1)
+    if bad.any():
+        first = float(trajectory.t[np.argmax(bad)] - trajectory.t[0]) if np.isfinite(trajectory.t).all() else math.nan
+        raise FginsError(
+            f"{method}: the solution is not finite at {int(bad.sum())} of {len(bad)} states "
+            f"(from t - t0 = {first:.1f} s); nothing written: a defect of fgins's, please report "
+            "it with the input"
+        )
 
 
 def _fixes_moved(trajectory: Trajectory) -> float | None:
@@ -283,6 +304,39 @@ def check_imu_gaps(dataset: Dataset, config: RunConfig, gnss_mask: np.ndarray | 
             )
 
 
+# Without a usable fix for longer than this, dead reckoning is what fails a solve whose error
+# is not finite: said as the cause (a real log's 630 s gap was "a NaN ... check the inputs").
+LONG_GNSS_GAP_S = 120.0
+
+
+def _long_gnss_gap_said(
+    dataset: Dataset, config: RunConfig, gnss_mask: np.ndarray | None, failure: Exception
+) -> str | None:
+    """The longest stretch without a usable fix, as the cause of a solve that broke down
+    (``failure``: not finite, or not converged), where it is longer than LONG_GNSS_GAP_S;
+    else None."""
+    from fgins.factors.gnss import gate_epochs
+
+    withheld = None if gnss_mask is None else ~np.asarray(gnss_mask, dtype=bool)
+    fixes = dataset.gnss.t[gate_epochs(dataset.gnss, config.gnss, withheld=withheld).used]
+    edges = np.concatenate([[dataset.imu.t[0]], fixes, [dataset.imu.t[-1]]])
+    if len(edges) < 2:
+        return None
+    i = int(np.argmax(np.diff(edges)))
+    gap = float(edges[i + 1] - edges[i])
+    if gap <= LONG_GNSS_GAP_S:
+        return None
+    t0 = dataset.t0
+    how = "its error is not finite" if "not finite" in str(failure) else "it did not converge"
+    return (
+        f"the solve broke down ({how}) over {gap:.0f} s without a usable GNSS "
+        f"fix (t - t0 = {edges[i] - t0:.1f} .. {edges[i + 1] - t0:.1f} s): dead reckoning across "
+        "it left the solver no start to converge from (a heading never shown by motion drifts "
+        "without bound there); split the log at the gap and smooth the parts, or shorten the "
+        "outage windows there"
+    )
+
+
 def _run(
     dataset: Dataset,
     config: RunConfig,
@@ -292,11 +346,18 @@ def _run(
 ) -> Trajectory:
     if method in GRAPH_METHODS:
         from fgins.graph.smoother import smooth
+        from fgins.graph.solve import NonFiniteError, NotConvergedError
 
-        trajectory = smooth(
-            dataset, config, method, gnss_mask=gnss_mask, progress=progress,
-            initial_guess=filter_initial_guess(dataset, config, gnss_mask),
-        )  # fmt: skip
+        try:
+            trajectory = smooth(
+                dataset, config, method, gnss_mask=gnss_mask, progress=progress,
+                initial_guess=filter_initial_guess(dataset, config, gnss_mask),
+            )  # fmt: skip
+        except (NonFiniteError, NotConvergedError) as exc:
+            said = _long_gnss_gap_said(dataset, config, gnss_mask, exc)
+            if said is None:
+                raise
+            raise FginsError(said) from None
         if method == "isam2-online":
             # The online pass is causal like a filter and has no chi-square check of its own
             # (the final smoothing's is another solution): a 0.5 m/s crawl held still by false
@@ -428,7 +489,7 @@ def _filter_fit_note(
         return []
     nearest = np.clip(np.searchsorted(trajectory.t, epochs.t), 0, len(trajectory) - 1)
     lever = np.asarray(config.gnss.lever_arm_m, dtype=float)
-    antenna = trajectory.at(epochs.t) + trajectory.rotation[nearest] @ lever
+    antenna = trajectory.at(epochs.t, hold_ends=True) + trajectory.rotation[nearest] @ lever
     whitened = (antenna - epochs.position) / epochs.position_sigma
     scatter = gnss_scatter(whitened, method)
     trajectory.info.update({k: v for k, v in scatter.items() if k != "fit_warnings"})

@@ -32,6 +32,7 @@ from fgins.graph.solution import (
     to_trajectory,
 )
 from fgins.graph.solve import (
+    NotConvergedError,
     SolveReport,
     callback_factors,
     fail_if_diverged,
@@ -129,7 +130,7 @@ def smooth_batch(
     result, graph, faults = exclude_gnss_faults(problem, report, result, graph)
     fail_if_diverged(report)
     if not report.converged:
-        raise FginsError(
+        raise NotConvergedError(
             f"batch: Levenberg-Marquardt did not converge ({report.iterations} iterations in "
             f"{report.rounds} rounds, error {report.initial_error:.4g} -> "
             f"{report.final_error:.4g}); no output written. Try --method isam2, or check the "

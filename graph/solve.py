@@ -89,9 +89,17 @@ class SolveReport:
         return text
 
 
+class NonFiniteError(FginsError):
+    """A solve whose error is not finite (what the pipeline explains where it can)."""
+
+
+class NotConvergedError(FginsError):
+    """A batch solve that did not converge (what the pipeline explains where it can)."""
+
+
 def check_finite(error: float, what: str, solver: str) -> None:
     if not math.isfinite(error):
-        raise FginsError(
+        raise NonFiniteError(
             f"{solver}: the factor graph's error {what} is not finite (a NaN or infinite "
             "measurement or noise value reached a factor); check the inputs and the sensor "
             "configuration"

@@ -163,6 +163,58 @@ def test_nan_in_a_factor_is_an_error_not_an_output():
         smooth_batch(problem, progress=False)
 
 
+@pytest.mark.parametrize("method", ["planar-kf", "ekf"])
+def test_a_solution_with_nan_in_it_is_an_error_not_an_output(monkeypatch, method):
+    """Whatever a method returns passes one last check: a position, velocity or position
+    sigma that is not finite is an error naming the method (planar-kf once wrote an all-NaN
+    track at exit 0 from a NaN start, and fleet and bench counted it as a result). The
+    attitude's sigmas may be NaN: planar-kf estimates no roll and pitch."""
+    import fgins.pipeline as pipeline
+
+    run = SCENARIOS["car-urban"](seed=2, duration_s=40)
+    config = load_config(dataset_imu=run.dataset.imu_config, dataset_gnss=run.dataset.gnss_config)
+    clean = run_method(run.dataset, config, method, progress=False)
+    assert np.all(np.isfinite(clean.position))
+    solve = pipeline._corrected_solution
+
+    def with_nan(*args, **kwargs):
+        trajectory = solve(*args, **kwargs)
+        trajectory.velocity[len(trajectory.t) // 2 :] = np.nan
+        return trajectory
+
+    monkeypatch.setattr(pipeline, "_corrected_solution", with_nan)
+    with pytest.raises(FginsError, match=rf"^{method}: the solution is not finite at \d+ of"):
+        run_method(run.dataset, config, method, progress=False)
+
+
+@pytest.mark.parametrize("error", ["non-finite", "not converged"])
+def test_a_solve_that_breaks_down_over_a_long_gap_in_the_fixes_names_it(monkeypatch, error):
+    """A real log (gpsd's nmea-rtk: 10 s of fixes, 630 s without one, 2 s of RTK) beside an
+    IMU at rest: the batch's start was not finite ("a NaN or infinite measurement ... check
+    the inputs") or LM did not converge in 7,909 iterations ("check the IMU noise
+    settings"); iSAM2 blamed the IMU's noise, axes or units (outside tester). Where the
+    fixes leave more than LONG_GNSS_GAP_S, a solve that breaks down names that gap."""
+    import fgins.graph.smoother as smoother
+    from fgins.graph.solve import NonFiniteError, NotConvergedError
+    from fgins.pipeline import LONG_GNSS_GAP_S
+
+    run = SCENARIOS["car-urban"](seed=2, duration_s=240)
+    config = load_config(dataset_imu=run.dataset.imu_config, dataset_gnss=run.dataset.gnss_config)
+    failure = NonFiniteError if error == "non-finite" else NotConvergedError
+
+    def broken(*args, **kwargs):
+        raise failure("batch LM: the factor graph's error at the initial guess is not finite")
+
+    monkeypatch.setattr(smoother, "smooth", broken)
+    gap = (40.0, 40.0 + LONG_GNSS_GAP_S + 30.0)
+    mask = outage_mask(run.dataset, [gap])
+    with pytest.raises(FginsError, match=r"over 1[5-9]\d s without a usable GNSS fix \(t - t0 = 39\.\d+ \.\. \d+\.\d+ s\).*split the log at the gap"):
+        run_method(run.dataset, config, "batch", gnss_mask=mask, progress=False)
+    short = outage_mask(run.dataset, [(40.0, 40.0 + LONG_GNSS_GAP_S - 30.0)])
+    with pytest.raises(failure, match="initial guess is not finite"):  # no long gap: as it was
+        run_method(run.dataset, config, "batch", gnss_mask=short, progress=False)
+
+
 @pytest.mark.parametrize("method", ["batch", "isam2"])
 def test_a_diverged_fit_names_the_factors_that_carry_its_error(method):
     """GNSS sigmas 0.1 mm for metre-level fixes: no fit exists. The error says which kind of
