@@ -1082,6 +1082,7 @@ def bench(
         check_bench_dir,
         results_frame,
         run_case,
+        window_table,
         write_results,
     )
     from fgins.config import RunConfig
@@ -1116,6 +1117,15 @@ def bench(
             "ordinary IMU)"
         )
     windows = _windows(outages)
+    given = [name for name, value in (("outage_duration", outage_duration),
+             ("outage_period", outage_period), ("outage_start", outage_start)) if value is not None]  # fmt: skip
+    if windows and given:
+        # Two answers to one question: the run used the windows and dropped the protocol's
+        # number without a word (outside tester: --outage-duration 20 beside 60:90).
+        raise ConfigError(
+            f"bench: outage windows given together with {given[0]} (the periodic protocol's "
+            f"--{given[0].replace('_', '-')}): give one or the other"
+        )
     from fgins.outages import empty_windows, overlapping_windows
 
     said: list[str] = []  # warnings, also returned in attrs["warnings"] (the CLI prints them)
@@ -1190,6 +1200,11 @@ def bench(
         )
     for method, why in case.failed.items():
         said.append(f"bench: {method} produced no result ({why}); its row says so")
+    # What each method said of its own result (a smoother's attitude not to be trusted, a
+    # fit that does not hold): its row's numbers mean nothing without it (outside tester:
+    # an EKF+RTS row at "100 % in 3 sigma" whose smooth run warned "not to be trusted").
+    for result in case.results:
+        said.extend(f"bench: {result.method}: {line}" for line in result.warnings)
     rows = {result.method for result in case.results}
     if baseline not in rows:
         said.append(
@@ -1210,6 +1225,9 @@ def bench(
             "baseline": baseline,
             "outages_left_out": [window for window, _ in hollow],
             "warnings": said,
+            # Each window's own numbers per method (fgins.bench.outages.MethodResult.windows).
+            "windows": {result.method: result.windows for result in case.results},
+            "window_table": window_table([case]),
         }
     )
     if output_dir is not None:

@@ -538,6 +538,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
     for line in table.attrs.get("warnings", []):
         print(f"warning: {line.removeprefix('bench: ')}", file=sys.stderr)
     print(frame_to_markdown(table, baseline=table.attrs["baseline"]))
+    if table.attrs.get("window_table"):
+        print("\n" + table.attrs["window_table"])
     reference = (
         "simulator truth" if table.attrs["reference"] == "truth" else "the withheld GNSS fixes"
     )

@@ -46,9 +46,15 @@ def _check_time(name: str, t: np.ndarray) -> None:
         raise InputError(f"{name}: non-finite timestamps")
     if t.size > 1 and np.any(np.diff(t) <= 0):
         bad = int(np.argmax(np.diff(t) <= 0)) + 1
+        fix = "sort or de-duplicate the input"
+        if np.abs(t).max() >= 2.0**24 and np.all(t.astype(np.float32) == t):
+            # Every stamp a float32 value, beyond where float32 counts whole seconds (POSIX
+            # times in float32 step by 128 s): the precision, not the order, is lost.
+            step = float(np.spacing(np.float32(np.abs(t).max())))
+            fix = f"the times look stored as float32, which steps by {step:g} s there: give them as float64"
         raise InputError(
             f"{name}: timestamps not strictly increasing at row {bad} "
-            f"(t={t[bad - 1]:.6f} then {t[bad]:.6f}); sort or de-duplicate the input"
+            f"(t={t[bad - 1]:.6f} then {t[bad]:.6f}); {fix}"
         )
 
 
@@ -382,6 +388,9 @@ def level_axes(rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return forward, across
 
 
+END_TOLERANCE_S = 1e-6  # Trajectory.at(): this close to an end is at it
+
+
 @dataclass
 class Trajectory:
     """An estimated (or true) trajectory in the local ENU frame.
@@ -458,9 +467,18 @@ class Trajectory:
 
         return rotation_to_roll_pitch_heading(self.rotation)
 
-    def at(self, t: np.ndarray) -> np.ndarray:
-        """Position interpolated to times ``t`` (linear), (len(t), 3)."""
-        return np.column_stack([np.interp(t, self.t, self.position[:, i]) for i in range(3)])
+    def at(self, t: np.ndarray, *, hold_ends: bool = False) -> np.ndarray:
+        """Position interpolated to times ``t`` (linear), (len(t), 3). NaN at times outside
+        the trajectory's span, which it does not know (a camera's stamps 10 s after the end
+        got the last position, unsaid); ``hold_ends``: the first or last position there."""
+        t = np.asarray(t, dtype=float)
+        out = np.column_stack([np.interp(t, self.t, self.position[:, i]) for i in range(3)])
+        if not hold_ends and len(self.t):
+            # A microsecond's round-off at an end (times re-based, or stored as nanoseconds) is
+            # the end, not outside.
+            outside = (t < self.t[0] - END_TOLERANCE_S) | (t > self.t[-1] + END_TOLERANCE_S)
+            out[np.atleast_1d(outside)] = np.nan
+        return out
 
     # Thin entry points of the public API (fgins.api), imported on use so the data model
     # stays numpy-only.

@@ -149,6 +149,14 @@ def expand_drives(items: list[str]) -> list[Drive]:
         raise InputError("no drives given; pass folders, .mcap files or @list.txt")
     seen: set[Path] = set()
     unique = [p for p in paths if not (p in seen or seen.add(p))]
+    if len(unique) < len(paths):
+        # Said: "4 inputs, 3 drives" without a word looked like a lost drive.
+        twice = next(p for i, p in enumerate(paths) if p in paths[:i])
+        print(
+            f"warning: fleet: {len(paths) - len(unique)} drive(s) given more than once run once "
+            f"({twice})",
+            file=sys.stderr,
+        )
     stems = [_drive_stem(p) for p in unique]
     common = Path(os.path.commonpath([str(p.parent) for p in unique]))
     names = []
@@ -211,13 +219,16 @@ def _smooth_and_write(drive: Drive, options: FleetOptions, output: Path) -> dict
     from fgins.outages import parse_windows
 
     windows = parse_windows(options.gnss_outage)
-    with warnings.catch_warnings():  # counted in the summary, not printed by every worker
-        warnings.simplefilter("ignore", api.FginsWarning)
+    # Counted in the summary, not printed by every worker: the solve's as well as the load's
+    # (the solve's came on stderr as raw Python warnings with fleet's source line, beside the
+    # summary's own line).
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", api.FginsWarning)
         dataset = api.load(
             *drive.inputs, config=options.config, imu_preset=options.imu_preset,
             vehicle=options.vehicle, robust=options.robust,
         )  # fmt: skip
-    trajectory = api.smooth(dataset, options.method, gnss_outage=windows)
+        trajectory = api.smooth(dataset, options.method, gnss_outage=windows)
     elapsed = trajectory.summary()["wall_s"]
     trajectory.write(output)
     # Horizontal RMS against the drive's own GNSS at the fixes the run used: not at those it
@@ -230,6 +241,11 @@ def _smooth_and_write(drive: Drive, options: FleetOptions, output: Path) -> dict
     # so a drive whose fit said "the reported sigmas are too small" looked clean.
     found = trajectory.summary()
     lines = [*dataset.warnings, *found.get("fit_warnings", [])]
+    said = {str(line) for line in lines}
+    lines += [
+        str(w.message) for w in caught
+        if issubclass(w.category, api.FginsWarning) and str(w.message) not in said
+    ]  # fmt: skip
     chi2 = found.get("chi2_per_dof")
     return {
         "method": trajectory.method or options.method,

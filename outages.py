@@ -54,9 +54,19 @@ def empty_windows(dataset: Dataset, windows: list[tuple[float, float]]) -> list[
     lines = []
     for start, end in windows:
         if not np.any(in_windows(dataset.gnss.t, dataset.t0, [(start, end)])):
+            before, after = relative[relative < start], relative[relative >= end]
+            if len(before) and len(after):
+                # Inside the span, between two epochs (fixes 5 s apart and a 1 s window): the
+                # span alone pointed elsewhere (outside tester).
+                where = (
+                    f"it falls between the epochs at {before.max():.1f} and {after.min():.1f} s "
+                    "after t0"
+                )
+            else:
+                where = f"the epochs span {relative.min():.1f} .. {relative.max():.1f} s after t0"
             line = (
-                f"GNSS outage window {start:.10g}:{end:.10g} s withholds no GNSS epoch (the "
-                f"epochs span {relative.min():.1f} .. {relative.max():.1f} s after t0): no outage there"
+                f"GNSS outage window {start:.10g}:{end:.10g} s withholds no GNSS epoch ({where}): "
+                "no outage there"
             )
             absolute = in_windows(dataset.gnss.t, 0.0, [(start, end)])
             if np.any(absolute) and dataset.t0:

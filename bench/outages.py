@@ -29,6 +29,14 @@ class MethodResult:
     wall_s: float
     errors: Errors
     trajectory: Trajectory
+    # Each window's own numbers ({"window": [start, end], "h_rms", "h_max", "h_end",
+    # "within_3sigma", "nees_h"}): pooled ones hid a window at 0 % inside 3 sigma.
+    windows: list[dict] = field(default_factory=list)
+
+    @property
+    def warnings(self) -> list[str]:
+        """What the method said of this result (its fit's warnings)."""
+        return [str(line) for line in self.trajectory.info.get("fit_warnings", [])]
 
 
 @dataclass
@@ -51,14 +59,20 @@ class BenchCase:
 def _truth_errors(
     trajectory: Trajectory, truth: Trajectory, t0: float, windows: list[tuple[float, float]]
 ) -> Errors:
-    difference = trajectory.position - truth.at(trajectory.t)
-    std = np.linalg.norm(trajectory.position_std[:, :2], axis=1)
+    # Only where the truth covers the trajectory (a truth over part of the drive was held at
+    # its ends, every state past them scored against its last position).
+    covered = (trajectory.t >= truth.t[0]) & (trajectory.t <= truth.t[-1])
+    t = trajectory.t[covered]
+    difference = trajectory.position[covered] - truth.at(t)
+    std = trajectory.position_std[covered, :2]
     return Errors(
-        t=trajectory.t,
+        t=t,
         horizontal=np.linalg.norm(difference[:, :2], axis=1),
         vertical=np.abs(difference[:, 2]),
-        inside=in_windows(trajectory.t, t0, windows),
-        horizontal_std=std,
+        inside=in_windows(t, t0, windows),
+        horizontal_std=np.linalg.norm(std, axis=1),
+        east_north=difference[:, :2],
+        east_north_std=std,
     )
 
 
@@ -89,6 +103,15 @@ def run_case(case: BenchCase, methods: list[str], progress: bool = False) -> Ben
             case.failures.append(f"{method}: {exc}")
             case.failed[method] = str(exc)
             continue
+        except Exception as exc:  # a defect in one method, not the benchmark's end
+            # One method's internal error ended the whole benchmark, the others' results
+            # lost with it (outside tester): its row says it, the rest stand.
+            lines = str(exc).strip().splitlines()
+            why = f"internal error: {type(exc).__name__}: {lines[0] if lines else ''}".rstrip(": ")
+            why += " (a defect of fgins's: please report it with the input)"
+            case.failures.append(f"{method}: {why}")
+            case.failed[method] = why
+            continue
         wall = time.perf_counter() - started
         variants = [(method, trajectory)]
         if method == "isam2" and "online" in trajectory.info:
@@ -116,8 +139,41 @@ def run_case(case: BenchCase, methods: list[str], progress: bool = False) -> Ben
             metrics["imu_samples_per_s"] = len(case.dataset.imu) / wall
             if case.truth is not None:
                 metrics.update(_attitude_bias_errors(traj, case.truth))
-            case.results.append(MethodResult(name, metrics, wall, errors, traj))
+            per_window = [
+                {"window": [float(a), float(b)],
+                 **errors.window(in_windows(errors.t, case.dataset.t0, [(a, b)]))}
+                for a, b in case.windows
+            ]  # fmt: skip
+            case.results.append(MethodResult(name, metrics, wall, errors, traj, per_window))
     return case
+
+
+def window_table(cases: list[BenchCase]) -> str:
+    """Each window's horizontal RMS (m), its share inside the 3-sigma ellipse and its
+    horizontal NEES (about 1 where the sigmas are honest), a column per method: a window
+    where a method is worse, or its sigmas dishonest, is not averaged away."""
+    lines: list[str] = []
+    for case in cases:
+        if not case.results or len(case.windows) < 2:
+            continue  # one window: the main table's row is that window's
+        methods = [r.method for r in case.results]
+        lines += [
+            f"| {case.name}: window (s) | " + " | ".join(f"{m}: h RMS (m), in 3σ, NEES" for m in methods) + " |",
+            "|---|" + "---|" * len(methods),
+        ]
+        for i, (start, end) in enumerate(case.windows):
+            cells = []
+            for result in case.results:
+                w = result.windows[i] if i < len(result.windows) else {}
+                if "h_rms" not in w:
+                    cells.append("n/a")
+                    continue
+                inside = f"{100 * w['within_3sigma']:.0f}%" if np.isfinite(w["within_3sigma"]) else "n/a"
+                nees = f"{w['nees_h']:.1f}" if np.isfinite(w.get("nees_h", np.nan)) else "n/a"
+                cells.append(f"{w['h_rms']:.2f}, {inside}, {nees}")
+            lines.append(f"| {start:g}:{end:g} | " + " | ".join(cells) + " |")
+        lines.append("")
+    return "\n".join(lines).rstrip()
 
 
 def _attitude_bias_errors(trajectory: Trajectory, truth: Trajectory) -> dict[str, float]:
@@ -204,6 +260,8 @@ def markdown_table(cases: list[BenchCase], baseline: str = "ekf") -> str:
     """One row per case and method; ratios against ``baseline`` in the same case; then a
     line for each window left out of the scores, with why."""
     lines = [frame_to_markdown(results_frame(cases, baseline), baseline)]
+    if per_window := window_table(cases):
+        lines.append("\n" + per_window)
     for case in cases:
         for (start, end), why in case.left_out:
             lines.append(f"\n{case.name}: window {start:g}:{end:g} s left out of the scores: {why}")
@@ -260,7 +318,10 @@ def write_results(cases: list[BenchCase], out_dir: Path, baseline: str = "ekf") 
             "windows": case.windows,
             "reference": "truth" if case.truth is not None else "withheld GNSS",
             "methods": {
-                **{r.method: {**r.metrics, "wall_s": r.wall_s} for r in case.results},
+                **{
+                    r.method: {**r.metrics, "wall_s": r.wall_s, "warnings": r.warnings, "windows": r.windows}
+                    for r in case.results
+                },
                 # A method that produced no result: recorded with why, not left out.
                 **{method: {"error": why} for method, why in case.failed.items()},
             },

@@ -248,3 +248,53 @@ def test_a_dataset_made_in_code_takes_its_origin_as_a_tuple_or_the_first_fix(dat
     for track in tracks[1:]:
         assert (track.origin.lat, track.origin.lon, track.origin.alt) == first
         np.testing.assert_allclose(track.position, tracks[0].position, atol=1e-9)
+
+
+def test_a_trajectory_is_not_extrapolated(tmp_path):
+    """Trajectory.at() at times outside the trajectory gave its first or last position
+    without a word (a camera's stamps 10 s after the end got the last one); now NaN there,
+    the ends held only when asked."""
+    from fgins.datatypes import Origin, Trajectory
+
+    t = np.array([10.0, 11.0, 12.0])
+    position = np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0]])
+    track = Trajectory(t=t, position=position, velocity=np.zeros((3, 3)),
+                       rotation=np.tile(np.eye(3), (3, 1, 1)), origin=Origin(45.0, 9.0, 100.0))
+    out = track.at(np.array([9.0, 10.0, 11.5, 12.0, 22.0]))
+    assert np.all(np.isnan(out[[0, 4]])) and np.allclose(out[1:4, 0], [0.0, 1.5, 2.0])
+    assert np.allclose(track.at(np.array([9.0, 22.0]), hold_ends=True)[:, 0], [0.0, 2.0])
+    assert np.allclose(track.at(11.0), [[1.0, 0, 0]]) and np.isnan(track.at(13.0)).all()
+
+
+def test_float32_posix_times_are_named_as_the_cause(tmp_path):
+    """POSIX seconds held as float32 step by 128 s: 'not strictly increasing, sort or
+    de-duplicate' sent the user to the order; the message names the precision."""
+    from fgins.datatypes import ImuData, InputError
+
+    t = (1.7e9 + 0.01 * np.arange(20)).astype(np.float32)
+    with pytest.raises(InputError, match="stored as float32, which steps by 128 s there: give them as float64"):
+        ImuData(t=t, gyro=np.zeros((20, 3)), accel=np.zeros((20, 3)))
+    t = 100.0 + 0.01 * np.arange(20)
+    t[7] = t[6]
+    with pytest.raises(InputError, match="sort or de-duplicate"):
+        ImuData(t=t, gyro=np.zeros((20, 3)), accel=np.zeros((20, 3)))
+
+
+def test_a_window_between_two_sparse_epochs_is_said_to_fall_between_them():
+    """Fixes 5 s apart and a 1 s window between two of them: it withholds nothing, and the
+    reason gave the epochs' whole span, which the window lies inside (outside tester)."""
+    from dataclasses import replace
+
+    from fgins.outages import empty_windows
+    from fgins.sim.scenarios import SCENARIOS
+
+    dataset = SCENARIOS["car-urban"](seed=1, duration_s=60).dataset
+    every_fifth = np.zeros(len(dataset.gnss), dtype=bool)
+    every_fifth[::5] = True
+    sparse = replace(dataset, gnss=dataset.gnss.subset(every_fifth))
+    relative = sparse.gnss.t - sparse.t0
+    a, b = relative[2], relative[3]
+    (line,) = empty_windows(sparse, [(a + 1.0, a + 2.0)])
+    assert f"falls between the epochs at {a:.1f} and {b:.1f} s after t0" in line
+    (line,) = empty_windows(sparse, [(relative[-1] + 10.0, relative[-1] + 20.0)])
+    assert "the epochs span" in line

@@ -203,6 +203,137 @@ def test_a_method_failing_during_the_run_is_a_row_and_a_warning(
         assert rows[0].endswith("| n/a |")  # ekf's ratio: no baseline result
 
 
+def test_an_internal_error_in_one_method_leaves_the_others_rows(drives, tmp_path, capsys, monkeypatch):
+    """A method that ends in an internal error (not an fgins error) is a failed row; the
+    benchmark ended at it, no table, no folder, the other methods' results lost (outside
+    tester: an SVD error of the EKF on a flight aligned to NaN)."""
+    import fgins.bench.outages as bench_outages
+
+    real = bench_outages.run_method
+
+    def broken(dataset, config, method, **kwargs):
+        if method == "ekf":
+            raise np.linalg.LinAlgError("SVD did not converge")
+        return real(dataset, config, method, **kwargs)
+
+    monkeypatch.setattr(bench_outages, "run_method", broken)
+    out = tmp_path / "bench"
+    assert cli.main(["bench", str(drives["pdop"]), "--methods", "ekf,ekf-rts", "--gnss-outage",
+                     "20:40", "-o", str(out), "--no-progress"]) == 0  # fmt: skip
+    captured = capsys.readouterr()
+    assert "internal error" not in captured.err.split("warning:")[0]
+    stored = json.loads((out / "outages.json").read_text())["pdop"]["methods"]
+    assert stored["ekf"]["error"].startswith("internal error: LinAlgError: SVD did not converge")
+    assert np.isfinite(stored["ekf-rts"]["h_rms_outage"])
+    assert "| pdop | ekf | failed: internal error: LinAlgError" in captured.out
+
+
+def test_what_a_method_says_of_its_result_is_in_the_benchmark(drives, tmp_path, capsys, monkeypatch):
+    """A method's own warnings (here one put on EKF+RTS's result) are the benchmark's
+    warnings and in outages.json: a row at "100 % in 3 sigma" whose smooth run said "not to
+    be trusted" was shown clean (outside tester)."""
+    import fgins.bench.outages as bench_outages
+
+    real = bench_outages.run_method
+    note = "EKF+RTS: the smoother turns the filter's attitude by up to 10 deg: not to be trusted"
+
+    def noted(dataset, config, method, **kwargs):
+        trajectory = real(dataset, config, method, **kwargs)
+        if method == "ekf-rts":
+            trajectory.info.setdefault("fit_warnings", []).append(note)
+        return trajectory
+
+    monkeypatch.setattr(bench_outages, "run_method", noted)
+    out = tmp_path / "bench"
+    assert cli.main(["bench", str(drives["pdop"]), "--methods", "ekf,ekf-rts", "--gnss-outage",
+                     "20:40", "-o", str(out), "--no-progress"]) == 0  # fmt: skip
+    assert f"warning: ekf-rts: {note}" in capsys.readouterr().err.splitlines()
+    stored = json.loads((out / "outages.json").read_text())["pdop"]["methods"]
+    assert stored["ekf-rts"]["warnings"] == [note]
+    assert note not in stored["ekf"]["warnings"]
+    table = fgins.bench(fgins.load(drives["pdop"]), ["ekf", "ekf-rts"], [(20.0, 40.0)])
+    assert f"bench: ekf-rts: {note}" in table.attrs["warnings"]
+
+
+def test_windows_and_a_protocol_number_together_are_refused(drives, tmp_path, capsys):
+    """--gnss-outage 60:90 beside --outage-duration 20 ran the window and dropped the
+    duration without a word: two answers to one question are an error, before any solve."""
+    out = tmp_path / "bench"
+    assert cli.main(["bench", str(drives["pdop"]), "--methods", "ekf", "--gnss-outage", "20:40",
+                     "--outage-duration", "20", "-o", str(out), "--no-progress"]) == 2  # fmt: skip
+    err = capsys.readouterr().err
+    assert "given together with outage_duration" in err and "give one or the other" in err
+    assert not out.exists()
+
+
+def test_fleet_says_its_warnings_once_and_a_drive_given_twice(drives, tmp_path, capfd):
+    """The solve's warnings (an outage window beyond a drive) came on stderr as raw Python
+    warnings with fleet's source line, beside the summary's own line; a drive given twice
+    ran once without a word."""
+    out = tmp_path / "fleet"
+    code = cli.main(["fleet", str(drives["faults"]), str(drives["faults"]) + "/", "-o", str(out),
+                     "--workers", "1", "--method", "ekf", "--gnss-outage", "100:130",
+                     "--no-progress"])  # fmt: skip
+    assert code == 0
+    captured = capfd.readouterr()
+    assert "FginsWarning" not in captured.err and "fleet.py" not in captured.err
+    assert "1 drive(s) given more than once run once" in captured.err
+    said = [line for line in captured.out.splitlines() if "withholds no GNSS epoch" in line]
+    assert len(said) == 1 and said[0].startswith("warning: faults:")
+    summary = json.loads((out / "fleet.json").read_text())
+    drives_run = summary["drives"] if isinstance(summary, dict) else summary
+    assert len(drives_run) == 1
+
+
+def test_the_3_sigma_share_is_the_2d_ellipse_and_each_window_is_scored(drives, tmp_path, capsys):
+    """'in 3σ' counted |e| <= 3 sqrt(sE^2 + sN^2): 4.24 sigmas of an isotropic error, so
+    sigmas 2x too small still scored 89 %; and only pooled windows were reported, a window at
+    0 % inside showing as 90 % (outside tester). Now the 2-D 3-sigma ellipse (99.73 %) and
+    each window's own numbers in the JSON and a table."""
+    from fgins.bench.metrics import Errors
+
+    rng = np.random.default_rng(0)
+    error = rng.normal(0.0, 1.0, (20000, 2))
+    rows = np.ones(len(error), dtype=bool)
+
+    def share(reported: float) -> float:
+        std = np.full_like(error, reported)
+        errors = Errors(t=np.arange(len(error)), horizontal=np.linalg.norm(error, axis=1),
+                        vertical=np.zeros(len(error)), inside=rows,
+                        horizontal_std=np.linalg.norm(std, axis=1), east_north=error,
+                        east_north_std=std)  # fmt: skip
+        return errors.inside_3_sigma(rows)
+
+    assert 0.995 < share(1.0) < 0.999  # 99.73 %
+    assert share(0.5) < 0.80  # 77 %: the norm test gave 89 %
+    out = tmp_path / "bench"
+    assert cli.main(["bench", str(drives["pdop"]), "--methods", "ekf,ekf-rts", "--gnss-outage",
+                     "10:30", "--gnss-outage", "100:115", "-o", str(out), "--no-progress"]) == 0  # fmt: skip
+    printed = capsys.readouterr().out
+    stored = json.loads((out / "outages.json").read_text())["pdop"]["methods"]
+    for method in ("ekf", "ekf-rts"):
+        windows = stored[method]["windows"]
+        assert [w["window"] for w in windows] == [[10.0, 30.0], [100.0, 115.0]]
+        assert all(w["h_rms"] <= w["h_max"] and 0.0 <= w["within_3sigma"] <= 1.0 for w in windows)
+        assert all(np.isfinite(w["nees_h"]) for w in windows)
+    assert "| 10:30 |" in printed and "| 100:115 |" in printed
+    assert "| 10:30 |" in (out / "outages.md").read_text()
+    # The first window's numbers by hand, from smooth's output and the simulator's truth.
+    dataset = fgins.load(drives["pdop"])
+    track = fgins.smooth(dataset, "ekf", gnss_outage=[(10.0, 30.0), (100.0, 115.0)])
+    truth = pd.read_csv(drives["pdop"] / "truth.csv")
+    t = track.t - dataset.t0
+    inside = (t >= 10.0) & (t < 30.0)
+    rows = np.searchsorted(truth["time"].to_numpy(), t[inside] - 1e-9)
+    difference = track.position[inside, :2] - truth[["east", "north"]].to_numpy()[rows]
+    z2 = np.sum((difference / track.position_std[inside, :2]) ** 2, axis=1)
+    first = stored["ekf"]["windows"][0]
+    # (truth.csv holds positions to 0.1 mm)
+    assert first["h_rms"] == pytest.approx(np.sqrt(np.mean(np.sum(difference**2, axis=1))), abs=2e-4)
+    assert first["within_3sigma"] == pytest.approx(np.mean(z2 <= 11.829), abs=1e-9)
+    assert first["nees_h"] == pytest.approx(np.mean(z2) / 2, rel=1e-3)
+
+
 # ---------------------------------------------------------------------------------------------
 # B4 (sim under a file), B5 (README's shortest simulation)
 
