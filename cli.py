@@ -614,7 +614,7 @@ def cmd_convert(args: argparse.Namespace) -> int:
     gnss = check_gnss_records(gnss, checks)
     warnings = [*warnings, *checks]
     if args.output.suffix.lower() == ".tum":
-        _write_gnss_tum(gnss, args.output)
+        _write_gnss_tum(gnss, args.output, warnings)
     else:
         write_gnss(gnss, args.output)
     for warning in warnings:
@@ -623,14 +623,20 @@ def cmd_convert(args: argparse.Namespace) -> int:
     return 0
 
 
-def _write_gnss_tum(gnss, path: Path) -> None:
+def _write_gnss_tum(gnss, path: Path, warnings: list[str]) -> None:
     """The fixes as a TUM reference: ENU at the first fix (the origin ``fgins smooth`` takes
-    for a log without one), identity orientation."""
+    for a log without one), identity orientation. Fixes without a height (2-D) get the one
+    ``fgins smooth`` gives them (said): a TUM row has no empty field, and a 2-D first fix
+    made the origin's height NaN and every row NaN (12 of gpsd's 59 real logs, exit 0)."""
     from fgins.datatypes import InputError, Origin
+    from fgins.io.gnss_checks import fill_missing_heights
     from fgins.io.trajectory_tum import write_gnss_tum
 
     if len(gnss) == 0:
         raise InputError(f"{path}: the log has no GNSS fix with a position")
+    filled: list[str] = []
+    gnss = fill_missing_heights(gnss, filled)
+    warnings.extend(f"{line} (in the TUM reference as in fgins smooth)" for line in filled)
     write_gnss_tum(gnss.t, gnss.lla, Origin(*map(float, gnss.lla[0])), path)
 
 
@@ -665,7 +671,7 @@ def _read_gnss_only(path: Path, time_offset: float):
     _refuse_builtin_input(path, "convert")
     if not path.exists():
         raise FginsError(f"{path}: no such file")
-    from fgins.io.inputs import check_not_empty
+    from fgins.io.empty_files import check_not_empty
 
     check_not_empty(path)
     from fgins.io.mcap_stream import is_mcap
@@ -714,7 +720,8 @@ def cmd_inspect(args: argparse.Namespace) -> int:
     _refuse_builtin_input(path, "inspect")
     if not path.exists():
         raise FginsError(f"{path}: no such file")
-    from fgins.io.inputs import check_not_empty, looks_like_nmea
+    from fgins.io.empty_files import check_not_empty
+    from fgins.io.inputs import looks_like_nmea
 
     check_not_empty(path)
     from fgins.io.mcap_stream import is_mcap

@@ -38,6 +38,7 @@ from fgins.io.accel_array_csv import (
     read_accel_array_csv,
 )
 from fgins.io.atomic import atomic_path
+from fgins.io.empty_files import check_not_empty
 from fgins.io.imu_checks import MAX_REORDER_PERIODS, imu_from_samples
 
 IMU_COLUMNS = ["time", "gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z"]
@@ -799,6 +800,7 @@ def read_csv_dataset(paths: list[Path]) -> Dataset:
     for path in files:
         if not path.exists():
             raise InputError(f"{path}: no such file")
+        check_not_empty(path)  # a folder's empty file as one given by name (not "unrecognised")
         kind = csv_kind(path)
         if kind is None:
             if path.name == "truth.csv":

@@ -134,7 +134,7 @@ def check_gnss(gnss: GnssData, origin: Origin, checks: list[str]) -> tuple[GnssD
             [origin.lat, origin.lon, origin.alt], gnss.lla[0], rtol=0, atol=1e-12, equal_nan=True
         )
     )
-    gnss = _fill_missing_heights(gnss, checks)
+    gnss = fill_missing_heights(gnss, checks)
     if origin_is_first_fix and not np.isfinite(origin.alt):  # a 2-D first fix, height given
         origin = Origin(*(float(v) for v in gnss.lla[0]))
     keep = _geodetic_ok(gnss.lla)
@@ -200,7 +200,7 @@ def _warn_radians(gnss: GnssData, checks: list[str]) -> None:
         )
 
 
-def _fill_missing_heights(gnss: GnssData, checks: list[str]) -> GnssData:
+def fill_missing_heights(gnss: GnssData, checks: list[str]) -> GnssData:
     """2-D fixes (latitude and longitude without a height: NMEA RMC without GGA, a GGA with
     an empty altitude, a 2-D fix) get the height of the 3-D fixes around them (held at the
     ends) with a vertical sigma of ``HELD_HEIGHT_SIGMA_M``; in a log without any height, 0 m
@@ -305,22 +305,33 @@ def _clean_sigmas(gnss: GnssData, checks: list[str]) -> GnssData:
     bad_dops = 0
     placeholders = np.zeros(len(gnss), dtype=bool)
     placeholder_values = 0
+    with np.errstate(invalid="ignore"):
+        # No position geometry (PDOP not available): a DOP beside it is no DOP either (u-blox
+        # NAV-DOP with pDOP 99.99 sends vDOP 1.00, which made a median VDOP of 1.0).
+        no_geometry = (gnss.pdop == 0.0) | ((gnss.pdop >= DOP_NOT_AVAILABLE_MIN) & np.isfinite(gnss.pdop))
+    beside = 0  # DOPs dropped beside a PDOP that is not available
     for name in ("hdop", "vdop", "pdop"):
         value = getattr(gnss, name)
         with np.errstate(invalid="ignore"):
             absent = (value == 0.0) | ((value >= DOP_NOT_AVAILABLE_MIN) & np.isfinite(value))
-        bad = ~np.isnan(value) & ~(np.isfinite(value) & (value > 0)) & ~absent
-        if bad.any() or absent.any():
+            companion = no_geometry & ~absent & ~np.isnan(value)
+        bad = ~np.isnan(value) & ~(np.isfinite(value) & (value > 0)) & ~absent & ~companion
+        if bad.any() or absent.any() or companion.any():
             bad_dops += int(bad.sum())
             placeholder_values += int(absent.sum())
+            beside += int(companion.sum())
             placeholders |= absent
-            replaced[name] = np.where(bad | absent, np.nan, value)
+            replaced[name] = np.where(bad | absent | companion, np.nan, value)
     if placeholder_values:
+        also = (
+            f"; {beside} DOP value(s) beside a PDOP not available dropped too (u-blox sends "
+            "vDOP 1.00 there)" if beside else ""
+        )
         checks.append(
             f"gnss: {placeholder_values} DOP value(s) in {int(placeholders.sum())} fix(es) are "
             f"the receiver's 'not available' (0, or >= {DOP_NOT_AVAILABLE_MIN:g}: u-blox 99.99, "
             "NMEA 99.99/0.00): treated as missing (sigmas from the fixes' own accuracy, else "
-            "UERE x another DOP or [gnss] default_sigma_m; no PDOP gate on them)"
+            f"UERE x another DOP or [gnss] default_sigma_m; no PDOP gate on them){also}"
         )
     if bad_dops:
         checks.append(f"gnss: {bad_dops} negative or infinite DOP value(s) ignored")
@@ -556,8 +567,9 @@ def check_time_bases(
     if not inside.any():
         raise InputError(
             f"the IMU ({a:.3f} .. {b:.3f} s) and the GNSS ({c:.3f} .. {d:.3f} s) time spans do "
-            f"not overlap (offset ~{c - a:+.3f} s): the files use different time bases; give "
-            "--time-offset SECONDS (added to the GNSS times) or convert one clock"
+            f"not overlap (the GNSS starts {c - a:+.3f} s from the IMU): the files use different "
+            f"time bases; give --time-offset SECONDS (added to the GNSS times: about "
+            f"--time-offset {a - c:+.3f} if both start together) or convert one clock"
         )
     if inside.sum() < 2:
         # One fix cannot anchor a trajectory; say why there is only one, not "alignment

@@ -127,8 +127,15 @@ def _write_geojson(gnss: GnssData, path: Path) -> None:
 
 
 def _kml_coordinates(gnss: GnssData, i: int) -> str:
+    """KML's "lon,lat[,alt]": a fix without a height (2-D) has none (not 0 m)."""
     lat, lon, alt = (float(v) for v in gnss.lla[i])
-    return f"{lon!r},{lat!r},{alt if math.isfinite(alt) else 0.0!r}"
+    return f"{lon!r},{lat!r},{alt!r}" if math.isfinite(alt) else f"{lon!r},{lat!r}"
+
+
+def _kml_altitude_mode(heights: np.ndarray) -> str:
+    """Absolute heights where every fix has one; else on the ground (a 2-D fix written at
+    0 m "absolute" was drawn at sea level between fixes 5-6 m up)."""
+    return "absolute" if np.all(np.isfinite(heights)) else "clampToGround"
 
 
 def _write_kml(gnss: GnssData, path: Path) -> None:
@@ -138,7 +145,7 @@ def _write_kml(gnss: GnssData, path: Path) -> None:
         '<?xml version="1.0" encoding="UTF-8"?>',
         '<kml xmlns="http://www.opengis.net/kml/2.2"><Document><name>GNSS fixes</name>',
         f"<Placemark><name>GNSS track</name><description>{KML_HEIGHTS}</description>"
-        "<LineString><altitudeMode>absolute</altitudeMode>",
+        f"<LineString><altitudeMode>{_kml_altitude_mode(gnss.lla[:, 2])}</altitudeMode>",
         f"<coordinates>{track}</coordinates></LineString></Placemark>",
     ]
     for i in range(len(gnss)):
@@ -149,7 +156,7 @@ def _write_kml(gnss: GnssData, path: Path) -> None:
         )
         parts.append(
             f"<Placemark><name>{i}</name><ExtendedData>{data}</ExtendedData>"
-            f"<Point><altitudeMode>absolute</altitudeMode>"
+            f"<Point><altitudeMode>{_kml_altitude_mode(gnss.lla[i : i + 1, 2])}</altitudeMode>"
             f"<coordinates>{_kml_coordinates(gnss, i)}</coordinates></Point></Placemark>"
         )
     parts.append("</Document></kml>")

@@ -582,7 +582,12 @@ def drop_frozen_runs(
         if b - a + 1 < FROZEN_RUN_MIN:
             continue
         after = b + 1 if b + 1 < len(gnss.t) and finite[b + 1] else None
-        jumped = after is not None and float(np.linalg.norm(enu[after, :2] - enu[b, :2])) >= FROZEN_JUMP_M
+        jumped = (
+            after is not None
+            and float(np.linalg.norm(enu[after, :2] - enu[b, :2])) >= FROZEN_JUMP_M
+            and not _receiver_at_rest(gnss, a, b)
+            and not _track_returns(enu, finite, b, run=b - a + 1)
+        )
         inside = (imu.t >= gnss.t[a]) & (imu.t <= gnss.t[b])
         if not (jumped or _imu_moves(imu.gyro[inside], imu.accel[inside], imu.t[inside], up)):
             continue
@@ -601,6 +606,29 @@ def drop_frozen_runs(
 
 FROZEN_RUN_MIN = 5
 FROZEN_JUMP_M = 10.0
+FROZEN_REST_SPEED_M_S = 0.5  # a receiver's own speed under this over a stretch: it stood
+
+
+def _receiver_at_rest(gnss: GnssData, a: int, b: int) -> bool:
+    """The receiver's own velocity over fixes ``a`` .. ``b`` says it stood (a frozen output
+    repeats a moving receiver's velocity with its position)."""
+    if gnss.velocity is None:
+        return False
+    velocity = np.asarray(gnss.velocity, dtype=float)[a : b + 1, :2]
+    speed = np.hypot(velocity[:, 0], velocity[:, 1])
+    speed = speed[np.isfinite(speed)]
+    return len(speed) > 0 and float(np.median(speed)) < FROZEN_REST_SPEED_M_S
+
+
+def _track_returns(enu: np.ndarray, finite: np.ndarray, b: int, run: int) -> bool:
+    """A fix within the stretch's length after it back within half FROZEN_JUMP_M of the
+    stretch's position: a static receiver whose output steps between a coarse grid's points
+    (a timing receiver at 0.01 arc-minute: 12.5-18.5 m), not a vehicle moving on. Its 48
+    fixes at the true position were left out as frozen, the 22 on the grid's next points
+    kept: 12-23 m off at z 11-12 (outside tester)."""
+    later = np.arange(b + 1, min(b + 1 + max(run, FROZEN_RUN_MIN), len(enu)))
+    later = later[finite[later]]
+    return bool(np.any(np.linalg.norm(enu[later, :2] - enu[b, :2], axis=1) < 0.5 * FROZEN_JUMP_M))
 
 
 def _imu_moves(gyro: np.ndarray, accel: np.ndarray, t: np.ndarray, up: np.ndarray) -> bool:

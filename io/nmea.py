@@ -413,7 +413,9 @@ class _Reader:
         quality = int(quality_text) if quality_text.isdigit() else 0
         sats = _field(f, 6)
         if sats.isdigit():
-            epoch.num_sats = int(sats)
+            # The largest count of the epoch's GGA/GNS sentences: one talker's GGA (GPGGA 03,
+            # GAGGA 01) beside a GNGNS of all systems (08) counts one constellation (gpsd: 8).
+            epoch.num_sats = max(epoch.num_sats, int(sats))
         epoch.gga_hdop = _num(_field(f, 7))
         alt = _num(_field(f, 8))
         sep = _num(_field(f, 10))
@@ -433,8 +435,8 @@ class _Reader:
         lat, lon = _lat_lon(f, 1)
         quality = max(_mode_quality(_field(f, 5)), 0)
         sats = _field(f, 6)
-        if sats.isdigit() and epoch.num_sats < 0:
-            epoch.num_sats = int(sats)
+        if sats.isdigit():
+            epoch.num_sats = max(epoch.num_sats, int(sats))
         if not math.isfinite(epoch.gga_hdop):
             epoch.gga_hdop = _num(_field(f, 7))
         valid = quality > 0 and math.isfinite(lat) and math.isfinite(lon)
@@ -892,11 +894,16 @@ def summarize_nmea(path: str | Path) -> str:
         lines.extend(
             f"    {t[i]:.3f} -> {t[i + 1]:.3f} ({t[i + 1] - t[i]:.1f} s)" for i in gaps[:10]
         )
-    source = (
-        f"{GEOID_MODEL_NAME} for {result.geoid_from_model} epochs"
-        if (result.geoid_from_model)
-        else "receiver (GGA/GNS separation)"
-    )
+    heights = int(np.isfinite(gnss.lla[:, 2]).sum()) if len(gnss) else 0
+    if heights == 0:
+        # RMC/GLL only: no height to convert, nothing from the receiver (it was said to be).
+        source = "none needed: no fix has a height (2-D only)"
+    elif result.geoid_from_model:
+        source = f"{GEOID_MODEL_NAME} for {result.geoid_from_model} epochs"
+    else:
+        source = "receiver (GGA/GNS separation)"
     lines.append(f"  geoid separation: {source}")
+    if 0 < heights < len(gnss):
+        lines.append(f"  heights: {heights} of {len(gnss)} fixes (the others 2-D)")
     lines.extend(f"  warning: {w}" for w in [*result.warnings, *checks])
     return "\n".join(lines)

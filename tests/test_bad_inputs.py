@@ -974,6 +974,7 @@ def test_gnss_count_line_adds_up_for_every_method(method, sim_dir, tmp_path, cap
     ("make", "command", "expect"),
     [
         (lambda d: (d / "imu.csv").write_bytes(b""), "smooth", r"imu\.csv: empty file \(0 bytes\)"),
+        (lambda d: (d / "imu.csv").write_bytes(b""), "smooth-folder", r"imu\.csv: empty file \(0 bytes\)"),
         (lambda d: (d / "log.ubx").write_bytes(b""), "convert", r"log\.ubx: empty file"),
         (lambda d: (d / "log.ubx").write_bytes(b""), "inspect", r"log\.ubx: empty file"),
         (
@@ -989,7 +990,7 @@ def test_gnss_count_line_adds_up_for_every_method(method, sim_dir, tmp_path, cap
         (lambda d: None, "convert-imu", r"imu\.csv: an imu CSV; convert takes a GNSS log"),
         (lambda d: None, "kitti-and-more", r"demo:kitti is a whole drive on its own"),
     ],
-    ids=["empty-csv", "empty-ubx-convert", "empty-ubx-inspect", "zero-bytes", "binary-garbage",
+    ids=["empty-csv", "empty-csv-in-a-folder", "empty-ubx-convert", "empty-ubx-inspect", "zero-bytes", "binary-garbage",
          "convert-an-imu-csv", "demo-kitti-with-a-file"],
 )  # fmt: skip
 def test_a_file_that_holds_nothing_usable_is_named_for_what_it_is(
@@ -1005,6 +1006,7 @@ def test_a_file_that_holds_nothing_usable_is_named_for_what_it_is(
     out = str(tmp_path / "out.csv")
     args = {
         "smooth": ["smooth", str(target), str(drive / "gnss.csv"), "-o", out],
+        "smooth-folder": ["smooth", str(drive), "-o", out],  # named as given by name (tester)
         "convert": ["convert", str(target), "-o", out],
         "inspect": ["inspect", str(target)],
         "convert-imu": ["convert", str(drive / "imu.csv"), "-o", out],

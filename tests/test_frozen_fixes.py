@@ -63,3 +63,26 @@ def test_a_fix_held_while_the_car_stands_still_is_kept(urban, tmp_path):
     dataset = fgins.load(folder)
     assert not [w for w in dataset.warnings if "repeat one position" in w], dataset.warnings
     assert len(dataset.gnss) == len(pd.read_csv(folder / "gnss.csv"))
+
+
+def test_a_static_receiver_on_a_coarse_grid_keeps_its_repeated_fixes(shared, tmp_path):
+    """gpsd's meinberg-gps164: a static timing receiver printing positions to 0.01 arc-minute
+    (12.5 m east steps), speed 0.0; 48 of its 70 fixes at one point, the rest one to three
+    steps east. Beside an IMU at rest, the repeats were "frozen while the vehicle moves" (the
+    next fix lay 12.5 m away) and left out: the 48 at the true point dropped, the 22 off it
+    kept, 12-23 m off at z 11-12 (outside tester). The fixes come back within a step and the
+    receiver says it stands: nothing is frozen."""
+    from fgins.io.nmea import read_nmea
+
+    log = shared / "data" / "nmea" / "gpsd" / "meinberg-gps164.log"
+    fixes = read_nmea(log).gnss
+    rng = np.random.default_rng(5)
+    t = np.arange(fixes.t[0] - 2.0, fixes.t[-1] + 2.0, 0.01)
+    gyro = rng.normal(0, 4e-4, (len(t), 3))
+    accel = rng.normal(0, 0.01, (len(t), 3)) + np.array([0.0, 0.0, 9.807])
+    imu = tmp_path / "imu.csv"
+    np.savetxt(imu, np.column_stack([t, gyro, accel]), delimiter=",", fmt="%.6f",
+               header="time,gyro_x,gyro_y,gyro_z,accel_x,accel_y,accel_z", comments="")  # fmt: skip
+    dataset = fgins.load(log, imu, imu_preset="industrial-mems")
+    assert not any("repeat one position" in w for w in dataset.warnings), dataset.warnings
+    assert len(dataset.gnss) == len(fixes)

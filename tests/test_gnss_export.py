@@ -91,8 +91,11 @@ def test_kml_parses_with_track_and_points(tmp_path: Path) -> None:
     points = root.findall(".//k:Point/k:coordinates", KML_NS)
     assert len(points) == len(gnss)
     for i, point in enumerate(points):
-        lon, lat, _ = (float(v) for v in point.text.split(","))
+        values = [float(v) for v in point.text.split(",")]
+        lon, lat = values[:2]
         assert (lat, lon) == (gnss.lla[i, 0], gnss.lla[i, 1])
+        # A 2-D fix has no height in the KML (not 0 m), others their own.
+        assert values[2:] == ([] if math.isnan(gnss.lla[i, 2]) else [gnss.lla[i, 2]])
     times = [
         float(d.find("k:value", KML_NS).text)
         for d in root.iterfind(".//k:Data[@name='time']", KML_NS)
@@ -104,3 +107,36 @@ def test_unknown_suffix_is_input_error(tmp_path: Path) -> None:
     with pytest.raises(InputError, match=r"\.gpx"):
         write_gnss(_sample_gnss(), tmp_path / "fixes.gpx")
     assert not any(tmp_path.iterdir())
+
+
+def test_real_logs_whose_first_fix_is_2d_export_every_fix(shared, tmp_path: Path, capsys) -> None:
+    """garmin38 (a 2-D first fix, then 3-D) and ait250 (RMC only: no height at all): the TUM
+    reference took the first fix's missing height as its origin's and wrote every row NaN at
+    exit 0 (12 of gpsd's 59 convertible logs); the KML drew 2-D fixes at 0 m "absolute"
+    between fixes 5-6 m up (outside tester). Now the TUM rows are finite with the heights
+    fgins smooth gives (said), and a KML 2-D fix has no height and lies on the ground."""
+    from fgins.cli import main
+    from fgins.io.nmea import read_nmea
+    from fgins.io.trajectory_tum import read_tum
+
+    for name in ("garmin38.log", "ait250.log"):
+        log = shared / "data" / "nmea" / "gpsd" / name
+        fixes = read_nmea(log).gnss
+        flat = ~np.isfinite(fixes.lla[:, 2])
+        assert flat[0], name  # the case: the first fix has no height
+        tum = tmp_path / f"{name}.tum"
+        assert main(["convert", str(log), "-o", str(tum)]) == 0
+        err = capsys.readouterr().err
+        rows = read_tum(tum)
+        assert len(rows) == len(fixes) and np.all(np.isfinite(rows)), name
+        assert "without a height" in err and "(in the TUM reference as in fgins smooth)" in err
+        if not flat.all():  # 3-D fixes keep their own heights, about the filled origin's
+            origin_height = float(np.interp(fixes.t[0], fixes.t[~flat], fixes.lla[~flat, 2]))
+            up = rows[~flat, 3]
+            assert np.allclose(up, fixes.lla[~flat, 2] - origin_height, atol=0.05), name
+        root = ET.parse(write_gnss(fixes, tmp_path / f"{name}.kml")).getroot()
+        points = root.findall(".//k:Point", KML_NS)
+        for i, point in enumerate(points):
+            values = point.find("k:coordinates", KML_NS).text.split(",")
+            mode = point.find("k:altitudeMode", KML_NS).text
+            assert (len(values), mode) == ((2, "clampToGround") if flat[i] else (3, "absolute"))

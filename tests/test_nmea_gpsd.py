@@ -403,3 +403,39 @@ def test_gga_with_zero_satellites_is_no_fix_as_in_gpsd() -> None:
     assert np.all(result.gnss.num_sats > 0)
     (note,) = [w for w in result.warnings if "0 satellites used" in w]
     assert "15 of them" in note
+
+
+
+@pytest.mark.parametrize("name", ["furuno_gl_ga.log", "quectel-eg25-g.log", "telit-pls83-w.log"])
+def test_the_satellite_count_is_the_epochs_largest_not_one_talkers(shared: Path, name: str) -> None:
+    """A GPGGA (one constellation: 03) beside a GNGNS of all systems (08), or GNGGA 00 beside
+    GNGNS 11 on a DGPS fix: the first sentence's count was kept (outside tester; gpsd 8 and
+    11). The count is the largest the epoch's GGA/GNS sentences give, read here by hand."""
+    log = shared / "data" / "nmea" / "gpsd" / name
+    largest: dict[str, int] = {}
+    for line in log.read_text(errors="replace").splitlines():
+        fields = line.split("*")[0].split(",")
+        if len(fields) > 7 and fields[0][3:] in ("GGA", "GNS") and fields[1] and fields[7].isdigit():
+            hhmmss = float(fields[1])
+            key = round((hhmmss // 10000) * 3600 + (hhmmss // 100 % 100) * 60 + hhmmss % 100, 2)
+            largest[key] = max(largest.get(key, -1), int(fields[7]))
+    gnss = read_nmea(log).gnss
+    checked = 0
+    for t, count in zip(gnss.t, gnss.num_sats, strict=True):
+        key = round(float(t) % 86400, 2)
+        if key in largest and math.isfinite(count):
+            assert count == largest[key], (name, key, count, largest[key])
+            checked += 1
+    assert checked >= 3
+
+
+def test_inspect_says_a_log_without_heights_needs_no_geoid(shared: Path, capsys) -> None:
+    """ait250 (RMC and GBS only): inspect named the receiver's GGA/GNS separation as the
+    geoid's source in a log without GGA, GNS or any height (outside tester)."""
+    from fgins import cli
+
+    assert cli.main(["inspect", str(shared / "data" / "nmea" / "gpsd" / "ait250.log")]) == 0
+    out = capsys.readouterr().out
+    assert "geoid separation: none needed: no fix has a height (2-D only)" in out
+    assert cli.main(["inspect", str(shared / "data" / "nmea" / "gpsd" / "garmin38.log")]) == 0
+    assert "heights: 5 of 6 fixes (the others 2-D)" in capsys.readouterr().out

@@ -401,3 +401,22 @@ def test_hnr_pvt_is_counted_and_said_not_used():
     result = read_ubx(EXTRA_DIR / "ublox-neo-m8l.log")
     assert result.counts["HNR-PVT"] == 189 and len(result.gnss) == result.counts["NAV-PVT"]
     assert any(w.startswith("189 HNR-PVT message(s) not used as fixes") for w in result.warnings)
+
+
+def test_a_dop_beside_a_position_dop_not_available_is_none_either():
+    """ublox-glo's NAV-DOP: pDOP, hDOP (and g/t) 99.99, the receiver's "not available", and
+    vDOP 1.00 beside them (pyubx2 reads the same). The 99.99s were dropped and the 1.00 kept:
+    a median VDOP of 1.0 on a fix without geometry (outside tester). Where PDOP is not
+    available no DOP of that fix is kept; where all are given they stay."""
+    from fgins.io.gnss_checks import check_gnss_records
+
+    gnss = read_ubx(GPSD_DIR / "ublox-glo.log").gnss
+    raw_pdop, raw_vdop = gnss.pdop.copy(), gnss.vdop.copy()
+    placeholder = np.isfinite(raw_pdop) & (raw_pdop >= 99.0)
+    assert placeholder.any() and np.isfinite(raw_vdop[placeholder]).any()
+    checked = check_gnss_records(gnss, [])
+    assert not np.isfinite(checked.vdop[placeholder]).any()
+    assert not np.isfinite(checked.hdop[placeholder]).any()
+    given = np.isfinite(raw_pdop) & ~placeholder & np.isfinite(raw_vdop) & (raw_vdop > 0) & (raw_vdop < 99)
+    assert given.any()
+    np.testing.assert_array_equal(checked.vdop[given], raw_vdop[given])

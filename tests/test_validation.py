@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+import re
 import sys
 from pathlib import Path
 
@@ -458,6 +459,12 @@ def test_imu_and_gnss_time_bases_apart_is_an_error(tmp_path, urban):
         load_dataset(_pair(tmp_path, data))
     assert f"{urban.dataset.imu.t[0]:.3f}" in str(info.value)
     assert f"{gnss.t[0]:.3f}" in str(info.value)
+    # The offset to give is printed with the sign --time-offset takes (it is added to the
+    # GNSS times; the span's difference was printed, the opposite sign: outside tester).
+    advised = float(re.search(r"about --time-offset ([-+][0-9.]+)", str(info.value)).group(1))
+    assert advised == pytest.approx(-1.7e9, abs=5.0)
+    loaded = load_dataset(_pair(tmp_path, data), time_offset_s=advised)
+    assert len(loaded.gnss) == len(urban.dataset.gnss)
 
 
 def test_gnss_epochs_outside_the_imu_span_are_counted(tmp_path, urban):
