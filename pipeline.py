@@ -40,7 +40,12 @@ from fgins.datatypes import Dataset, FginsError, InputError, Trajectory
 from fgins.gnss_scatter import gnss_scatter
 from fgins.graph.gyro_scale import GROSS_SCALE_KEY
 from fgins.initial_guess import KeyframeGuess
-from fgins.solution_checks import nose_off_track, unknown_height, unobservable_heading
+from fgins.solution_checks import (
+    heading_unseen_in_motion,
+    nose_off_track,
+    unknown_height,
+    unobservable_heading,
+)
 
 GRAPH_METHODS = ("batch", "isam2", "isam2-online")
 # Kalman baselines: method name -> "module:function" taking (dataset, config, gnss_mask=...,
@@ -237,7 +242,7 @@ def _corrected_solution(
         nose_off_track(config, trajectory), unconfirmed_note,
     ]  # fmt: skip
     if config.smoother.initial_heading_deg is None:  # else the configured heading is known
-        notes.append(unobservable_heading(dataset, trajectory))
+        notes.append(unobservable_heading(dataset, trajectory) or heading_unseen_in_motion(dataset, gnss_mask, trajectory))
     for note in filter(None, notes):
         trajectory.info.setdefault("fit_warnings", []).append(note)
     trajectory.info.pop(CORRECTIONS_SAID, None)  # said in fit_warnings
