@@ -305,6 +305,12 @@ def with_turn_on_bias_widened(
             f"imu: {'; '.join(said)} failed; the configured turn-on sigmas are too small for "
             "this IMU ([imu] gyro_turn_on_bias_deg_per_s, accel_turn_on_bias_mg, --imu-preset)"
         )
+    if again.info.get(FILTER_FIT_FAILED):
+        # Still diverged with the wider prior: the biases were the diverged filter's, no
+        # reading of the IMU (a multirotor whose hover heading ran away: 'accelerometer bias
+        # 9.2x its 15 mg sigma, solved again with 276 mg' where the true ones fit 15 mg;
+        # outside tester). The first solve and its own warnings stand.
+        return trajectory, config, None
     _carry_said(trajectory, again, [])  # the antenna's, when this runs after it
     return again, widened_config, (
         f"imu: {'; '.join(said)}: the configured turn-on bias sigmas are too small for this "

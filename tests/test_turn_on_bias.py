@@ -72,3 +72,34 @@ def test_a_turn_on_sigma_far_too_small_is_widened_and_said(tmp_path, key, value,
         assert "gyro biases far beyond their turn-on sigmas" in str(error)
     else:
         assert not _said(kept)
+
+
+def test_a_filter_still_diverged_with_the_wider_prior_does_not_blame_it():
+    """A forward EKF whose hover heading ran away read an accelerometer bias of 138 mg and
+    was 'solved again with accel_turn_on_bias_mg = 276: the configured sigmas are too
+    small', the true biases within the configured 15 mg; the solve again diverged too
+    (outside tester). Where the solve with the wider prior still fails its own fit, the
+    biases were the divergence's: the first solve and its warnings stand, nothing blamed."""
+    import numpy as np
+
+    from fgins.config import load_config
+    from fgins.corrections import FILTER_FIT_FAILED, Rerun, with_turn_on_bias_widened
+    from fgins.sim.scenarios import SCENARIOS
+
+    run = SCENARIOS["car-urban"](seed=2, duration_s=40)
+    config = load_config(dataset_imu=run.dataset.imu_config, dataset_gnss=run.dataset.gnss_config)
+    first = fgins.smooth(run.dataset, "ekf")
+    first.accel_bias[:] = 1.35  # m/s^2: far beyond any turn-on sigma
+    first.info[FILTER_FIT_FAILED] = True
+    solved: list[float] = []
+
+    def diverged_again(dataset, cfg, method):
+        solved.append(float(cfg.imu["accel_turn_on_bias_mg"]))
+        again = fgins.smooth(dataset, "ekf")
+        again.info[FILTER_FIT_FAILED] = True
+        return again
+
+    track, kept, note = with_turn_on_bias_widened(run.dataset, config, Rerun("ekf", None, diverged_again), first)
+    assert solved and solved[0] > 100.0  # it was tried
+    assert track is first and kept is config and note is None
+    assert np.all(first.accel_bias == 1.35)
