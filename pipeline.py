@@ -332,7 +332,10 @@ def _long_gnss_gap_said(
     if gap <= LONG_GNSS_GAP_S:
         return None
     t0 = dataset.t0
-    how = "its error is not finite" if "not finite" in str(failure) else "it did not converge"
+    how = (
+        "its error is not finite" if "not finite" in str(failure)
+        else "its fit diverged" if "diverged" in str(failure) else "it did not converge"
+    )  # fmt: skip
     return (
         f"the solve broke down ({how}) over {gap:.0f} s without a usable GNSS "
         f"fix (t - t0 = {edges[i] - t0:.1f} .. {edges[i + 1] - t0:.1f} s): dead reckoning across "
@@ -351,7 +354,7 @@ def _run(
 ) -> Trajectory:
     if method in GRAPH_METHODS:
         from fgins.graph.smoother import smooth
-        from fgins.graph.solve import NonFiniteError, NotConvergedError
+        from fgins.graph.solve import DivergedError, NonFiniteError, NotConvergedError
 
         try:
             trajectory = smooth(
@@ -363,6 +366,13 @@ def _run(
             if said is None:
                 raise
             raise FginsError(said) from None
+        except DivergedError as exc:
+            # Its own causes stay first (axes, units, noise); a long gap is named beside them
+            # (a real log's 630 s gap: iSAM2 named only the IMU's noise, axes or units).
+            said = _long_gnss_gap_said(dataset, config, gnss_mask, exc)
+            if said is None:
+                raise
+            raise FginsError(f"{exc}; also: {said}") from None
         if method == "isam2-online":
             # The online pass is causal like a filter and has no chi-square check of its own
             # (the final smoothing's is another solution): a 0.5 m/s crawl held still by false

@@ -97,6 +97,10 @@ class NotConvergedError(FginsError):
     """A batch solve that did not converge (what the pipeline explains where it can)."""
 
 
+class DivergedError(FginsError):
+    """A solve whose fit is far beyond its noise model (chi2/dof above CHI2_FAIL)."""
+
+
 def check_finite(error: float, what: str, solver: str) -> None:
     if not math.isfinite(error):
         raise NonFiniteError(
@@ -367,7 +371,7 @@ def fail_if_diverged(report: SolveReport) -> None:
         check = (
             report.blame or "check the IMU preset and the axis and unit conventions of the IMU data"
         )
-        raise FginsError(
+        raise DivergedError(
             f"{report.solver} diverged: the solution does not fit the data (chi2/dof "
             f"{report.chi2_per_dof:.3g}, ~1 expected); no output written. {check[0].upper()}"
             f"{check[1:]}; or try {other}"

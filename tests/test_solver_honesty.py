@@ -187,7 +187,7 @@ def test_a_solution_with_nan_in_it_is_an_error_not_an_output(monkeypatch, method
         run_method(run.dataset, config, method, progress=False)
 
 
-@pytest.mark.parametrize("error", ["non-finite", "not converged"])
+@pytest.mark.parametrize("error", ["non-finite", "not converged", "diverged"])
 def test_a_solve_that_breaks_down_over_a_long_gap_in_the_fixes_names_it(monkeypatch, error):
     """A real log (gpsd's nmea-rtk: 10 s of fixes, 630 s without one, 2 s of RTK) beside an
     IMU at rest: the batch's start was not finite ("a NaN or infinite measurement ... check
@@ -195,23 +195,31 @@ def test_a_solve_that_breaks_down_over_a_long_gap_in_the_fixes_names_it(monkeypa
     settings"); iSAM2 blamed the IMU's noise, axes or units (outside tester). Where the
     fixes leave more than LONG_GNSS_GAP_S, a solve that breaks down names that gap."""
     import fgins.graph.smoother as smoother
-    from fgins.graph.solve import NonFiniteError, NotConvergedError
+    from fgins.graph.solve import DivergedError, NonFiniteError, NotConvergedError
     from fgins.pipeline import LONG_GNSS_GAP_S
 
     run = SCENARIOS["car-urban"](seed=2, duration_s=240)
     config = load_config(dataset_imu=run.dataset.imu_config, dataset_gnss=run.dataset.gnss_config)
-    failure = NonFiniteError if error == "non-finite" else NotConvergedError
+    failure = {"non-finite": NonFiniteError, "not converged": NotConvergedError,
+               "diverged": DivergedError}[error]  # fmt: skip
+    message = {
+        "non-finite": "batch LM: the factor graph's error at the initial guess is not finite",
+        "not converged": "batch: Levenberg-Marquardt did not converge",
+        "diverged": "iSAM2 diverged: the solution does not fit the data; check the IMU axes",
+    }[error]
 
     def broken(*args, **kwargs):
-        raise failure("batch LM: the factor graph's error at the initial guess is not finite")
+        raise failure(message)
 
     monkeypatch.setattr(smoother, "smooth", broken)
     gap = (40.0, 40.0 + LONG_GNSS_GAP_S + 30.0)
     mask = outage_mask(run.dataset, [gap])
-    with pytest.raises(FginsError, match=r"over 1[5-9]\d s without a usable GNSS fix \(t - t0 = 39\.\d+ \.\. \d+\.\d+ s\).*split the log at the gap"):
+    with pytest.raises(FginsError, match=r"over 1[5-9]\d s without a usable GNSS fix \(t - t0 = 39\.\d+ \.\. \d+\.\d+ s\).*split the log at the gap") as said:
         run_method(run.dataset, config, "batch", gnss_mask=mask, progress=False)
+    # A diverged fit's own causes stay first; the gap is named beside them.
+    assert str(said.value).startswith(message) == (error == "diverged")
     short = outage_mask(run.dataset, [(40.0, 40.0 + LONG_GNSS_GAP_S - 30.0)])
-    with pytest.raises(failure, match="initial guess is not finite"):  # no long gap: as it was
+    with pytest.raises(failure, match=message):  # no long gap: as it was
         run_method(run.dataset, config, "batch", gnss_mask=short, progress=False)
 
 
