@@ -20,9 +20,12 @@ state and the same uncertainty.
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import ParamSpec
 
 import numpy as np
 
@@ -151,37 +154,32 @@ def _gnss_fit_with_sigma(
     return position, velocity, acceleration, noise * float(np.sqrt(covariance[1, 1]))
 
 
+_Args = ParamSpec("_Args")
+
+
+def _finite(align: Callable[_Args, Alignment]) -> Callable[_Args, Alignment]:
+    """The alignment ``align`` makes, or an error where it is not finite: not NaN handed to
+    every estimator, which each failed differently (planar-kf wrote an all-NaN track at exit
+    0, the EKF ended in an SVD error)."""
+
+    @functools.wraps(align)
+    def checked(*args: _Args.args, **kwargs: _Args.kwargs) -> Alignment:
+        alignment = align(*args, **kwargs)
+        parts = (alignment.rotation, alignment.velocity, alignment.position, alignment.attitude_sigma_rad)
+        sigmas = (alignment.velocity_sigma, alignment.position_sigma)
+        if not (all(np.all(np.isfinite(x)) for x in parts) and np.all(np.isfinite(sigmas))):
+            raise FginsError(
+                f"the initial alignment at t = {alignment.t:.3f} s is not finite: a defect of "
+                "fgins's, please report it with the input (--vehicle or [smoother] "
+                "initial_heading_deg may avoid it)"
+            )
+        return alignment
+
+    return checked
+
+
+@_finite
 def initial_alignment(
-    dataset: Dataset,
-    gnss_mask: np.ndarray | None = None,
-    *,
-    smoother: SmootherConfig | None = None,
-    heading_deg: float | None = None,
-    moving_speed: float = 2.0,
-    fit_window_s: float = 6.0,
-    forward_axis: np.ndarray | None = None,
-    gyro_bias_sigma: float = 0.0,
-) -> Alignment:
-    """Initial state at the first IMU sample (see :func:`_initial_alignment`); a state that is
-    not finite is an error here, not NaN handed to every estimator (which each failed
-    differently: planar-kf wrote an all-NaN track at exit 0, the EKF an SVD error)."""
-    alignment = _initial_alignment(
-        dataset, gnss_mask, smoother=smoother, heading_deg=heading_deg,
-        moving_speed=moving_speed, fit_window_s=fit_window_s, forward_axis=forward_axis,
-        gyro_bias_sigma=gyro_bias_sigma,
-    )  # fmt: skip
-    parts = (alignment.rotation, alignment.velocity, alignment.position, alignment.attitude_sigma_rad)
-    sigmas = (alignment.velocity_sigma, alignment.position_sigma)
-    if not (all(np.all(np.isfinite(x)) for x in parts) and np.all(np.isfinite(sigmas))):
-        raise FginsError(
-            f"the initial alignment at t = {alignment.t:.3f} s is not finite: a defect of "
-            "fgins's, please report it with the input (--vehicle or [smoother] "
-            "initial_heading_deg may avoid it)"
-        )
-    return alignment
-
-
-def _initial_alignment(
     dataset: Dataset,
     gnss_mask: np.ndarray | None = None,
     *,

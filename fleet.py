@@ -148,10 +148,13 @@ def expand_drives(items: list[str]) -> list[Drive]:
     if not paths:
         raise InputError("no drives given; pass folders, .mcap files or @list.txt")
     seen: set[Path] = set()
-    unique = [p for p in paths if not (p in seen or seen.add(p))]
-    if len(unique) < len(paths):
+    unique, repeated = [], []
+    for p in paths:
+        (repeated if p in seen else unique).append(p)
+        seen.add(p)
+    if repeated:
         # Said: "4 inputs, 3 drives" without a word looked like a lost drive.
-        twice = next(p for i, p in enumerate(paths) if p in paths[:i])
+        twice = repeated[0]
         print(
             f"warning: fleet: {len(paths) - len(unique)} drive(s) given more than once run once "
             f"({twice})",

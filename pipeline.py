@@ -269,7 +269,6 @@ def check_imu_gaps(dataset: Dataset, config: RunConfig, gnss_mask: np.ndarray | 
     ``max_imu_gap_s``, or with more than ``max_unaided_imu_gap_s`` of it without a usable
     GNSS fix (withheld by an outage, gated, or none). Shorter gaps are bridged with inflated
     noise (and said so by the reader's warning)."""
-    from fgins.factors.gnss import gate_epochs
     from fgins.io.imu_checks import find_gaps
 
     imu, gnss, smoother = dataset.imu, dataset.gnss, config.smoother
@@ -279,9 +278,7 @@ def check_imu_gaps(dataset: Dataset, config: RunConfig, gnss_mask: np.ndarray | 
     if not gaps:
         return
     period = float(np.median(np.diff(imu.t)))
-    withheld = None if gnss_mask is None else ~np.asarray(gnss_mask, dtype=bool)
-    gate = gate_epochs(gnss, config.gnss, withheld=withheld)
-    fixes = gnss.t[gate.used]
+    fixes = _used_fix_times(dataset, config, gnss_mask)
     t0 = dataset.t0
     for a, b in gaps:
         missing = b - a - period  # the samples' own period is not missing
@@ -309,6 +306,14 @@ def check_imu_gaps(dataset: Dataset, config: RunConfig, gnss_mask: np.ndarray | 
             )
 
 
+def _used_fix_times(dataset: Dataset, config: RunConfig, gnss_mask: np.ndarray | None) -> np.ndarray:
+    """The times of the fixes a run uses: not withheld by ``gnss_mask``, not gated."""
+    from fgins.factors.gnss import gate_epochs
+
+    withheld = None if gnss_mask is None else ~np.asarray(gnss_mask, dtype=bool)
+    return dataset.gnss.t[gate_epochs(dataset.gnss, config.gnss, withheld=withheld).used]
+
+
 # Without a usable fix for longer than this, dead reckoning is what fails a solve whose error
 # is not finite: said as the cause (a real log's 630 s gap was "a NaN ... check the inputs").
 LONG_GNSS_GAP_S = 120.0
@@ -320,10 +325,7 @@ def _long_gnss_gap_said(
     """The longest stretch without a usable fix, as the cause of a solve that broke down
     (``failure``: not finite, or not converged), where it is longer than LONG_GNSS_GAP_S;
     else None."""
-    from fgins.factors.gnss import gate_epochs
-
-    withheld = None if gnss_mask is None else ~np.asarray(gnss_mask, dtype=bool)
-    fixes = dataset.gnss.t[gate_epochs(dataset.gnss, config.gnss, withheld=withheld).used]
+    fixes = _used_fix_times(dataset, config, gnss_mask)
     edges = np.concatenate([[dataset.imu.t[0]], fixes, [dataset.imu.t[-1]]])
     if len(edges) < 2:
         return None

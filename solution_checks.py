@@ -57,10 +57,18 @@ def never_moved(dataset: Dataset) -> float | None:
     t, enu = t[good], enu[good]
     if len(t) < STATIC_MEDIAN_FIXES or (t[-1] - t[0]) < STATIC_COVERAGE * span_imu:
         return None
-    windows = np.lib.stride_tricks.sliding_window_view(enu, STATIC_MEDIAN_FIXES, axis=0)
-    running = np.median(windows, axis=-1)  # (n - w + 1, 2): one outlier cannot move it
-    span = float(np.max(np.linalg.norm(running - np.median(enu, axis=0), axis=1)))
+    span = _running_median_span(enu)
     return span if span <= STATIC_SPAN_M else None
+
+
+def _running_median_span(enu: np.ndarray) -> float:
+    """How far (m) the fixes' running median over STATIC_MEDIAN_FIXES strays from their
+    median (one outlier cannot move it); their own spread with fewer fixes."""
+    running = enu
+    if len(enu) >= STATIC_MEDIAN_FIXES:
+        windows = np.lib.stride_tricks.sliding_window_view(enu, STATIC_MEDIAN_FIXES, axis=0)
+        running = np.median(windows, axis=-1)  # (n - w + 1, 2)
+    return float(np.max(np.linalg.norm(running - np.median(enu, axis=0), axis=1)))
 
 
 def _imu_at_rest(imu) -> bool:
@@ -162,10 +170,7 @@ def heading_unseen_in_motion(
     if len(enu) < 2 or len(trajectory) < 2:
         return None
     shown = float(np.max(np.linalg.norm(enu - np.median(enu, axis=0), axis=1)))
-    if len(enu) >= STATIC_MEDIAN_FIXES:
-        windows = np.lib.stride_tricks.sliding_window_view(enu, STATIC_MEDIAN_FIXES, axis=0)
-        enu = np.median(windows, axis=-1)  # one outlier cannot make a motion
-    span = float(np.max(np.linalg.norm(enu - np.median(enu, axis=0), axis=1)))
+    span = _running_median_span(enu)  # one outlier cannot make a motion
     travel = float(np.sum(np.linalg.norm(np.diff(trajectory.position[:, :2], axis=0), axis=1)))
     if span > STATIC_SPAN_M or travel < UNSEEN_HEADING_TRAVEL_M:
         return None

@@ -20,9 +20,9 @@ class Errors:
     inside: np.ndarray
     horizontal_std: np.ndarray
     # Per axis (M, 2): east and north errors and their sigmas (the reference's included
-    # against fixes), for the 2-D 3-sigma test; None: the norm test above only.
-    east_north: np.ndarray | None = None
-    east_north_std: np.ndarray | None = None
+    # against fixes), for the 2-D 3-sigma test.
+    east_north: np.ndarray
+    east_north_std: np.ndarray
 
     def inside_3_sigma(self, rows: np.ndarray) -> float:
         """The fraction of ``rows`` (a mask) whose horizontal error lies inside the 3-sigma
@@ -31,11 +31,6 @@ class Errors:
         sigmas 2x too small still scored 89 % (outside tester). NaN without sigmas."""
         if not rows.any():
             return float("nan")
-        if self.east_north is None or self.east_north_std is None:
-            std = self.horizontal_std[rows]
-            if not np.all(np.isfinite(std)):
-                return float("nan")
-            return float(np.mean(self.horizontal[rows] <= 3 * std))
         std = self.east_north_std[rows]
         if not np.all(np.isfinite(std)):
             return float("nan")
@@ -48,15 +43,13 @@ class Errors:
         honest)."""
         if not rows.any():
             return {}
-        out = {
+        return {
             "h_rms": self._rms(self.horizontal[rows]),
             "h_max": float(self.horizontal[rows].max()),
             "h_end": float(self.horizontal[np.flatnonzero(rows)[-1]]),
             "within_3sigma": self.inside_3_sigma(rows),
+            "nees_h": float(np.mean((self.east_north[rows] / self.east_north_std[rows]) ** 2)),
         }
-        if self.east_north is not None and self.east_north_std is not None:
-            out["nees_h"] = float(np.mean((self.east_north[rows] / self.east_north_std[rows]) ** 2))
-        return out
 
     @staticmethod
     def _rms(x: np.ndarray) -> float:
