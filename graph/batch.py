@@ -70,6 +70,7 @@ def _fall_back(
         return run_isam2(problem, False, online_covariance=False, relinearize_skip=1)[1]
 
     best = (report, result, graph, source)
+    tried = [0, 0]  # iterations and rounds of every restart: the work done is said in full
     restarts: list[tuple[str, Callable[[], gtsam.Values]]] = [
         (other.source, lambda other=other: other.take(problem)) for other in others
     ]
@@ -82,6 +83,8 @@ def _fall_back(
             candidate = (*solve_from(problem, start()), name)
         except FginsError:
             continue  # this start cannot even be computed: try the next
+        tried[0] += candidate[0].iterations
+        tried[1] += candidate[0].rounds
         if candidate[0].final_error < best[0].final_error:
             best = candidate
         if not is_suspect(candidate[0]):
@@ -90,8 +93,8 @@ def _fall_back(
     problem.preintegrate_about(result)  # the kept solution's, not the last start's
     if taken != source:
         report.initial_error = first.initial_error
-        report.iterations += first.iterations
-        report.rounds += first.rounds
+        report.iterations = first.iterations + tried[0]
+        report.rounds = first.rounds + tried[1]
         report.fallback = (
             f"the {source} initial guess gave an unconverged or inconsistent fit "
             f"(chi2/dof {first.chi2_per_dof:.1f}); restarted from {taken}"

@@ -37,6 +37,13 @@ RELINEARIZE_VELOCITY_M_S = 0.05
 # with a nonlinear factor, and converge as fast. Once nothing moves LM gets its full budget.
 MAX_OUTER_ROUNDS = 40
 ROUND_ITERATIONS = 1
+# One solve makes at most this many times ``batch_max_iterations`` LM iterations in all its
+# rounds; beyond, it is unconverged (batch then tries its other starts). A solve whose LM
+# crawls (a real log with 5 fixes and a 307 s gap: each 100-iteration round lowered the
+# error by 1-2 %, re-preintegration reopened it) took 40 full rounds from each start, 8,000
+# iterations and 10 minutes, before the iSAM2 start converged in 19. Drives that converge
+# take far fewer (the gyro-free cube 11-13).
+SOLVE_ITERATION_BUDGET_FACTOR = 10
 # chi-square / dof of a fit whose noise model describes the data is ~1; far above, the
 # solution is suspect (batch restarts from iSAM2) and reported as inconsistent.
 CHI2_SUSPECT = 10.0
@@ -226,6 +233,7 @@ def solve_in_rounds(
     vehicle constraints until neither changes anything. Returns (solution, the exact graph
     at it)."""
     max_iterations = problem.config.smoother.batch_max_iterations
+    budget_left = SOLVE_ITERATION_BUDGET_FACTOR * max_iterations
     has_linear = problem.has_linear_factors
     imu_index: list[int] = []
     baro_index: dict[int, int] = {}
@@ -239,7 +247,7 @@ def solve_in_rounds(
         # One iteration per rebuild while the linearisation moves; a slow, poorly observable
         # problem (a gyro-free IMU) that keeps moving gets longer rounds as they go on.
         escalated = ROUND_ITERATIONS * (1 + report.rounds // 10) ** 2
-        budget = max_iterations if (settled or not has_linear) else escalated
+        budget = min(max_iterations if (settled or not has_linear) else escalated, budget_left)
         result, iterations, damping, start_error, end_error = levenberg_marquardt(
             graph, values, budget, damping, report.solver
         )
@@ -247,6 +255,7 @@ def solve_in_rounds(
             report.initial_error = start_error
         report.iterations += iterations
         report.rounds += 1
+        budget_left -= iterations
         check_finite(end_error, "after Levenberg-Marquardt", report.solver)
         converged = iterations < budget
         redone_intervals = problem.repreintegrate(
@@ -264,6 +273,9 @@ def solve_in_rounds(
         # Done when LM converged on a linearisation that no longer moves, or when rebuilds
         # stopped changing the error at all (twice in a row).
         if (converged and (steady or (not redone and not moved))) or steady_rounds >= 2:
+            break
+        if budget_left <= 0:
+            report.converged = False
             break
         if not redone and not moved:
             settled = True  # only iterations are missing: give LM its full budget

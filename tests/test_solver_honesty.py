@@ -474,3 +474,42 @@ def test_a_track_whose_only_fixes_stand_still_says_its_heading_is_unseen(tmp_pat
     track = fgins.smooth(fgins.load(tmp_path), "ekf-rts", gnss_outage=[window])
     notes = [w for w in track.info.get("fit_warnings", []) if w.startswith("heading: every fix")]
     assert bool(notes) == said, track.info.get("fit_warnings")
+
+
+def test_a_solve_whose_lm_crawls_has_a_bounded_cost_and_says_its_work(monkeypatch):
+    """A real log with 5 fixes and a 307 s gap (outside tester): LM crawled, each round
+    spending its whole budget for 1-2 % less error, 40 rounds from every start (8,000
+    iterations, 10 minutes), and the summary counted only the first start's and the kept
+    one's. Now one solve stops at SOLVE_ITERATION_BUDGET_FACTOR x batch_max_iterations
+    (unconverged: batch tries its other starts), and the count is every start's."""
+    import fgins.graph.solve as solve
+    from fgins.graph.solve import SOLVE_ITERATION_BUDGET_FACTOR, NotConvergedError
+
+    run = SCENARIOS["car-urban"](seed=2, duration_s=40)
+    config = load_config(dataset_imu=run.dataset.imu_config, dataset_gnss=run.dataset.gnss_config)
+    config.smoother.vehicle = "other"
+    config.smoother.batch_max_iterations = 5
+    real = solve.levenberg_marquardt
+    calls: list[tuple[int, int]] = []  # (budget, the solve it belongs to)
+    solves = [0]
+    real_rounds = solve.solve_in_rounds
+
+    def counted_rounds(*args, **kwargs):
+        solves[0] += 1
+        return real_rounds(*args, **kwargs)
+
+    def crawling(graph, initial, max_iterations, lambda_initial, solver):
+        # One real iteration, its error made to fall a little each time (never settled).
+        result, _, damping, start, _ = real(graph, initial, 1, lambda_initial, solver)
+        calls.append((max_iterations, solves[0]))
+        return result, max_iterations, damping, start, 1e3 / len(calls)
+
+    monkeypatch.setattr(solve, "levenberg_marquardt", crawling)
+    monkeypatch.setattr(solve, "solve_in_rounds", counted_rounds)
+    with pytest.raises(NotConvergedError, match=r"did not converge \((\d+) iterations") as said:
+        run_method(run.dataset, config, "batch", progress=False)
+    per_solve = np.bincount([s for _, s in calls], weights=[b for b, _ in calls])
+    assert solves[0] >= 3  # the other starts were tried
+    assert per_solve.max() == SOLVE_ITERATION_BUDGET_FACTOR * 5
+    reported = int(str(said.value).split("(")[1].split()[0])
+    assert reported == sum(b for b, _ in calls)
