@@ -88,6 +88,7 @@ def antenna_verdict(
     out: dict[str, object] = {
         "gnss_lever_arm_fit_m": [float(x) for x in configured + alone["arm"][0]],
         "gnss_lever_arm_fit_sigma_m": [float(x) for x in np.sqrt(np.diag(alone["arm"][1]))],
+        "gnss_lever_arm_fit_cov_m2": [[float(x) for x in row] for row in alone["arm"][1]],
         "gnss_time_offset_fit_s": float(alone["time"][0][0]),
         "gnss_time_offset_fit_sigma_s": float(np.sqrt(max(alone["time"][1][0, 0], 0.0))),
         "gnss_time_drift_fit_s": float(clock[1]),
@@ -116,7 +117,7 @@ def antenna_verdict(
             "two clocks at different rates)"
         )
 
-    configured_arm = f"the configured {list(config.lever_arm_m)} ([gnss] lever_arm_m)"
+    configured_arm = f"the configured {[round(float(x), 3) for x in config.lever_arm_m]} ([gnss] lever_arm_m)"
     found = [name for name, index in readings.items()
              if says(name, change[index], covariance[np.ix_(index, index)])]  # fmt: skip
     findings, advice = [], []
@@ -187,36 +188,49 @@ def antenna_verdict(
     return out
 
 
+def determined_directions(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The directions (unit columns, IMU axes) in which the drive determines the arm to
+    ARM_CORRECTION_MAX_SIGMA_M, and their variances: the eigenvectors of its covariance
+    whose sigma is under that. Directions, not IMU axes: what a drive leaves open is a
+    direction of the vehicle (a car's vertical, an aircraft's along-track), which on an IMU
+    pitched 30 deg in the vehicle spreads over two IMU axes; judged per axis, both were
+    "not determined" and the well-determined rest thrown away with them (an independent
+    simulator's car with an unconfigured 2.9 m arm: 2.1-2.2 m off at z 7, an aircraft's
+    5 m tail arm 5 m off at z 22, where a level IMU had it corrected)."""
+    cov = 0.5 * (np.asarray(cov, dtype=float) + np.asarray(cov, dtype=float).T)
+    variances, vectors = np.linalg.eigh(cov)
+    known = np.sqrt(np.clip(variances, 0.0, None)) < ARM_CORRECTION_MAX_SIGMA_M
+    return vectors[:, known], variances[known]
+
+
 def _determined_arm(configured: np.ndarray, shift: np.ndarray, cov: np.ndarray) -> list[float] | None:
-    """The configured arm moved by ``shift`` in the components the drive determines (sigma
-    under ARM_CORRECTION_MAX_SIGMA_M), the others held as configured and the determined ones
-    conditioned on that; None when it determines none. (A car's drive leaves the vertical
-    at +-2 m: taking its estimate would move every height by up to that.)"""
-    known = np.sqrt(np.diag(cov)) < ARM_CORRECTION_MAX_SIGMA_M
-    if not known.any():
+    """The configured arm moved by ``shift`` in the directions the drive determines
+    (:func:`determined_directions`), held as configured in the others (in the covariance's
+    own directions the two are uncorrelated: the determined part is the projection); None
+    when it determines none. (A car's drive leaves the vertical at +-2 m: taking its
+    estimate would move every height by up to that.)"""
+    directions, _ = determined_directions(cov)
+    if not directions.shape[1]:
         return None
-    held = ~known
-    moved = shift[known]
-    if held.any():
-        moved = moved - cov[np.ix_(known, held)] @ np.linalg.solve(cov[np.ix_(held, held)], shift[held])
-    arm = configured.astype(float).copy()
-    arm[known] += moved
+    arm = configured.astype(float) + directions @ (directions.T @ shift)
     return [float(x) for x in arm]
 
 
 def _determined_arm_covariance(cov: np.ndarray) -> list[list[float]]:
-    """The covariance (m^2, IMU axes) of the arm :func:`_determined_arm` takes: its
-    determined components conditioned on the held ones, zero where it holds them."""
-    known = np.sqrt(np.diag(cov)) < ARM_CORRECTION_MAX_SIGMA_M
-    held = ~known
-    block = cov[np.ix_(known, known)]
-    if held.any() and known.any():
-        block = block - cov[np.ix_(known, held)] @ np.linalg.solve(
-            cov[np.ix_(held, held)], cov[np.ix_(held, known)]
-        )
-    out = np.zeros((3, 3))
-    out[np.ix_(known, known)] = block
+    """The covariance (m^2, IMU axes) of the arm :func:`_determined_arm` takes: the
+    covariance's determined directions only, zero along the ones it holds."""
+    directions, variances = determined_directions(cov)
+    out = directions @ np.diag(variances) @ directions.T
     return [[float(x) for x in row] for row in out]
+
+
+def held_directions(covariance: object) -> list[np.ndarray]:
+    """The unit directions (IMU axes) an arm taken with ``covariance``
+    (:func:`_determined_arm_covariance`) holds as configured: its null space."""
+    cov = np.asarray(covariance, dtype=float).reshape(3, 3)
+    variances, vectors = np.linalg.eigh(0.5 * (cov + cov.T))
+    floor = 1e-9 * max(float(variances.max()), 1e-12)
+    return [vectors[:, i] for i in range(3) if variances[i] <= floor]
 
 
 LEVER_ARM_PRIOR_M = 10.0

@@ -18,9 +18,10 @@ from typing import TypeVar
 import numpy as np
 
 from fgins.antenna_verdict import (
-    ARM_CORRECTION_MAX_SIGMA_M,
     LEVER_ARM_MIN_M,
     TIME_OFFSET_CHI2,
+    determined_directions,
+    held_directions,
     typical_speed,
 )
 from fgins.config import STANDARD_GRAVITY, RunConfig
@@ -554,7 +555,7 @@ def with_antenna_corrected(
             # the antenna's, off by what the true arm has there (an outside tester's 1.2 m:
             # heights 1.4 m off at sigma 0.2-0.3, the arm said "corrected" to 0.00).
             done[-1] += (
-                f" (its {' and '.join(held)} part not determined by this drive and kept as "
+                f" (its {' and '.join(held)} not determined by this drive and kept as "
                 "configured: positions along it are the antenna's, off the IMU's by what the "
                 "true arm has there; measure and set it)"
             )
@@ -583,16 +584,20 @@ def _refined_arm(info: dict[str, object], taken: list[float]) -> list[float] | N
     simulator (EKF+RTS, whose filter carries the arm: -1.50), and the batch came out 10 %
     worse than EKF+RTS inside outages; the step about the corrected solution finds the
     rest."""
-    fit, sigma = info.get("gnss_lever_arm_fit_m"), info.get("gnss_lever_arm_fit_sigma_m")
-    if not isinstance(fit, list) or not isinstance(sigma, list) or len(fit) != 3 or len(sigma) != 3:
+    fit, covariance = info.get("gnss_lever_arm_fit_m"), info.get("gnss_lever_arm_fit_cov_m2")
+    if not isinstance(fit, list) or not isinstance(covariance, list) or len(fit) != 3:
         return None
-    fit_a, sigma_a, taken_a = (np.asarray(x, dtype=float) for x in (fit, sigma, taken))
-    known = sigma_a < ARM_CORRECTION_MAX_SIGMA_M
-    if not np.all(np.isfinite(fit_a[known])) or not known.any():
+    fit_a, taken_a = np.asarray(fit, dtype=float), np.asarray(taken, dtype=float)
+    cov = np.asarray(covariance, dtype=float).reshape(3, 3)
+    if not (np.all(np.isfinite(fit_a)) and np.all(np.isfinite(cov))):
         return None
-    if np.max(np.abs(fit_a - taken_a)[known] / sigma_a[known]) < REFINE_ARM_SIGMAS:
+    directions, variances = determined_directions(cov)
+    if not directions.shape[1]:
         return None
-    return [float(x) for x in np.where(known, fit_a, taken_a)]
+    rest = directions.T @ (fit_a - taken_a)  # along each determined direction
+    if np.max(np.abs(rest) / np.sqrt(variances)) < REFINE_ARM_SIGMAS:
+        return None
+    return [float(x) for x in taken_a + directions @ rest]
 
 
 REFINE_ARM_SIGMAS = 0.5
@@ -625,12 +630,20 @@ CLOCK_CHI2_GAIN = 16.0
 
 
 def _held_arm_axes(covariance: object) -> list[str]:
-    """The IMU axes ('x', 'y', 'z') an arm taken from the data holds as configured (a zero
-    variance in its covariance: fgins.antenna_verdict's undetermined components)."""
+    """The parts of an arm taken from the data held as configured (the null space of its
+    covariance: fgins.antenna_verdict's undetermined directions), said as an IMU axis ("z
+    part") where one lies along it, else by its direction in IMU axes."""
     if covariance is None:
         return []
-    variance = np.diag(np.asarray(covariance, dtype=float))
-    return [axis for axis, value in zip("xyz", variance, strict=True) if value <= 0.0]
+    out = []
+    for direction in held_directions(covariance):
+        axis = int(np.argmax(np.abs(direction)))
+        if abs(direction[axis]) > 0.99:
+            out.append(f"{'xyz'[axis]} part")
+        else:
+            unit = direction if direction[axis] > 0 else -direction
+            out.append(f"part along [{', '.join(f'{x:.2f}' for x in unit)}] (IMU axes)")
+    return out
 
 
 def _offset_continued(info: dict[str, object], offset: float) -> float | None:

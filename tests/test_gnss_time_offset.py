@@ -80,7 +80,9 @@ def test_an_unconfigured_arm_is_found_corrected_and_never_taken_for_a_clock(tmp_
     assert len(lines) == 1 and lines[0].startswith("GNSS lever arm"), lines
     assert "corrected" in lines[0] and "gnss_time_offset_corrected_s" not in track.info
     taken = track.info["gnss_lever_arm_corrected_m"]
-    assert abs(taken[0] - arm[0]) < 0.6 and abs(taken[1] - arm[1]) < 0.6 and taken[2] == 0.0, taken
+    # The undetermined direction is the car's vertical (up to the fit's correlations: a few
+    # mm of it in x and y), held as configured.
+    assert abs(taken[0] - arm[0]) < 0.6 and abs(taken[1] - arm[1]) < 0.6 and abs(taken[2]) < 0.05, taken
     # a level car cannot show the antenna's height: said, with what that means for the heights
     assert "its z part not determined by this drive and kept as configured" in lines[0], lines
     kept = _smooth(tmp_path, extra="\n[gnss]\nlever_arm_from_data = false\n")
@@ -93,7 +95,7 @@ def test_an_unconfigured_arm_is_found_corrected_and_never_taken_for_a_clock(tmp_
     # The solve holds the taken arm fixed; its uncertainty is in the reported sigmas (seed
     # 8: horizontal NEES over the drive 4.6 without it, 1.25 with it; seed 5 0.55 -> 0.16).
     sigma = track.info["gnss_lever_arm_corrected_sigma_m"]
-    assert 0.05 < min(sigma[:2]) and max(sigma[:2]) < 1.0 and sigma[2] == 0.0, sigma
+    assert 0.05 < min(sigma[:2]) and max(sigma[:2]) < 1.0 and sigma[2] < 0.05, sigma
     _, error = horizontal_errors(track, tmp_path)
     frame = track.to_dataframe()
     variance = (frame["std_east"] ** 2 + frame["std_north"] ** 2).to_numpy()
@@ -553,3 +555,51 @@ def test_a_latency_the_fixes_show_under_five_sigma_is_carried_and_said(tmp_path,
     assert rms > 1.0 and rms < 1.5 * sigma, (rms, sigma)  # 2 m off, and the sigmas say so
     std = pd.DataFrame(track.to_dataframe())[["std_east", "std_north"]].to_numpy()
     assert np.all(np.isfinite(std)) and np.all(std > 0)
+
+
+def _pitch_imu(folder: Path, pitch_deg: float) -> np.ndarray:
+    """Rewrite ``folder/imu.csv`` as read by the same IMU pitched ``pitch_deg`` in the car
+    (README: a positive pitch turns its x axis down), its mounting in cfg.toml; returns
+    R_vi (vehicle axes -> IMU axes: a vector in IMU axes is R_vi^T v)."""
+    import pandas as pd
+    from scipy.spatial.transform import Rotation
+
+    r_vi = Rotation.from_euler("ZYX", [0.0, pitch_deg, 0.0], degrees=True).as_matrix()
+    imu = pd.read_csv(folder / "imu.csv")
+    for kind in ("gyro", "accel"):
+        columns = [f"{kind}_{axis}" for axis in "xyz"]
+        imu[columns] = imu[columns].to_numpy() @ r_vi  # each row v -> R_vi^T v
+    imu.to_csv(folder / "imu.csv", index=False, float_format="%.10e")
+    with open(folder / "cfg.toml", "a") as config:
+        config.write(f"\n[smoother]\nimu_to_vehicle_rpy_deg = [0.0, {pitch_deg}, 0.0]\n")
+    return r_vi
+
+
+@pytest.mark.parametrize("pitch_deg, seed", [(30.0, 5), (-20.0, 8)])
+def test_an_unconfigured_arm_is_taken_on_an_imu_tilted_in_the_car(tmp_path, pitch_deg, seed):
+    """What a car's drive cannot show is the antenna's height above the IMU: a direction of
+    the vehicle, which on an IMU pitched in the car lies between its x and z axes. Judged
+    per IMU axis, both were "not determined" and the arm the fixes showed thrown away (an
+    outside tester's car, IMU pitched 30 deg, antenna 2.9 m off: 2.1 m off at the fixes at
+    z 7, "GNSS sigmas set too small"). Now the arm is taken but along the car's vertical,
+    and said so, and the outages are bridged about as with the arm measured."""
+    arm_vehicle = np.array([-2.5, 0.3, 1.5])  # behind, left and above the IMU
+    _drive(tmp_path, STOP_AND_GO, seed, arm=tuple(arm_vehicle))
+    r_vi = _pitch_imu(tmp_path, pitch_deg)
+    arm_imu = r_vi.T @ arm_vehicle
+    measured = _outage_rms(_smooth(tmp_path, extra=f"\n[gnss]\nlever_arm_m = {[float(x) for x in arm_imu]}\n"), tmp_path)
+    track = _smooth(tmp_path)
+    lines = [w for w in track.info.get("fit_warnings", []) if w.startswith("GNSS")]
+    assert len(lines) == 1 and "corrected" in lines[0], lines
+    up = r_vi.T @ np.array([0.0, 0.0, 1.0])  # the car's vertical in IMU axes
+    assert f"its part along [{', '.join(f'{x:.2f}' for x in up * np.sign(up[2]))}]" in lines[0], lines
+    taken_vehicle = r_vi @ np.asarray(track.info["gnss_lever_arm_corrected_m"])
+    assert np.all(np.abs(taken_vehicle[:2] - arm_vehicle[:2]) < 0.6), taken_vehicle
+    assert abs(taken_vehicle[2]) < 0.05, taken_vehicle  # held as configured (0)
+    kept = _smooth(tmp_path, extra="\n[gnss]\nlever_arm_from_data = false\n")
+    corrected, left_out = _outage_rms(track, tmp_path), _outage_rms(kept, tmp_path)
+    assert corrected < 1.5 * measured + 0.1 and corrected < 0.5 * left_out, (corrected, measured, left_out)
+    _, error = horizontal_errors(track, tmp_path)
+    frame = track.to_dataframe()
+    z = error / np.sqrt(0.5 * (frame["std_east"] ** 2 + frame["std_north"] ** 2)).to_numpy()
+    assert np.sqrt(np.mean(z**2)) < 2.0
