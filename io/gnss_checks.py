@@ -78,6 +78,17 @@ def fix_sigma(gnss: GnssData) -> np.ndarray:
     return np.where(np.isfinite(sigma) & (sigma > 0), sigma, DEFAULT_FIX_SIGMA_M)
 
 
+def horizontal_fix_sigma(gnss: GnssData) -> np.ndarray:
+    """A horizontal (2-D) 1-sigma per fix (m): from the fix's own std east/north, else
+    UERE x HDOP, else the 3-D :func:`fix_sigma`. What chords between fixes over ground
+    scatter by: their 3-D sigma (a 5 m vertical beside 3 m horizontal) faked a 7 m/s
+    threshold for "moving clearly" (outside tester: a 5 m/s boat)."""
+    std = np.asarray(gnss.std, dtype=float)[:, :2]
+    sigma = np.where(np.all(np.isfinite(std), axis=1), np.linalg.norm(np.nan_to_num(std), axis=1), np.nan)
+    sigma = np.where(np.isfinite(sigma) & (sigma > 0), sigma, UERE_FOR_DOP_M * gnss.hdop)
+    return np.where(np.isfinite(sigma) & (sigma > 0), sigma, fix_sigma(gnss))
+
+
 def _ecef(lla: np.ndarray) -> np.ndarray:
     """WGS-84 ECEF (m), vectorised (distances between fixes anywhere on Earth)."""
     a, f = 6378137.0, 1 / 298.257223563

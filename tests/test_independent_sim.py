@@ -154,3 +154,35 @@ def test_a_car_circling_a_skid_pad_is_not_called_a_shrunk_track(tmp_path, speed,
         inside = np.any([(t >= a) & (t < b) for a, b in windows], axis=0)
         rms[method] = float(np.sqrt(np.mean(error[inside] ** 2)))
     assert rms["batch"] < 1.2 and rms["ekf-rts"] < 1.3 * rms["batch"] + 0.2, rms
+
+
+@pytest.mark.parametrize("speed, seed, rate", [(5.0, 1, 1.0), (3.5, 2, 1.0), (5.0, 3, 10.0)])
+@pytest.mark.parametrize("unit", ["m/s", "km/h", "knots"])
+def test_slow_vehicle_with_consumer_fixes_keeps_its_velocity_units_checked(tmp_path, speed, seed, rate, unit):
+    """A 3.5-5 m/s vehicle with consumer fixes (3 m horizontal, 5 m vertical) and a
+    receiver velocity in m/s: the unit check chose the 4-s chords standing clear of noise
+    taken as 3-D (6.6 m: a 7 m/s threshold), i.e. the chords noise had lengthened, and
+    refused the log as "0.68 times the speed the fixes show" (outside tester: a boat and a
+    drone, 10 Hz fixes), or, with too few such chords, checked no unit at all: km/h and
+    knots went through. Now the units are checked and right ones kept."""
+    from independent_sim import CarProfile
+
+    turns = [(start, start + 6.0, 1.0, sign * 0.15)
+             for start, sign in zip(np.arange(20.0, 180.0, 30.0), itertools.cycle([1, -1]))]  # fmt: skip
+    profile = CarProfile(steps=[(3.0, 5.0, speed)], turns=turns, gamma=lambda t: 0.0 * t)
+    write_drive(tmp_path, profile, 200.0, grade=INDUSTRIAL, imu_rate=50.0, jitter=0.0,
+                gnss_rate=rate, seed=seed, sigma_h=3.0, sigma_u=5.0)  # fmt: skip
+    truth, gnss = pd.read_csv(tmp_path / "truth.csv"), pd.read_csv(tmp_path / "gnss.csv")
+    rng = np.random.default_rng(seed)
+    factor = {"m/s": 1.0, "km/h": 3.6, "knots": 1.0 / 0.514444}[unit]
+    for axis in ("east", "north", "up"):
+        true = np.interp(gnss["time"], truth["time"], truth[f"vel_{axis}"])
+        gnss[f"vel_{axis}"] = factor * (true + rng.normal(0.0, 0.05, len(gnss)))
+    gnss.to_csv(tmp_path / "gnss.csv", index=False, float_format="%.10f")
+    load = lambda: fgins.load(tmp_path / "imu.csv", tmp_path / "gnss.csv",  # noqa: E731
+                              config=tmp_path / "cfg.toml", vehicle="other")  # fmt: skip
+    if unit == "m/s":
+        assert load().gnss.velocity is not None
+    else:
+        with pytest.raises(fgins.InputError, match=r"(3\.[4-8]|1\.[89]|2\.0)\d* times the speed"):
+            load()
