@@ -515,7 +515,8 @@ def assemble_dataset(scan: TopicScan, gnss: GnssData, imu_acc: Any) -> McapResul
             f"imu noise from the sensor_msgs/Imu covariances of {imu_acc.topic}: "
             + ", ".join(f"{k} = {v:.3g}" for k, v in imu_config.items())
             + " (at "
-            + f"{imu.rate_hz:.1f} Hz); other [imu] terms from the preset"
+            + f"{imu.rate_hz:.1f} Hz): used for the terms neither --imu-preset nor a --config "
+            "[imu] table sets (those replace them), the other [imu] terms from the preset"
         )
     baro = None
     baro_acc = _accumulator_for(scan, ROLE_BARO)
