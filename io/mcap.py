@@ -121,16 +121,38 @@ def _choose(
         return chosen[0]
     if not mine:
         return None
-    ranked = sorted(mine, key=lambda c: (-counts.get(c.channel_id, 0), c.topic))
+    ranked = sorted(mine, key=lambda c: (_derived(c, role), -counts.get(c.channel_id, 0), c.topic))
     best = ranked[0]
     if len(ranked) == 1:
         why = "the only candidate"
     else:
         others = ", ".join(f"{c.topic} ({counts.get(c.channel_id, 0)})" for c in ranked[1:])
         best_count = counts.get(best.channel_id, 0)
-        tied = [c.topic for c in ranked[1:] if counts.get(c.channel_id, 0) == best_count]
+        tied = [c.topic for c in ranked[1:]
+                if counts.get(c.channel_id, 0) == best_count and not _derived(c, role)]  # fmt: skip
         tie = " (tied; first by name)" if tied else ""
-        why = f"most messages of {len(ranked)} candidates{tie}; others: {others}"
+        derived = [c.topic for c in ranked[1:] if _derived(c, role)]
+        most = max(counts.get(c.channel_id, 0) for c in ranked) == best_count
+        why = (
+            f"{'most messages' if most else 'a receiver by its name'} among {len(ranked)} "
+            f"candidates{tie}; others: {others}"
+        )
+        if role == ROLE_GNSS and not tied and warnings is not None:
+            # Fixes from a fusion node (robot_localization's /gps/filtered at 20 Hz) beside
+            # the receiver's: read as fixes, they were 3 m off at 88 times their sigmas,
+            # chi2/dof 0.11, unsaid (outside tester). The choice is said, and the topics whose
+            # names say fused or filtered come last whatever their count.
+            warnings.append(
+                f"gnss: {len(ranked)} GNSS topics; read {best.topic} "
+                f"({counts.get(best.channel_id, 0)} messages), not {others}"
+                + (
+                    f" ({', '.join(derived)}: by {'its' if len(derived) == 1 else 'their'} "
+                    "name a fused or filtered output, not a receiver's)"
+                    if derived
+                    else ""
+                )
+                + ": give --gnss-topic TOPIC to read another"
+            )
         if tied and warnings is not None:
             option = {ROLE_IMU: "--imu-topic", ROLE_GNSS: "--gnss-topic"}.get(role)
             pick = (
@@ -148,6 +170,20 @@ def _choose(
         f"{why}"
     )
     return best
+
+
+# Words in a topic's name that mark a GNSS or velocity topic as an estimator's output (a
+# fusion node's, a filter's), not a receiver's measurement.
+DERIVED_TOPIC_WORDS = ("filtered", "fused", "fusion", "odom", "ekf", "ukf", "smoothed",
+                       "estimate", "localization", "navsat_transform")  # fmt: skip
+
+
+def _derived(candidate: _Candidate, role: str) -> bool:
+    """Does the candidate's topic name say an estimator's output (GNSS and velocity roles)?"""
+    if role not in (ROLE_GNSS, ROLE_VELOCITY):
+        return False
+    name = candidate.topic.lower()
+    return any(word in name for word in DERIVED_TOPIC_WORDS)
 
 
 _ROLES = (ROLE_IMU, ROLE_GNSS, ROLE_VELOCITY, ROLE_BARO)

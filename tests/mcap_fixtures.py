@@ -153,6 +153,8 @@ def write_bag(
     publishers: int = 1,
     compression: str = "",
     position_correlation: float = 0.0,
+    second_receiver_m: float = 0.0,
+    receiver_renamed: bool = False,
 ) -> Path:
     """The drive through rosbags' serializers: ``kind`` "ros2-mcap" / "ros2-sqlite" (a bag
     folder ``path``), "ros1-bag" (a ``.bag`` file ``path``) or "ros1-mcap" (an MCAP file of
@@ -164,6 +166,11 @@ def write_bag(
 
     ``second_imu_every`` > 0 adds ``/imu/raw`` carrying every n-th IMU sample (a second,
     sparser IMU candidate).
+
+    ``second_receiver_m`` > 0: a second receiver (frame_id ``gps2``) ``second_receiver_m``
+    north of the first publishes on /gps/fix too, 0.1 s after each fix; ``receiver_renamed``:
+    the fixes of the drive's second half carry frame_id ``gps_b`` (a driver restarted under
+    another name).
 
     ``publishers`` > 1 (ROS 1 kinds): each topic gets that many connections (callers
     ``/node_0``...), its messages dealt to them in turn, as when a driver restarts or two
@@ -253,18 +260,23 @@ def write_bag(
                 cov[1] = cov[3] = 0.3  # off-diagonal terms must not leak into the std
                 if position_correlation:  # a full covariance (type 3) with east-north correlated
                     cov[1] = cov[3] = position_correlation * drive.std[i, 0] * drive.std[i, 1]
-                msg = t["sensor_msgs/msg/NavSatFix"](
-                    header=_header(store, ns, "gps"),
-                    status=t["sensor_msgs/msg/NavSatStatus"](
-                        status=int(drive.status[i]), service=1
-                    ),
-                    latitude=float(drive.lla[i, 0]),
-                    longitude=float(drive.lla[i, 1]),
-                    altitude=float(drive.lla[i, 2]),
-                    position_covariance=cov,
-                    position_covariance_type=3 if position_correlation else 2,
-                )
-                records.append((ns, fix_conn, msg, "sensor_msgs/msg/NavSatFix"))
+                renamed = receiver_renamed and i >= drive.gnss_ns.size // 2
+                receivers = [(ns, "gps_b" if renamed else "gps", 0.0)]
+                if second_receiver_m:
+                    receivers.append((ns + 100_000_000, "gps2", second_receiver_m / 111_195.0))
+                for stamp, frame, north_deg in receivers:
+                    msg = t["sensor_msgs/msg/NavSatFix"](
+                        header=_header(store, stamp, frame),
+                        status=t["sensor_msgs/msg/NavSatStatus"](
+                            status=int(drive.status[i]), service=1
+                        ),
+                        latitude=float(drive.lla[i, 0]) + north_deg,
+                        longitude=float(drive.lla[i, 1]),
+                        altitude=float(drive.lla[i, 2]),
+                        position_covariance=cov,
+                        position_covariance_type=3 if position_correlation else 2,
+                    )
+                    records.append((stamp, fix_conn, msg, "sensor_msgs/msg/NavSatFix"))
         else:
             nmea_conn = add("/nmea_sentence", "nmea_msgs/msg/Sentence")
             for ns, sentence in nmea_sentences:

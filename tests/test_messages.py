@@ -90,6 +90,38 @@ def test_no_tie_warning_when_one_imu_topic_has_more_messages(tmp_path: Path) -> 
     assert not [w for w in result.warnings if "messages each" in w]
 
 
+@pytest.mark.parametrize(
+    ("topics", "read", "derived"),
+    [
+        ({"/gps/fix": 996, "/gps/filtered": 3980}, "/gps/fix", "/gps/filtered"),
+        ({"/odometry/gps": 2000, "/ublox/fix": 1000, "/novatel/fix": 990}, "/ublox/fix", "/odometry/gps"),
+        ({"/gnss/left": 1000, "/gnss/right": 990}, "/gnss/left", None),
+    ],
+)
+def test_a_gnss_topic_is_chosen_said_and_never_a_fusion_node_s_output(topics, read, derived) -> None:
+    """A fusion node's fixes (robot_localization's /gps/filtered at 20 Hz) beside the
+    receiver's: chosen for their count, 3 m off at 88 times their sigmas, said only in an
+    info line (outside tester). Topics named as an estimator's output come last, whatever
+    their count, and a choice among GNSS topics is a warning naming the override."""
+    from fgins.io.mcap import ROLE_GNSS, ROLE_IMU, _Candidate, _choose
+
+    candidates = [_Candidate(i, topic, "sensor_msgs/msg/NavSatFix", ROLE_GNSS) for i, topic in enumerate(topics)]
+    counts = {i: n for i, n in enumerate(topics.values())}
+    report: list[str] = []
+    warnings: list[str] = []
+    assert _choose(ROLE_GNSS, candidates, counts, None, report, warnings).topic == read
+    (said,) = warnings
+    assert said.startswith(f"gnss: {len(topics)} GNSS topics; read {read}") and "--gnss-topic" in said
+    assert (derived is not None) == ("fused or filtered output" in said)
+    if derived is not None:
+        assert f"({derived}: by its name" in said
+    # IMU topics keep their rule (most messages), without a warning unless tied.
+    imus = [_Candidate(i, topic, "sensor_msgs/msg/Imu", ROLE_IMU) for i, topic in enumerate(["/imu/filtered", "/imu"])]
+    warnings.clear()
+    assert _choose(ROLE_IMU, imus, {0: 10, 1: 5}, None, [], warnings).topic == "/imu/filtered"
+    assert not warnings
+
+
 def test_an_imu_error_in_a_multi_imu_file_names_the_other_topics(tmp_path: Path) -> None:
     """Before: the error blamed the IMU read without saying another topic could be read."""
     from dataclasses import replace
