@@ -678,9 +678,14 @@ def check_track_scale_by_turns(gnss: GnssData, enu: np.ndarray, imu, up: np.ndar
     if blocks < SCALE_MIN_TURNS:
         return
     t_mid = imu.t[: blocks * n].reshape(blocks, n).mean(axis=1)
-    gyro = imu.gyro[: blocks * n].reshape(blocks, n, 3).mean(axis=1)
+    samples = imu.gyro[: blocks * n].reshape(blocks, n, 3)
+    gyro = samples.mean(axis=1)
     accel = imu.accel[: blocks * n].reshape(blocks, n, 3).mean(axis=1)
-    inside = (t_mid > t_fix[0]) & (t_mid < t_fix[-1])
+    # Only blocks whose tilt holds still: a body rolling or pitching (a boat in waves: 8 deg
+    # at 0.25 Hz) puts gravity into the "horizontal" force, read as a turn far faster than
+    # the fixes go (a 1.5 m/s boat: "10.3 times slower ... lat/lon in radians", refused).
+    tilting = np.linalg.norm(samples - (samples @ up)[..., None] * up, axis=2).mean(axis=1)
+    inside = (t_mid > t_fix[0]) & (t_mid < t_fix[-1]) & (tilting < SCALE_TILT_RATE_RAD_S)
     velocity = np.gradient(xy, t_fix, axis=0)
     yaw_rate = gyro @ up
     horizontal = accel - np.outer(accel @ up, up)
@@ -713,6 +718,9 @@ SCALE_TURN_RAD_S = 0.05
 SCALE_FORCE_M_S2 = 0.5
 SCALE_MIN_TURNS = 8
 SCALE_SHRUNK_RATIO = 0.1
+# Mean rotation rate about the horizontal axes (rad/s) of a block that counts: a car's roll
+# into a turn stays below; a boat rolling 8 deg at 0.25 Hz averages 0.14.
+SCALE_TILT_RATE_RAD_S = 0.05
 
 
 def _check_shrunk_track(gnss: GnssData, enu: np.ndarray, sigma: np.ndarray) -> None:
