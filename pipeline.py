@@ -198,7 +198,7 @@ def _corrected_solution(
     run = Rerun(method, gnss_mask, lambda data, cfg, how: _run(data, cfg, how, gnss_mask, progress))
     config, noise_note = noise_from_data(dataset, config, run)
     config, mounting_note, mounting_sigma_deg = mounting_from_drive(dataset, config, run)
-    config, point_note = nhc_lever_from_turns(dataset, config)
+    config, point_note = nhc_lever_from_turns(dataset, config, method)
     trajectory = run.solve(dataset, config)
     # The biases are judged on a solution whose clocks fit (fixes 2 s late read as an
     # accelerometer bias 6 times its turn-on sigma).

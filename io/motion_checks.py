@@ -344,11 +344,14 @@ def _clock_verdict(
     return (offset.lag_s if offset else 0.0), judge(offset, given, banks=banks)
 
 
-def _chord_velocity(gnss: GnssData, enu: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _chord_velocity(
+    gnss: GnssData, enu: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The velocity the fixes' own VELOCITY_CHORD_S chords show, centred on each fix:
     (dense: the chord spans most of its length, velocity (N, 3), clear: a horizontal speed
     well above what the fixes' noise fakes over the chord and above TURN_MIN_SPEED_M_PER_S;
-    a few satellites give tens of metres of scatter, "metres per second" at a standstill)."""
+    a few satellites give tens of metres of scatter, "metres per second" at a standstill;
+    noise: the RMS of the horizontal velocity error the fixes' noise gives the chord)."""
     t = gnss.t
     a = np.searchsorted(t, t - VELOCITY_CHORD_S / 2)
     b = np.clip(np.searchsorted(t, t + VELOCITY_CHORD_S / 2, side="right") - 1, 0, len(t) - 1)
@@ -360,7 +363,7 @@ def _chord_velocity(gnss: GnssData, enu: np.ndarray) -> tuple[np.ndarray, np.nda
         noise = np.sqrt(sigma[a] ** 2 + sigma[b] ** 2) / span
         speed = np.hypot(velocity[:, 0], velocity[:, 1])
         clear = dense & np.isfinite(speed) & (speed > np.maximum(TURN_MIN_SPEED_M_PER_S, 3 * noise))
-    return dense, velocity, clear
+    return dense, velocity, clear, noise
 
 
 def check_wheel_speed(odometer, gnss: GnssData, enu: np.ndarray) -> None:
@@ -369,7 +372,7 @@ def check_wheel_speed(odometer, gnss: GnssData, enu: np.ndarray) -> None:
     scale state took +260 % on a simulated car and the run said nothing but that number) or
     a wheel's angular rate. A wheel log beside no moving fix is not judged."""
     t = gnss.t
-    dense, track, clear = _chord_velocity(gnss, enu)
+    dense, track, clear, _ = _chord_velocity(gnss, enu)
     track_speed = np.hypot(track[:, 0], track[:, 1])
     # Only where a wheel sample lies within half a second (a wheel log covering part of the
     # drive is judged where it is).
@@ -432,7 +435,7 @@ def check_gnss_velocity(gnss: GnssData, origin: Origin) -> None:
     if gnss.velocity is None or len(gnss.t) < 3:
         return
     enu = lla_to_enu(gnss.lla, origin)
-    dense, track_all, clear = _chord_velocity(gnss, enu)
+    dense, track_all, clear, chord_noise = _chord_velocity(gnss, enu)
     if dense.sum() < VELOCITY_MIN_EPOCHS:
         return
     track = track_all[dense]
@@ -440,8 +443,8 @@ def check_gnss_velocity(gnss: GnssData, origin: Origin) -> None:
     given_speed = np.hypot(given[:, 0], given[:, 1])
     moving = np.isfinite(given_speed) & clear[dense]
     _check_shrunk_track(gnss, enu, fix_sigma(gnss))
+    from_course = _velocity_from_speed_course(gnss)
     if moving.sum() >= VELOCITY_MIN_EPOCHS:
-        from_course = _velocity_from_speed_course(gnss)
         # The direction first: a ratio of velocities turned against the chords means nothing.
         angle = np.degrees(np.abs(np.angle(
             (given[moving, 0] + 1j * given[moving, 1]) / (track[moving, 0] + 1j * track[moving, 1])
@@ -466,17 +469,17 @@ def check_gnss_velocity(gnss: GnssData, origin: Origin) -> None:
                 "show (median; ~0 expected): east and north swapped (NED order?) or another "
                 "frame; give vel_east, vel_north, vel_up (ENU, m/s)"
             )
-        ratio = _speed_ratio(given[:, :2], track[:, :2])
-        if not VELOCITY_SPEED_RATIO_RANGE[0] <= ratio <= VELOCITY_SPEED_RATIO_RANGE[1]:
-            what, fix = (
-                ("speed over ground gives", "give the speed column in m/s")
-                if from_course
-                else ("velocity columns give", "give vel_east/north/up in m/s")
-            )
-            raise InputError(
-                f"gnss: the {what} {ratio:.3g} times the speed the fixes show "
-                f"(~1 expected; km/h gives 3.6, knots 1.94): {fix}"
-            )
+    ratio = _speed_ratio(given_speed, np.hypot(track[:, 0], track[:, 1]), chord_noise[dense])
+    if math.isfinite(ratio) and not VELOCITY_SPEED_RATIO_RANGE[0] <= ratio <= VELOCITY_SPEED_RATIO_RANGE[1]:
+        what, fix = (
+            ("speed over ground gives", "give the speed column in m/s")
+            if from_course
+            else ("velocity columns give", "give vel_east/north/up in m/s")
+        )
+        raise InputError(
+            f"gnss: the {what} {ratio:.3g} times the speed the fixes show "
+            f"(~1 expected; km/h gives 3.6, knots 1.94): {fix}"
+        )
     climb = track[:, 2]
     given_climb = given[:, 2]
     usable = np.isfinite(given_climb)
@@ -495,19 +498,22 @@ def check_gnss_velocity(gnss: GnssData, origin: Origin) -> None:
         )
 
 
-def _speed_ratio(given: np.ndarray, track: np.ndarray) -> float:
-    """How many times the given horizontal velocities are the fixes' chords (N, 2 each):
-    sum |g|^2 / sum g . t over every epoch with a given velocity. The chords' noise is
-    independent of the given velocity, so it cancels in the sum; a median of speed ratios
-    over the chords that stand clear of their noise chose the noise-lengthened ones (a 5 m/s
-    boat with 3 m fixes: its velocity "0.68 times the speed the fixes show", refused as a
-    unit error; this gives 1.00). Standing epochs weigh nothing (g ~ 0)."""
-    usable = np.all(np.isfinite(given), axis=1) & np.all(np.isfinite(track), axis=1)
-    g, t = given[usable], track[usable]
-    along = float(np.sum(g * t))
-    if along <= 0.0:
-        return 0.0
-    return float(np.sum(g * g)) / along
+def _speed_ratio(given: np.ndarray, chord: np.ndarray, noise: np.ndarray) -> float:
+    """How many times the given horizontal speeds are the fixes' chords' (per epoch, with
+    the RMS ``noise`` the fixes give a chord's velocity): the median of their ratios where
+    the given speed stands clear of that noise, each chord's speed less its noise
+    (sqrt(c^2 - noise^2): noise only lengthens a chord on average); NaN with too few such
+    epochs. Chosen by the given speed, which the chords' noise does not touch: chosen by
+    the chords' own speed, the ones noise had lengthened were taken (a 5 m/s boat with 3 m
+    fixes: "0.68 times the speed the fixes show", refused as a unit error; now 1.00). The
+    median, as chords through turns are shorter than the path (a multirotor's 4-s chords)."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        chosen = np.isfinite(given) & np.isfinite(chord) & np.isfinite(noise)
+        chosen &= given > np.maximum(TURN_MIN_SPEED_M_PER_S, 3.0 * noise)
+        if chosen.sum() < VELOCITY_MIN_EPOCHS:
+            return math.nan
+        corrected = np.sqrt(np.maximum(chord[chosen] ** 2 - noise[chosen] ** 2, 0.0))
+        return float(np.median(given[chosen] / corrected))
 
 
 def _climb_ratio_bounds(climb: np.ndarray, given: np.ndarray) -> tuple[float, float] | None:

@@ -184,7 +184,7 @@ def test_slow_vehicle_with_consumer_fixes_keeps_its_velocity_units_checked(tmp_p
     if unit == "m/s":
         assert load().gnss.velocity is not None
     else:
-        with pytest.raises(fgins.InputError, match=r"(3\.[4-8]|1\.[89]|2\.0)\d* times the speed"):
+        with pytest.raises(fgins.InputError, match=r" (3\.[4-8]\d*|1\.[89]\d*|2|2\.0\d*) times the speed"):
             load()
 
 

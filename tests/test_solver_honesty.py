@@ -482,6 +482,7 @@ def test_a_solve_whose_lm_crawls_has_a_bounded_cost_and_says_its_work(monkeypatc
     iterations, 10 minutes), and the summary counted only the first start's and the kept
     one's. Now one solve stops at SOLVE_ITERATION_BUDGET_FACTOR x batch_max_iterations
     (unconverged: batch tries its other starts), and the count is every start's."""
+    import fgins.graph.gnss_faults as gnss_faults
     import fgins.graph.solve as solve
     from fgins.graph.solve import SOLVE_ITERATION_BUDGET_FACTOR, NotConvergedError
 
@@ -506,6 +507,7 @@ def test_a_solve_whose_lm_crawls_has_a_bounded_cost_and_says_its_work(monkeypatc
 
     monkeypatch.setattr(solve, "levenberg_marquardt", crawling)
     monkeypatch.setattr(solve, "solve_in_rounds", counted_rounds)
+    monkeypatch.setattr(gnss_faults, "solve_in_rounds", counted_rounds)
     with pytest.raises(NotConvergedError, match=r"did not converge \((\d+) iterations") as said:
         run_method(run.dataset, config, "batch", progress=False)
     per_solve = np.bincount([s for _, s in calls], weights=[b for b, _ in calls])
