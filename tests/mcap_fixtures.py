@@ -59,9 +59,14 @@ def make_drive(duration_s: float = 20.0, imu_hz: int = 100, gnss_hz: int = 5) ->
         [48.137 + 1e-5 * t_gnss, 11.575 + 2e-5 * np.sin(0.1 * t_gnss), 520.0 + 0.1 * t_gnss]
     )
     std = np.column_stack([1.5 + 0.01 * t_gnss, 2.0 + 0.02 * t_gnss, 3.5 + 0.0 * t_gnss])
-    velocity = np.column_stack(
-        [5 * np.cos(0.1 * t_gnss), 5 * np.sin(0.1 * t_gnss), 0.1 + 0 * t_gnss]
-    )
+    # The velocity the positions above have (east: the longitude's rate at 48.137 deg; the
+    # unit checks compare the two).
+    metres_per_deg = 111_195.0
+    velocity = np.column_stack([
+        2e-6 * np.cos(0.1 * t_gnss) * metres_per_deg * np.cos(np.radians(48.137)),
+        1e-5 * metres_per_deg + 0 * t_gnss,
+        0.1 + 0 * t_gnss,
+    ])  # fmt: skip
     velocity_std = np.column_stack([0.1 + 0 * t_gnss, 0.2 + 0 * t_gnss, 0.3 + 0 * t_gnss])
     status = np.where(np.arange(t_gnss.size) % 17 == 5, -1, 0)
     baro_ns = T0_NS + np.arange(int(duration_s * 10)) * 100_000_000
