@@ -521,6 +521,7 @@ class _EpochBuilder:
         self.without_fix = 0
         self.histogram: Counter[int] = Counter()
         self.last_week: int | None = None
+        self.last_itow: int | None = None  # of the epoch that set or carried last_week
         self.last_time: float | None = None
         self.first_time = math.inf  # of any timed epoch, with a fix or not (t0 of outages)
 
@@ -546,10 +547,15 @@ class _EpochBuilder:
         elif tgps is not None and getattr(tgps, "weekValid", 0) and getattr(tgps, "towValid", 0):
             week, ftow = int(tgps.week), _f(tgps, "fTOW")
         elif self.last_week is not None:
-            week = self.last_week  # iTOW of a later epoch of the same week
+            week = self.last_week  # iTOW of a later epoch of the same week ...
+            if self.last_itow is not None and e.itow < self.last_itow - WEEK_S * 500:
+                # ... or of the next, where iTOW wrapped: a log with NAV-TIMEGPS once put
+                # every fix after the rollover a week back (outside tester: "the IMU's time
+                # tags jump", or half the fixes outside an imu.csv's span).
+                week += 1
         if week is None or week <= 0:
             return None
-        self.last_week = week
+        self.last_week, self.last_itow = week, e.itow
         gps = week * WEEK_S + e.itow * 1e-3 + (ftow if math.isfinite(ftow) else 0.0) * 1e-9
         if tgps is not None and getattr(tgps, "leapSValid", 0):
             leap = int(tgps.leapS)

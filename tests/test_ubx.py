@@ -183,6 +183,25 @@ def test_pvt_without_valid_date_uses_gps_week(tmp_path):
     assert result.gnss is None and result.epochs_without_time == 3
 
 
+@pytest.mark.parametrize("every", [0, 3])
+def test_a_week_rollover_without_a_week_at_every_epoch_keeps_the_fixes_in_order(tmp_path, every):
+    """UTC not yet valid and NAV-TIMEGPS logged once (or every 3rd epoch): the fixes after
+    the week's end took the last week seen and lay a week back (outside tester: "the IMU's
+    time tags jump", or half the fixes outside an imu.csv's span). iTOW wrapping to the
+    next week's start advances the week."""
+    from fgins.tests.ubx_fixtures import GPS_EPOCH_POSIX, LEAP_S
+
+    week_end = GPS_EPOCH_POSIX - LEAP_S + 2200 * 604800  # UTC of GPS week 2200's end
+    times = week_end - 20.0 + 2.0 * np.arange(20)
+    data = b"".join(
+        nav_pvt(t, LAT, LON, H, valid_date=0, valid_time=0)
+        + (nav_timegps(t) if k == 0 or (every and k % every == 0) else b"")
+        for k, t in enumerate(times)
+    )
+    gnss = read_ubx(_write(tmp_path, data)).gnss
+    np.testing.assert_allclose(gnss.t, times, atol=1e-6)
+
+
 # -- IMU ----------------------------------------------------------------------------------------
 
 
