@@ -132,7 +132,15 @@ def correct_gyro_scale(
             "(a gyro's is within a few %): a gyro column with its sign flipped or two columns "
             "swapped (gyro_x, gyro_y, gyro_z must be the accelerometer's right-handed axes), an "
             "IMU mounting far off, gyro biases far beyond their turn-on sigmas, or a solution far "
-            "off the truth (a configured initial heading?); no output written"
+            "off the truth (a configured initial heading?"
+            + (
+                f"; or a vehicle model that does not hold: --vehicle {problem.config.smoother.vehicle}"
+                " ties the IMU's heading to its track, which a multirotor, a walker or a boat in"
+                " a current does not follow: --vehicle uav, pedestrian or other"
+                if problem.config.smoother.nhc
+                else ""
+            )
+            + "); no output written"
         )
     axes = estimate.significant
     total = np.ones(3)

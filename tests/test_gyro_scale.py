@@ -220,9 +220,12 @@ def test_a_gyro_axis_mistake_is_no_scale_error_but_an_error(tmp_path, mistake, a
     else:
         imu[["gyro_x", "gyro_y"]] = imu[["gyro_y", "gyro_x"]].to_numpy()
     imu.to_csv(files[0], index=False, float_format="%.10e")
-    with pytest.raises(fgins.FginsError, match=r"imu: the gyro's turns contradict the solution's, read as scale errors"):
+    with pytest.raises(fgins.FginsError, match=r"imu: the gyro's turns contradict the solution's, read as scale errors") as said:
         fgins.smooth(fgins.load(*files, config=tmp_path / "cfg.toml", vehicle="car"), "batch",
                      gnss_outage=OUTAGES)  # fmt: skip
+    # With the car's constraints on, the vehicle model is named as a cause too (an outside
+    # tester's drone and boat given --vehicle car: only the gyro's columns were blamed).
+    assert "--vehicle car ties the IMU's heading to its track" in str(said.value)
 
 
 def test_an_implausible_but_loose_scale_is_said_not_corrected():
