@@ -1096,14 +1096,19 @@ def nhc_lever_from_turns(
         configured = float(smoother.nhc_lever_arm_m[0])
         if abs(configured + ahead) <= max(NHC_LEVER_SIGMAS * sigma, NHC_LEVER_MIN_M):
             return config, None
+        flipped = (
+            "; a sign the other way?"
+            if abs(configured - ahead) <= max(NHC_LEVER_SIGMAS * sigma, NHC_LEVER_MIN_M)
+            else ""
+        )
         config = replace(config, smoother=replace(smoother, nhc_lever_arm_m=(-ahead, *smoother.nhc_lever_arm_m[1:])))
         return config, (
             f"vehicle: the non-holonomic point (the rear axle's centre, [smoother] "
             f"nhc_lever_arm_m = {[float(x) for x in smoother.nhc_lever_arm_m]}) does not fit "
             f"the turns: they show the IMU {ahead:+.2f} +- {sigma:.2f} m ahead of it (the IMU "
             f"feels -l w^2 forward and l dw/dt sideways), where the configured point puts it "
-            f"{-configured:+.2f} m ahead (vehicle axes: the point from the IMU; a sign the "
-            f"other way?): using nhc_lever_arm_m = [{-ahead:.2f}, "
+            f"{-configured:+.2f} m ahead (vehicle axes: the point from the IMU{flipped}): "
+            f"using nhc_lever_arm_m = [{-ahead:.2f}, "
             f"{', '.join(f'{float(x):g}' for x in smoother.nhc_lever_arm_m[1:])}]; "
             "[smoother] nhc_lever_from_data = false keeps yours"
         )

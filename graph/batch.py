@@ -89,7 +89,10 @@ def _fall_back(
             continue  # this start cannot even be computed: try the next
         tried[0] += candidate[0].iterations
         tried[1] += candidate[0].rounds
-        if candidate[0].final_error < best[0].final_error:
+        # A second opinion that did not converge is no opinion: the first fit stays.
+        if candidate[0].final_error < best[0].final_error and not (
+            second_opinion and is_suspect(candidate[0])
+        ):
             best = candidate
         if not is_suspect(candidate[0]):
             break

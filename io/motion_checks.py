@@ -690,7 +690,11 @@ def check_track_scale_by_turns(gnss: GnssData, enu: np.ndarray, imu, up: np.ndar
     # Only blocks whose tilt holds still: a body rolling or pitching (a boat in waves: 8 deg
     # at 0.25 Hz) puts gravity into the "horizontal" force, read as a turn far faster than
     # the fixes go (a 1.5 m/s boat: "10.3 times slower ... lat/lon in radians", refused).
-    tilting = np.linalg.norm(samples - (samples @ up)[..., None] * up, axis=2).mean(axis=1)
+    # The rate in fifths of a block (0.2 s means: an engine's vibration averages out there,
+    # a swell's roll does not).
+    fifth = max(n // 5, 1)
+    parts = samples[:, : 5 * fifth].reshape(blocks, 5, fifth, 3).mean(axis=2)
+    tilting = np.linalg.norm(parts - (parts @ up)[..., None] * up, axis=2).mean(axis=1)
     inside = (t_mid > t_fix[0]) & (t_mid < t_fix[-1]) & (tilting < SCALE_TILT_RATE_RAD_S)
     velocity = np.gradient(xy, t_fix, axis=0)
     yaw_rate = gyro @ up
