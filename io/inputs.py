@@ -69,6 +69,27 @@ def _bag_storage(path: Path) -> Path:
     return path
 
 
+def _piece_of_split_bag(path: Path) -> tuple[Path, str] | None:
+    """(the bag folder, what to say) when ``path`` is one of several MCAP storage files a
+    ROS 2 bag's metadata.yaml lists: read alone it was a third of the drive, unsaid, where a
+    .db3 of the same bag stands for the whole (outside tester)."""
+    from fgins.io.rosbag import is_ros2_bag_folder, listed_files
+
+    folder = path.parent
+    if not (path.is_file() and path.suffix.lower() == ".mcap" and is_ros2_bag_folder(folder)):
+        return None
+    try:
+        names = listed_files(folder)
+    except InputError:
+        return None  # a metadata.yaml that is no bag's: the file is read as it is
+    if len(names) < 2 or path.name not in {Path(name).name for name in names}:
+        return None
+    return folder, (
+        f"{path}: one of the {len(names)} storage files of the ROS 2 bag {folder} (its "
+        f"metadata.yaml lists them): the whole bag is read"
+    )
+
+
 def validated(dataset: Dataset, vehicle: str | None = None) -> Dataset:
     """The one call of the input-validation layer (checks, repairs, counted warnings)."""
     from fgins.io.validate import validate_dataset
@@ -169,6 +190,9 @@ def _parse(
         if not path.exists():
             raise InputError(f"{path}: no such file or folder")
         check_not_empty(path)
+    split_piece = _piece_of_split_bag(paths[0]) if len(paths) == 1 else None
+    if split_piece is not None:
+        paths = [split_piece[0]]  # the bag folder, read whole (as a .db3 of it is)
     bags = [p for p in paths if _is_bag(str(p))]
     if bags:
         if len(paths) > 1:
@@ -195,6 +219,8 @@ def _parse(
         result = read_rosbag(paths[0], imu_topic=imu_topic, gnss_topic=gnss_topic,
                              progress=progress)  # fmt: skip
         result.dataset.metadata["mcap_report"] = result.report
+        if split_piece is not None:
+            result.dataset.warnings.append(split_piece[1])
         return result.dataset
     from fgins.io.ubx import looks_like_ubx
 

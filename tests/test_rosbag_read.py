@@ -262,6 +262,59 @@ def test_a_bag_folder_is_read_as_its_metadata_says(tmp_path, capsys):
           load_dataset([str(write_ros2_bag(tmp_path / "ref", drive))], progress=False))  # fmt: skip
 
 
+def _split_bag(source: Path, target: Path, parts: int) -> list[Path]:
+    """``source`` (a ROS 2 bag folder) rewritten by rosbags as one bag of ``parts`` MCAP
+    storage files cut at log times (as rosbag2 --max-bag-duration splits); their paths."""
+    import shutil
+
+    from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+    from ruamel.yaml import YAML
+
+    yaml = YAML(typ="safe")
+    target.mkdir()
+    infos = []
+    with Reader(source) as reader:
+        cuts = [reader.start_time + (reader.end_time - reader.start_time) * i // parts for i in range(parts + 1)]
+        cuts[-1] += 1
+        for i in range(parts):
+            part = target / f"_part{i}"
+            writer = Writer(part, version=8, storage_plugin=StoragePlugin.MCAP)
+            writer.open()
+            mapping = {c.id: writer.add_connection(c.topic, c.msgtype, msgdef=c.msgdef.data, rihs01=c.digest)
+                       for c in reader.connections}  # fmt: skip
+            for connection, stamp, raw in reader.messages(start=cuts[i], stop=cuts[i + 1]):
+                writer.write(mapping[connection.id], stamp, raw)
+            writer.close()
+            (part / f"_part{i}.mcap").rename(target / f"{target.name}_{i}.mcap")
+            infos.append(yaml.load((part / "metadata.yaml").read_text())["rosbag2_bagfile_information"])
+            shutil.rmtree(part)
+    info = infos[0]
+    names = [f"{target.name}_{i}.mcap" for i in range(parts)]
+    info["files"] = [dict(one["files"][0], path=name) for one, name in zip(infos, names, strict=True)]
+    info["relative_file_paths"] = names
+    info["message_count"] = sum(one["message_count"] for one in infos)
+    for topic in info["topics_with_message_count"]:
+        name = topic["topic_metadata"]["name"]
+        topic["message_count"] = sum(t["message_count"] for one in infos
+                                     for t in one["topics_with_message_count"] if t["topic_metadata"]["name"] == name)  # fmt: skip
+    with open(target / "metadata.yaml", "w") as out:
+        yaml.dump({"rosbag2_bagfile_information": info}, out)
+    return [target / name for name in names]
+
+
+def test_one_mcap_file_of_a_split_bag_stands_for_the_bag(tmp_path):
+    """A ROS 2 bag split into three MCAP files (rosbag2 --max-bag-duration): one of them
+    given was read alone, a third of the drive, unsaid, where a .db3 of a bag stands for the
+    whole (outside tester). Now it is read as its bag, said."""
+    drive = make_drive()
+    whole = write_bag(tmp_path / "whole", drive, "ros2-mcap")
+    pieces = _split_bag(whole, tmp_path / "split", 3)
+    dataset = load_dataset([str(pieces[1])], progress=False)
+    _same(dataset, load_dataset([str(whole)], progress=False))
+    (said,) = [w for w in dataset.warnings if "storage files of the ROS 2 bag" in w]
+    assert said.startswith(f"{pieces[1]}: one of the 3 storage files") and "the whole bag is read" in said
+
+
 def test_no_output_inside_an_input_bag_folder(tmp_path, capsys):
     drive = make_drive()
     folder = write_bag(tmp_path / "bag", drive, "ros2-mcap")
