@@ -131,7 +131,9 @@ def noise_from_data(dataset: Dataset, config: RunConfig, run: Rerun) -> tuple[Ru
     graded = _bias_of_grade(config, excess)
     imu.update(graded.values)
     return replace(config, imu=imu), (
-        f"imu: at rest ({measured.rest_s:.0f} s of the log) the IMU reads more white noise "
+        f"imu: where the fixes stand still within their noise and the IMU shows no trend "
+        f"({measured.rest_s:.0f} s of the log: at rest, or too slow for the fixes to tell) "
+        "the IMU reads more white noise "
         f"than configured (over {NOISE_EXCESS:g} times): {'; '.join(said)}. Vibration or a "
         "noisier sensor: the measured noise is used (a floor: a moving vehicle vibrates more)"
         f"{graded.said}. [imu] noise_from_data = false keeps the configured noise"

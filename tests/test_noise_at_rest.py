@@ -114,6 +114,8 @@ def test_a_vibrating_imu_gets_the_noise_it_shows(tmp_path, white, rate, seed):
                             "batch", gnss_outage=OUTAGES)  # fmt: skip
     said = [w for w in measured.info.get("fit_warnings", []) if "white noise" in w]
     assert len(said) == 1 and "accel" in said[0] and "noise_from_data = false" in said[0], said
+    # What "rest" is, said: fixes still within their noise, which a slow walker's are too.
+    assert "at rest, or too slow for the fixes to tell" in said[0], said
     assert "another grade" not in said[0]  # vibration, not a sensor of another grade
     assert not any("white noise" in w for w in datasheet.info.get("fit_warnings", []))
     rms_datasheet, sigma_datasheet = outage_rms_and_sigma(datasheet, tmp_path, OUTAGES)
