@@ -711,6 +711,16 @@ def _gnss_from_rows(rows: list[list[float]]) -> GnssData:
     )
 
 
+def _time_step(t: np.ndarray) -> float:
+    """The coarsest of 1 ms, 10 ms, 0.1 s and 1 s that every time in ``t`` (s) is a whole
+    multiple of: the resolution its sentences wrote them with."""
+    step = 1e-3
+    for coarser in (1e-2, 1e-1, 1.0):
+        if t.size and np.all(np.abs(t / coarser - np.round(t / coarser)) < 1e-3):
+            step = coarser
+    return step
+
+
 def _nmea_rows(
     scanner: _Scanner, ubx_times: np.ndarray, warnings: list[str]
 ) -> tuple[list[list[float]], dict[str, int]]:
@@ -743,13 +753,15 @@ def _nmea_rows(
     warnings.extend(f"NMEA sentences: {w}" for w in result.warnings)
     columns = gnss_columns(result.gnss)
     # The UBX epoch of the same instant is better (sigmas, full precision): NMEA fixes only
-    # where no UBX epoch is within 0.5 ms (ubx_times is sorted).
+    # where no UBX epoch lies within the NMEA times' own step (ubx_times is sorted). The
+    # step, not 0.5 ms: a receiver's GGA at hhmmss.ss truncates an epoch at .399999857 s to
+    # .39, and 398 such sentences became extra fixes beside their own epochs (outside tester).
     covered = np.zeros(len(t), dtype=bool)
     if ubx_times.size:
         k = np.clip(np.searchsorted(ubx_times, t), 1, max(len(ubx_times) - 1, 1))
         left = ubx_times[np.minimum(k - 1, len(ubx_times) - 1)]
         right = ubx_times[np.minimum(k, len(ubx_times) - 1)]
-        covered = np.minimum(np.abs(t - left), np.abs(t - right)) < 5e-4
+        covered = np.minimum(np.abs(t - left), np.abs(t - right)) < max(_time_step(t), 5e-4)
     rows = []
     for i, ti in enumerate(t):
         if covered[i]:

@@ -385,6 +385,25 @@ def test_nmea_and_rtcm_mixed_in_comment_header(tmp_path):
     np.testing.assert_allclose(result.gnss.lla[4], [LAT + 1e-4, LON, 447.0], atol=1e-6)
 
 
+@pytest.mark.parametrize("decimals", [2, 3])
+def test_a_gga_that_truncates_its_epoch_s_time_is_that_epoch(tmp_path, decimals):
+    """A GGA beside each 5 Hz NAV-PVT epoch whose time (hhmmss.ss) truncates the epoch's
+    (.399999857 s written .39): "an instant no UBX epoch covers", 398 extra fixes beside
+    their own epochs (outside tester). Within the NMEA times' own step it is that epoch."""
+    stream = bytearray()
+    for k in range(10):
+        t = T0 + 0.2 * k - 1e-7  # a receiver's epoch a hair before the tenth
+        stream += nav_pvt(t, LAT, LON, H)
+        tm = __import__("time").gmtime(int(t))
+        fraction = int((t - int(t)) * 10**decimals)  # truncated, as the receiver writes it
+        hhmmss = f"{tm.tm_hour:02d}{tm.tm_min:02d}{tm.tm_sec:02d}.{fraction:0{decimals}d}"
+        stream += _nmea(f"GPGGA,{hhmmss},{int(LAT):02d}{(LAT - int(LAT)) * 60 + 0.01:010.7f},N,"
+                        f"{int(LON):03d}{(LON - int(LON)) * 60:010.7f},E,1,08,1.0,400.000,M,47.000,M,,")  # fmt: skip
+    result = read_ubx(_write(tmp_path, bytes(stream)))
+    assert result.nmea_fixes_added == 0 and len(result.gnss.t) == 10
+    np.testing.assert_allclose(result.gnss.lla[:, 0], LAT, atol=1e-7)  # the UBX epochs'
+
+
 def test_nmea_in_a_ubx_log_that_cannot_be_used_is_said_not_swallowed(tmp_path):
     """NMEA from two receivers 30 m apart on one time base is an error for the NMEA reader;
     mixed into a UBX log it was dropped without a word (only a log without any fix in its
