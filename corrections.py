@@ -1096,14 +1096,12 @@ def nhc_lever_from_turns(
         # times their sigmas, blaming an antenna (outside tester); the graph's own check
         # (with_nhc_lever_corrected) serves the batch and iSAM2's final estimate only.
         configured = float(smoother.nhc_lever_arm_m[0])
-        if abs(configured + ahead) <= max(NHC_LEVER_SIGMAS * sigma, NHC_LEVER_MIN_M):
+        limit = max(NHC_LEVER_SIGMAS * sigma, NHC_LEVER_MIN_M)
+        if abs(configured + ahead) <= limit:
             return config, None
-        flipped = (
-            "; a sign the other way?"
-            if abs(configured - ahead) <= max(NHC_LEVER_SIGMAS * sigma, NHC_LEVER_MIN_M)
-            else ""
-        )
-        config = replace(config, smoother=replace(smoother, nhc_lever_arm_m=(-ahead, *smoother.nhc_lever_arm_m[1:])))
+        flipped = "; a sign the other way?" if abs(configured - ahead) <= limit else ""
+        moved = (-ahead, *smoother.nhc_lever_arm_m[1:])
+        config = replace(config, smoother=replace(smoother, nhc_lever_arm_m=moved))
         return config, (
             f"vehicle: the non-holonomic point (the rear axle's centre, [smoother] "
             f"nhc_lever_arm_m = {[float(x) for x in smoother.nhc_lever_arm_m]}) does not fit "

@@ -320,10 +320,10 @@ LONG_GNSS_GAP_S = 120.0
 
 
 def _long_gnss_gap_said(
-    dataset: Dataset, config: RunConfig, gnss_mask: np.ndarray | None, failure: Exception
+    dataset: Dataset, config: RunConfig, gnss_mask: np.ndarray | None, how: str
 ) -> str | None:
     """The longest stretch without a usable fix, as the cause of a solve that broke down
-    (``failure``: not finite, or not converged), where it is longer than LONG_GNSS_GAP_S;
+    (``how``: "its error is not finite", ...), where it is longer than LONG_GNSS_GAP_S;
     else None."""
     fixes = _used_fix_times(dataset, config, gnss_mask)
     edges = np.concatenate([[dataset.imu.t[0]], fixes, [dataset.imu.t[-1]]])
@@ -334,10 +334,6 @@ def _long_gnss_gap_said(
     if gap <= LONG_GNSS_GAP_S:
         return None
     t0 = dataset.t0
-    how = (
-        "its error is not finite" if "not finite" in str(failure)
-        else "its fit diverged" if "diverged" in str(failure) else "it did not converge"
-    )  # fmt: skip
     return (
         f"the solve broke down ({how}) over {gap:.0f} s without a usable GNSS "
         f"fix (t - t0 = {edges[i] - t0:.1f} .. {edges[i + 1] - t0:.1f} s): dead reckoning across "
@@ -363,18 +359,18 @@ def _run(
                 dataset, config, method, gnss_mask=gnss_mask, progress=progress,
                 initial_guess=filter_initial_guess(dataset, config, gnss_mask),
             )  # fmt: skip
-        except (NonFiniteError, NotConvergedError) as exc:
-            said = _long_gnss_gap_said(dataset, config, gnss_mask, exc)
+        except (NonFiniteError, NotConvergedError, DivergedError) as exc:
+            how = (
+                "its error is not finite" if isinstance(exc, NonFiniteError)
+                else "its fit diverged" if isinstance(exc, DivergedError)
+                else "it did not converge"
+            )  # fmt: skip
+            said = _long_gnss_gap_said(dataset, config, gnss_mask, how)
             if said is None:
                 raise
-            raise FginsError(said) from None
-        except DivergedError as exc:
-            # Its own causes stay first (axes, units, noise); a long gap is named beside them
+            # A diverged fit's own causes stay first (axes, units, noise), the gap beside them
             # (a real log's 630 s gap: iSAM2 named only the IMU's noise, axes or units).
-            said = _long_gnss_gap_said(dataset, config, gnss_mask, exc)
-            if said is None:
-                raise
-            raise FginsError(f"{exc}; also: {said}") from None
+            raise FginsError(f"{exc}; also: {said}" if isinstance(exc, DivergedError) else said) from None
         if method == "isam2-online":
             # The online pass is causal like a filter and has no chi-square check of its own
             # (the final smoothing's is another solution): a 0.5 m/s crawl held still by false

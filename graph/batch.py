@@ -72,7 +72,7 @@ def _fall_back(
         return run_isam2(problem, False, online_covariance=False, relinearize_skip=1)[1]
 
     best = (report, result, graph, source)
-    tried = [0, 0]  # iterations and rounds of every restart: the work done is said in full
+    tried_iterations = tried_rounds = 0  # every restart's: the work done is said in full
     restarts: list[tuple[str, Callable[[], gtsam.Values]]] = [
         (other.source, lambda other=other: other.take(problem)) for other in others
     ]
@@ -87,8 +87,8 @@ def _fall_back(
             candidate = (*solve_from(problem, start()), name)
         except FginsError:
             continue  # this start cannot even be computed: try the next
-        tried[0] += candidate[0].iterations
-        tried[1] += candidate[0].rounds
+        tried_iterations += candidate[0].iterations
+        tried_rounds += candidate[0].rounds
         # A second opinion that did not converge is no opinion: the first fit stays.
         if candidate[0].final_error < best[0].final_error and not (
             second_opinion and is_suspect(candidate[0])
@@ -100,13 +100,14 @@ def _fall_back(
     problem.preintegrate_about(result)  # the kept solution's, not the last start's
     if taken != source:
         report.initial_error = first.initial_error
-        report.iterations = first.iterations + tried[0]
-        report.rounds = first.rounds + tried[1]
+        report.iterations = first.iterations + tried_iterations
+        report.rounds = first.rounds + tried_rounds
         report.fallback = (
-            f"the {source} initial guess gave "
-            + ("a fit of chi2/dof" if second_opinion else "an unconverged or inconsistent fit (chi2/dof")
-            + f" {first.chi2_per_dof:.2f}"
-            + ("; the iSAM2 start fits better: taken" if second_opinion else f"); restarted from {taken}")
+            f"the {source} initial guess gave a fit of chi2/dof {first.chi2_per_dof:.2f}; the "
+            "iSAM2 start fits better: taken"
+            if second_opinion
+            else f"the {source} initial guess gave an unconverged or inconsistent fit (chi2/dof "
+            f"{first.chi2_per_dof:.2f}); restarted from {taken}"
         )
         graph = full_graph(problem, nonlinear_graph(problem, None), result)
         finish_report(report, graph, result)

@@ -418,13 +418,15 @@ class FixAccumulator(Accumulator):
         # ROS 1 topic with two publishers, one ROS 2 channel) differ in it.
         self.frames = array("q")
         self.frame_names: list[str] = []
+        self._frame_of: dict[str, int] = {}  # name -> index into frame_names
 
     def _frame_index(self, msg: Any) -> int:
         header = _get(msg, "header")
         name = str(_get(header, "frame_id", "") if header is not None else _get(msg, "frame_id", "") or "")
-        if name not in self.frame_names:
+        if name not in self._frame_of:
+            self._frame_of[name] = len(self.frame_names)
             self.frame_names.append(name)
-        return self.frame_names.index(name)
+        return self._frame_of[name]
 
     def add(self, msg: Any, log_time: int, use_header_stamp: bool) -> None:
         nan = math.nan
