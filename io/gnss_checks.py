@@ -436,9 +436,25 @@ def _reject_persistent_jumps(gnss: GnssData, xyz: np.ndarray, sigma: np.ndarray)
 # still there STEP_HOLD_S later (a multipath run of 10-30 s comes back: the fault exclusion
 # takes it).
 STEP_MIN_M = 20.0
+# A receiver's speed over the speed its fixes show outside this range is another unit (km/h
+# 3.6, knots 1.94; io/motion_checks.check_gnss_velocity names it).
+VELOCITY_SPEED_RATIO_RANGE = (0.7, 1.4)
 STEP_SIGMAS = 5.0
 STEP_MAX_DT_S = 2.0
 STEP_HOLD_S = 60.0
+
+
+def _in_another_unit(moved: np.ndarray, predicted: np.ndarray, noise: np.ndarray) -> bool:
+    """Do the velocities move the fixes a constant factor off their own steps (median over
+    the intervals that move well beyond the fixes' noise) outside VELOCITY_SPEED_RATIO_RANGE?
+    A highway drive's velocities in km/h were "two sources of positions" at 158 steps."""
+    travel = np.linalg.norm(moved, axis=1)
+    along = np.linalg.norm(predicted, axis=1)
+    clear = np.isfinite(travel) & np.isfinite(along) & (travel > 3.0 * noise)
+    if clear.sum() < 10:
+        return False
+    ratio = float(np.median(along[clear] / travel[clear]))
+    return not VELOCITY_SPEED_RATIO_RANGE[0] <= ratio <= VELOCITY_SPEED_RATIO_RANGE[1]
 
 
 def _reject_steps_against_velocities(gnss: GnssData, xyz: np.ndarray, sigma: np.ndarray) -> None:
@@ -457,7 +473,10 @@ def _reject_steps_against_velocities(gnss: GnssData, xyz: np.ndarray, sigma: np.
     moved = np.einsum("nij,nj->ni", local, np.diff(xyz, axis=0))[:, :2]  # east, north
     velocity = gnss.velocity[:, :2]
     dt = np.diff(gnss.t)
-    gap = moved - 0.5 * (velocity[1:] + velocity[:-1]) * dt[:, None]
+    predicted = 0.5 * (velocity[1:] + velocity[:-1]) * dt[:, None]
+    if _in_another_unit(moved, predicted, np.hypot(sigma[1:], sigma[:-1])):
+        return  # every interval "steps": the velocity check names the unit, not two sources
+    gap = moved - predicted
     size = np.linalg.norm(gap, axis=1)
     change = np.linalg.norm(velocity[1:] - velocity[:-1], axis=1)
     tolerance = STEP_SIGMAS * np.hypot(sigma[1:], sigma[:-1]) + 0.5 * dt * change

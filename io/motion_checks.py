@@ -11,7 +11,7 @@ from dataclasses import replace
 import numpy as np
 
 from fgins.datatypes import GnssData, InputError, Origin, median_interval
-from fgins.io.gnss_checks import fix_sigma, horizontal_fix_sigma
+from fgins.io.gnss_checks import VELOCITY_SPEED_RATIO_RANGE, fix_sigma, horizontal_fix_sigma
 from fgins.io.imu_checks import second_means, true_runs
 
 # Units. In rad/s no vehicle's rate is routinely (10 % of the time) above 10 rad/s; integrated
@@ -60,7 +60,6 @@ TURN_SIGN_MIN_WINDOWS = 3
 # -1) where the vehicle climbs and sinks enough to tell.
 VELOCITY_CHORD_S = 4.0
 VELOCITY_MIN_EPOCHS = 10
-VELOCITY_SPEED_RATIO_RANGE = (0.7, 1.4)
 VELOCITY_MAX_ANGLE_DEG = 25.0
 CLIMB_MIN_STD_M_S = 1.0
 CLIMB_RATIO_RANGE = (0.6, 1.6)

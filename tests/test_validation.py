@@ -341,6 +341,20 @@ def test_gnss_velocity_that_contradicts_the_fixes_is_an_error(tmp_path, urban, c
         load_dataset(_pair(tmp_path, data))
 
 
+@pytest.mark.parametrize(("factor", "unit"), [(3.6, "km/h"), (1.0 / 0.514444, "knots")])
+def test_a_fast_drive_s_velocity_in_another_unit_is_named_as_such(tmp_path, factor, unit):
+    """A highway drive's velocities in km/h: every 1-s interval then "stepped" against them,
+    and the log was refused as "two sources of positions in one log" (158 steps), the unit
+    never named. Velocities a constant factor off are a unit, named by the velocity check."""
+    from dataclasses import replace
+
+    run = _run("highway", 3, 200)
+    gnss = replace(run.dataset.gnss, velocity=run.dataset.gnss.velocity * factor)
+    with pytest.raises(InputError, match=rf"velocity columns give {factor:.2g}\d* times the speed") as said:
+        load_dataset(_pair(tmp_path, replace(run.dataset, gnss=gnss)))
+    assert "two sources" not in str(said.value), unit
+
+
 @pytest.mark.parametrize("change", ["feet", "down"])
 def test_aircraft_altitude_in_feet_or_a_down_velocity_is_an_error(tmp_path, change):
     from dataclasses import replace
