@@ -303,6 +303,12 @@ def _as_origin(value: object, gnss: GnssData) -> Origin:
     return Origin(*value)  # type: ignore[misc]
 
 
+# Dataset.metadata key: the IMU's times were derived from the GNSS receiver's epochs (a UBX
+# log's sensor time tags mapped by anchors, fgins.io.ubx), so the receiver's clock is the
+# only clock and a constant offset the fixes show is the mapping's, not a latency of theirs.
+IMU_TIMES_FROM_FIXES_KEY = "imu_times_from_fix_epochs"
+
+
 @dataclass
 class Dataset:
     """Everything one run consumes: sensors, the local frame origin and metadata.

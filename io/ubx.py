@@ -79,7 +79,14 @@ from pathlib import Path
 
 import numpy as np
 
-from fgins.datatypes import Dataset, GnssData, ImuData, InputError, OdometerData
+from fgins.datatypes import (
+    IMU_TIMES_FROM_FIXES_KEY,
+    Dataset,
+    GnssData,
+    ImuData,
+    InputError,
+    OdometerData,
+)
 
 UBX_SYNC = b"\xb5\x62"
 GPS_EPOCH_POSIX = 315964800  # 1980-01-06T00:00:00Z
@@ -1442,7 +1449,8 @@ def load_ubx_dataset(
         metadata={"ubx_counts": result.counts, "imu_source": imu_from,
                   "ubx_time_maps": [m.describe() for m in result.time_maps],
                   "gnss_epochs_without_fix": result.epochs_without_fix,
-                  "gnss_first_epoch_t": result.first_epoch_time},
+                  "gnss_first_epoch_t": result.first_epoch_time,
+                  IMU_TIMES_FROM_FIXES_KEY: imu is result.imu},
     )  # fmt: skip
 
 
