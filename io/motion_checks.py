@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from statistics import NormalDist
 
 import numpy as np
 
@@ -26,6 +27,12 @@ TURN_MIN_SPEED_M_PER_S = 3.0
 # many sigmas of the two courses' noise.
 COURSE_MIN_CHORD_SIGMAS = 3.0
 TURN_MIN_SIGMAS = 2.0
+# Windows are chosen by their own course change: at k sigmas the noise alone passes a share
+# 2 (1 - Phi(k)) of the straight ones, so k rises with their number until noise is expected
+# to pass fewer than this many windows over the drive (a boat at 4-5 m/s with 10 Hz fixes of
+# 5 m: at 2 sigmas, 5 of 120 straight windows passed as "turns" the gyro did not see, 0.185
+# times, and valid data were refused).
+NOISE_TURNS_EXPECTED = 0.05
 REVERSAL_TOL_RAD = math.radians(40.0)  # a window's course flip within this of 180 deg: a reversal
 # A course step between chords 2.5 s apart above this: a reversal (a car turning at 0.5 rad/s
 # steps 72 deg; reversing while turning so, 108 deg).
@@ -934,7 +941,8 @@ def _gyro_turn_ratio(imu, gnss: GnssData, origin: Origin) -> tuple[float, int, f
     moving &= slowest >= 0.5 * np.minimum(speed[i0], speed[i1])
     moving &= np.abs(_wrapped(signed_turn)) < np.pi - REVERSAL_TOL_RAD
     turn_noise = np.hypot(course_sigma[i0], course_sigma[i1])
-    use = moving & (np.abs(signed_turn) > np.maximum(TURN_MIN_RAD, TURN_MIN_SIGMAS * turn_noise))
+    sigmas = max(TURN_MIN_SIGMAS, NormalDist().inv_cdf(1.0 - 0.5 * NOISE_TURNS_EXPECTED / max(int(moving.sum()), 1)))
+    use = moving & (np.abs(signed_turn) > np.maximum(TURN_MIN_RAD, sigmas * turn_noise))
     if use.any():
         up = np.mean(imu.accel, axis=0)
         up = up / np.linalg.norm(up)

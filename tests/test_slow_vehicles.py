@@ -164,3 +164,37 @@ def test_a_vehicle_shuttling_back_and_forth_is_not_a_dead_gyro(tmp_path, speed, 
     t, error = horizontal_errors(fgins.smooth(dataset, "batch", gnss_outage=[window]), tmp_path)
     inside = (t >= window[0]) & (t < window[1])
     assert np.sqrt(np.mean(error[inside] ** 2)) < 1.0
+
+
+@pytest.mark.parametrize("seed", [1, 3, 7])
+def test_fast_noisy_fixes_make_no_turns_the_gyro_must_see(tmp_path, seed):
+    """A boat at 4.5 m/s with two gentle turns and 10 Hz fixes of 5 m white noise: the unit
+    check picks its turn windows by their own course change, and at a fixed 2 sigmas noise
+    passed 3-5 of ~120 straight windows as turns of 30-90 deg the right gyro did not see
+    ("the gyro does not see the turns", 0.004-0.09 times): valid data refused (3 seeds of
+    8; an outside tester's boat likewise). The bar now rises with the number of windows."""
+    profile = CarProfile(steps=[(0.0, 10.0, 4.5)], turns=[(100, 130, 5, 0.03), (200, 220, 5, -0.04)],
+                         gamma=lambda t: 0 * t)  # fmt: skip
+    write_drive(tmp_path, profile, 300.0, grade=INDUSTRIAL, imu_rate=50.0, jitter=0.0,
+                gnss_rate=10.0, seed=seed, sigma_h=5.0, sigma_u=8.0)  # fmt: skip
+    dataset = fgins.load([tmp_path / "imu.csv", tmp_path / "gnss.csv"], vehicle="other")
+    assert len(dataset.gnss) == 3001
+
+
+@pytest.mark.parametrize(("scale", "sigma"), [(57.29578, 5.0), (1.0 / 57.29578, 1.5), (0.0, 1.5)])
+def test_the_raised_bar_still_sees_a_gyro_in_the_wrong_unit(tmp_path, scale, sigma):
+    """The same boat with four quarter turns and 10 Hz fixes: a gyro left in deg/s (x 57.3)
+    is still refused through 5 m of noise, one converted twice (x 1/57.3) or dead through
+    1.5 m. (Through 5 m the quarter turns' 10 s windows no longer stand out from the noise:
+    a gyro converted twice goes to the solve there.)"""
+    profile = CarProfile(steps=[(0.0, 10.0, 4.5)],
+                         turns=[(60, 75, 3, 0.1), (120, 135, 3, -0.1), (180, 195, 3, 0.1), (240, 255, 3, -0.1)],
+                         gamma=lambda t: 0 * t)  # fmt: skip
+    write_drive(tmp_path, profile, 300.0, grade=INDUSTRIAL, imu_rate=50.0, jitter=0.0,
+                gnss_rate=10.0, seed=3, sigma_h=sigma, sigma_u=1.6 * sigma)  # fmt: skip
+    imu = np.loadtxt(tmp_path / "imu.csv", delimiter=",", skiprows=1)
+    imu[:, 1:4] *= scale
+    np.savetxt(tmp_path / "imu.csv", imu, delimiter=",", fmt="%.10g",
+               header="time,gyro_x,gyro_y,gyro_z,accel_x,accel_y,accel_z", comments="")  # fmt: skip
+    with pytest.raises(fgins.InputError, match=r"does not see the turns|looks like deg/s"):
+        fgins.load([tmp_path / "imu.csv", tmp_path / "gnss.csv"], vehicle="other")
