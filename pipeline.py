@@ -274,6 +274,7 @@ def _corrected_solution(
     add_time_offset_uncertainty(trajectory)
     unconfirmed_note = carry_unconfirmed_time_offset(trajectory)
     add_unresolved_time_uncertainty(trajectory)
+    add_slow_fix_error_uncertainty(dataset, config, gnss_mask, trajectory)
     notes = [
         noise_note, bias_note, mounting_note, point_note, lever_note, unknown_height(dataset, trajectory),
         nose_off_track(config, trajectory), unconfirmed_note,
@@ -285,6 +286,59 @@ def _corrected_solution(
     trajectory.info.pop(CORRECTIONS_SAID, None)  # said in fit_warnings
     trajectory.info.pop(FILTER_FIT_FAILED, None)  # said in its own note
     return trajectory
+
+
+def add_slow_fix_error_uncertainty(
+    dataset: Dataset, config: RunConfig, gnss_mask: np.ndarray | None, trajectory: Trajectory
+) -> None:
+    """Add to ``trajectory``'s position covariance (in place) what fixes with slow errors
+    leave in it (:mod:`fgins.correlated_fixes`: residuals about the solution correlated from
+    one used fix to the next), said in ``info["gnss_correlation"]``."""
+    from fgins.baseline.measurements import select_gnss
+    from fgins.correlated_fixes import residual_correlation, slow_error_variance
+
+    if trajectory.position_cov is None or len(trajectory) < 2:
+        return
+    try:
+        epochs = select_gnss(dataset, config, gnss_mask)
+    except InputError:
+        return
+    if len(epochs.t) < 2:
+        return
+    nearest = np.clip(np.searchsorted(trajectory.t, epochs.t), 0, len(trajectory) - 1)
+    lever = np.asarray(config.gnss.lever_arm_m, dtype=float)
+    antenna = trajectory.at(epochs.t, hold_ends=True) + trajectory.rotation[nearest] @ lever
+    whitened = (antenna - epochs.position) / epochs.position_sigma
+    rho_h, rho_v = residual_correlation(epochs.t, whitened)
+    variance = np.einsum("nii->ni", np.asarray(trajectory.position_cov, dtype=float))[nearest]
+    fix_variance = np.asarray(epochs.position_sigma, dtype=float) ** 2
+    added = []
+    for rho, columns in ((rho_h, [0, 1]), (rho_v, [2])):
+        residuals = whitened[:, columns][np.all(np.isfinite(whitened[:, columns]), axis=1)]
+        scatter = 1.4826 * float(np.median(np.abs(residuals))) if residuals.size else float("nan")
+        added.append(
+            slow_error_variance(
+                rho,
+                scatter,
+                float(np.median(np.mean(variance[:, columns], axis=1))),
+                float(np.median(np.mean(fix_variance[:, columns], axis=1))),
+            )
+        )
+    if not any(added):
+        return
+    trajectory.position_cov = trajectory.position_cov + np.diag([added[0], added[0], added[1]])
+    sigma_h, sigma_v = (float(np.sqrt(x)) for x in added)
+    trajectory.info["gnss_residual_correlation"] = [rho_h, rho_v]
+    trajectory.info["gnss_slow_error_sigma_m"] = [sigma_h, sigma_v]
+    interval = float(np.median(np.diff(epochs.t)))
+    trajectory.info["gnss_correlation"] = (
+        f"GNSS slow errors: the fixes' residuals about the solution keep their sign from one "
+        f"fix to the next (lag-1 correlation {rho_h:.2f} horizontally, {rho_v:.2f} vertically "
+        f"at {interval:.3g} s; about 0 for independent errors): the receiver's errors change "
+        "slowly and the solution follows them, which averaging over fixes does not remove; "
+        f"the output's sigmas include {sigma_h:.2f} m horizontally and {sigma_v:.2f} m "
+        "vertically for them"
+    )
 
 
 def integration_samples(dataset: Dataset, config: RunConfig) -> Dataset:
