@@ -39,7 +39,7 @@ from fgins.io.accel_array_csv import (
 )
 from fgins.io.atomic import atomic_path
 from fgins.io.empty_files import check_not_empty
-from fgins.io.imu_checks import MAX_REORDER_PERIODS, imu_from_samples
+from fgins.io.imu_checks import imu_from_samples
 
 IMU_COLUMNS = ["time", "gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z"]
 GNSS_REQUIRED = ["time", "lat", "lon", "alt"]
@@ -467,41 +467,7 @@ def read_imu_csv(path: str | Path, warnings: list[str] | None = None) -> ImuData
     _warn_unknown_columns(path, columns, IMU_COLUMNS, warnings)
     gyro = np.column_stack([columns[f"gyro_{a}"] for a in "xyz"])
     accel = np.column_stack([columns[f"accel_{a}"] for a in "xyz"])
-    _check_time_resolution(path, columns["time"])
     return imu_from_samples(columns["time"], gyro, accel, source=path.name, warnings=warnings)
-
-
-def _check_time_resolution(path: Path, t: np.ndarray) -> None:
-    """An IMU whose times are coarser than its sample period (whole seconds at 100 Hz, or
-    POSIX times printed with one decimal): most rows repeat a time. Dropping them as repeated
-    samples ran at 1 Hz on 1 % of the data with warnings only; this is an error naming the
-    resolution. A few repeated rows (a logger hiccup) stay the reader's counted warning.
-    Time that jumps back (a log written twice into one file) is left to
-    :func:`imu_from_samples`, which names it: sorted, it looked like coarse timestamps."""
-    step = np.diff(t[np.isfinite(t)])
-    if step.size and np.any(step < 0):
-        positive = step[step > 0]
-        if not positive.size or -step.min() > MAX_REORDER_PERIODS * float(np.median(positive)):
-            return
-    t = np.sort(t[np.isfinite(t)])
-    if t.size < 3:
-        return
-    repeated = int(np.count_nonzero(np.diff(t) == 0))
-    if repeated <= 0.5 * (t.size - 1):
-        return
-    distinct = np.unique(t)
-    if distinct.size < 2:
-        raise InputError(
-            f"{path}: all {t.size} IMU rows have the same time ({t[0]:.6f}); give each sample "
-            "its own time, in seconds with fractional digits"
-        )
-    resolution = float(np.min(np.diff(distinct)))
-    raise InputError(
-        f"{path}: {repeated} of {t.size} IMU rows repeat the time of the row before (about "
-        f"{t.size / distinct.size:.0f} rows per time): the timestamps have {resolution:.3g} s "
-        "resolution, coarser than the IMU's sample period; write them with fractional seconds "
-        "(e.g. 12.345678), not rounded"
-    )
 
 
 def read_gnss_csv(path: str | Path, warnings: list[str] | None = None) -> GnssData:
