@@ -179,11 +179,13 @@ def _finite(align: Callable[_Args, Alignment]) -> Callable[_Args, Alignment]:
 
 
 # The start's position prior is a starting point, not a measurement: the fixes it was fitted
-# from are the graph's and the filters' measurements too. At this many of those fixes' own
-# sigmas (2 m at least) it adds little to them. (Outside tester: a fixed 2 m held fixes of
-# 15 m vertical sigma, counted twice: heights 5-8 m off at the start at z 3.5 over 8 seeds;
-# three first fixes 30 m off with a 30 m sigma moved the start 1.8-2.0 m.)
-START_PRIOR_FIX_SIGMAS = 3.0
+# from are the graph's and the filters' measurements too. Its sigma is at least a third of
+# those fixes' RMS stated sigma (2 m at least: metre-level fixes keep the 2 m every estimator
+# was tuned with), so fixes stated far worse do not get it far tighter. (Outside tester: a
+# fixed 2 m held fixes of 15 m vertical sigma, counted twice: heights 5-8 m off at the start
+# at z 3.5 over 8 seeds, now 1.6-2.4 m at z 1.2-1.7; three first fixes 30 m off with a 30 m
+# sigma moved the start 1.8 m, now 0.15.)
+START_PRIOR_FIX_SIGMAS = 1.0 / 3.0
 START_PRIOR_MIN_SIGMA_M = 2.0
 
 
@@ -200,8 +202,8 @@ def initial_alignment(
     gyro_bias_sigma: float = 0.0,
 ) -> Alignment:
     """Initial state at the first IMU sample (see module docstring and :func:`_aligned`),
-    its position sigma at least START_PRIOR_FIX_SIGMAS times the stated sigmas of the fixes
-    its position was fitted from."""
+    its position sigma at least START_PRIOR_FIX_SIGMAS times the RMS stated sigma of the
+    fixes its position was fitted from."""
     alignment = _aligned(
         dataset, gnss_mask, smoother=smoother, heading_deg=heading_deg, moving_speed=moving_speed,
         fit_window_s=fit_window_s, forward_axis=forward_axis, gyro_bias_sigma=gyro_bias_sigma,
@@ -216,7 +218,8 @@ def initial_alignment(
     stated = stated[np.isfinite(stated) & (stated > 0)]
     if not stated.size:
         return alignment
-    floor = max(START_PRIOR_MIN_SIGMA_M, START_PRIOR_FIX_SIGMAS * float(np.median(stated)))
+    # The fit takes its fixes unweighted: the worst of them set its error (their RMS sigma).
+    floor = max(START_PRIOR_MIN_SIGMA_M, START_PRIOR_FIX_SIGMAS * float(np.sqrt(np.mean(stated**2))))
     if alignment.position_sigma >= floor:
         return alignment
     return replace(alignment, position_sigma=floor)

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from itertools import pairwise
 
 import gtsam
 import numpy as np
@@ -42,7 +43,7 @@ from gtsam.symbol_shorthand import X
 
 from fgins.graph.problem import Problem
 from fgins.graph.solution import marginal_function
-from fgins.graph.solve import SolveReport, finish_report, solve_in_rounds
+from fgins.graph.solve import SolveReport, degrees_of_freedom, finish_report, solve_in_rounds
 
 # Beyond 5 sigma: one Gaussian fix in 67,000 (chi, 3 dof), where 4.03 (the large-residual
 # report's 99.9 %) left out one in a thousand, enough to move a 10 Hz drive's outage by 9 %.
@@ -127,10 +128,58 @@ def exclude_gnss_faults(
             "set too small, the clocks offset: --time-offset); its sigmas are not to be trusted"
         )
         return result, graph, outcome
+    excluded, best, _ = _settle(problem, report, outcome, candidates, (result, graph), speeds, keyframes)
+    enclosed = _enclosed(excluded, keyframes)
+    if excluded and enclosed and outcome.note is None:
+        # A run of consistent faulty fixes (an RTK fix on the wrong integers for 15-30 s,
+        # 0.5 m off at 1.5 cm sigmas) pulls the robust solution onto itself: the fixes beyond
+        # 5 sigma are then the good ones on its ramps, left out as faults, and the fault
+        # itself stays in, the track on it at z 50 (outside tester). The other reading,
+        # the stretch between the runs out with them, settled the same way; the one that
+        # fits its data better, at a cost for each run it leaves out, is kept.
+        other = FaultExclusion()
+        alternative, alternative_best, settled = _settle(
+            problem, report, other, excluded | enclosed, best, speeds, keyframes
+        )
+        values, alternative_graph = alternative_best
+        if (
+            alternative
+            and settled
+            and other.note is None
+            and 2.0 * alternative_graph.error(values) / max(degrees_of_freedom(alternative_graph, values), 1)
+            <= ALTERNATIVE_CHI2_MAX
+            and _cost(alternative_graph, values, alternative, keyframes)
+            < _cost(best[1], best[0], excluded, keyframes)
+        ):
+            excluded, best = alternative, alternative_best
+        outcome.rounds += other.rounds
+    problem.exclude_gnss(excluded)
+    if not excluded:
+        return result, graph, outcome
+    values, graph = best
+    finish_report(report, graph, values)
+    outcome.keyframes = sorted(excluded)
+    outcome.times = [float(problem.segments.times[k]) for k in outcome.keyframes]
+    outcome.t0 = float(problem.dataset.t0)
+    return values, graph, outcome
+
+
+def _settle(
+    problem: Problem,
+    report: SolveReport,
+    outcome: FaultExclusion,
+    proposal: set[int],
+    start: tuple[gtsam.Values, gtsam.NonlinearFactorGraph],
+    speeds: np.ndarray | None,
+    keyframes: np.ndarray,
+) -> tuple[set[int], tuple[gtsam.Values, gtsam.NonlinearFactorGraph], bool]:
+    """The fixes left out once the tests settle, from ``proposal`` and the solution
+    ``start``, the last solution that converged (``start`` when none), and whether the
+    tests settled (no fix back in, none more out)."""
     excluded: set[int] = set()
     seen: list[frozenset[int]] = []
-    proposal = candidates
-    best = (result, graph)
+    best = start
+    settled = False
     while outcome.rounds < MAX_ROUNDS:
         proposal = _keep_enough(proposal, keyframes)
         if frozenset(proposal) in seen or not proposal:
@@ -152,6 +201,7 @@ def exclude_gnss_faults(
         _, now = problem.gnss_whitened_residuals(values)
         out = set(used[np.linalg.norm(now, axis=1) > FAULT_SIGMA].tolist())
         if not back and not out:
+            settled = True
             break
         proposal = (excluded - back) | out
         if len(proposal) > MAX_FAULT_FRACTION * len(keyframes):
@@ -165,15 +215,45 @@ def exclude_gnss_faults(
             )
             excluded = set()
             break
-    problem.exclude_gnss(excluded)
-    if not excluded:
-        return result, graph, outcome
-    values, graph = best
-    finish_report(report, graph, values)
-    outcome.keyframes = sorted(excluded)
-    outcome.times = [float(problem.segments.times[k]) for k in outcome.keyframes]
-    outcome.t0 = float(problem.dataset.t0)
-    return values, graph, outcome
+    return excluded, best, settled
+
+
+# The other reading is taken only where its fit is consistent (a car started with its heading
+# turned round fitted at chi2/dof 4.4 whichever fixes went out, and the other reading left
+# 29 of 125 out under a wrong solution).
+ALTERNATIVE_CHI2_MAX = 1.5
+# What leaving out one run of consecutive fixes costs in a comparison of two readings (in
+# GTSAM's error, half the chi-square): an offset of its own, three numbers at the Akaike
+# rate of 2 each.
+RUN_COST = 3.0
+
+
+def _runs(excluded: set[int], keyframes: np.ndarray) -> list[list[int]]:
+    """The runs of consecutive fixes (in ``keyframes`` order) among ``excluded``: indices."""
+    inside = np.isin(keyframes, sorted(excluded))
+    runs: list[list[int]] = []
+    for i in np.flatnonzero(inside):
+        if runs and runs[-1][-1] == i - 1:
+            runs[-1].append(int(i))
+        else:
+            runs.append([int(i)])
+    return runs
+
+
+def _enclosed(excluded: set[int], keyframes: np.ndarray) -> set[int]:
+    """The fixes between two runs of ``excluded`` (keyframes), where the whole would still
+    be a fault's share (MAX_FAULT_FRACTION)."""
+    runs = _runs(excluded, keyframes)
+    between = {int(keyframes[i]) for a, b in pairwise(runs) for i in range(a[-1] + 1, b[0])}
+    if len(between | excluded) > MAX_FAULT_FRACTION * len(keyframes):
+        return set()
+    return between
+
+
+def _cost(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, excluded: set[int], keyframes: np.ndarray) -> float:
+    """A reading's cost: its graph's error (the kept fixes and every other factor) plus
+    RUN_COST for each run of fixes it leaves out."""
+    return float(graph.error(values)) + RUN_COST * len(_runs(excluded, keyframes))
 
 
 def _keep_enough(proposal: set[int], keyframes: np.ndarray) -> set[int]:

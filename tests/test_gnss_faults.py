@@ -160,3 +160,40 @@ def test_an_exclusion_that_keeps_growing_is_a_wrong_solution_not_faults(tmp_path
     assert summary.get("gnss_excluded_count", 0) == 0, summary.get("gnss_excluded")
     assert "the solution, not the fixes, is at fault" in summary["gnss_excluded"]
     assert any("inconsistent" in line for line in summary["fit_warnings"]), summary["fit_warnings"]
+
+
+def _rtk_drive(folder: Path, seed: int) -> None:
+    """The independent car with RTK fixes (1.5 cm / 2.5 cm at 1 Hz) and the receiver's
+    velocities (2 cm/s noise), from the truth."""
+    import pandas as pd
+    from independent_sim import FIVE_TURNS, INDUSTRIAL, CarProfile, write_drive
+
+    profile = CarProfile(steps=[(0.0, 10.0, 12.0)], turns=FIVE_TURNS, gamma=lambda t: 0 * t)
+    write_drive(folder, profile, 200.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
+                gnss_rate=1.0, seed=seed, sigma_h=0.015, sigma_u=0.025)  # fmt: skip
+    truth, fixes = pd.read_csv(folder / "truth.csv"), pd.read_csv(folder / "gnss.csv")
+    noise = np.random.default_rng(seed).normal(0.0, 0.02, (len(fixes), 3))
+    for i, axis in enumerate(("east", "north", "up")):
+        fixes[f"vel_{axis}"] = np.interp(fixes["time"], truth["time"], truth[f"vel_{axis}"]) + noise[:, i]
+    fixes.to_csv(folder / "gnss.csv", index=False, float_format="%.10f")
+
+
+@pytest.mark.parametrize(("seed", "seconds"), [(1, 30), (2, 20)])
+def test_an_rtk_fix_on_wrong_integers_is_left_out_not_the_good_fixes_beside_it(tmp_path, seed, seconds):
+    """An RTK receiver holds a wrong-integer fix for 20-30 s: every fix of it 0.5 m off,
+    still at 1.5 cm sigmas, consistent with each other. The robust solution ramps onto it,
+    so the fixes beyond 5 sigma were the good ones on the ramps: they were left out "as
+    multipath", the false fix kept, and the track sat on it, 0.44 m off at 8 mm (z 51;
+    outside tester). The stretch between the ramps is now the other reading, kept where it
+    fits better."""
+    _rtk_drive(tmp_path, seed)
+    start = 70.0
+    move_fixes(tmp_path, [start + i for i in range(seconds)], (0.4, -0.3, 0.2))
+    track = _smooth(tmp_path)
+    left_out = np.array(track.info.get("gnss_excluded_times", [])) - float(track.t[0])
+    false = (left_out >= start - 0.5) & (left_out < start + seconds - 0.5)
+    assert false.sum() >= seconds - 2, left_out
+    assert (~false).sum() <= 2, left_out
+    t, error = horizontal_errors(track, tmp_path)
+    during = (t >= start + t[0]) & (t < start + seconds + t[0])
+    assert np.sqrt(np.mean(error[during] ** 2)) < 0.1
