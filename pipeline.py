@@ -100,6 +100,7 @@ def run_method(
     check_method_fits_imu(dataset, method)
     check_imu_gaps(dataset, config, gnss_mask)
     dataset = integration_samples(dataset, config)
+    dataset, baro_note = baro_scaled_to_fixes(dataset, gnss_mask)
     trajectory = _corrected_solution(dataset, config, method, gnss_mask, progress)
     # The fixes' stamps were off: every step before the clock's correction judged the drive
     # on the wrong stamps, and in turns a late track reads as an IMU ahead of the car's axle
@@ -124,8 +125,30 @@ def run_method(
         mover, trajectory = trajectory, again
     trajectory = _passes_said(trajectory, mover, found) if found else trajectory
     trajectory = _on_receiver_time(dataset, trajectory)
+    if baro_note:
+        trajectory.info["fit_warnings"] = [baro_note, *trajectory.info.get("fit_warnings", [])]
     _check_finite(method, trajectory)
     return trajectory
+
+
+def baro_scaled_to_fixes(dataset: Dataset, gnss_mask: np.ndarray | None) -> tuple[Dataset, str | None]:
+    """``dataset`` with its barometer's heights scaled to the fixes' where the climbs of the
+    fixes this run uses (not those ``gnss_mask`` withholds) show the day's air off the
+    standard atmosphere (fgins.io.baro_checks.check_baro_scale), and the line saying so."""
+    from fgins.io.baro_checks import check_baro_scale, given_as_height
+
+    if dataset.baro is None or not len(dataset.baro.t):
+        return dataset, None
+    gnss = dataset.gnss if gnss_mask is None else dataset.gnss.subset(np.asarray(gnss_mask, dtype=bool))
+    what = "height" if given_as_height(dataset.baro) else "pressure's ISA height"
+    said: list[str] = []
+    try:
+        baro = check_baro_scale(dataset.baro, gnss, what, said)
+    except InputError:  # a unit the load let pass on every fix: the fixes used cannot judge it
+        return dataset, None
+    if baro is dataset.baro:
+        return dataset, None
+    return replace(dataset, baro=baro), said[0] if said else None
 
 
 CLOCK_PASSES = 3

@@ -133,7 +133,9 @@ def check_pressure_unit(baro) -> None:
     )
 
 
-def check_baro_scale(baro, gnss: GnssData, what: str, checks: list[str] | None = None):
+def check_baro_scale(
+    baro, gnss: GnssData, what: str, checks: list[str] | None = None, *, rescale: bool = True
+):
     """The barometer's height changes against the fixes' altitude changes, where it climbs
     or descends well beyond both sensors' noise: the fixes' altitude regressed on the
     barometer's (ISA) height has a slope of ~1 (the ISA against a real day's temperature:
@@ -148,7 +150,12 @@ def check_baro_scale(baro, gnss: GnssData, what: str, checks: list[str] | None =
     barometer returned so (else as given). An aircraft's 500 m climb on an ISA+20 C day
     (heights 7 % large): the smoother's slow bias walk could not follow it, and the fixes
     were scaled, the clocks and the gyro "corrected" instead: heights 13-18 m off at sigma
-    1.1 m, horizontal 9-34 m inside outages (outside tester)."""
+    1.1 m, horizontal 9-34 m inside outages (outside tester).
+
+    ``rescale`` False only refuses a unit: the load's check, over every fix. The scale is an
+    estimate a run makes from the fixes it uses (fgins.pipeline): from withheld ones, an
+    outage's climbs set the barometer a real tunnel's would not have (outside tester: 4.6 m
+    inside a 300 s outage against 11.5 m with those fixes really absent)."""
     if baro is None or not len(baro.t):
         return baro
     from fgins.factors.stationary import standard_atmosphere_height
@@ -181,6 +188,8 @@ def check_baro_scale(baro, gnss: GnssData, what: str, checks: list[str] | None =
             "3.28, a negative ratio a height that falls as the fixes climb): give "
             "baro_height in metres, up positive, or pressure_pa in pascals"
         )
+    if not rescale:
+        return baro
     # The scale apart from a drift in time (weather, a warming sensor), which the smoother's
     # bias walk follows: a barometer drifting 0.05 m/s through a climb read as 2.4 % scale,
     # and rescaled so, the clocks were "corrected" from the rest (38 m inside an outage).

@@ -160,7 +160,10 @@ def _validated(dataset: Dataset, vehicle: str | None) -> Dataset:
     baro = checked_baro(dataset.baro, imu.t, checks)
     if not baro_heights:  # heights were checked for range and made pressures
         check_pressure_unit(baro)
-    baro = check_baro_scale(baro, gnss, "height" if baro_heights else "pressure's ISA height", checks)
+    # Units only: the scale is the run's, from the fixes it uses (fgins.pipeline).
+    baro = check_baro_scale(
+        baro, gnss, "height" if baro_heights else "pressure's ISA height", checks, rescale=False
+    )
     report_gnss_time_gaps(gnss.t, checks)
     metadata = {**dataset.metadata, "input_checks": list(checks)}
     with np.errstate(invalid="ignore"):
