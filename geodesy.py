@@ -70,12 +70,6 @@ def plane_fall(enu: np.ndarray, origin: Origin) -> np.ndarray:
 EARTH_MEAN_RADIUS_M = 6.371e6
 
 
-def plane_fall_gradient(enu: np.ndarray) -> np.ndarray:
-    """(east, north) derivative of :func:`plane_fall` (d / R): a Jacobian's terms."""
-    enu = np.atleast_2d(np.asarray(enu, dtype=float))
-    return enu[:, :2] / EARTH_MEAN_RADIUS_M
-
-
 def normal_gravity(lat_deg: float, height_m: float = 0.0) -> float:
     """WGS-84 normal gravity magnitude (Somigliana, with the free-air height correction)."""
     s2 = np.sin(np.radians(lat_deg)) ** 2

@@ -54,7 +54,7 @@ from fgins.baseline.mechanization import ATT, GYRO_BIAS, POS, STATE_DIM, VEL, No
 from fgins.config import ImuNoise, RunConfig
 from fgins.datatypes import Dataset
 from fgins.factors import stationary
-from fgins.geodesy import Origin, plane_fall, plane_fall_gradient, skew
+from fgins.geodesy import Origin, plane_fall, skew
 from fgins.mounting import mounting_rotation, nhc_point_velocity
 
 BARO_BIAS = STATE_DIM  # index of the barometer bias in the augmented error state
@@ -218,7 +218,8 @@ class VehicleAiding:
         is (:func:`fgins.geodesy.plane_fall`), a barometer's height stays with the surface."""
         assert state.extra is not None
         h = np.zeros((1, dim))
-        h[0, POS.start : POS.start + 2] = plane_fall_gradient(state.position)[0]
+        # The fall is the prediction's only: its horizontal gradient (d / R) read height
+        # errors as horizontal position where that is uncertain (fgins.baseline.planar_kf).
         h[0, POS.start + 2] = 1.0
         h[0, BARO_BIAS] = 1.0
         fall = plane_fall(state.position, self.origin)[0]
