@@ -372,6 +372,33 @@ def _chord_velocity(
     return dense, velocity, clear, noise
 
 
+def check_wheel_time_base(odometer, imu_t: np.ndarray, checks: list[str]) -> None:
+    """Wheel samples beside the IMU's: none within its span is an error naming the spans
+    (and milliseconds where the wheel's span is about 1,000 times the IMU's), some outside it
+    a counted warning. (Outside tester: a wheel.csv in milliseconds, or on a clock 100 s off,
+    was left unused without a word.)"""
+    t = np.asarray(odometer.t, dtype=float)
+    inside = (t >= imu_t[0]) & (t <= imu_t[-1])
+    if inside.all():
+        return
+    # Milliseconds from a relative start overlap the IMU's seconds at their first samples.
+    ratio = float(t[-1] - t[0]) / max(float(imu_t[-1] - imu_t[0]), 1e-9)
+    milliseconds = 300.0 <= ratio <= 3000.0
+    if milliseconds or not inside.any():
+        hint = "its times look like milliseconds; " if milliseconds else ""
+        within = f"{int(inside.sum())} of its {len(t)} samples ({t[0]:.3f}-{t[-1]:.3f} s) lie"
+        if not inside.any():
+            within = f"none of its {len(t)} samples ({t[0]:.3f}-{t[-1]:.3f} s) lies"
+        raise InputError(
+            f"wheel: {within} within the IMU's span ({imu_t[0]:.3f}-{imu_t[-1]:.3f} s): "
+            f"{hint}give the wheel's times in seconds on the IMU's clock"
+        )
+    checks.append(
+        f"wheel: {int((~inside).sum())} of {len(t)} samples lie outside the IMU's span "
+        f"({imu_t[0]:.3f}-{imu_t[-1]:.3f} s) and are not used"
+    )
+
+
 def check_wheel_speed(odometer, gnss: GnssData, enu: np.ndarray) -> None:
     """The wheel speed against the speed the fixes' own 4-s chords show, where they move well
     beyond their noise: a median ratio outside 0.7-1.4 is a unit (km/h: the wheel-speed

@@ -72,6 +72,7 @@ from fgins.io.motion_checks import (
     check_track_scale_by_turns,
     check_units,
     check_wheel_speed,
+    check_wheel_time_base,
     clock_offset_explains_turns,
     drop_frozen_runs,
     mean_up,
@@ -155,6 +156,7 @@ def _validated(dataset: Dataset, vehicle: str | None) -> Dataset:
             checks.append(note)
     check_gnss_velocity(gnss, origin)
     if dataset.odometer is not None and len(dataset.odometer.t):
+        check_wheel_time_base(dataset.odometer, imu.t, checks)
         check_wheel_speed(dataset.odometer, gnss, enu)
     baro_heights = dataset.baro is not None and given_as_height(dataset.baro)
     baro = checked_baro(dataset.baro, imu.t, checks)

@@ -1226,6 +1226,33 @@ def test_a_wheel_speed_in_another_unit_is_named(tmp_path, unit, scale):
             load_dataset(paths)
 
 
+@pytest.mark.parametrize(("factor", "shift", "match"), [
+    (1000.0, 0.0, r"2 of its 1501 samples .*its times look like milliseconds"),
+    (1.0, 500.0, r"none of its 1501 samples .*give the wheel's times in seconds on the IMU's clock"),
+    (1.0, 30.0, None),
+])  # fmt: skip
+def test_a_wheel_on_another_time_base_is_named(tmp_path, factor, shift, match):
+    """A wheel.csv in milliseconds, or on a clock far off, was left unused without a word
+    (outside tester); none of it within the IMU's span is now an error naming the spans, some
+    of it outside a counted warning."""
+    from independent_sim import INDUSTRIAL, hilly_drive, write_drive
+
+    write_drive(tmp_path, hilly_drive(), 150.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
+                gnss_rate=1.0, seed=2, sigma_h=1.5, sigma_u=3.0)  # fmt: skip
+    truth = pd.read_csv(tmp_path / "truth.csv").iloc[::10]
+    speed = np.linalg.norm(truth[["vel_east", "vel_north", "vel_up"]].to_numpy(), axis=1)
+    pd.DataFrame({"time": factor * truth["time"] + shift, "wheel_speed": speed}).to_csv(
+        tmp_path / "wheel.csv", index=False
+    )
+    paths = [str(tmp_path / name) for name in ("imu.csv", "gnss.csv", "wheel.csv")]
+    if match is None:
+        said = [w for w in load_dataset(paths).warnings if w.startswith("wheel")]
+        assert said and "300 of 1501 samples lie outside the IMU's span" in said[0], said
+    else:
+        with pytest.raises(InputError, match=match):
+            load_dataset(paths)
+
+
 def test_a_wheel_speed_with_its_sign_flipped_is_named_and_reversing_is_not(tmp_path):
     """A wheel speed negated (a driver counting backwards) passed the unit check (it judged
     |speed|) and the batch read it as a -200 % scale error at exit 0 (outside tester). A
