@@ -343,11 +343,25 @@ def _clock_verdict(
     imu, gnss: GnssData, enu: np.ndarray, up: np.ndarray, given_offset_s: object, *, banks: bool
 ) -> tuple[float, tuple[str, str] | None]:
     """(the lag the turns show, s; :func:`fgins.io.clock_offset.judge`'s verdict on it)."""
-    from fgins.io.clock_offset import estimate_clock_offset, judge
+    from fgins.io.clock_offset import clock_rate, estimate_clock_offset, judge
 
     offset = estimate_clock_offset(imu.t, imu.gyro @ up, gnss.t, enu[:, :2])
     given = float(given_offset_s) if isinstance(given_offset_s, (int, float)) else 0.0
-    return (offset.lag_s if offset else 0.0), judge(offset, given, banks=banks)
+    verdict = judge(offset, given, banks=banks)
+    if verdict is not None and verdict[0] == "error" and not banks:
+        rate = clock_rate(imu.t, imu.gyro @ up, gnss.t, enu[:, :2])
+        if rate is not None:
+            first, last, per_second = rate
+            verdict = ("error", (
+                f"time: the GNSS track's turns line up with the gyro's when the fixes are moved "
+                f"by {first:+.2f} s over the first half of the drive and {last:+.2f} s over the "
+                f"second: the IMU's clock runs {100 * per_second:+.2f} % against the receiver's (an "
+                "IMU stamped by its sample count at a nominal rate, or a logger's oscillator), "
+                "which no --time-offset aligns; stamp the IMU samples on the receiver's clock "
+                f"(its times scaled by {1 / (1 + per_second):.6f} about the first fix, if the rate "
+                "is steady)"
+            ))  # fmt: skip
+    return (offset.lag_s if offset else 0.0), verdict
 
 
 def _chord_velocity(

@@ -46,12 +46,35 @@ def test_an_offset_added_to_kitti_is_recovered(kitti_lag, added):
 def test_the_run_names_the_time_offset_that_aligns_the_clocks(added, outcome, kitti_lag):
     """Before: KITTI with 3 s added ran 29 s to a fit blamed on the lever arm and mounting."""
     if outcome == "error":
-        with pytest.raises(InputError, match=r"clocks differ .* give --time-offset \+0\.0[45]"):
+        with pytest.raises(InputError, match=r"clocks differ.* give --time-offset \+0\.0[45]"):
             load_dataset(["demo:kitti"], time_offset_s=added, progress=False)
     else:
         dataset = load_dataset(["demo:kitti"], time_offset_s=added, progress=False)
         lines = [w for w in dataset.warnings if w.startswith("time: the GNSS track's turns")]
         assert len(lines) == 1 and "--time-offset +0.0" in lines[0], dataset.warnings
+
+
+@pytest.mark.parametrize("ppm", [-15000.0, 24000.0])
+def test_an_imu_clock_at_another_rate_is_named_as_a_rate_not_an_offset(tmp_path, ppm):
+    """The independent simulator's turning car with its IMU on a clock 1.5-2.4 % off the
+    receiver's (an IMU at 102.4 Hz stamped as its sample count / 100): refused as one offset
+    of 2.4-3.5 s with the 18 s of GPS time against UTC named, and the output, following the
+    advice, lay that far off the receiver's times (outside tester: 22-51 m by time at z
+    15-16). Now the offset's change between the drive's halves is measured and the rate
+    named, with no --time-offset advice."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from independent_sim import run_imu_clock_off, write_turning_drive
+
+    write_turning_drive(tmp_path, [(10, 8, 15.0)], 1)
+    run_imu_clock_off(tmp_path, ppm)
+    with pytest.raises(InputError, match=r"the IMU's clock runs ([+-][0-9.]+) %") as info:
+        load_dataset([str(tmp_path / "imu.csv"), str(tmp_path / "gnss.csv")], vehicle="car", progress=False)
+    found = float(str(info.value).split("clock runs ")[1].split(" %")[0])
+    assert abs(found - ppm / 1e4) < 0.15 * abs(ppm / 1e4), str(info.value)
+    assert "give --time-offset" not in str(info.value) and "18 s" not in str(info.value)
 
 
 @pytest.mark.parametrize(
