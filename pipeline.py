@@ -20,6 +20,7 @@ from fgins.corrections import (
     CORRECTIONS_SAID,
     FILTER_FIT_FAILED,
     GNSS_STAMPS_MOVED_KEY,
+    TIME_UNRESOLVED_KEY,
     Rerun,
     add_arm_uncertainty,
     add_mounting_uncertainty,
@@ -124,11 +125,72 @@ def run_method(
         found.append(moved)
         mover, trajectory = trajectory, again
     trajectory = _passes_said(trajectory, mover, found) if found else trajectory
+    trajectory = _with_imu_clock_step_closed(dataset, config, method, gnss_mask, progress, trajectory)
     trajectory = _on_receiver_time(dataset, trajectory)
     if baro_note:
         trajectory.info["fit_warnings"] = [baro_note, *trajectory.info.get("fit_warnings", [])]
     _check_finite(method, trajectory)
     return trajectory
+
+
+def _with_imu_clock_step_closed(
+    dataset: Dataset,
+    config: RunConfig,
+    method: str,
+    gnss_mask: np.ndarray | None,
+    progress: bool,
+    trajectory: Trajectory,
+) -> Trajectory:
+    """A run that corrected two clocks (an offset drifting along the drive), or read a time it
+    could not take or a drift, on an IMU with a gap in its stamps, solved again with the gap closed (the IMU's times after it moved back
+    by the gap less one period) and kept, said, where that fits better without two clocks:
+    the stamps stepped (a logger's clock corrected mid-drive) while no sample was lost. A
+    ramp fitted across such a step matches neither clock (outside tester: IMU stamps
+    stepping 0.2-2 s mid-drive, 1.2-9.5 m inside outages at z 2.8-11.9, and a lever arm
+    "corrected" that is not there). A real dropout, closed, misses its motion and fits worse."""
+    from fgins.io.imu_checks import find_gaps
+
+    info = trajectory.info
+    drift, drift_sigma = info.get("gnss_time_drift_fit_s"), info.get("gnss_time_drift_fit_sigma_s")
+    clocks = "gnss_time_drift_corrected_s" in info or TIME_UNRESOLVED_KEY in info or (
+        isinstance(drift, float) and isinstance(drift_sigma, float) and abs(drift) > 3.0 * drift_sigma
+    )  # two clocks corrected, a reading the solve could not take, or a drift it did not
+    if not clocks or dataset.accel_array is not None:
+        return trajectory
+    t = dataset.imu.t
+    gaps = find_gaps(t)
+    if not gaps:
+        return trajectory
+    period = float(np.median(np.diff(t)))
+    start, end = max(gaps, key=lambda gap: gap[1] - gap[0])
+    step = (end - start) - period
+    closed_t = np.where(t >= end, t - step, t)
+    suspect = [
+        (a - step if a >= end else a, b - step if b >= end else b)
+        for a, b in dataset.imu.suspect
+        if not (a < end and b > start)  # the gap's own stretch: closed
+    ]
+    closed = replace(dataset, imu=replace(dataset.imu, t=closed_t, suspect=suspect))
+    try:
+        again = _corrected_solution(closed, config, method, gnss_mask, progress)
+    except FginsError:
+        return trajectory
+    key = "chi2_per_dof" if method in ("batch", "isam2") else "gnss_nis_mean"
+    before, after = trajectory.info.get(key), again.info.get(key)
+    if "gnss_time_drift_corrected_s" in again.info or TIME_UNRESOLVED_KEY in again.info or not (
+        isinstance(before, float) and isinstance(after, float) and after < before
+    ):
+        return trajectory
+    again.info["imu_time_step_closed_s"] = step
+    again.info["fit_warnings"] = [
+        f"imu: its stamps jump by {step:+.3f} s at t - t0 = {start - dataset.t0:.1f} s with no "
+        f"sample lost: the fixes fit one clock with the jump taken out ({key.replace('_per_', '/')} "
+        f"{before:.2f} -> {after:.2f}), not without it; taken out, "
+        "the IMU's times after it moved back by the jump (a logger's clock stepped; if samples "
+        "were lost there, split the log at the gap)",
+        *again.info.get("fit_warnings", []),
+    ]
+    return again
 
 
 def baro_scaled_to_fixes(dataset: Dataset, gnss_mask: np.ndarray | None) -> tuple[Dataset, str | None]:
