@@ -76,6 +76,7 @@ from fgins.io.motion_checks import (
     clock_offset_explains_turns,
     drop_frozen_runs,
     mean_up,
+    velocities_without_bias,
 )
 
 
@@ -155,6 +156,7 @@ def _validated(dataset: Dataset, vehicle: str | None) -> Dataset:
         if note:
             checks.append(note)
     check_gnss_velocity(gnss, origin)
+    gnss = velocities_without_bias(gnss, origin, checks)
     if dataset.odometer is not None and len(dataset.odometer.t):
         check_wheel_time_base(dataset.odometer, imu.t, checks)
         check_wheel_speed(dataset.odometer, gnss, enu)
