@@ -307,6 +307,9 @@ def _as_origin(value: object, gnss: GnssData) -> Origin:
 # log's sensor time tags mapped by anchors, fgins.io.ubx), so the receiver's clock is the
 # only clock and a constant offset the fixes show is the mapping's, not a latency of theirs.
 IMU_TIMES_FROM_FIXES_KEY = "imu_times_from_fix_epochs"
+# Dataset.metadata key: the fixes the input checks left out as a frozen output's repeats
+# (fgins.io.motion_checks.drop_frozen_runs), which the GNSS count line adds.
+FROZEN_DROPPED_KEY = "gnss_frozen_repeats_dropped"
 
 
 @dataclass

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgins.config import GnssConfig
-from fgins.datatypes import Dataset, GnssData, InputError
+from fgins.datatypes import FROZEN_DROPPED_KEY, Dataset, GnssData, InputError
 from fgins.geodesy import skew, skew_batch
 
 # NMEA GGA fix-quality codes -> UERE table key (9: SBAS-corrected, NovAtel's WAAS code).
@@ -161,7 +161,13 @@ def dropped_on_read_note(metadata: dict[str, object]) -> str:
     NavSatFix status -1, UBX without a fix), as a suffix of that line: the line's own
     counts add up to the dataset's epochs, and the user still sees every epoch of the file."""
     dropped = int(metadata.get("gnss_epochs_without_fix", 0) or 0)  # type: ignore[call-overload]
-    return f" (+{dropped} epochs without a fix, dropped on reading)" if dropped else ""
+    # The frozen output's repeats the input checks left out (fgins.io.motion_checks): a
+    # 200-row gnss.csv was counted "152 epochs" (outside tester).
+    frozen = int(metadata.get(FROZEN_DROPPED_KEY, 0) or 0)  # type: ignore[call-overload]
+    parts = [f"+{dropped} epochs without a fix, dropped on reading"] if dropped else []
+    parts += [f"+{frozen} repeats of a frozen position, left out on loading"] if frozen else []
+    return f" ({'; '.join(parts)})" if parts else ""
+
 
 
 def gate_epochs(

@@ -50,7 +50,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from fgins.datatypes import Dataset, InputError, Origin
+from fgins.datatypes import FROZEN_DROPPED_KEY, Dataset, InputError, Origin
 from fgins.io.axes_handedness import check_accel_handedness, handedness_note_3d
 from fgins.io.baro_checks import (
     check_baro_scale,
@@ -124,7 +124,9 @@ def _validated(dataset: Dataset, vehicle: str | None) -> Dataset:
     check_accel_units(imu, has_accel_array=dataset.accel_array is not None)
     up = mean_up(imu)
     check_frozen_position(gnss, enu, imu, up)
+    read = len(gnss)
     gnss, enu = drop_frozen_runs(gnss, enu, imu, up, checks)
+    frozen_dropped = read - len(gnss)
     check_time_bases(imu.t, gnss.t, checks, n_read=len(dataset.gnss))
     if vehicle not in FREE_BODY_VEHICLES:  # after the time bases: a time unit shrinks speeds too
         check_track_scale_by_turns(gnss, enu, imu, up)
@@ -170,6 +172,8 @@ def _validated(dataset: Dataset, vehicle: str | None) -> Dataset:
     )
     report_gnss_time_gaps(gnss.t, checks)
     metadata = {**dataset.metadata, "input_checks": list(checks)}
+    if frozen_dropped:
+        metadata[FROZEN_DROPPED_KEY] = frozen_dropped
     with np.errstate(invalid="ignore"):
         if not np.any(np.isfinite(dataset.gnss.lla[:, 2])):
             metadata["gnss_without_height"] = True  # every height invented: see pipeline

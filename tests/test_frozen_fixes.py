@@ -55,6 +55,11 @@ def test_fixes_frozen_while_the_car_drives_are_left_out_and_said(urban, tmp_path
     track = fgins.smooth(dataset, "batch", progress=False)
     assert not track.info.get("gyro_scale_corrected") or not any(track.info["gyro_scale_corrected"])
     assert _horizontal_rms(track, folder) < 1.0
+    # The count line adds up to the file's rows (it said "152 epochs" for 200; outside tester).
+    rows = len(pd.read_csv(folder / "gnss.csv"))
+    line = track.info["gnss_gating"]
+    counted = int(line.split("GNSS: ")[1].split(" epochs")[0])
+    assert "+19 repeats of a frozen position" in line and counted + 19 == rows, line
 
 
 def test_a_fix_held_while_the_car_stands_still_is_kept(urban, tmp_path):
