@@ -129,6 +129,7 @@ def run_method(
     trajectory = _on_receiver_time(dataset, trajectory)
     if baro_note:
         trajectory.info["fit_warnings"] = [baro_note, *trajectory.info.get("fit_warnings", [])]
+    _add_baro_scale_uncertainty(dataset, gnss_mask, trajectory)
     _check_finite(method, trajectory)
     return trajectory
 
@@ -191,6 +192,34 @@ def _with_imu_clock_step_closed(
         *again.info.get("fit_warnings", []),
     ]
     return again
+
+
+# A height uncertainty from the barometer's unknown scale worth saying (m, at its largest).
+BARO_SCALE_SAID_M = 0.5
+
+
+def _add_baro_scale_uncertainty(dataset: Dataset, gnss_mask: np.ndarray | None, trajectory: Trajectory) -> None:
+    """The barometer's scale, where the fixes the run uses cannot show it, in the output's
+    vertical sigmas (in place; fgins.io.baro_checks.scale_unknown_sigma), said where it
+    reaches BARO_SCALE_SAID_M."""
+    from fgins.io.baro_checks import BARO_SCALE_UNKNOWN, scale_unknown_sigma
+
+    if dataset.baro is None or trajectory.position_cov is None:
+        return
+    gnss = dataset.gnss if gnss_mask is None else dataset.gnss.subset(np.asarray(gnss_mask, dtype=bool))
+    sigma = scale_unknown_sigma(dataset.baro, gnss, trajectory.t)
+    if sigma is None or not np.any(sigma > 0.0):
+        return
+    trajectory.position_cov = trajectory.position_cov.copy()
+    trajectory.position_cov[:, 2, 2] += sigma**2
+    largest = float(np.max(sigma))
+    if largest >= BARO_SCALE_SAID_M:
+        trajectory.info.setdefault("fit_warnings", []).append(
+            f"baro: the fixes this run uses climb too little to show the barometer's height "
+            f"scale (a day's air off the standard atmosphere: about +-{100 * BARO_SCALE_UNKNOWN:.0f} %), "
+            f"and the barometer climbs up to {largest / BARO_SCALE_UNKNOWN:.0f} m from where they "
+            f"are: the output's vertical sigmas include that share of it (up to {largest:.1f} m)"
+        )
 
 
 def baro_scaled_to_fixes(dataset: Dataset, gnss_mask: np.ndarray | None) -> tuple[Dataset, str | None]:

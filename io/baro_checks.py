@@ -190,23 +190,10 @@ def check_baro_scale(
         )
     if not rescale:
         return baro
-    # The scale apart from a drift in time (weather, a warming sensor), which the smoother's
-    # bias walk follows: a barometer drifting 0.05 m/s through a climb read as 2.4 % scale,
-    # and rescaled so, the clocks were "corrected" from the rest (38 m inside an outage).
-    elapsed = gnss.t[use] - float(np.mean(gnss.t[use]))
-    design = np.column_stack([x, elapsed])
-    normal = design.T @ design
-    if np.linalg.cond(normal) > 1e12:
+    fit = _slope_with_drift(x, y, gnss.t[use])
+    if fit is None:
         return baro
-    slope, _drift = np.linalg.solve(normal, design.T @ y)
-    residual = y - design @ np.array([slope, _drift])
-    scatter = 1.4826 * float(np.median(np.abs(residual - np.median(residual))))
-    # The fixes' height errors are correlated over tens of seconds (a real receiver's): the
-    # slope's sigma counts the residuals' lag-one correlation (n (1 - r) / (1 + r) independent).
-    centred = residual - residual.mean()
-    lag_one = float(np.sum(centred[1:] * centred[:-1]) / max(float(np.sum(centred * centred)), 1e-12))
-    correlated = (1.0 + max(lag_one, 0.0)) / max(1.0 - max(lag_one, 0.0), 1e-3)
-    slope_sigma = scatter * float(np.sqrt(np.linalg.inv(normal)[0, 0] * correlated))
+    slope, slope_sigma = fit
     if abs(slope - 1.0) < max(BARO_SCALE_MIN_ERROR, BARO_SCALE_SIGMAS * slope_sigma):
         return baro
     ratio = 1.0 / slope
@@ -226,6 +213,28 @@ def check_baro_scale(
     return type(baro)(t=baro.t, pressure=pressure, height=None if baro.height is None else rescaled)
 
 
+def _slope_with_drift(x: np.ndarray, y: np.ndarray, t: np.ndarray) -> tuple[float, float] | None:
+    """The fixes' altitude changes ``y`` regressed on the barometer's ``x`` (both about their
+    means) at times ``t``, with a drift in time: (slope, its sigma), None where the two
+    cannot be told apart. The scale apart from a drift in time (weather, a warming sensor),
+    which the smoother's bias walk follows: a barometer drifting 0.05 m/s through a climb
+    read as 2.4 % scale, and rescaled so, the clocks were "corrected" from the rest (38 m
+    inside an outage)."""
+    design = np.column_stack([x, t - float(np.mean(t))])
+    normal = design.T @ design
+    if np.linalg.cond(normal) > 1e12:
+        return None
+    slope, drift = np.linalg.solve(normal, design.T @ y)
+    residual = y - design @ np.array([slope, drift])
+    scatter = 1.4826 * float(np.median(np.abs(residual - np.median(residual))))
+    # The fixes' height errors are correlated over tens of seconds (a real receiver's): the
+    # slope's sigma counts the residuals' lag-one correlation (n (1 - r) / (1 + r) independent).
+    centred = residual - residual.mean()
+    lag_one = float(np.sum(centred[1:] * centred[:-1]) / max(float(np.sum(centred * centred)), 1e-12))
+    correlated = (1.0 + max(lag_one, 0.0)) / max(1.0 - max(lag_one, 0.0), 1e-3)
+    return float(slope), scatter * float(np.sqrt(np.linalg.inv(normal)[0, 0] * correlated))
+
+
 # A scale taken from the climbs: beyond this many sigmas of the slope and this fraction.
 BARO_SCALE_SIGMAS = 5.0
 BARO_SCALE_MIN_ERROR = 0.005
@@ -235,3 +244,49 @@ BARO_SCALE_MIN_ERROR = 0.005
 BARO_SCALE_MIN_SPREAD_M = 10.0
 BARO_SCALE_MIN_FIXES = 10  # fixes with heights and pressures over the climbs judged
 BARO_SCALE_RANGE = (0.7, 1.4)
+
+
+# A day's air against the standard atmosphere where the fixes cannot show it: ISA +-15 C
+# makes a barometer's height changes about 5 % large or small.
+BARO_SCALE_UNKNOWN = 0.05
+BARO_GAP_INTERVALS = 3.0  # a stretch without fixes longer than this many fix intervals
+
+
+def scale_unknown_sigma(baro, gnss: GnssData, t: np.ndarray) -> np.ndarray | None:
+    """The height sigma (m) at times ``t`` from the barometer's scale as far as the fixes
+    ``gnss`` (those a run uses) leave it unknown: the regression's sigma of the scale (or its
+    distance from 1, where not taken), BARO_SCALE_UNKNOWN at most and where they do not
+    climb, times the barometer's climb inside each stretch without those fixes from the line
+    between its heights at the stretch's ends (beside dense fixes the fixes pin the heights);
+    None without a barometer. (Outside tester: a pass road
+    whose only climbs, 90 m, lay inside a 300 s tunnel, on an ISA+20 day: heights 2 m off at
+    sigma 0.3-0.5 m, z 4-8, nothing said.)"""
+    if baro is None or not len(baro.t) or not len(gnss.t):
+        return None
+    from fgins.factors.stationary import standard_atmosphere_height
+
+    with np.errstate(invalid="ignore"):
+        height = np.asarray(standard_atmosphere_height(baro.pressure), dtype=float)
+    finite = np.isfinite(height)
+    alt = gnss.lla[:, 2]
+    use = np.isfinite(alt) & (gnss.t >= baro.t[0]) & (gnss.t <= baro.t[-1])
+    if finite.sum() < 2 or not use.any():
+        return None
+    at_fixes = np.interp(gnss.t[use], baro.t[finite], height[finite])
+    # What the fixes' climbs say of the scale (the barometer as the run has it: rescaled
+    # where they showed one): its sigma, or its distance from 1 where that was not taken.
+    unknown = BARO_SCALE_UNKNOWN
+    if use.sum() >= BARO_SCALE_MIN_FIXES:
+        fit = _slope_with_drift(at_fixes - at_fixes.mean(), alt[use] - alt[use].mean(), gnss.t[use])
+        if fit is not None and np.isfinite(fit[1]):
+            unknown = min(unknown, max(fit[1], abs(fit[0] - 1.0)))
+    # Between fixes the solution's heights are the barometer's climbs from the fixes at
+    # either end (the smoother pins both); beside dense fixes, the fixes' own.
+    fix_t = gnss.t[use]
+    at_t = np.interp(t, baro.t[finite], height[finite])
+    after = np.clip(np.searchsorted(fix_t, t), 1, len(fix_t) - 1)
+    t0, t1 = fix_t[after - 1], fix_t[after]
+    inside = (t > t0) & (t < t1) & (t1 - t0 > BARO_GAP_INTERVALS * float(np.median(np.diff(fix_t))))
+    h0, h1 = at_fixes[after - 1], at_fixes[after]
+    reference = h0 + (h1 - h0) * np.clip((t - t0) / np.maximum(t1 - t0, 1e-9), 0.0, 1.0)
+    return np.where(inside, unknown * np.abs(at_t - reference), 0.0)
