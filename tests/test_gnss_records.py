@@ -158,3 +158,27 @@ def test_a_whole_simulator_log_is_refused_naming_the_quality(tmp_path, capsys, d
     assert all(line.startswith("warning: ") for line in lines[:-1]), lines
     assert f"no usable GNSS epoch of {n}: {n} by fix quality" in lines[-1]
     assert f"simulator: not measurements: {n} with 8 (simulator))" in err
+
+
+def test_sigmas_a_fix_quality_cannot_have_are_raised_to_it():
+    """An RTK receiver's std columns kept claiming 1.5 cm through float, DGPS and single-point
+    stretches (GGA quality 5, 2, 1): weighted so, the scatter check scaled every fix, RTK ones
+    too, and the drive came out 0.15 m off at z 3.7 (outside tester). Sigmas below what the
+    fix's own quality allows are raised to it and counted; RTK fixed ones stay."""
+    from fgins.datatypes import GnssData
+    from fgins.io.gnss_checks import QUALITY_MIN_SIGMA_M, check_gnss_records
+
+    quality = np.array([4, 4, 5, 2, 1, 9, 1])
+    std = np.tile([0.015, 0.015, 0.025], (len(quality), 1))
+    std[-1] = [1.2, 1.2, 2.0]  # an honest single-point fix
+    gnss = GnssData(t=np.arange(len(quality), dtype=float), lla=np.tile([45.0, 10.0, 100.0], (len(quality), 1)),
+                    std=std, fix_quality=quality)  # fmt: skip
+    checks: list[str] = []
+    out = check_gnss_records(gnss, checks)
+    assert np.allclose(out.std[:2], std[:2])  # RTK fixed: as stated
+    for i in range(2, 6):
+        floor = QUALITY_MIN_SIGMA_M[int(quality[i])]
+        assert np.allclose(out.std[i, :2], floor) and out.std[i, 2] >= 1.5 * floor - 1e-12
+    assert np.allclose(out.std[-1], std[-1])
+    assert len(checks) == 1 and checks[0].startswith("gnss: 4 fix(es) state sigmas below"), checks
+    assert np.allclose(gnss.std, std)  # the input is not changed
