@@ -390,9 +390,11 @@ def check_gnss_records(gnss: GnssData, checks: list[str]) -> GnssData:
     return gnss
 
 
-# The smallest horizontal sigma (m) a fix of each GGA quality can have: a single-point,
-# SBAS or DGPS solution is never good to a decimetre, an RTK float one to centimetres.
-QUALITY_MIN_SIGMA_M = {1: 0.3, 2: 0.3, 9: 0.3, 5: 0.05}
+# The smallest horizontal sigma (m) a fix of each GGA quality can have: an SBAS or DGPS
+# solution is never good to a decimetre, an RTK float one to centimetres. Not quality 1
+# (single point): it is also what a fix without a quality column gets, and an RTK receiver's
+# CSV without one was held to 0.3 m.
+QUALITY_MIN_SIGMA_M = {2: 0.3, 9: 0.3, 5: 0.05}
 
 
 def _sigmas_within_fix_quality(gnss: GnssData, checks: list[str]) -> GnssData:

@@ -168,7 +168,7 @@ def test_sigmas_a_fix_quality_cannot_have_are_raised_to_it():
     from fgins.datatypes import GnssData
     from fgins.io.gnss_checks import QUALITY_MIN_SIGMA_M, check_gnss_records
 
-    quality = np.array([4, 4, 5, 2, 1, 9, 1])
+    quality = np.array([4, 4, 5, 2, 9, 1, 1])  # 1: also the quality of a fix without one
     std = np.tile([0.015, 0.015, 0.025], (len(quality), 1))
     std[-1] = [1.2, 1.2, 2.0]  # an honest single-point fix
     gnss = GnssData(t=np.arange(len(quality), dtype=float), lla=np.tile([45.0, 10.0, 100.0], (len(quality), 1)),
@@ -176,9 +176,9 @@ def test_sigmas_a_fix_quality_cannot_have_are_raised_to_it():
     checks: list[str] = []
     out = check_gnss_records(gnss, checks)
     assert np.allclose(out.std[:2], std[:2])  # RTK fixed: as stated
-    for i in range(2, 6):
+    for i in range(2, 5):
         floor = QUALITY_MIN_SIGMA_M[int(quality[i])]
         assert np.allclose(out.std[i, :2], floor) and out.std[i, 2] >= 1.5 * floor - 1e-12
-    assert np.allclose(out.std[-1], std[-1])
-    assert len(checks) == 1 and checks[0].startswith("gnss: 4 fix(es) state sigmas below"), checks
+    assert np.allclose(out.std[5:], std[5:])
+    assert len(checks) == 1 and checks[0].startswith("gnss: 3 fix(es) state sigmas below"), checks
     assert np.allclose(gnss.std, std)  # the input is not changed
