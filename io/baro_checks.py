@@ -290,3 +290,69 @@ def scale_unknown_sigma(baro, gnss: GnssData, t: np.ndarray) -> np.ndarray | Non
     h0, h1 = at_fixes[after - 1], at_fixes[after]
     reference = h0 + (h1 - h0) * np.clip((t - t0) / np.maximum(t1 - t0, 1e-9), 0.0, 1.0)
     return np.where(inside, unknown * np.abs(at_t - reference), 0.0)
+
+
+# The barometer's clock against the fixes': its height changes lagged over +-BARO_MAX_LAG_S
+# against the fixes' altitude changes, where both climb well beyond their noise. A lag of at
+# least BARO_LAG_MIN_S that correlates at BARO_LAG_MIN_CORRELATION, where none does, is an
+# error naming it.
+BARO_MAX_LAG_S = 300.0
+BARO_LAG_STEP_S = 1.0
+BARO_LAG_MIN_S = 5.0
+BARO_LAG_MIN_CORRELATION = 0.9
+BARO_LAG_MAX_AT_ZERO = 0.6
+BARO_CLIMB_S = 30.0
+
+
+def check_baro_clock(baro, gnss: GnssData) -> None:
+    """A barometer on another clock than the fixes: its climbs line up with theirs only
+    when moved by seconds. (Outside tester: a barometer 100 s late ran to exit 0 with heights
+    61 m off at z 140, 39 good fixes left out as faults and the gyro blamed; 5 s late, z 8.)
+    Judged only where the fixes climb and descend (the scale check's spread) over a drive
+    several times the lag."""
+    if baro is None or len(baro.t) < 10 or len(gnss.t) < BARO_SCALE_MIN_FIXES:
+        return
+    from fgins.factors.stationary import standard_atmosphere_height
+
+    with np.errstate(invalid="ignore"):
+        height = np.asarray(standard_atmosphere_height(baro.pressure), dtype=float)
+    finite = np.isfinite(height)
+    alt = gnss.lla[:, 2]
+    ok = np.isfinite(alt)
+    if finite.sum() < 10 or ok.sum() < BARO_SCALE_MIN_FIXES:
+        return
+    t_fix, alt = gnss.t[ok], alt[ok]
+    q1, q3 = np.percentile(alt, [25, 75])
+    sigma_up = float(np.median(fix_sigma(gnss)[ok]))
+    if (q3 - q1) / 1.349 < max(BARO_SCALE_MIN_SPREAD_M, 2.0 * sigma_up):
+        return
+    bt, bh = baro.t[finite], height[finite]
+    # Climbs over BARO_CLIMB_S, not heights: along a steady climb a lag is only an offset,
+    # which the barometer's own offset takes.
+    start = np.arange(t_fix[0], t_fix[-1] - BARO_CLIMB_S, BARO_CLIMB_S / 2)
+    climb = np.interp(start + BARO_CLIMB_S, t_fix, alt) - np.interp(start, t_fix, alt)
+
+    def correlation(lag: float) -> float:
+        inside = (start + lag >= bt[0]) & (start + lag + BARO_CLIMB_S <= bt[-1])
+        if inside.sum() < max(BARO_SCALE_MIN_FIXES, 0.5 * len(start)):
+            return float("nan")
+        a = np.interp(start[inside] + lag + BARO_CLIMB_S, bt, bh) - np.interp(start[inside] + lag, bt, bh)
+        b = climb[inside]
+        a, b = a - a.mean(), b - b.mean()
+        denominator = float(np.sqrt(np.sum(a * a) * np.sum(b * b)))
+        return float(np.sum(a * b)) / denominator if denominator > 0 else float("nan")
+
+    lags = np.arange(-BARO_MAX_LAG_S, BARO_MAX_LAG_S + BARO_LAG_STEP_S / 2, BARO_LAG_STEP_S)
+    values = np.array([correlation(float(lag)) for lag in lags])
+    if not np.any(np.isfinite(values)):
+        return
+    best = int(np.nanargmax(values))
+    at_zero = correlation(0.0)
+    lag, peak = float(lags[best]), float(values[best])
+    # (as stamped and strongly against: a sign, which the scale check names, not a clock)
+    if abs(lag) >= BARO_LAG_MIN_S and peak >= BARO_LAG_MIN_CORRELATION and abs(at_zero) <= BARO_LAG_MAX_AT_ZERO:
+        raise InputError(
+            f"baro: its height changes line up with the fixes' altitude only when its times are "
+            f"moved by {-lag:+.0f} s (correlation {peak:.2f}, {at_zero:.2f} as stamped): the "
+            "barometer is on another clock; give its times on the IMU's and the fixes' clock"
+        )

@@ -53,6 +53,7 @@ import numpy as np
 from fgins.datatypes import FROZEN_DROPPED_KEY, Dataset, InputError, Origin
 from fgins.io.axes_handedness import check_accel_handedness, handedness_note_3d
 from fgins.io.baro_checks import (
+    check_baro_clock,
     check_baro_scale,
     check_pressure_unit,
     checked_baro,
@@ -164,12 +165,15 @@ def _validated(dataset: Dataset, vehicle: str | None) -> Dataset:
         check_wheel_speed(dataset.odometer, gnss, enu)
     baro_heights = dataset.baro is not None and given_as_height(dataset.baro)
     baro = checked_baro(dataset.baro, imu.t, checks)
+    # Before the unit: a barometer seconds off fits the fixes' climbs with a nonsense scale.
+    check_baro_clock(baro, gnss)
     if not baro_heights:  # heights were checked for range and made pressures
         check_pressure_unit(baro)
     # Units only: the scale is the run's, from the fixes it uses (fgins.pipeline).
     baro = check_baro_scale(
         baro, gnss, "height" if baro_heights else "pressure's ISA height", checks, rescale=False
     )
+
     report_gnss_time_gaps(gnss.t, checks)
     metadata = {**dataset.metadata, "input_checks": list(checks)}
     if frozen_dropped:

@@ -1561,3 +1561,26 @@ def test_velocities_off_the_fixes_by_a_constant_are_not_used(tmp_path, bias, kep
     if said:
         shown = [float(x) for x in said[0].split("[")[1].split("]")[0].split(",")]
         assert np.allclose(shown, bias, atol=0.08), said
+
+
+@pytest.mark.parametrize("late", [0.0, 25.0])
+def test_a_barometer_on_another_clock_is_named(tmp_path, late):
+    """A barometer whose stamps run late by seconds: its climbs line up with the fixes' only
+    when moved back (outside tester: 100 s late ran to exit 0, heights 61 m off at z 140,
+    good fixes left out as faults and the gyro blamed). An error naming the lag; on time, it
+    loads. (The hills repeat every 120 s: the lag is named modulo that.)"""
+    import fgins
+    from fgins.factors.stationary import standard_atmosphere_pressure
+
+    t, height = _hilly_drive_with_barometer(tmp_path)
+    pd.DataFrame({"time": t + late, "pressure_pa": standard_atmosphere_pressure(height)}).to_csv(
+        tmp_path / "baro.csv", index=False, float_format="%.6f"
+    )
+    paths = [tmp_path / "imu.csv", tmp_path / "gnss.csv", tmp_path / "baro.csv"]
+    if not late:
+        fgins.load(*paths, vehicle="car")
+        return
+    with pytest.raises(fgins.InputError, match=r"baro: .* moved by ([+-][0-9]+) s .*another clock") as refused:
+        fgins.load(*paths, vehicle="car")
+    named = float(str(refused.value).split("moved by ")[1].split(" s")[0])
+    assert abs((named + late + 60.0) % 120.0 - 60.0) < 3.0, str(refused.value)
