@@ -21,6 +21,7 @@ state and the same uncertainty.
 from __future__ import annotations
 
 import functools
+import inspect
 import itertools
 import math
 from collections.abc import Callable
@@ -189,43 +190,38 @@ START_PRIOR_FIX_SIGMAS = 1.0 / 3.0
 START_PRIOR_MIN_SIGMA_M = 2.0
 
 
+def _start_prior_floored(align: Callable[_Args, Alignment]) -> Callable[_Args, Alignment]:
+    """The alignment ``align`` makes, its position sigma at least START_PRIOR_FIX_SIGMAS
+    times the RMS stated sigma of the fixes its position was fitted from (those within
+    ``fit_window_s`` of the first usable one)."""
+    parameters = inspect.signature(align)
+
+    @functools.wraps(align)
+    def floored(*args: _Args.args, **kwargs: _Args.kwargs) -> Alignment:
+        alignment = align(*args, **kwargs)
+        bound = parameters.bind(*args, **kwargs)
+        bound.apply_defaults()
+        dataset, gnss_mask = bound.arguments["dataset"], bound.arguments["gnss_mask"]
+        fit_window_s = float(bound.arguments["fit_window_s"])
+        mask = np.ones(len(dataset.gnss), dtype=bool) if gnss_mask is None else np.asarray(gnss_mask, bool)
+        t = dataset.gnss.t
+        window = mask & (t >= t[mask][0]) & (t <= t[mask][0] + fit_window_s)
+        stated = np.max(np.asarray(dataset.gnss.std, dtype=float)[window], axis=1)
+        stated = stated[np.isfinite(stated) & (stated > 0)]
+        if not stated.size:
+            return alignment
+        # The fit takes its fixes unweighted: the worst of them set its error (their RMS sigma).
+        floor = max(START_PRIOR_MIN_SIGMA_M, START_PRIOR_FIX_SIGMAS * float(np.sqrt(np.mean(stated**2))))
+        if alignment.position_sigma >= floor:
+            return alignment
+        return replace(alignment, position_sigma=floor)
+
+    return floored
+
+
 @_finite
+@_start_prior_floored
 def initial_alignment(
-    dataset: Dataset,
-    gnss_mask: np.ndarray | None = None,
-    *,
-    smoother: SmootherConfig | None = None,
-    heading_deg: float | None = None,
-    moving_speed: float = 2.0,
-    fit_window_s: float = 6.0,
-    forward_axis: np.ndarray | None = None,
-    gyro_bias_sigma: float = 0.0,
-) -> Alignment:
-    """Initial state at the first IMU sample (see module docstring and :func:`_aligned`),
-    its position sigma at least START_PRIOR_FIX_SIGMAS times the RMS stated sigma of the
-    fixes its position was fitted from."""
-    alignment = _aligned(
-        dataset, gnss_mask, smoother=smoother, heading_deg=heading_deg, moving_speed=moving_speed,
-        fit_window_s=fit_window_s, forward_axis=forward_axis, gyro_bias_sigma=gyro_bias_sigma,
-    )  # fmt: skip
-    std = dataset.gnss.std
-    if std is None:
-        return alignment
-    mask = np.ones(len(dataset.gnss), dtype=bool) if gnss_mask is None else np.asarray(gnss_mask, bool)
-    t = dataset.gnss.t
-    window = mask & (t >= t[mask][0]) & (t <= t[mask][0] + fit_window_s)
-    stated = np.max(np.asarray(std, dtype=float)[window], axis=1)
-    stated = stated[np.isfinite(stated) & (stated > 0)]
-    if not stated.size:
-        return alignment
-    # The fit takes its fixes unweighted: the worst of them set its error (their RMS sigma).
-    floor = max(START_PRIOR_MIN_SIGMA_M, START_PRIOR_FIX_SIGMAS * float(np.sqrt(np.mean(stated**2))))
-    if alignment.position_sigma >= floor:
-        return alignment
-    return replace(alignment, position_sigma=floor)
-
-
-def _aligned(
     dataset: Dataset,
     gnss_mask: np.ndarray | None = None,
     *,
@@ -252,6 +248,7 @@ def _aligned(
     start), the state is aligned at that fix and carried back to the first IMU sample by
     backward dead reckoning, with uncertainties grown by what dead reckoning over that
     stretch can get wrong; a tight prior on an extrapolated state would pin the start wrong.
+    The position sigma is at least a share of the fitted fixes' own (:func:`_start_prior_floored`).
     """
     imu = dataset.imu
     mask = np.ones(len(dataset.gnss), dtype=bool) if gnss_mask is None else gnss_mask

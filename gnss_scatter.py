@@ -12,7 +12,7 @@ SIGMA_AXIS_RATIO = 1.5
 MIN_FIXES = 30
 
 
-def _robust_scale(whitened: np.ndarray) -> float:
+def robust_scale(whitened: np.ndarray) -> float:
     """1.4826 x the median absolute whitened residual: the RMS of unit normal errors, which a
     few outliers do not move."""
     return float(1.4826 * np.median(np.abs(whitened)))
@@ -30,7 +30,7 @@ def gnss_scatter(whitened: np.ndarray, method: str = "") -> dict[str, object]:
     if len(whitened) < MIN_FIXES:
         return {}
     who = f"{method}: " if method else ""
-    horizontal, vertical = _robust_scale(whitened[:, :2]), _robust_scale(whitened[:, 2])
+    horizontal, vertical = robust_scale(whitened[:, :2]), robust_scale(whitened[:, 2])
     out: dict[str, object] = {
         "gnss_whitened_scale_horizontal": horizontal, "gnss_whitened_scale_vertical": vertical,
     }  # fmt: skip
@@ -65,9 +65,9 @@ def velocity_scatter(whitened: np.ndarray) -> dict[str, object]:
     horizontal_rows = whitened[np.all(np.isfinite(whitened[:, :2]), axis=1), :2]
     if len(horizontal_rows) < MIN_FIXES:
         return {}
-    horizontal = _robust_scale(horizontal_rows)
+    horizontal = robust_scale(horizontal_rows)
     up = whitened[:, 2][np.isfinite(whitened[:, 2])]
-    vertical = _robust_scale(up) if len(up) >= MIN_FIXES else float("nan")
+    vertical = robust_scale(up) if len(up) >= MIN_FIXES else float("nan")
     out: dict[str, object] = {
         "gnss_velocity_whitened_scale_horizontal": horizontal,
         "gnss_velocity_whitened_scale_vertical": vertical,

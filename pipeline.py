@@ -39,7 +39,7 @@ from fgins.corrections import (
     with_turn_on_bias_widened,
 )
 from fgins.datatypes import IMU_TIMES_FROM_FIXES_KEY, Dataset, FginsError, InputError, Trajectory
-from fgins.gnss_scatter import gnss_scatter
+from fgins.gnss_scatter import gnss_scatter, robust_scale
 from fgins.graph.gyro_scale import GROSS_SCALE_KEY
 from fgins.initial_guess import KeyframeGuess
 from fgins.solution_checks import (
@@ -194,6 +194,11 @@ def _with_imu_clock_step_closed(
     return again
 
 
+def _unwithheld(dataset: Dataset, gnss_mask: np.ndarray | None):
+    """The fixes ``gnss_mask`` does not withhold (every fix without one)."""
+    return dataset.gnss if gnss_mask is None else dataset.gnss.subset(np.asarray(gnss_mask, dtype=bool))
+
+
 # A height uncertainty from the barometer's unknown scale worth saying (m, at its largest).
 BARO_SCALE_SAID_M = 0.5
 
@@ -206,8 +211,7 @@ def _add_baro_scale_uncertainty(dataset: Dataset, gnss_mask: np.ndarray | None, 
 
     if dataset.baro is None or trajectory.position_cov is None:
         return
-    gnss = dataset.gnss if gnss_mask is None else dataset.gnss.subset(np.asarray(gnss_mask, dtype=bool))
-    sigma = scale_unknown_sigma(dataset.baro, gnss, trajectory.t)
+    sigma = scale_unknown_sigma(dataset.baro, _unwithheld(dataset, gnss_mask), trajectory.t)
     if sigma is None or not np.any(sigma > 0.0):
         return
     trajectory.position_cov = trajectory.position_cov.copy()
@@ -230,11 +234,10 @@ def baro_scaled_to_fixes(dataset: Dataset, gnss_mask: np.ndarray | None) -> tupl
 
     if dataset.baro is None or not len(dataset.baro.t):
         return dataset, None
-    gnss = dataset.gnss if gnss_mask is None else dataset.gnss.subset(np.asarray(gnss_mask, dtype=bool))
     what = "height" if given_as_height(dataset.baro) else "pressure's ISA height"
     said: list[str] = []
     try:
-        baro = check_baro_scale(dataset.baro, gnss, what, said)
+        baro = check_baro_scale(dataset.baro, _unwithheld(dataset, gnss_mask), what, said)
     except InputError:  # a unit the load let pass on every fix: the fixes used cannot judge it
         return dataset, None
     if baro is dataset.baro:
@@ -402,6 +405,15 @@ def _corrected_solution(
     return trajectory
 
 
+def _whitened_fix_residuals(epochs, config: RunConfig, trajectory: Trajectory) -> tuple[np.ndarray, np.ndarray]:
+    """(each used fix's nearest state, its residual against ``trajectory``'s antenna in its
+    own sigmas, (n, 3)) for ``epochs`` (fgins.baseline.measurements.select_gnss)."""
+    nearest = np.clip(np.searchsorted(trajectory.t, epochs.t), 0, len(trajectory) - 1)
+    lever = np.asarray(config.gnss.lever_arm_m, dtype=float)
+    antenna = trajectory.at(epochs.t, hold_ends=True) + trajectory.rotation[nearest] @ lever
+    return nearest, (antenna - epochs.position) / epochs.position_sigma
+
+
 def add_slow_fix_error_uncertainty(
     dataset: Dataset, config: RunConfig, gnss_mask: np.ndarray | None, trajectory: Trajectory
 ) -> None:
@@ -419,17 +431,14 @@ def add_slow_fix_error_uncertainty(
         return
     if len(epochs.t) < 2:
         return
-    nearest = np.clip(np.searchsorted(trajectory.t, epochs.t), 0, len(trajectory) - 1)
-    lever = np.asarray(config.gnss.lever_arm_m, dtype=float)
-    antenna = trajectory.at(epochs.t, hold_ends=True) + trajectory.rotation[nearest] @ lever
-    whitened = (antenna - epochs.position) / epochs.position_sigma
+    nearest, whitened = _whitened_fix_residuals(epochs, config, trajectory)
     rho_h, rho_v = residual_correlation(epochs.t, whitened)
     variance = np.einsum("nii->ni", np.asarray(trajectory.position_cov, dtype=float))[nearest]
     fix_variance = np.asarray(epochs.position_sigma, dtype=float) ** 2
     added = []
     for rho, columns in ((rho_h, [0, 1]), (rho_v, [2])):
         residuals = whitened[:, columns][np.all(np.isfinite(whitened[:, columns]), axis=1)]
-        scatter = 1.4826 * float(np.median(np.abs(residuals))) if residuals.size else float("nan")
+        scatter = robust_scale(residuals) if residuals.size else float("nan")
         added.append(
             slow_error_variance(
                 rho,
@@ -710,10 +719,7 @@ def _filter_fit_note(
     epochs = select_gnss(dataset, config, gnss_mask)
     if len(epochs.t) == 0 or len(trajectory) < 2:
         return []
-    nearest = np.clip(np.searchsorted(trajectory.t, epochs.t), 0, len(trajectory) - 1)
-    lever = np.asarray(config.gnss.lever_arm_m, dtype=float)
-    antenna = trajectory.at(epochs.t, hold_ends=True) + trajectory.rotation[nearest] @ lever
-    whitened = (antenna - epochs.position) / epochs.position_sigma
+    _, whitened = _whitened_fix_residuals(epochs, config, trajectory)
     scatter = gnss_scatter(whitened, method)
     trajectory.info.update({k: v for k, v in scatter.items() if k != "fit_warnings"})
     scatter_notes: list[str] = scatter.get("fit_warnings", [])  # type: ignore[assignment]

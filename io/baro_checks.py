@@ -133,6 +133,15 @@ def check_pressure_unit(baro) -> None:
     )
 
 
+def _isa_height(baro) -> np.ndarray:
+    """The barometer's standard-atmosphere heights (m; NaN where its pressure is not one).
+    A height given as such was made its pressure on loading: the same height back."""
+    from fgins.factors.stationary import standard_atmosphere_height
+
+    with np.errstate(invalid="ignore"):
+        return np.asarray(standard_atmosphere_height(baro.pressure), dtype=float)
+
+
 def check_baro_scale(
     baro, gnss: GnssData, what: str, checks: list[str] | None = None, *, rescale: bool = True
 ):
@@ -158,10 +167,7 @@ def check_baro_scale(
     inside a 300 s outage against 11.5 m with those fixes really absent)."""
     if baro is None or not len(baro.t):
         return baro
-    from fgins.factors.stationary import standard_atmosphere_height
-
-    with np.errstate(invalid="ignore"):  # a height given as such: the same height back
-        height = np.asarray(standard_atmosphere_height(baro.pressure), dtype=float)
+    height = _isa_height(baro)
     alt = gnss.lla[:, 2]
     use = np.isfinite(alt) & (gnss.t >= baro.t[0]) & (gnss.t <= baro.t[-1])
     finite = np.isfinite(height)
@@ -263,10 +269,7 @@ def scale_unknown_sigma(baro, gnss: GnssData, t: np.ndarray) -> np.ndarray | Non
     sigma 0.3-0.5 m, z 4-8, nothing said.)"""
     if baro is None or not len(baro.t) or not len(gnss.t):
         return None
-    from fgins.factors.stationary import standard_atmosphere_height
-
-    with np.errstate(invalid="ignore"):
-        height = np.asarray(standard_atmosphere_height(baro.pressure), dtype=float)
+    height = _isa_height(baro)
     finite = np.isfinite(height)
     alt = gnss.lla[:, 2]
     use = np.isfinite(alt) & (gnss.t >= baro.t[0]) & (gnss.t <= baro.t[-1])
@@ -312,10 +315,7 @@ def check_baro_clock(baro, gnss: GnssData) -> None:
     several times the lag."""
     if baro is None or len(baro.t) < 10 or len(gnss.t) < BARO_SCALE_MIN_FIXES:
         return
-    from fgins.factors.stationary import standard_atmosphere_height
-
-    with np.errstate(invalid="ignore"):
-        height = np.asarray(standard_atmosphere_height(baro.pressure), dtype=float)
+    height = _isa_height(baro)
     finite = np.isfinite(height)
     alt = gnss.lla[:, 2]
     ok = np.isfinite(alt)
