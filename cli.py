@@ -333,11 +333,17 @@ def _report(dataset: Dataset, trajectory: Trajectory) -> None:
         print(f"warning: {warning}", file=sys.stderr)
     if "odometer_scale_error" in summary:
         print(
-            f"odometer scale-factor error: {100 * summary['odometer_scale_error']:+.2f} %",
+            f"odometer scale-factor error: {100 * summary['odometer_scale_error']:+.2f} %"
+            + _wheel_weights(summary),
             file=sys.stderr,
         )
     if "nhc_misalignment_deg" in summary:
         print(f"NHC misalignment (deg): {summary['nhc_misalignment_deg']}", file=sys.stderr)
+
+
+def _wheel_weights(summary: dict[str, object]) -> str:
+    """``; 12 of 480 wheel speeds beyond 3 sigma ..., down-weighted by its Cauchy kernel``."""
+    return f"; {summary['wheel_weights']}" if "wheel_weights" in summary else ""
 
 
 def _check_demo_alone(inputs: list[str]) -> None:

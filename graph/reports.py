@@ -29,7 +29,7 @@ from fgins.factors import vehicle as vehicle_model
 from fgins.gnss_scatter import gnss_scatter, velocity_scatter
 from fgins.graph.gyro_scale import SCALE_PRIOR
 from fgins.graph.parameter_step import imu_bias_jacobians, interval_mean, parameter_step
-from fgins.graph.problem import Problem
+from fgins.graph.problem import Problem, rotations_and_velocities
 from fgins.graph.solve import CHI2_FAR_TOO_GOOD, CHI2_WARN, SolveReport
 
 ODOMETER_SCALE_PRIOR_SIGMAS = 3.0
@@ -53,6 +53,7 @@ def extra_states(
     if values.exists(odometer_model.scale_key()):
         scale = float(values.atDouble(odometer_model.scale_key()))
         out["odometer_scale_error"] = scale
+        out.update(_wheel_downweighted(problem, values, scale))
         prior = problem.config.smoother.odometer_scale_sigma
         if abs(scale) > ODOMETER_SCALE_PRIOR_SIGMAS * prior:
             out["fit_warnings"] = [
@@ -74,6 +75,29 @@ def extra_states(
             " (at the start; it drifts)" if drifting else ""
         )
     return out
+
+
+def _wheel_downweighted(problem: Problem, values: gtsam.Values, scale: float) -> dict[str, object]:
+    """How many wheel speeds the odometer's Cauchy kernel left with under half their weight
+    (residual beyond its k sigma at the solution): a wheel that slips in turns is kept out
+    that way, and the summary says how much of it was (it had said nothing)."""
+    k = np.flatnonzero(np.isfinite(problem.odometer_speed))
+    k = k[[values.exists(X(int(i))) for i in k]] if len(k) else k
+    if not len(k):
+        return {}
+    rotation, velocity = rotations_and_velocities(values, k)
+    residual = odometer_model.speed_residuals(
+        rotation, velocity, scale, problem.odometer_speed[k], problem.imu_to_vehicle[0]
+    )
+    sigma = problem.config.smoother.odometer_sigma_m_per_s
+    large = np.abs(residual) > odometer_model.ODOMETER_CAUCHY_K * sigma
+    return {
+        "wheel_downweighted": int(large.sum()),
+        "wheel_speeds": len(k),
+        "wheel_weights": f"{int(large.sum())} of {len(k)} wheel speeds beyond "
+        f"{odometer_model.ODOMETER_CAUCHY_K:g} sigma at the solution, down-weighted by its "
+        "Cauchy kernel",
+    }
 
 
 def gnss_report(problem: Problem, values: gtsam.Values) -> dict[str, object]:

@@ -252,7 +252,7 @@ def test_a_wheel_that_slips_in_hard_turns_does_not_pull_the_track(tmp_path, seed
     assert 0.03 < slipping.mean() < 0.3
     windows = [(60.0, 120.0), (130.0, 170.0)]
     outage = [(run.dataset.t0 + a, run.dataset.t0 + b) for a, b in windows]
-    errors = {}
+    errors, summary = {}, {}
     for label, wheel in (("none", None), ("true", speed), ("slips", np.where(slipping, 1.15 * speed, speed))):
         if wheel is not None:
             np.savetxt(folder / "wheel.csv", np.column_stack([run.truth.t[rows], wheel]), delimiter=",",
@@ -263,7 +263,14 @@ def test_a_wheel_that_slips_in_hard_turns_does_not_pull_the_track(tmp_path, seed
         truth = run.truth.at(track.t)
         inside = in_windows(track.t, run.dataset.t0, windows)
         errors[label] = _rms(np.hypot(*(track.position[inside, :2] - truth[inside, :2]).T))
+        summary[label] = track.summary()
     assert errors["slips"] < 1.1 * errors["none"] + 0.05 and errors["slips"] < 1.5 * errors["true"] + 0.1, errors
+    # The summary says how many speeds the kernel kept out: most of the slipping ones (15 %
+    # of a speed is 10-20 sigmas), hardly any of a wheel that does not slip.
+    assert "wheel_speeds" not in summary["none"]
+    kept_out = {label: summary[label]["wheel_downweighted"] / summary[label]["wheel_speeds"] for label in ("true", "slips")}
+    assert kept_out["true"] < 0.02 and kept_out["slips"] > 0.5 * slipping.mean(), (kept_out, slipping.mean())
+    assert "wheel speeds beyond 3 sigma" in summary["slips"]["wheel_weights"]
 
 
 @pytest.mark.parametrize("scale", [1.07, 0.94])
