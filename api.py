@@ -77,6 +77,9 @@ INPUT_FOLDER_FILES = (
 )  # fmt: skip
 DEFAULT_BENCH_METHODS = ("batch", "isam2", "ekf", "ekf-rts")
 ROBUST_KERNELS = ("huber", "cauchy", "none")
+# --robust huber / cauchy without a width in the configuration (sigmas).
+ROBUST_HUBER_K = 2.0
+ROBUST_CAUCHY_K = 3.0
 
 
 class FginsWarning(UserWarning):
@@ -178,8 +181,9 @@ def configure(
         ``car`` (turns on the land-vehicle constraints), ``aircraft``, ``uav``, ``pedestrian``,
         ``other``.
     robust : {"huber", "cauchy", "none"}, optional
-        Robust GNSS kernel: Huber with k = 2 sigma, Cauchy with k = 3 sigma, or none (every
-        fix at full weight). Without it, the configuration's (default Huber, k = 4 sigma).
+        Robust GNSS kernel: Huber with k = 2 sigma, Cauchy with k = 3 sigma (or the width
+        the configuration's ``huber_k`` / ``cauchy_k`` gives), or none (every fix at full
+        weight). Without it, the configuration's (default Huber, k = 4 sigma).
 
     Returns
     -------
@@ -212,10 +216,14 @@ def configure(
         if type(exc) is FginsError:  # config.py raises the base class; say what it is about
             raise ConfigError(str(exc)) from None
         raise
+    # The flag chooses the kernel; a width the configuration gives for that kernel is kept
+    # (``--robust cauchy`` with ``cauchy_k = 0.5`` had run at 3, unsaid).
+    gnss, given = run_config.gnss, run_config.explicit_gnss_keys
     if robust == "huber":
-        run_config.gnss.huber_k, run_config.gnss.cauchy_k = 2.0, None
+        keep = "huber_k" in given and gnss.huber_k is not None
+        gnss.huber_k, gnss.cauchy_k = (gnss.huber_k if keep else ROBUST_HUBER_K), None
     elif robust == "cauchy":
-        run_config.gnss.cauchy_k = 3.0
+        gnss.cauchy_k = gnss.cauchy_k if "cauchy_k" in given else ROBUST_CAUCHY_K
     elif robust == "none":
         run_config.gnss.huber_k, run_config.gnss.cauchy_k = None, None
     return run_config

@@ -710,6 +710,8 @@ class RunConfig:
     gnss: GnssConfig = field(default_factory=GnssConfig)
     smoother: SmootherConfig = field(default_factory=SmootherConfig)
     explicit_smoother_keys: frozenset[str] = frozenset()
+    # [gnss] keys a configuration gave (a flag such as --robust keeps their values).
+    explicit_gnss_keys: frozenset[str] = frozenset()
 
     def imu_noise(self) -> ImuNoise:
         return imu_noise_from_config(self.imu)
@@ -832,6 +834,7 @@ def load_config(
         gnss=GnssConfig(**gnss_table),
         smoother=_checked_smoother(file_where, {**data_smoother, **smoother_table}),
         explicit_smoother_keys=frozenset(smoother_table),
+        explicit_gnss_keys=frozenset(gnss_table),
     )
 
 

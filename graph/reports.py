@@ -120,16 +120,20 @@ def gnss_report(problem: Problem, values: gtsam.Values) -> dict[str, object]:
     out_as_faults = f"{len(excluded)} left out as faults, " if len(excluded) else ""
     if kernel == "Cauchy":
         # A redescending kernel leaves such fixes almost no weight: they are rejected.
-        by_kernel = f"{len(kept_large)} by the Cauchy kernel"
+        cauchy = f"the Cauchy kernel (k = {gnss.cauchy_k:g})"
         text = f"GNSS outliers: {len(large)} of {total} fixes rejected" + (
-            f" ({out_as_faults}{by_kernel})" if len(excluded) else " by the Cauchy kernel"
+            f" ({out_as_faults}{len(kept_large)} by {cauchy})" if len(excluded) else f" by {cauchy}"
         )
     elif kernel == "Huber":
+        # The kernel's own width decides what it down-weights (huber_k = 1: every fix beyond
+        # 1 sigma; the line said "above 4.03 sigma, down-weighted" whatever k was).
+        k = float(gnss.huber_k)  # type: ignore[arg-type]
         text = (
             f"GNSS large residuals: {len(large)} of {total} fixes above "
-            f"{LARGE_RESIDUAL_WHITENED} sigma, {out_as_faults}"
-            + (f"{len(kept_large)} " if len(excluded) else "")
-            + "down-weighted by the Huber kernel"
+            f"{LARGE_RESIDUAL_WHITENED} sigma"
+            + (f" ({len(excluded)} left out as faults)" if len(excluded) else "")
+            + f"; the Huber kernel (k = {k:g}) down-weighted {int((norms > k).sum())} of the "
+            f"{len(times)} fixes kept, those beyond {k:g} sigma"
         )
     else:
         text = (

@@ -304,3 +304,25 @@ def test_a_misalignment_setting_without_its_state_is_refused(tmp_path, key):
         load_config(_write(tmp_path, f"[smoother]\n{key} = 0.1\n"))
     config = load_config(_write(tmp_path, f"[smoother]\nnhc_misalignment_prior_deg = 0.5\n{key} = 0.1\n"))
     assert getattr(config.smoother, key) == 0.1
+
+
+@pytest.mark.parametrize(
+    ("file", "robust", "huber_k", "cauchy_k"),
+    [("", "huber", 2.0, None), ("", "cauchy", 4.0, 3.0), ("cauchy_k = 0.5", "cauchy", 4.0, 0.5),
+     ("cauchy_k = 20.0", "cauchy", None, 20.0), ("huber_k = 1.0", "huber", 1.0, None),
+     ("huber_k = 1.0", "cauchy", 1.0, 3.0), ("cauchy_k = 0.5", "huber", 2.0, None),
+     ("huber_k = 0", "huber", 2.0, None), ("huber_k = 1.0", "none", None, None)],
+)  # fmt: skip
+def test_the_robust_flag_chooses_the_kernel_and_the_file_its_width(tmp_path, file, robust, huber_k, cauchy_k):
+    """``--robust cauchy`` with ``cauchy_k = 0.5`` (or 20) in the file ran at k = 3, the
+    same fit to the bit, unsaid (outside tester); ``--robust huber`` likewise dropped a
+    file's ``huber_k``. The flag chooses the kernel, the file's key for that kernel its
+    width; without one the flag's own (Huber 2, Cauchy 3). Where Cauchy is chosen the Huber
+    width is not used (Cauchy takes precedence)."""
+    from fgins.api import configure
+    from fgins.io.kitti import read_kitti
+
+    gnss = configure(read_kitti(), _write(tmp_path, f"[gnss]\n{file}\n"), robust=robust).gnss
+    assert gnss.cauchy_k == cauchy_k
+    if cauchy_k is None:
+        assert gnss.huber_k == huber_k

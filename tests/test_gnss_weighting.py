@@ -681,3 +681,20 @@ def test_doppler_velocities_reported_late_are_moved_back_without_a_false_arm(
     assert "gnss_lever_arm_corrected_m" not in track.info and "gnss_velocity_sigma_scale" not in track.info
     assert abs(track.info["gnss_velocity_lag_corrected_s"] - lag) < 0.05, track.info["gnss_velocity_lag_corrected_s"]
     assert rms < 1.15 * on_time + 0.1, (rms, on_time)
+
+
+@pytest.mark.parametrize("k", [1.0, 4.0])
+def test_the_huber_line_counts_what_its_own_width_down_weights(tmp_path, k):
+    """``huber_k = 1`` down-weights every fix beyond 1 sigma, yet the line said "0 of 221
+    fixes above 4.03 sigma, down-weighted by the Huber kernel" whatever k was (outside
+    tester). It now names k and counts the fixes beyond it: for white fixes of honest 1 m
+    sigmas (3-D whitened residuals about chi(3)-distributed, a little smaller for the
+    smoothing), most lie beyond 1 sigma (P(chi3 > 1) = 0.80) and hardly any beyond 4."""
+    import re
+
+    summary = _hilly_drive_summary(tmp_path, 5, f"\n[gnss]\nhuber_k = {k}\n")
+    line = summary["gnss_rejected"]
+    match = re.search(rf"the Huber kernel \(k = {k:g}\) down-weighted (\d+) of the (\d+) fixes kept", line)
+    assert match, line
+    share = int(match[1]) / int(match[2])
+    assert (0.4 < share < 0.9) if k == 1.0 else share < 0.03, line
