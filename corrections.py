@@ -102,8 +102,6 @@ def noise_from_data(dataset: Dataset, config: RunConfig, run: Rerun) -> tuple[Ru
     """The configured white noise, or (a copy of ``config``, said in a warning) the noise
     the IMU shows at rest where that is more than NOISE_EXCESS times larger
     (:mod:`fgins.noise_at_rest`): every method then weighs the IMU by what it reads."""
-    if not config.imu.get("noise_from_data", True):
-        return config, None
     from fgins.noise_at_rest import NOISE_EXCESS, noise_excess, white_noise_at_rest
 
     measured = white_noise_at_rest(dataset, run.gnss_mask)
@@ -113,6 +111,23 @@ def noise_from_data(dataset: Dataset, config: RunConfig, run: Rerun) -> tuple[Ru
     excess = noise_excess(measured, noise.gyro_noise, noise.accel_noise)
     if not excess:
         return config, None
+    if not config.imu.get("noise_from_data", True):
+        # Kept, as asked, but said: an IMU 10-20x noisier than configured had outages 3-4x
+        # worse at z 4-11 while the warnings blamed the arm, the clocks and the gyro scale
+        # (outside tester), never the noise.
+        ratios = ", ".join(
+            f"{sensor} {excess[sensor] / configured:.1f} times"
+            for sensor, configured in (("gyro", noise.gyro_noise), ("accel", noise.accel_noise))
+            if sensor in excess
+        )
+        return config, (
+            f"imu: where the fixes stand still and the IMU shows no trend ({measured.rest_s:.0f}"
+            f" s of the log) it reads more white noise than configured ({ratios}); kept as "
+            "configured ([imu] noise_from_data = false), so the IMU is weighed above what it "
+            "reads: the sigmas inside GNSS outages are too small, and lever-arm, time or "
+            "gyro-scale findings may come from this noise (noise_from_data = true uses the "
+            "measured noise)"
+        )
     imu = dict(config.imu)
     said = []
     for sensor, synonym, key, configured, unit, most in (

@@ -117,7 +117,11 @@ def test_a_vibrating_imu_gets_the_noise_it_shows(tmp_path, white, rate, seed):
     # What "rest" is, said: fixes still within their noise, which a slow walker's are too.
     assert "at rest, or too slow for the fixes to tell" in said[0], said
     assert "another grade" not in said[0]  # vibration, not a sensor of another grade
-    assert not any("white noise" in w for w in datasheet.info.get("fit_warnings", []))
+    # Kept as asked, but said with what it costs (it had been silent, while other findings
+    # blamed the arm, the clocks and the gyro scale: outside tester).
+    kept_said = [w for w in datasheet.info.get("fit_warnings", []) if "white noise" in w]
+    assert len(kept_said) == 1 and "kept as configured" in kept_said[0], kept_said
+    assert "sigmas inside GNSS outages are too small" in kept_said[0]
     rms_datasheet, sigma_datasheet = outage_rms_and_sigma(datasheet, tmp_path, OUTAGES)
     rms_measured, sigma_measured = outage_rms_and_sigma(measured, tmp_path, OUTAGES)
     # With the measured noise the sigmas cover the outage errors, and the solution is no
