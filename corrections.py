@@ -752,7 +752,7 @@ def add_unresolved_time_uncertainty(trajectory: Trajectory) -> None:
 UNCONFIRMED_TIME_SIGMAS = 2.5
 
 
-def carry_unconfirmed_time_offset(trajectory: Trajectory) -> str | None:
+def carry_unconfirmed_time_offset(trajectory: Trajectory, time_from_data: bool = True) -> str | None:
     """A time offset the last solve's check reads at UNCONFIRMED_TIME_SIGMAS or more but
     under its 5 sigmas for a correction (correlated fix errors read so too), set as
     ``TIME_UNRESOLVED_KEY`` (its size plus its sigma) for the output's sigmas along the track,
@@ -770,13 +770,34 @@ def carry_unconfirmed_time_offset(trajectory: Trajectory) -> str | None:
     reading, sigma = info.get("gnss_time_offset_fit_s"), info.get("gnss_time_offset_fit_sigma_s")
     if not (isinstance(reading, float) and isinstance(sigma, float) and sigma > 0.0):
         return None
-    if abs(reading) < UNCONFIRMED_TIME_SIGMAS * sigma or abs(reading) >= math.sqrt(TIME_OFFSET_CHI2) * sigma:
+    confirmed = abs(reading) >= math.sqrt(TIME_OFFSET_CHI2) * sigma
+    if abs(reading) < UNCONFIRMED_TIME_SIGMAS * sigma or (confirmed and time_from_data):
         return None
     typical = typical_speed(np.linalg.norm(np.asarray(trajectory.velocity)[:, :2], axis=1))
     seconds = abs(reading) + sigma
     if seconds * typical < LEVER_ARM_MIN_M:
         return None
     info[TIME_UNRESOLVED_KEY] = seconds
+    if confirmed:
+        # Found, not corrected as asked ([gnss] time_offset_from_data = false): fixes 0.2 s
+        # late left the track 2-3 m off at z 6-8 while the fault exclusion and the slow-error
+        # check read the offset as their own (outside tester). The sigmas carry it.
+        kept = (
+            f"kept as stamped ([gnss] time_offset_from_data = false): the output's sigmas "
+            f"include {seconds:.3f} s along the track ({seconds * typical:.1f} m at "
+            f"{typical:.0f} m/s), and fixes left out as faults or read as slow errors may be "
+            "this offset's"
+        )
+        warnings = info.setdefault("fit_warnings", [])
+        for i, line in enumerate(warnings):  # type: ignore[union-attr]
+            if line.startswith("GNSS time:") or line.startswith("GNSS lever arm or time:"):
+                warnings[i] = f"{line}; {kept}"  # type: ignore[index]
+                return None
+        return (
+            f"GNSS time: the fixes fit time stamps {abs(reading):.3f} +- {sigma:.3f} s "
+            f"{'late' if reading > 0 else 'early'} against the IMU's, {kept}; give "
+            f"--time-offset {-reading:+.3f} if the time bases differ"
+        )
     return (
         f"GNSS time: the fixes fit time stamps {abs(reading):.3f} +- {sigma:.3f} s "
         f"{'late' if reading > 0 else 'early'} against the IMU's ({abs(reading) / sigma:.1f} "

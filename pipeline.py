@@ -389,7 +389,7 @@ def _corrected_solution(
     add_arm_uncertainty(trajectory, trajectory.info.pop("gnss_lever_arm_corrected_cov_m2", None))
     add_mounting_uncertainty(trajectory, mounting_sigma_deg)
     add_time_offset_uncertainty(trajectory)
-    unconfirmed_note = carry_unconfirmed_time_offset(trajectory)
+    unconfirmed_note = carry_unconfirmed_time_offset(trajectory, config.gnss.time_offset_from_data)
     add_unresolved_time_uncertainty(trajectory)
     add_slow_fix_error_uncertainty(dataset, config, gnss_mask, trajectory)
     notes = [

@@ -65,6 +65,11 @@ def test_fixes_stamped_late_or_early_are_found_and_corrected(tmp_path, shift, st
     assert len(named) == 1 and f"--time-offset {-found:+.2f}"[:-1] in named[0], named
     assert "gnss_time_offset_corrected_s" not in kept.info
     assert _outage_rms(kept, tmp_path) > 2.0 * true_stamps
+    # Kept as asked, the offset is in the output's sigmas and said (fixes 0.2 s late had
+    # left the track 2-3 m off at z 6-8: outside tester).
+    assert "kept as stamped" in named[0] and "sigmas include" in named[0], named
+    rms, sigma = outage_rms_and_sigma(kept, tmp_path, OUTAGES)
+    assert rms < 2.0 * sigma, (rms, sigma)
 
 
 @pytest.mark.parametrize("arm, seed", [((-2.0, 0.3, 1.0), 5), ((3.0, -0.5, 0.5), 8)])
