@@ -63,6 +63,10 @@ _POSITION_PRIORITY = ("GGA", "GNS", "RMC", "GLL")
 # receivers (interleaved talkers, or logs concatenated), not one fix printed twice (RMC's
 # coarser digits, a GGA and a GNS of one solution agree to centimetres).
 CONFLICT_DISTANCE_M = 5.0
+# Two talkers' positions of one sentence type and time this far apart (m) are two solutions
+# (a GPS-only and a multi-GNSS one, or two antennas close together): the kept talker's is
+# used, said. One solution printed by two talkers agrees to the format's digits.
+NEAR_DISTANCE_M = 1.0
 # More epochs than this fraction in conflict: the log is two receivers' streams, an error.
 CONFLICT_MAX_FRACTION = 0.5
 
@@ -556,16 +560,22 @@ class _Conflicts:
     repeat_distances: list[float] = field(default_factory=list)
     repeat_talkers: Counter[str] = field(default_factory=Counter)
     epochs: int = 0  # epochs with either kind of conflict
+    # talkers whose positions of one sentence type differ by NEAR_DISTANCE_M to
+    # CONFLICT_DISTANCE_M for one time (two solutions of a receiver, or two receivers close)
+    near_distances: list[float] = field(default_factory=list)
 
 
 def _kept_talker(epochs: list[_Epoch]) -> str:
-    """The talker with a valid position in most epochs (the first seen on a tie)."""
+    """The talker with a valid position in most epochs, then with most valid position
+    sentences (a GPGGA + GPRMC receiver against a GLGGA one), then the first seen."""
     counts: Counter[str] = Counter()
+    sentences: Counter[str] = Counter()
     for epoch in epochs:
         for talker, positions in epoch.by_talker.items():
             if _epoch_position(positions) is not None:
                 counts[talker] += 1
-    return max(counts, key=lambda talker: counts[talker]) if counts else ""
+                sentences[talker] += sum(bool(position[5]) for position in positions.values())
+    return max(counts, key=lambda talker: (counts[talker], sentences[talker])) if counts else ""
 
 
 def _resolve(
@@ -592,7 +602,33 @@ def _resolve(
     }
     conflicts.epochs += bool(far) or epoch.repeat_distance > 0
     if not far:
-        return merged
+        if len(valid) < 2:
+            return merged
+        # Talkers within CONFLICT_DISTANCE_M: the kept talker's sentences first, another
+        # talker's only for a sentence type the kept one does not send (GNRMC + GPGGA of one
+        # solution). The latest of any talker had been taken: a GLGGA 3 m from each GPGGA
+        # made the track the last one printed, or a zigzag of both (1.5-3 m off at z 6-17,
+        # unsaid: outside tester).
+        own = epoch.by_talker.get(reference, {})
+        combined = dict(own)
+        apart = 0.0
+        for talker, positions in epoch.by_talker.items():
+            if talker == reference:
+                continue
+            for source, position in positions.items():
+                mine = own.get(source)
+                if mine is None:
+                    combined.setdefault(source, position)
+                elif mine[5] and position[5]:
+                    apart = max(apart, _distance_m(mine, position))
+        if apart > NEAR_DISTANCE_M:
+            conflicts.near_distances.append(apart)
+        speed, course = epoch.motion_by_talker.get(reference, (math.nan, math.nan))
+        return (
+            _epoch_position(combined),
+            speed if math.isfinite(speed) else epoch.speed,
+            course if math.isfinite(course) else epoch.course,
+        )
     conflicts.talker_distances.append(max(far.values()))
     conflicts.dropped_talkers.update(far)
     speed, course = epoch.motion_by_talker.get(reference, (math.nan, math.nan))
@@ -615,8 +651,17 @@ def _conflict_messages(path: Path, conflicts: _Conflicts, n_fixes: int) -> list[
             f"talker {talkers} gives two positions {np.median(conflicts.repeat_distances):.0f} m "
             f"apart (median) for one time in {len(conflicts.repeat_distances)} epoch(s)"
         )
+    near = []
+    if conflicts.near_distances:
+        near = [
+            f"two positions for one time: talkers give positions of one sentence type "
+            f"{np.median(conflicts.near_distances):.1f} m apart (median) for one time in "
+            f"{len(conflicts.near_distances)} epoch(s) (under {CONFLICT_DISTANCE_M:g} m: two "
+            "solutions of one receiver, or two receivers close together); kept talker "
+            f"{conflicts.kept}'s positions there"
+        ]
     if not parts:
-        return []
+        return near
     if conflicts.epochs > CONFLICT_MAX_FRACTION * n_fixes:
         advice = (
             f"split it by talker (e.g. keep only the ${conflicts.kept} lines) and give one receiver's log"
@@ -632,7 +677,7 @@ def _conflict_messages(path: Path, conflicts: _Conflicts, n_fixes: int) -> list[
         kept.append(f"kept talker {conflicts.kept}'s positions there")
     if conflicts.repeat_distances:
         kept.append("kept the first position given for each such time")
-    return [f"two positions for one time: {'; '.join(parts)}; {' and '.join(kept)}"]
+    return [f"two positions for one time: {'; '.join(parts)}; {' and '.join(kept)}", *near]
 
 
 def _read_lines(path: Path) -> list[str]:

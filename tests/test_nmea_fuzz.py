@@ -247,6 +247,31 @@ def test_one_receiver_with_two_talkers_that_agree_is_merged_quietly(tmp_path: Pa
     np.testing.assert_allclose(result.gnss.lla[:, 2], 545.4 + 46.9)
 
 
+@pytest.mark.parametrize("order", ["after", "before", "random"])
+@pytest.mark.parametrize("east", [2.0, 3.0, 4.5])
+def test_a_second_talker_close_by_is_said_and_the_main_one_kept_in_any_order(
+    tmp_path: Path, order: str, east: float
+) -> None:
+    """A GLGGA 2-4.5 m from each GPGGA of the same time (under the 5 m of two receivers):
+    the latest printed had been taken, so the track followed the minor talker, or zigzagged
+    between the two in a random order (1.5-3 m off at z 6-17, unsaid: outside tester). The
+    main talker's fixes are kept whatever the order, and the disagreement said."""
+    rng = np.random.default_rng(int(east * 10))
+    lines = []
+    for second in range(30):
+        main, other = _fix_lines("GP", second, 0.0), _fix_lines("GL", second, east, rmc=False)
+        after = order == "after" or (order == "random" and rng.random() < 0.5)
+        lines += main + other if after else other + main
+    path = tmp_path / "two_talkers.nmea"
+    path.write_text("\n".join(lines) + "\n")
+    result = read_nmea(path)
+    assert len(result.gnss) == 30
+    np.testing.assert_allclose(_east_m(result), 0.0, atol=0.05)
+    messages = [w for w in result.warnings if "two positions for one time" in w]
+    assert len(messages) == 1, result.warnings
+    assert re.search(rf"{east:.1f} m apart .* in 30 epoch\(s\).*kept talker GP", messages[0]), messages
+
+
 def test_a_talker_repeating_an_epoch_far_away_is_counted_and_the_first_kept(
     tmp_path: Path,
 ) -> None:
