@@ -995,7 +995,33 @@ def _truth_for(dataset: Dataset, truth: Any) -> Trajectory | None:
             f"bench(): the truth covers {reference.t[0]:.1f}-{reference.t[-1]:.1f} s, less than "
             f"half of this drive's {span[0]:.1f}-{span[1]:.1f} s: not its reference"
         )
+    _check_truth_near_fixes(reference, dataset)
     return reference
+
+
+# A truth whose positions lie further than this from the drive's own fixes (median, m, and
+# times their median stated sigma) is another drive's: another drive's truth.csv over the
+# same span was scored silently as 1,089 m of "outage error" (outside tester).
+TRUTH_FIXES_APART_M = 30.0
+TRUTH_FIXES_APART_SIGMAS = 10.0
+
+
+def _check_truth_near_fixes(reference: Trajectory, dataset: Dataset) -> None:
+    import numpy as np
+
+    fixes = dataset.gnss_enu()
+    at = reference.at(dataset.gnss.t)
+    both = np.all(np.isfinite(at[:, :2]), axis=1) & np.all(np.isfinite(fixes[:, :2]), axis=1)
+    if both.sum() < 3:
+        return
+    apart = float(np.median(np.hypot(*(at[both, :2] - fixes[both, :2]).T)))
+    sigma = dataset.gnss.std
+    stated = float(np.nanmedian(sigma[:, :2])) if sigma is not None and np.isfinite(sigma[:, :2]).any() else 0.0
+    if apart > max(TRUTH_FIXES_APART_M, TRUTH_FIXES_APART_SIGMAS * stated):
+        raise InputError(
+            f"bench(): the truth lies {apart:.0f} m (median) from this drive's GNSS fixes: not "
+            "its reference (another drive's truth, or another origin)"
+        )
 
 
 def check_methods(methods: str | Iterable[str], baseline: str | None = None) -> list[str]:

@@ -307,6 +307,8 @@ def _as_origin(value: object, gnss: GnssData) -> Origin:
 # log's sensor time tags mapped by anchors, fgins.io.ubx), so the receiver's clock is the
 # only clock and a constant offset the fixes show is the mapping's, not a latency of theirs.
 IMU_TIMES_FROM_FIXES_KEY = "imu_times_from_fix_epochs"
+# Trajectory.info: the vehicle constraints fit poorly while moving (fgins.graph.reports).
+NHC_FIT_POOR_KEY = "nhc_fit_poor"
 # Dataset.metadata key: the fixes the input checks left out as a frozen output's repeats
 # (fgins.io.motion_checks.drop_frozen_runs), which the GNSS count line adds.
 FROZEN_DROPPED_KEY = "gnss_frozen_repeats_dropped"
@@ -479,8 +481,15 @@ class Trajectory:
     def at(self, t: np.ndarray, *, hold_ends: bool = False) -> np.ndarray:
         """Position interpolated to times ``t`` (linear), (len(t), 3). NaN at times outside
         the trajectory's span, which it does not know (a camera's stamps 10 s after the end
-        got the last position, unsaid); ``hold_ends``: the first or last position there."""
-        t = np.asarray(t, dtype=float)
+        got the last position, unsaid); ``hold_ends``: the first or last position there.
+        Times that are not numbers (a string, None) are an :class:`InputError`; a NaN time
+        gets a NaN position."""
+        try:
+            if t is None:
+                raise TypeError
+            t = np.asarray(t, dtype=float)
+        except (TypeError, ValueError):
+            raise InputError(f"Trajectory.at(): times must be numbers (seconds), not {t!r:.60}") from None
         out = np.column_stack([np.interp(t, self.t, self.position[:, i]) for i in range(3)])
         if not hold_ends and len(self.t):
             # A microsecond's round-off at an end (times re-based, or stored as nanoseconds) is

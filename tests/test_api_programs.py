@@ -108,6 +108,17 @@ def test_bench_refuses_another_drives_trajectory_as_truth(dataset, tmp_path):
         fgins.bench(dataset, methods=["ekf"], outages=[(20, 35)], truth=5)
 
 
+def test_bench_refuses_a_truth_file_far_from_the_drives_fixes(dataset, drive, tmp_path):
+    """Another drive's truth.csv over the same span was scored silently: 1,089 m of
+    "outage error" (outside tester). A truth a median 30 m (and 10 fix sigmas) from the
+    drive's own fixes is refused; the drive's own passes."""
+    other = fgins.simulate("highway", tmp_path / "other", duration=60, seed=2)
+    with pytest.raises(fgins.InputError, match=r"the truth lies \d+ m \(median\) from this drive's GNSS fixes"):
+        fgins.bench(dataset, methods=["ekf"], outages=[(20, 35)], truth=other / "truth.csv")
+    table = fgins.bench(dataset, methods=["ekf"], outages=[(20, 35)], truth=drive / "truth.csv")
+    assert len(table) == 1
+
+
 @pytest.mark.parametrize("given", ["str", "path"])
 def test_check_output_takes_one_input_path_as_it_is(tmp_path, given):
     source = tmp_path / "in.csv"
@@ -264,6 +275,11 @@ def test_a_trajectory_is_not_extrapolated(tmp_path):
     assert np.all(np.isnan(out[[0, 4]])) and np.allclose(out[1:4, 0], [0.0, 1.5, 2.0])
     assert np.allclose(track.at(np.array([9.0, 22.0]), hold_ends=True)[:, 0], [0.0, 2.0])
     assert np.allclose(track.at(11.0), [[1.0, 0, 0]]) and np.isnan(track.at(13.0)).all()
+    # Times that are not numbers are the caller's error, said as one (a bare ValueError, and
+    # None read as NaN: outside tester).
+    for wrong in ("abc", None, ["1", "x"]):
+        with pytest.raises(fgins.InputError, match=r"Trajectory.at\(\): times must be numbers"):
+            track.at(wrong)
 
 
 def test_float32_posix_times_are_named_as_the_cause(tmp_path):
