@@ -22,7 +22,7 @@ from fgins.antenna_verdict import (
     drift_time_base,
     typical_speed,
 )
-from fgins.datatypes import Trajectory
+from fgins.datatypes import NHC_FIT_POOR_KEY, Trajectory
 from fgins.factors import gnss as gnss_model
 from fgins.factors import odometer as odometer_model
 from fgins.factors import vehicle as vehicle_model
@@ -507,7 +507,7 @@ def vehicle_fit_report(problem: Problem, values: gtsam.Values) -> dict[str, obje
         body_velocity = np.einsum("kji,kj->ki", rotation[moving], velocity[moving])
         residual = residual - misalignment * (body_velocity @ problem.imu_to_vehicle[0])[:, None]
     statistic = float(np.sqrt(np.mean((residual / NHC_REFERENCE_SIGMAS) ** 2)))
-    out: dict[str, object] = {"nhc_fit_rms": statistic}
+    out: dict[str, object] = {"nhc_fit_rms": statistic, NHC_FIT_POOR_KEY: statistic > NHC_FIT_WARN}
     if statistic > NHC_FIT_WARN:
         lateral, vertical = np.sqrt(np.mean(residual**2, axis=0))
         out["fit_warnings"] = [
