@@ -578,6 +578,24 @@ def _kept_talker(epochs: list[_Epoch]) -> str:
     return max(counts, key=lambda talker: (counts[talker], sentences[talker])) if counts else ""
 
 
+def _combined_positions(epoch: _Epoch, reference: str) -> tuple[dict[str, _Position], float]:
+    """The epoch's positions by sentence type, ``reference``'s first, and how far apart
+    (m) other talkers put a sentence type that it also gives with a fix."""
+    own = epoch.by_talker.get(reference, {})
+    combined = dict(own)
+    apart = 0.0
+    for talker, positions in epoch.by_talker.items():
+        if talker == reference:
+            continue
+        for source, position in positions.items():
+            mine = combined.get(source)
+            if mine is None or (position[5] and not mine[5]):
+                combined[source] = position
+            elif mine[5] and position[5] and source in own:
+                apart = max(apart, _distance_m(own[source], position))
+    return combined, apart
+
+
 def _resolve(
     epoch: _Epoch, conflicts: _Conflicts
 ) -> tuple[tuple[float, float, float, float, int] | None, float, float]:
@@ -602,25 +620,16 @@ def _resolve(
     }
     conflicts.epochs += bool(far) or epoch.repeat_distance > 0
     if not far:
-        if len(valid) < 2:
+        if not valid:
             return merged
         # Talkers within CONFLICT_DISTANCE_M: the kept talker's sentences first, another
-        # talker's only for a sentence type the kept one does not send (GNRMC + GPGGA of one
-        # solution). The latest of any talker had been taken: a GLGGA 3 m from each GPGGA
-        # made the track the last one printed, or a zigzag of both (1.5-3 m off at z 6-17,
-        # unsaid: outside tester).
-        own = epoch.by_talker.get(reference, {})
-        combined = dict(own)
-        apart = 0.0
-        for talker, positions in epoch.by_talker.items():
-            if talker == reference:
-                continue
-            for source, position in positions.items():
-                mine = own.get(source)
-                if mine is None:
-                    combined.setdefault(source, position)
-                elif mine[5] and position[5]:
-                    apart = max(apart, _distance_m(mine, position))
+        # talker's for a sentence type the kept one does not send or sends without a fix
+        # (GNRMC + GPGGA of one solution). The latest of any talker had been taken: a GLGGA
+        # 3 m from each GPGGA made the track the last one printed, or a zigzag of both
+        # (1.5-3 m off at z 6-17, unsaid), and NMEA 4.10's per-constellation GPGNS/GLGNS
+        # with empty position fields after each GNGNS wiped its position (a GNS log refused
+        # as "no usable GNSS fix", a GNS+RMC one left without heights: outside tester).
+        combined, apart = _combined_positions(epoch, reference)
         if apart > NEAR_DISTANCE_M:
             conflicts.near_distances.append(apart)
         speed, course = epoch.motion_by_talker.get(reference, (math.nan, math.nan))

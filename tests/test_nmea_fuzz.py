@@ -272,6 +272,35 @@ def test_a_second_talker_close_by_is_said_and_the_main_one_kept_in_any_order(
     assert re.search(rf"{east:.1f} m apart .* in 30 epoch\(s\).*kept talker GP", messages[0]), messages
 
 
+@pytest.mark.parametrize("with_rmc", [False, True])
+@pytest.mark.parametrize("order", ["after", "before"])
+def test_per_constellation_sentences_without_a_position_leave_the_combined_fix(
+    tmp_path: Path, with_rmc: bool, order: str
+) -> None:
+    """NMEA 4.10: the combined solution as GNGNS, then one GNS per constellation (GPGNS,
+    GLGNS) with empty position fields, or a GLGGA of a system without a solution (quality
+    0). The empty ones wiped the epoch's position: a GNS log was refused as "no usable GNSS
+    fix", a GNS + RMC one lost every height (outside tester). Each epoch keeps the combined
+    fix and its height, whatever the order."""
+    lat, lon = _ddmm(LAT0, 2), _ddmm(LON0, 3)
+    lines = []
+    for second in range(20):
+        time = f"1200{second:02d}.00"
+        combined = [_with_checksum(f"GNGNS,{time},{lat},N,{lon},E,AA,09,0.9,373.794,47.6,,")]
+        if with_rmc:
+            combined.append(_with_checksum(f"GNRMC,{time},A,{lat},N,{lon},E,0.0,,010524,,,A"))
+        empty = [_with_checksum(f"GPGNS,{time},,,,,AN,06,,,,,"), _with_checksum(f"GLGNS,{time},,,,,NA,03,,,,,"),
+                 _with_checksum(f"GLGGA,{time},,,,,0,00,99.99,,,,,,")]  # fmt: skip
+        lines += combined + empty if order == "after" else empty + combined
+    path = tmp_path / "gns410.nmea"
+    path.write_text("\n".join(lines) + "\n")
+    result = read_nmea(path)
+    assert len(result.gnss) == 20
+    np.testing.assert_allclose(result.gnss.lla[:, 2], 373.794 + 47.6)
+    np.testing.assert_allclose(_east_m(result), 0.0, atol=0.05)
+    assert not any("two positions" in w for w in result.warnings), result.warnings
+
+
 def test_a_talker_repeating_an_epoch_far_away_is_counted_and_the_first_kept(
     tmp_path: Path,
 ) -> None:
