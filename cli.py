@@ -131,7 +131,7 @@ def _add_sensor_options(parser: argparse.ArgumentParser) -> None:
         "--robust", choices=["huber", "cauchy", "none"], action=_Once,
         help="robust GNSS kernel against outliers: Huber (k=2 sigmas, or the config's "
         "huber_k) or Cauchy (k=3, or the config's cauchy_k), or none (every fix at full "
-        "weight); default Huber k=4",
+        "weight, no fault exclusion); default Huber k=4",
     )  # fmt: skip
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
 

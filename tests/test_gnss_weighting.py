@@ -698,3 +698,21 @@ def test_the_huber_line_counts_what_its_own_width_down_weights(tmp_path, k):
     assert match, line
     share = int(match[1]) / int(match[2])
     assert (0.4 < share < 0.9) if k == 1.0 else share < 0.03, line
+
+
+def test_without_a_kernel_the_large_residual_line_says_nothing_is_left_out(tmp_path):
+    """``huber_k = 0`` (as ``--robust none``) turns the fault exclusion off too: 7 fixes
+    15-20 m off then bent the solution and were read as a clock drift, an arm and a gyro
+    scale, while the line said only "all kept at full weight" (outside tester). It says none
+    was left out and what the findings may be."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from independent_sim import move_fixes
+
+    def outliers(folder):
+        move_fixes(folder, [30.0, 50.0, 140.0, 160.0, 230.0], (15.0, -12.0, 20.0))
+
+    line = _hilly_drive_summary(tmp_path, 6, "\n[gnss]\nhuber_k = 0\n", outliers)["gnss_rejected"]
+    assert "none left out as faults" in line and "may be these fixes' pull" in line, line
