@@ -167,6 +167,15 @@ def test_a_method_named_twice_is_one_row():
 
     assert check_methods(["ekf", "ekf", "batch"]) == ["ekf", "batch"]
     assert check_methods("ekf-rts,ekf,ekf-rts") == ["ekf-rts", "ekf"]
+    # isam2 gives its online row itself: asked for both, the online row came twice.
+    assert check_methods("batch,isam2,isam2-online") == ["batch", "isam2"]
+    assert check_methods(["isam2-online", "isam2"]) == ["isam2"]
+    assert check_methods(["isam2-online"]) == ["isam2-online"]
+
+
+def test_a_bench_of_isam2_and_its_online_row_has_each_row_once(dataset):
+    table = fgins.bench(dataset, methods=["isam2", "isam2-online"], outages=[(20, 35)])
+    assert sorted(table["method"]) == ["isam2", "isam2-online"], table["method"].tolist()
 
 
 def test_the_same_input_given_twice_is_named_once(drive):
