@@ -565,17 +565,30 @@ class _Conflicts:
     near_distances: list[float] = field(default_factory=list)
 
 
+# Fix qualities (GGA codes) by precision, for choosing among talkers: RTK fixed, float,
+# differential (DGPS, PPS, SBAS), autonomous, dead reckoning.
+_QUALITY_PRECISION = {4: 5, 5: 4, 2: 3, 3: 3, 9: 3, 1: 2, 6: 1}
+
+
 def _kept_talker(epochs: list[_Epoch]) -> str:
-    """The talker with a valid position in most epochs, then with most valid position
-    sentences (a GPGGA + GPRMC receiver against a GLGGA one), then the first seen."""
+    """The talker with a valid position in most epochs, then with the more precise fixes (an
+    RTK GNGGA beside a GPS-only autonomous GPGGA: the GPGGA had been taken, a 2 cm log
+    "diverged"), then with most valid position sentences (a GPGGA + GPRMC receiver against
+    a GLGGA one), then the first seen."""
     counts: Counter[str] = Counter()
+    precision: Counter[str] = Counter()
     sentences: Counter[str] = Counter()
     for epoch in epochs:
         for talker, positions in epoch.by_talker.items():
-            if _epoch_position(positions) is not None:
+            if (position := _epoch_position(positions)) is not None:
                 counts[talker] += 1
-                sentences[talker] += sum(bool(position[5]) for position in positions.values())
-    return max(counts, key=lambda talker: (counts[talker], sentences[talker])) if counts else ""
+                precision[talker] += _QUALITY_PRECISION.get(position[4], 0)
+                sentences[talker] += sum(bool(p[5]) for p in positions.values())
+    return (
+        max(counts, key=lambda talker: (counts[talker], precision[talker], sentences[talker]))
+        if counts
+        else ""
+    )
 
 
 def _combined_positions(epoch: _Epoch, reference: str) -> tuple[dict[str, _Position], float]:

@@ -272,6 +272,29 @@ def test_a_second_talker_close_by_is_said_and_the_main_one_kept_in_any_order(
     assert re.search(rf"{east:.1f} m apart .* in 30 epoch\(s\).*kept talker GP", messages[0]), messages
 
 
+@pytest.mark.parametrize("order", ["after", "before"])
+def test_an_rtk_talker_beside_an_autonomous_one_is_the_one_kept(tmp_path: Path, order: str) -> None:
+    """An RTK receiver printing its RTK-fixed GNGGA and a GPS-only autonomous GPGGA 1-4 m
+    away for each epoch: the autonomous fixes were taken under the RTK sigmas and the 2 cm
+    log "diverged" (outside tester). The more precise talker is the one kept, said."""
+    rng = np.random.default_rng(3)
+    lat = _ddmm(LAT0, 2)
+    lines = []
+    for second in range(30):
+        time = f"1200{second:02d}.00"
+        rtk = _with_checksum(f"GNGGA,{time},{lat},N,{_ddmm(LON0, 3)},E,4,12,0.7,545.4,M,46.9,M,1.0,0000")
+        east = rng.uniform(1.5, 4.0)
+        lon = _ddmm(LON0 + east / (111_320.0 * math.cos(math.radians(LAT0))), 3)
+        single = _with_checksum(f"GPGGA,{time},{lat},N,{lon},E,1,07,1.2,546.0,M,46.9,M,,")
+        lines += [rtk, single] if order == "after" else [single, rtk]
+    path = tmp_path / "rtk_and_single.nmea"
+    path.write_text("\n".join(lines) + "\n")
+    result = read_nmea(path)
+    np.testing.assert_allclose(_east_m(result), 0.0, atol=0.05)
+    assert set(result.gnss.fix_quality.tolist()) == {4}
+    assert any("kept talker GN" in w for w in result.warnings), result.warnings
+
+
 @pytest.mark.parametrize("with_rmc", [False, True])
 @pytest.mark.parametrize("order", ["after", "before"])
 def test_per_constellation_sentences_without_a_position_leave_the_combined_fix(
