@@ -114,8 +114,10 @@ def correct_gyro_scale(
     """The batch's solution with the gyro's significant scale errors corrected (see the
     module docstring): ``result`` and ``graph`` themselves when there are none. ``report``
     takes the extra solves' counts and errors; the info dict says what was found."""
-    if not problem.config.smoother.estimate_gyro_scale or problem.dataset.accel_array is not None:
+    if problem.dataset.accel_array is not None:
         return result, graph, {}
+    if not problem.config.smoother.estimate_gyro_scale:
+        return result, graph, _kept_scale_said(problem, graph, result)
     estimate = estimate_gyro_scale(problem, graph, result)
     if estimate is None:
         return result, graph, {}
@@ -173,6 +175,30 @@ def correct_gyro_scale(
     if gross_error:
         info[GROSS_SCALE_KEY] = gross_error
     return result, graph, info
+
+
+def _kept_scale_said(problem: Problem, graph: gtsam.NonlinearFactorGraph, result: gtsam.Values) -> dict[str, object]:
+    """``estimate_gyro_scale = false`` set by the user: the estimate is still read and a
+    significant one said, not corrected (a 3 % scale error kept so left outages at z 4-6.6
+    while the lines blamed the receiver's slow errors and the mounting: outside tester).
+    Nothing where the pipeline, not the user, turned it off."""
+    if "estimate_gyro_scale" not in problem.config.explicit_smoother_keys:
+        return {}
+    estimate = estimate_gyro_scale(problem, graph, result)
+    if estimate is None or not estimate.significant.any():
+        return {}
+    found = _axes_text(estimate.error, estimate.sigma, estimate.significant, (2, 2))
+    return {
+        "gyro_scale_error": estimate.error.tolist(),
+        "gyro_scale_sigma": estimate.sigma.tolist(),
+        "gyro_scale_corrected": [False, False, False],
+        "fit_warnings": [
+            f"imu: the gyro reads turns larger or smaller than the solution shows (scale error "
+            f"{found}): not corrected ([smoother] estimate_gyro_scale = false), so each turn "
+            "inside a GNSS outage leaves the heading off by that fraction of it, which the "
+            "output's sigmas do not include"
+        ],
+    }
 
 
 def _axes_text(error: np.ndarray, sigma: np.ndarray, mask: np.ndarray, digits: tuple[int, int]) -> str:

@@ -73,7 +73,11 @@ def test_a_gyro_scale_error_is_found_and_corrected(tmp_path, scale, axes, rate, 
     if method == "isam2":
         assert "gyro scale corrected" in corrected.info["solver"]
     kept = _smooth(tmp_path, "\n[smoother]\nestimate_gyro_scale = false\n", method)
-    assert "gyro_scale_error" not in kept.info
+    # Kept as asked, but said (a 3 % error kept so had left outages at z 4-6.6 with the
+    # lines blaming the receiver and the mounting: outside tester).
+    assert kept.info["gyro_scale_corrected"] == [False, False, False]
+    said_kept = [w for w in kept.info.get("fit_warnings", []) if "scale error z" in w]
+    assert len(said_kept) == 1 and "not corrected" in said_kept[0], kept.info.get("fit_warnings")
     # The same drive with a true gyro, for reference.
     _drive(tmp_path, rate, seed, 0.0, "")
     true_gyro = _smooth(tmp_path, method=method)
