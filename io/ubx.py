@@ -819,7 +819,10 @@ def _time_map(
     _, first = np.unique(tag, return_index=True)
     tag, t = tag[np.sort(first)], t[np.sort(first)]
     scale, fitted = nominal, False
-    if len(tag) >= MIN_FIT_ANCHORS and (tag.max() - tag.min()) * nominal >= MIN_FIT_SPAN_S:
+    # The span in GNSS time, not in ticks at the nominal scale: tags in 1 ms ticks (25.6 x
+    # ESF-RAW's nominal) spanned 9 s of a 240 s log "at nominal", were never fitted, and
+    # were refused as "jumping back" 240 times (outside tester).
+    if len(tag) >= MIN_FIT_ANCHORS and t.max() - t.min() >= MIN_FIT_SPAN_S:
         scale = float(np.polyfit(tag - tag[0], t - t[0], 1)[0])
         fitted = True
     offset = float(np.median(t - scale * tag))

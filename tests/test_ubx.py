@@ -232,6 +232,24 @@ def test_esf_raw_scaling_wrap_and_time_mapping(tmp_path):
     np.testing.assert_allclose(imu.accel, accel, atol=2.0**-11 + 1e-12)
 
 
+@pytest.mark.parametrize("ticks_per_s", [1000, 5000, 256000])
+def test_esf_raw_tags_at_another_tick_rate_are_fitted_by_their_gnss_span(tmp_path, ticks_per_s):
+    """Tags counted at another rate than ESF-RAW's nominal 25,600 per second: 1 ms ticks made
+    a 30 s log span 1.2 s "at nominal", so the scale was never fitted and the IMU refused
+    as "jumping back" at every epoch (outside tester). The span that decides the fit is the
+    anchors' in GNSS time: the scale is fitted, the samples timed exactly, and said."""
+    n = 3000  # 30 s at 100 Hz
+    tags = np.round(np.arange(n) * ticks_per_s / 100.0).astype(int)
+    rng = np.random.default_rng(5)
+    gyro, accel = rng.normal(0, 0.1, (n, 3)), rng.normal(0, 0.5, (n, 3)) + np.array([0, 0, 9.8])
+    result = read_ubx(_write(tmp_path, _imu_log(tags, gyro, accel)))
+    assert result.imu is not None and len(result.imu) == n, result.warnings
+    np.testing.assert_allclose(np.diff(result.imu.t), 0.01, atol=1e-6)
+    (mapping,) = result.time_maps
+    assert mapping.fitted and mapping.scale * ticks_per_s == pytest.approx(1.0, rel=1e-6)
+    assert any("tick scale far from nominal" in w for w in result.warnings), result.warnings
+
+
 def test_esf_raw_incomplete_tag_dropped(tmp_path):
     tags = 256 * np.arange(50)
     data = bytearray(_imu_log(tags, np.zeros((50, 3)), np.tile([0, 0, 9.8], (50, 1))))
