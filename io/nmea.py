@@ -122,6 +122,7 @@ class _Epoch:
         "std",
         "tod",
         "untrusted_date",
+        "vtg_talkers",
     )
 
     def __init__(self, tod: float, resolution_ms: int = 1) -> None:
@@ -153,6 +154,7 @@ class _Epoch:
         self.std: tuple[float, float, float] | None = None
         self.speed = math.nan
         self.course = math.nan
+        self.vtg_talkers: set[str] = set()  # talkers whose VTG this epoch took
 
 
 def _num(text: str) -> float:
@@ -264,6 +266,7 @@ class _Reader:
         self.day = 0
         self.last_tod: float | None = None
         self.untimed_before_first = 0
+        self.orphan_vtg = 0  # VTGs after an epoch's own, before the next time (see _on_vtg)
         self.backward_jumps = 0
         self.talker = ""  # the talker of the sentence being handled
         # the sentence being handled is stamped with an earlier time than the log already
@@ -515,6 +518,13 @@ class _Reader:
         epoch = self._untimed_epoch()
         if epoch is None:
             return
+        if self.talker in epoch.vtg_talkers:
+            # A second VTG of one talker before a new time: the next epoch's, whose timed
+            # sentences were lost; it had replaced this epoch's speed and course (by up to
+            # 3.6 m/s: outside tester). Left out, counted.
+            self.orphan_vtg += 1
+            return
+        epoch.vtg_talkers.add(self.talker)
         course = _num(f[0])
         knots = _num(_field(f, 4))
         kmh = _num(_field(f, 6))
@@ -736,6 +746,11 @@ def _assemble(path: Path, reader: _Reader, time_offset_s: float) -> NmeaResult:
     if reader.untimed_before_first:
         warnings.append(
             f"{reader.untimed_before_first} GSA/VTG sentences before the first timed sentence"
+        )
+    if reader.orphan_vtg:
+        warnings.append(
+            f"{reader.orphan_vtg} VTG sentence(s) after their epoch's own VTG and before the "
+            "next time (an epoch whose timed sentences were lost): not used"
         )
 
     # Time base: seconds since the first epoch's UTC midnight, moved to POSIX by a date.
