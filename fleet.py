@@ -400,6 +400,13 @@ def run_fleet(
     outputs = {f"{d.name}.{options.output_format}" for d in drives}
     earlier = check_fleet_dir(out_path, outputs)  # before a cluster starts
     out_path.mkdir(parents=True, exist_ok=True)
+    if earlier or (out_path / FLEET_JSON).exists():
+        # A run into an earlier fleet's folder rewrites its drive files one by one: until this
+        # fleet's summary replaces it, the folder's fleet.json says it is incomplete (an
+        # interrupted re-run had left new drive files beside the old summary, which described
+        # them wrongly: outside tester). It lists every drive file, so the folder stays the
+        # fleet's to rewrite.
+        _write_incomplete(out_path / FLEET_JSON, out_path, earlier | outputs)
     # Workers may run in other processes or on other machines: give them absolute paths.
     if options.config is not None:
         options = replace(options, config=Path(os.path.abspath(options.config)))
@@ -483,6 +490,17 @@ def check_fleet_dir(folder: Path, outputs: set[str]) -> set[str]:
     own = {FLEET_JSON, *(earlier or ()), *outputs}
     check_command_folder(folder, "fleet", own, earlier is not None, "fleet", InputError)
     return earlier or set()
+
+
+def _write_incomplete(path: Path, folder: Path, names: set[str]) -> None:
+    from fgins.io.atomic import write_json
+
+    write_json(path, {
+        "status": "incomplete",
+        "note": "an fgins fleet run was writing this folder and did not finish (interrupted or "
+        "failed): the drive files here may come from two runs; run the fleet again",
+        "drives": [{"output": str(folder / name)} for name in sorted(names)],
+    })  # fmt: skip
 
 
 def write_fleet_json(result: FleetResult, path: Path) -> None:

@@ -255,3 +255,27 @@ def test_a_drive_whose_fit_is_doubtful_says_so_in_the_fleet(
     for line in said:
         assert f"warning: doubtful: {line}" in printed
     assert "| chi2/dof |" in printed
+
+
+def test_a_rerun_that_does_not_finish_leaves_a_fleet_json_saying_so(tmp_path):
+    """A re-run into an earlier fleet's folder rewrites its drive files one by one; an
+    interrupted one had left new drive files beside the old fleet.json, which described them
+    wrongly (method, scores: outside tester). Until the new summary replaces it, fleet.json
+    says the folder is incomplete, listing every drive file, so the next run may rewrite it."""
+    from fgins.fleet import FLEET_JSON, check_fleet_dir
+
+    drive = tmp_path / "drive"
+    write_sim_dir(SCENARIOS["highway"](seed=1, duration_s=20), drive)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "old.csv").write_text("time\n")
+    (out / FLEET_JSON).write_text(json.dumps({"method": "batch", "drives": [{"output": str(out / "old.csv")}]}))
+    drives = expand_drives([str(drive)])
+    # A scheduler nobody runs: the run stops after the folder was taken, as an interrupt would.
+    with pytest.raises(Exception):  # noqa: B017 (the connection's own error, whatever it is)
+        run_fleet(drives, FleetOptions(method="ekf"), out, scheduler="tcp://127.0.0.1:9", progress=False,
+                  connect_timeout_s=1.0)  # fmt: skip
+    said = json.loads((out / FLEET_JSON).read_text())
+    assert said["status"] == "incomplete" and "did not finish" in said["note"]
+    assert {Path(d["output"]).name for d in said["drives"]} == {"old.csv", "drive.csv"}
+    assert check_fleet_dir(out, {"drive.csv"}) == {"old.csv", "drive.csv"}
