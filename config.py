@@ -900,6 +900,11 @@ def check_vehicle(where: str, vehicle: object, name: str = "vehicle") -> str:
     return check_value(where, name, vehicle, SMOOTHER_SCHEMA["vehicle"])
 
 
+# How the line saying that the default IMU preset was guessed begins (a run whose own
+# configuration has an [imu] table leaves it out of its warnings).
+PRESET_GUESSED = "imu: the data say nothing about the IMU's noise"
+
+
 def config_for_dataset(
     dataset: Dataset,
     path: str | Path | None = None,
@@ -931,7 +936,7 @@ def config_for_dataset(
         # Neither the data nor the user said anything about the IMU's noise: the default
         # preset is a guess, and results depend on it. Say so once, where it is chosen.
         line = (
-            "imu: the data say nothing about the IMU's noise and no --imu-preset/--config "
+            f"{PRESET_GUESSED} and no --imu-preset/--config "
             "[imu] was given; using the consumer-mems preset. Override with --imu-preset NAME "
             f"({', '.join(IMU_PRESETS)}) or --config FILE.toml with an [imu] table"
         )

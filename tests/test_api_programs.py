@@ -323,3 +323,18 @@ def test_a_window_between_two_sparse_epochs_is_said_to_fall_between_them():
     assert f"falls between the epochs at {a:.1f} and {b:.1f} s after t0" in line
     (line,) = empty_windows(sparse, [(relative[-1] + 10.0, relative[-1] + 20.0)])
     assert "the epochs span" in line
+
+
+def test_a_run_with_its_own_imu_table_does_not_report_loads_preset_guess(drive, tmp_path):
+    """load() without a configuration guesses the consumer-mems preset and says so; a
+    smooth(config=FILE) whose file has an [imu] table runs with that table, yet its summary
+    still said "using the consumer-mems preset" (outside tester)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", fgins.FginsWarning)
+        bare = fgins.load(drive / "imu.csv", drive / "gnss.csv")
+        assert any(w.startswith("imu: the data say nothing") for w in bare.warnings)
+        guessed = fgins.smooth(bare, "ekf")
+        (tmp_path / "imu.toml").write_text('[imu]\npreset = "industrial-mems"\n')
+        configured = fgins.smooth(bare, "ekf", config=tmp_path / "imu.toml")
+    assert any(w.startswith("imu: the data say nothing") for w in guessed.summary()["warnings"])
+    assert not any(w.startswith("imu: the data say nothing") for w in configured.summary()["warnings"])
