@@ -747,6 +747,58 @@ def add_unresolved_time_uncertainty(trajectory: Trajectory) -> None:
         _add_along_track(trajectory, offset)
 
 
+# An antenna the fixes put this many sigmas (chi-square over the arm's determined
+# directions) and this far (m) from the configured lever arm, under what a correction needs,
+# is carried in the output's sigmas and said.
+UNCONFIRMED_ARM_CHI2 = 9.0
+UNCONFIRMED_ARM_MIN_M = 0.3
+# An arm direction is determined by the drive when its sigma is below this (m): a level
+# car's vertical never is (sigma 1.8 m on an outside tester's car).
+DETERMINED_ARM_SIGMA_M = 0.5
+
+
+def carry_unconfirmed_arm(trajectory: Trajectory, configured: object) -> str | None:
+    """An antenna the last solve's check reads away from the configured lever arm at
+    UNCONFIRMED_ARM_CHI2 or more but under what a correction needs (fgins.antenna_verdict),
+    added to the output's position covariance as an arm error (its size and its covariance,
+    in the directions the drive determines), and the line saying so; None where nothing was
+    read, or the arm was corrected or said. An outside tester's car given its antenna 0.58 m
+    off horizontally (1 Hz fixes of 0.5 m): read at chi2 23 (25 needed), nothing said, the
+    track 0.57 m off at the fixes at sigma 0.15 (z 4)."""
+    info = trajectory.info
+    if "gnss_lever_arm_corrected_m" in info or any(
+        str(w).startswith("GNSS lever arm") for w in info.get("fit_warnings", [])  # type: ignore[union-attr]
+    ):
+        return None
+    fit, cov = info.get("gnss_lever_arm_fit_m"), info.get("gnss_lever_arm_fit_cov_m2")
+    if fit is None or cov is None or configured is None:
+        return None
+    shift = np.asarray(fit, dtype=float) - np.asarray(configured, dtype=float)
+    covariance = np.asarray(cov, dtype=float).reshape(3, 3)
+    if not (np.all(np.isfinite(shift)) and np.all(np.isfinite(covariance))):
+        return None
+    variances, directions = np.linalg.eigh(0.5 * (covariance + covariance.T))
+    determined = (variances > 0.0) & (variances < DETERMINED_ARM_SIGMA_M**2)
+    if not determined.any():
+        return None
+    along = directions[:, determined].T @ shift
+    chi2 = float(np.sum(along**2 / variances[determined]))
+    size = float(np.linalg.norm(along))
+    if chi2 < UNCONFIRMED_ARM_CHI2 or size < UNCONFIRMED_ARM_MIN_M:
+        return None
+    basis = directions[:, determined]
+    part = basis @ along
+    arm_cov = np.outer(part, part) + basis @ np.diag(variances[determined]) @ basis.T
+    add_arm_uncertainty(trajectory, arm_cov)
+    info["gnss_lever_arm_unconfirmed_m"] = [float(x) for x in part]
+    shown = ", ".join(f"{x:.2f}" for x in np.asarray(configured, dtype=float) + part)
+    return (
+        f"GNSS lever arm: the fixes fit an antenna {size:.2f} m from the configured one (at "
+        f"[{shown}] m in IMU axes, {math.sqrt(chi2):.1f} sigma, under what a correction needs): "
+        f"the output's sigmas include it; measure the arm and set [gnss] lever_arm_m"
+    )
+
+
 # A time offset the fixes show at this many sigmas, under the 5 a correction needs, moving
 # them at least LEVER_ARM_MIN_M at the drive's typical speed, is carried in the sigmas.
 UNCONFIRMED_TIME_SIGMAS = 2.5

@@ -26,6 +26,7 @@ from fgins.corrections import (
     add_mounting_uncertainty,
     add_time_offset_uncertainty,
     add_unresolved_time_uncertainty,
+    carry_unconfirmed_arm,
     carry_unconfirmed_time_offset,
     clock_correction_pending,
     clock_offset_first,
@@ -416,6 +417,7 @@ def _corrected_solution(
         raise FginsError(str(gross))
     # Last: the solves above hold a taken arm fixed, the output's uncertainty must not.
     add_arm_uncertainty(trajectory, trajectory.info.pop("gnss_lever_arm_corrected_cov_m2", None))
+    arm_note = carry_unconfirmed_arm(trajectory, config.gnss.lever_arm_m)
     add_mounting_uncertainty(trajectory, mounting_sigma_deg)
     add_time_offset_uncertainty(trajectory)
     unconfirmed_note = carry_unconfirmed_time_offset(trajectory, config.gnss.time_offset_from_data)
@@ -437,7 +439,7 @@ def _corrected_solution(
         )
     notes = [
         noise_note, bias_note, mounting_note, point_note, held_note, lever_note, unknown_height(dataset, trajectory),
-        nose_off_track(config, trajectory), unconfirmed_note,
+        nose_off_track(config, trajectory), unconfirmed_note, arm_note,
     ]  # fmt: skip
     if config.smoother.initial_heading_deg is None:  # else the configured heading is known
         notes.append(unobservable_heading(dataset, trajectory) or heading_unseen_in_motion(dataset, gnss_mask, trajectory))
