@@ -346,7 +346,7 @@ def with_turn_on_bias_widened(
 # The methods whose solutions carry the antenna and clock check (fgins.antenna_verdict): the
 # graph's (fgins.graph.reports.lever_arm_report) and the Kalman baselines' with the 15-state
 # model (fgins.baseline.ekf.antenna_about; the planar and gyro-free filters have none).
-ANTENNA_CHECKED_METHODS = ("batch", "isam2", "ekf", "ekf-rts", "ukf")
+ANTENNA_CHECKED_METHODS = ("batch", "isam2", "isam2-online", "ekf", "ekf-rts", "ukf")
 # Rounds of antenna and clock corrections: a fix stamped late is found at once (0.193 s of
 # 0.2), an IMU clock's drift only in part where the drive's biases absorb some (an aircraft
 # whose IMU runs 300 ppm fast: 30 % in the first round).
@@ -368,7 +368,7 @@ def with_antenna_corrected(
     drive: 1.2-1.6 m inside outages; corrected, 0.4-0.5 m.)"""
     if run.method not in ANTENNA_CHECKED_METHODS:
         return trajectory, dataset, config
-    fit_key, fit_name = ("chi2_per_dof", "chi2/dof") if run.method in ("batch", "isam2") else (
+    fit_key, fit_name = ("chi2_per_dof", "chi2/dof") if run.method in ("batch", "isam2", "isam2-online") else (
         "gnss_nis_mean", "mean NIS of the GNSS updates"
     )  # fmt: skip
     first, best = trajectory, trajectory

@@ -184,7 +184,7 @@ def _with_imu_clock_step_closed(
         again = _corrected_solution(closed, config, method, gnss_mask, progress)
     except FginsError:
         return trajectory
-    key = "chi2_per_dof" if method in ("batch", "isam2") else "gnss_nis_mean"
+    key = "chi2_per_dof" if method in GRAPH_METHODS else "gnss_nis_mean"
     before, after = trajectory.info.get(key), again.info.get(key)
     if "gnss_time_drift_corrected_s" in again.info or TIME_UNRESOLVED_KEY in again.info or not (
         isinstance(before, float) and isinstance(after, float) and after < before
