@@ -197,3 +197,22 @@ def test_an_rtk_fix_on_wrong_integers_is_left_out_not_the_good_fixes_beside_it(t
     t, error = horizontal_errors(track, tmp_path)
     during = (t >= start + t[0]) & (t < start + seconds + t[0])
     assert np.sqrt(np.mean(error[during] ** 2)) < 0.1
+
+
+@pytest.mark.parametrize("method", ["ekf", "isam2-online"])
+def test_a_few_gross_fixes_are_not_a_filters_divergence(tmp_path, method):
+    """Seven fixes 15-20 m off among 280, under the default kernel: the online estimate (and
+    a filter) was called "diverged" from the mean chi-square those seven alone made, on a
+    track 0.46 m off at the fixes, sending the user after IMU gaps, axes and clocks (outside
+    tester). The worst 5 % of fixes stay out of that check; a diverged track misses most."""
+    write_turning_drive(tmp_path, [(10, 8, 15.0)], 3)
+    for t in (30.0, 50.0, 130.0, 150.0, 230.0, 250.0, 270.0):
+        move_fixes(tmp_path, [t], (15.0, -12.0, 20.0))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", fgins.FginsWarning)
+        dataset = fgins.load(tmp_path / "imu.csv", tmp_path / "gnss.csv", config=tmp_path / "cfg.toml", vehicle="car")
+        if method == "isam2-online":
+            track = fgins.smooth(dataset, "isam2", online=True)
+        else:
+            track = fgins.smooth(dataset, method)
+    assert not any("does not fit the GNSS fixes" in w for w in track.info.get("fit_warnings", [])), track.info.get("fit_warnings")
