@@ -316,12 +316,12 @@ STOP_AND_GO = [(10, 8, 12.0), (70, 6, -8.0), (110, 5, 10.0), (160, 6, -12.0), (1
 
 
 def write_turning_drive(folder: Path, steps, seed: int, shift_s: float = 0.0,
-                        arm=(0.0, 0.0, 0.0)) -> None:  # fmt: skip
-    """A 280 s drive through FIVE_TURNS at ``steps``' speeds (industrial IMU at 100 Hz, 1 Hz
-    fixes), its antenna ``arm`` from the IMU (left out of cfg.toml) and its fixes stamped
-    ``shift_s`` late."""
+                        arm=(0.0, 0.0, 0.0), gnss_rate: float = 1.0, **fixes) -> None:  # fmt: skip
+    """A 280 s drive through FIVE_TURNS at ``steps``' speeds (industrial IMU at 100 Hz,
+    ``gnss_rate`` fixes, ``fixes``: their ``sigma_h``, ``sigma_u``), its antenna ``arm`` from
+    the IMU (left out of cfg.toml) and its fixes stamped ``shift_s`` late."""
     profile = CarProfile(steps=steps, turns=FIVE_TURNS, gamma=lambda t: 0 * t)
     write_drive(folder, profile, 280.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
-                gnss_rate=1.0, seed=seed, lever_arm=arm)  # fmt: skip
+                gnss_rate=gnss_rate, seed=seed, lever_arm=arm, **fixes)  # fmt: skip
     if shift_s:
         shift_fix_times(folder, shift_s)

@@ -663,12 +663,8 @@ def test_an_antenna_read_under_the_correction_threshold_is_carried_in_the_sigmas
     correction's 5): nothing was said and the track lay 0.6 m off at the fixes at sigma 0.1
     (z 6; an outside tester's car: z 4). It is said and carried in the output's sigmas;
     with the true arm nothing is said."""
-    from independent_sim import FIVE_TURNS, INDUSTRIAL, CarProfile, write_drive
-
     arm = (0.5, 0.3, 1.2)
-    write_drive(tmp_path, CarProfile(steps=[(10, 8, 15.0)], turns=FIVE_TURNS, gamma=lambda t: 0 * t),
-                280.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0, gnss_rate=1.0, seed=seed,
-                lever_arm=arm, sigma_h=0.3, sigma_u=1.0)  # fmt: skip
+    _drive(tmp_path, [(10, 8, 15.0)], seed, arm=arm, sigma_h=0.3, sigma_u=1.0)
     at_fixes = [(0.0, 60.0), (105.0, 175.0), (215.0, 280.0)]
     wrong = _smooth(tmp_path, extra="\n[gnss]\nlever_arm_m = [0.0, 0.0, 1.2]\n")
     said = [w for w in wrong.info.get("fit_warnings", []) if w.startswith("GNSS lever arm")]

@@ -411,18 +411,10 @@ def test_a_mounting_kept_off_holds_the_arm_the_point_and_the_gyro_scale(tmp_path
     import fgins
 
     sys.path.insert(0, str(Path(__file__).parent))
-    from independent_sim import (
-        FIVE_TURNS,
-        INDUSTRIAL,
-        CarProfile,
-        outage_rms_and_sigma,
-        write_drive,
-    )
+    from independent_sim import outage_rms_and_sigma, write_turning_drive
 
     arm = (0.5, 0.3, 1.2)
-    write_drive(tmp_path, CarProfile(steps=[(10, 8, 15.0)], turns=FIVE_TURNS, gamma=lambda t: 0 * t),
-                280.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0, gnss_rate=5.0, seed=seed,
-                lever_arm=arm, sigma_h=0.5, sigma_u=1.0)  # fmt: skip
+    write_turning_drive(tmp_path, [(10, 8, 15.0)], seed, arm=arm, gnss_rate=5.0, sigma_h=0.5, sigma_u=1.0)
     config = tmp_path / "run.toml"
     config.write_text((tmp_path / "cfg.toml").read_text() + f"\n[gnss]\nlever_arm_m = {list(arm)}\n"
                       "[smoother]\nimu_to_vehicle_rpy_deg = [0, 0, 3]\nmounting_from_data = false\n")  # fmt: skip
