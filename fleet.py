@@ -20,7 +20,7 @@ import sys
 import time
 import warnings
 from collections.abc import Iterator
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -66,6 +66,9 @@ class FleetResult:
     scheduler: str
     method: str
     extra: dict[str, Any] = field(default_factory=dict)
+    # What every drive was smoothed with (FleetOptions as given): a fleet.json whose numbers
+    # could not be tied to their outage windows or configuration afterwards (outside tester).
+    options: dict[str, Any] = field(default_factory=dict)
 
     @property
     def failed(self) -> list[dict[str, Any]]:
@@ -90,6 +93,7 @@ class FleetResult:
         return json_safe(
             {
                 "method": self.method,
+                "options": self.options,
                 "scheduler": self.scheduler,
                 "workers": self.workers,
                 "drives_total": len(self.summaries),
@@ -450,6 +454,7 @@ def run_fleet(
         workers=n_workers,
         scheduler=address,
         method=options.method,
+        options={k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(options).items()},
     )
     write_fleet_json(result, out_path / FLEET_JSON)
     # An earlier fleet's drive files this one did not write (a drive not in this fleet, one

@@ -130,6 +130,8 @@ def test_broken_drive_fails_alone_with_one_line_on_a_given_scheduler(
     )  # nothing at all for the broken drive, not even a temporary file
     report = json.loads((out / "fleet.json").read_text())
     assert report["scheduler"] == scheduler_address
+    # What the drives were smoothed with, so its numbers can be tied to the run.
+    assert report["options"]["method"] == "batch" and report["options"]["gnss_outage"] is None
     by_name = {d["drive"]: d for d in report["drives"]}
     assert set(by_name) == {f.name for f in drives} | {"broken"}
     error = by_name["broken"]["error"]
