@@ -18,6 +18,7 @@ from typing import TypeVar
 import numpy as np
 
 from fgins.antenna_verdict import (
+    LEVER_ARM_CHI2,
     LEVER_ARM_MIN_M,
     TIME_OFFSET_CHI2,
     determined_directions,
@@ -752,6 +753,7 @@ def add_unresolved_time_uncertainty(trajectory: Trajectory) -> None:
 # is carried in the output's sigmas and said.
 UNCONFIRMED_ARM_CHI2 = 9.0
 UNCONFIRMED_ARM_MIN_M = 0.3
+UNCONFIRMED_ARM_VELOCITY_SCALE = 1.5
 # An arm direction is determined by the drive when its sigma is below this (m): a level
 # car's vertical never is (sigma 1.8 m on an outside tester's car).
 DETERMINED_ARM_SIGMA_M = 0.5
@@ -766,9 +768,27 @@ def carry_unconfirmed_arm(trajectory: Trajectory, configured: object) -> str | N
     off horizontally (1 Hz fixes of 0.5 m): read at chi2 23 (25 needed), nothing said, the
     track 0.57 m off at the fixes at sigma 0.15 (z 4)."""
     info = trajectory.info
-    if "gnss_lever_arm_corrected_m" in info or any(
-        str(w).startswith("GNSS lever arm") for w in info.get("fit_warnings", [])  # type: ignore[union-attr]
+    # Only a reading of fixes that fit otherwise: none where the check found or corrected
+    # anything (a time offset reads as an arm along the track), where the fixes or their
+    # velocities scatter beyond twice their sigmas (sigmas too small make any offset look
+    # significant) or more than a few lie beyond 4 sigma (a run of multipath bends it).
+    if any(key in info for key in (
+        "gnss_lever_arm_corrected_m", "antenna_findings", TIME_UNRESOLVED_KEY,
+        "gnss_time_offset_corrected_s", "gnss_velocity_lag_corrected_s", "gnss_velocity_lag_s",
+    )) or any(
+        str(w).startswith(("GNSS lever arm", "GNSS time")) for w in info.get("fit_warnings", [])  # type: ignore[union-attr]
     ):
+        return None
+    # (Velocities, which tie the arm to the turn rate, already at 1.5x: weighted 2x too
+    # much, 1.84x, they read an arm 0.83 m off the true one at 3.2 sigma.)
+    for key, most in (("gnss_whitened_scale_horizontal", SIGMA_TOO_SMALL),
+                      ("gnss_velocity_whitened_scale_horizontal", UNCONFIRMED_ARM_VELOCITY_SCALE)):  # fmt: skip
+        scale = info.get(key)
+        if isinstance(scale, float) and scale > most:
+            return None
+    large = info.get("gnss_large_residual_times") or []
+    used = info.get("gnss_epochs_used")
+    if len(large) > max(2, 0.01 * (used if isinstance(used, int) else 0)):  # type: ignore[arg-type]
         return None
     fit, cov = info.get("gnss_lever_arm_fit_m"), info.get("gnss_lever_arm_fit_cov_m2")
     if fit is None or cov is None or configured is None:
@@ -784,7 +804,7 @@ def carry_unconfirmed_arm(trajectory: Trajectory, configured: object) -> str | N
     along = directions[:, determined].T @ shift
     chi2 = float(np.sum(along**2 / variances[determined]))
     size = float(np.linalg.norm(along))
-    if chi2 < UNCONFIRMED_ARM_CHI2 or size < UNCONFIRMED_ARM_MIN_M:
+    if not UNCONFIRMED_ARM_CHI2 <= chi2 < LEVER_ARM_CHI2 or size < UNCONFIRMED_ARM_MIN_M:
         return None
     basis = directions[:, determined]
     part = basis @ along
