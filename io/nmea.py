@@ -109,6 +109,7 @@ class _Epoch:
         "dops",
         "gga_hdop",
         "gga_no_satellites",
+        "gsa_prns",
         "gsa_sats",
         "motion_by_talker",
         "num_sats",
@@ -155,6 +156,7 @@ class _Epoch:
         self.speed = math.nan
         self.course = math.nan
         self.vtg_talkers: set[str] = set()  # talkers whose VTG this epoch took
+        self.gsa_prns: set[str] = set()  # satellites its GSAs named
 
 
 def _num(text: str) -> float:
@@ -267,6 +269,7 @@ class _Reader:
         self.last_tod: float | None = None
         self.untimed_before_first = 0
         self.orphan_vtg = 0  # VTGs after an epoch's own, before the next time (see _on_vtg)
+        self.orphan_gsa = 0  # GSAs naming satellites the epoch's GSAs named (see _on_gsa)
         self.backward_jumps = 0
         self.talker = ""  # the talker of the sentence being handled
         # the sentence being handled is stamped with an earlier time than the log already
@@ -507,12 +510,21 @@ class _Reader:
         epoch = self._untimed_epoch()
         if epoch is None:
             return
+        prns = {prn.strip() for prn in f[2:14] if prn.strip()}
+        if prns & epoch.gsa_prns:
+            # Satellites this epoch's GSAs named already: the next epoch's set, whose timed
+            # sentences were lost (one GSA per constellation names disjoint satellites). It
+            # had added its count to this epoch's (18 where the receiver used 9: outside
+            # tester) and replaced its DOPs. Left out, counted with the VTGs.
+            self.orphan_gsa += 1
+            return
+        epoch.gsa_prns |= prns
         epoch.said_fix |= f[1].strip() in ("2", "3")
         epoch.said_no_fix |= f[1].strip() == "1"
         pdop, hdop, vdop = (_num(_field(f, i)) for i in (14, 15, 16))
         if any(math.isfinite(d) for d in (pdop, hdop, vdop)):
             epoch.dops = (pdop, hdop, vdop)
-        epoch.gsa_sats += sum(1 for prn in f[2:14] if prn.strip())
+        epoch.gsa_sats += len(prns)
 
     def _on_vtg(self, f: list[str]) -> None:
         epoch = self._untimed_epoch()
@@ -747,10 +759,11 @@ def _assemble(path: Path, reader: _Reader, time_offset_s: float) -> NmeaResult:
         warnings.append(
             f"{reader.untimed_before_first} GSA/VTG sentences before the first timed sentence"
         )
-    if reader.orphan_vtg:
+    if reader.orphan_vtg or reader.orphan_gsa:
+        found = [f"{n} {kind} sentence(s)" for n, kind in ((reader.orphan_vtg, "VTG"), (reader.orphan_gsa, "GSA")) if n]
         warnings.append(
-            f"{reader.orphan_vtg} VTG sentence(s) after their epoch's own VTG and before the "
-            "next time (an epoch whose timed sentences were lost): not used"
+            f"{' and '.join(found)} after their epoch's own and before the next time (an epoch "
+            "whose timed sentences were lost): not used"
         )
 
     # Time base: seconds since the first epoch's UTC midnight, moved to POSIX by a date.

@@ -273,19 +273,21 @@ def test_a_second_talker_close_by_is_said_and_the_main_one_kept_in_any_order(
 
 
 def test_the_vtg_of_an_epoch_whose_timed_sentences_were_lost_is_not_the_one_before(tmp_path: Path) -> None:
-    """GGA, RMC, VTG per epoch, the GGA and RMC of some epochs lost: their VTG came after the
-    previous epoch's own and replaced its speed and course (by up to 3.6 m/s: outside
-    tester). Each epoch keeps its own; the orphan VTGs are counted."""
+    """GGA, RMC, VTG, GSA per epoch, the GGA and RMC of some epochs lost: their VTG and GSA
+    came after the previous epoch's own and replaced its speed and course (by up to 3.6 m/s:
+    outside tester) and its DOPs. Each epoch keeps its own; the orphans are counted."""
     lat, lon = _ddmm(LAT0, 2), _ddmm(LON0, 3)
     lost = {4, 9, 10, 15}
     lines = []
     for second in range(20):
         time, knots, course = f"1200{second:02d}.00", 2.0 * second, 10.0 * second
         vtg = _with_checksum(f"GPVTG,{course:.1f},T,,M,{knots:.2f},N,{knots * 1.852:.2f},K,A")
+        pdop = 1.0 + 0.1 * second
+        gsa = _with_checksum(f"GPGSA,A,3,01,02,03,04,05,,,,,,,,{pdop:.1f},1.0,1.0")
         if second not in lost:
             lines += [_with_checksum(f"GPGGA,{time},{lat},N,{lon},E,1,08,0.9,545.4,M,46.9,M,,"),
                       _with_checksum(f"GPRMC,{time},A,{lat},N,{lon},E,{knots:.2f},{course:.1f},010524,,,A")]  # fmt: skip
-        lines.append(vtg)
+        lines += [vtg, gsa]
     path = tmp_path / "lost.nmea"
     path.write_text("\n".join(lines) + "\n")
     result = read_nmea(path)
@@ -293,7 +295,9 @@ def test_the_vtg_of_an_epoch_whose_timed_sentences_were_lost_is_not_the_one_befo
     assert sorted(set(range(20)) - set(seconds.tolist())) == sorted(lost)
     np.testing.assert_allclose(result.gnss.speed, 2.0 * seconds * 1852 / 3600, atol=0.01)
     np.testing.assert_allclose(result.gnss.course, 10.0 * seconds, atol=0.05)
-    assert any("4 VTG sentence(s)" in w for w in result.warnings), result.warnings
+    # Its GSA (the same satellites) likewise: it had replaced the epoch's DOPs.
+    np.testing.assert_allclose(result.gnss.pdop, 1.0 + 0.1 * seconds, atol=1e-9)
+    assert any("4 VTG sentence(s) and 4 GSA sentence(s) after their epoch" in w for w in result.warnings), result.warnings
 
 
 @pytest.mark.parametrize("order", ["after", "before"])
