@@ -27,19 +27,17 @@ import pymap3d
 import fgins
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from independent_sim import FIVE_TURNS, INDUSTRIAL, CarProfile, move_fixes, write_drive
+from independent_sim import (
+    FIVE_TURNS,
+    INDUSTRIAL,
+    CarProfile,
+    horizontal_errors,
+    move_fixes,
+    write_drive,
+    write_rtk_drive,
+)
 
 ORIGIN = (45.0, 10.0, 100.0)
-
-
-def _errors(track, folder: Path) -> tuple[np.ndarray, np.ndarray]:
-    truth = pd.read_csv(folder / "truth.csv")
-    frame = track.to_dataframe()
-    east, north, _ = pymap3d.geodetic2enu(frame["lat"], frame["lon"], frame["alt"], *ORIGIN)
-    t = frame["time"].to_numpy()
-    error = np.hypot(east - np.interp(t, truth["time"], truth["east"]),
-                     north - np.interp(t, truth["time"], truth["north"]))  # fmt: skip
-    return t, error
 
 
 def _gauss_markov(n: int, tau_s: float, sigma: np.ndarray, rng) -> np.ndarray:
@@ -64,7 +62,7 @@ def slow_errors(folder: Path, seed: int, slow: bool) -> dict[str, float]:
     fixes.to_csv(folder / "gnss.csv", index=False, float_format="%.10f")
     dataset = fgins.load(folder / "imu.csv", folder / "gnss.csv", config=folder / "cfg.toml", vehicle="car")
     track = fgins.smooth(dataset, "batch")
-    t, error = _errors(track, folder)
+    t, error = horizontal_errors(track, folder, ORIGIN)
     keep = t > t[0] + 10.0
     variance = 0.5 * (track.position_cov[:, 0, 0] + track.position_cov[:, 1, 1])
     added = track.info.get("gnss_slow_error_sigma_m", [0.0, 0.0])[0] ** 2
@@ -78,21 +76,14 @@ def slow_errors(folder: Path, seed: int, slow: bool) -> dict[str, float]:
 
 
 def rtk_false_fix(folder: Path, seed: int, seconds: int) -> tuple[float, float, int]:
-    profile = CarProfile(steps=[(0.0, 10.0, 12.0)], turns=FIVE_TURNS, gamma=lambda t: 0 * t)
-    write_drive(folder, profile, 200.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
-                gnss_rate=1.0, seed=seed, sigma_h=0.015, sigma_u=0.025)  # fmt: skip
-    truth, fixes = pd.read_csv(folder / "truth.csv"), pd.read_csv(folder / "gnss.csv")
-    noise = np.random.default_rng(seed).normal(0.0, 0.02, (len(fixes), 3))
-    for i, axis in enumerate(("east", "north", "up")):
-        fixes[f"vel_{axis}"] = np.interp(fixes["time"], truth["time"], truth[f"vel_{axis}"]) + noise[:, i]
-    fixes.to_csv(folder / "gnss.csv", index=False, float_format="%.10f")
+    write_rtk_drive(folder, seed)
     move_fixes(folder, [70.0 + i for i in range(seconds)], (0.4, -0.3, 0.2))
     out = []
     for extra in ("", "\n[gnss]\nfault_exclusion = false\n"):
         (folder / "run.toml").write_text((folder / "cfg.toml").read_text() + extra)
         dataset = fgins.load(folder / "imu.csv", folder / "gnss.csv", config=folder / "run.toml", vehicle="car")
         track = fgins.smooth(dataset, "batch")
-        t, error = _errors(track, folder)
+        t, error = horizontal_errors(track, folder, ORIGIN)
         during = (t >= 70.0) & (t < 70.0 + seconds)
         out.append((float(np.sqrt(np.mean(error[during] ** 2))), int(track.info.get("gnss_excluded_count", 0))))
     return out[0][0], out[1][0], out[0][1]

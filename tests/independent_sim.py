@@ -221,6 +221,21 @@ def move_fixes(folder: Path, times: list[float], offset_m, origin=(45.0, 10.0, 1
     gnss.to_csv(folder / "gnss.csv", index=False, float_format="%.10f")
 
 
+def write_rtk_drive(folder: Path, seed: int) -> None:
+    """The five-turn car (200 s) with RTK fixes (1.5 cm / 2.5 cm at 1 Hz) and the receiver's
+    velocities (2 cm/s noise), from the truth."""
+    import pandas as pd
+
+    profile = CarProfile(steps=[(0.0, 10.0, 12.0)], turns=FIVE_TURNS, gamma=lambda t: 0 * t)
+    write_drive(folder, profile, 200.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
+                gnss_rate=1.0, seed=seed, sigma_h=0.015, sigma_u=0.025)  # fmt: skip
+    truth, fixes = pd.read_csv(folder / "truth.csv"), pd.read_csv(folder / "gnss.csv")
+    noise = np.random.default_rng(seed).normal(0.0, 0.02, (len(fixes), 3))
+    for i, axis in enumerate(("east", "north", "up")):
+        fixes[f"vel_{axis}"] = np.interp(fixes["time"], truth["time"], truth[f"vel_{axis}"]) + noise[:, i]
+    fixes.to_csv(folder / "gnss.csv", index=False, float_format="%.10f")
+
+
 def horizontal_errors(track, folder: Path, origin=(45.0, 10.0, 100.0)) -> tuple[np.ndarray, np.ndarray]:
     """Times and horizontal errors (m) of a fgins trajectory against ``folder/truth.csv``."""
     import pandas as pd

@@ -22,7 +22,7 @@ import pytest
 import fgins
 
 sys.path.insert(0, str(Path(__file__).parent))
-from independent_sim import horizontal_errors, move_fixes, write_turning_drive
+from independent_sim import horizontal_errors, move_fixes, write_rtk_drive, write_turning_drive
 
 STEPS = [(5, 5, 12.0)]  # off at 5 s to 12 m/s
 
@@ -162,22 +162,6 @@ def test_an_exclusion_that_keeps_growing_is_a_wrong_solution_not_faults(tmp_path
     assert any("inconsistent" in line for line in summary["fit_warnings"]), summary["fit_warnings"]
 
 
-def _rtk_drive(folder: Path, seed: int) -> None:
-    """The independent car with RTK fixes (1.5 cm / 2.5 cm at 1 Hz) and the receiver's
-    velocities (2 cm/s noise), from the truth."""
-    import pandas as pd
-    from independent_sim import FIVE_TURNS, INDUSTRIAL, CarProfile, write_drive
-
-    profile = CarProfile(steps=[(0.0, 10.0, 12.0)], turns=FIVE_TURNS, gamma=lambda t: 0 * t)
-    write_drive(folder, profile, 200.0, grade=INDUSTRIAL, imu_rate=100.0, jitter=0.0,
-                gnss_rate=1.0, seed=seed, sigma_h=0.015, sigma_u=0.025)  # fmt: skip
-    truth, fixes = pd.read_csv(folder / "truth.csv"), pd.read_csv(folder / "gnss.csv")
-    noise = np.random.default_rng(seed).normal(0.0, 0.02, (len(fixes), 3))
-    for i, axis in enumerate(("east", "north", "up")):
-        fixes[f"vel_{axis}"] = np.interp(fixes["time"], truth["time"], truth[f"vel_{axis}"]) + noise[:, i]
-    fixes.to_csv(folder / "gnss.csv", index=False, float_format="%.10f")
-
-
 @pytest.mark.parametrize(("seed", "seconds"), [(1, 30), (2, 20)])
 def test_an_rtk_fix_on_wrong_integers_is_left_out_not_the_good_fixes_beside_it(tmp_path, seed, seconds):
     """An RTK receiver holds a wrong-integer fix for 20-30 s: every fix of it 0.5 m off,
@@ -186,7 +170,7 @@ def test_an_rtk_fix_on_wrong_integers_is_left_out_not_the_good_fixes_beside_it(t
     multipath", the false fix kept, and the track sat on it, 0.44 m off at 8 mm (z 51;
     outside tester). The stretch between the ramps is now the other reading, kept where it
     fits better."""
-    _rtk_drive(tmp_path, seed)
+    write_rtk_drive(tmp_path, seed)
     start = 70.0
     move_fixes(tmp_path, [start + i for i in range(seconds)], (0.4, -0.3, 0.2))
     track = _smooth(tmp_path)
