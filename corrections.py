@@ -754,9 +754,6 @@ def add_unresolved_time_uncertainty(trajectory: Trajectory) -> None:
 UNCONFIRMED_ARM_CHI2 = 9.0
 UNCONFIRMED_ARM_MIN_M = 0.3
 UNCONFIRMED_ARM_VELOCITY_SCALE = 1.5
-# An arm direction is determined by the drive when its sigma is below this (m): a level
-# car's vertical never is (sigma 1.8 m on an outside tester's car).
-DETERMINED_ARM_SIGMA_M = 0.5
 
 
 def carry_unconfirmed_arm(trajectory: Trajectory, configured: object) -> str | None:
@@ -797,18 +794,17 @@ def carry_unconfirmed_arm(trajectory: Trajectory, configured: object) -> str | N
     covariance = np.asarray(cov, dtype=float).reshape(3, 3)
     if not (np.all(np.isfinite(shift)) and np.all(np.isfinite(covariance))):
         return None
-    variances, directions = np.linalg.eigh(0.5 * (covariance + covariance.T))
-    determined = (variances > 0.0) & (variances < DETERMINED_ARM_SIGMA_M**2)
-    if not determined.any():
+    basis, variances = determined_directions(covariance)
+    basis, variances = basis[:, variances > 0.0], variances[variances > 0.0]
+    if not len(variances):
         return None
-    along = directions[:, determined].T @ shift
-    chi2 = float(np.sum(along**2 / variances[determined]))
+    along = basis.T @ shift
+    chi2 = float(np.sum(along**2 / variances))
     size = float(np.linalg.norm(along))
     if not UNCONFIRMED_ARM_CHI2 <= chi2 < LEVER_ARM_CHI2 or size < UNCONFIRMED_ARM_MIN_M:
         return None
-    basis = directions[:, determined]
     part = basis @ along
-    arm_cov = np.outer(part, part) + basis @ np.diag(variances[determined]) @ basis.T
+    arm_cov = np.outer(part, part) + basis @ np.diag(variances) @ basis.T
     add_arm_uncertainty(trajectory, arm_cov)
     info["gnss_lever_arm_unconfirmed_m"] = [float(x) for x in part]
     shown = ", ".join(f"{x:.2f}" for x in np.asarray(configured, dtype=float) + part)
