@@ -26,7 +26,12 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from fgins.graph.parameter_step import imu_bias_jacobians, interval_mean, parameter_step
+from fgins.graph.parameter_step import (
+    imu_bias_jacobians,
+    interval_mean,
+    interval_spans,
+    parameter_step,
+)
 from fgins.graph.problem import Problem
 from fgins.graph.solve import SolveReport, is_suspect, solve_from, solve_with_stops
 
@@ -97,9 +102,7 @@ def neighbour_rates(problem: Problem) -> np.ndarray:
     a false "gyro column flipped" warning on a drive with long stops: outside tester). A
     turn lasts seconds, so its neighbours' rate is its own, without its noise."""
     means = interval_mean_rates(problem)
-    segments = problem.segments
-    span = np.add.reduceat(segments.dt, segments.bounds[:-1])
-    span[segments.bounds[1:] == segments.bounds[:-1]] = 0.0
+    span = interval_spans(problem)
     if len(means) < 3:
         return means
     typical = float(np.median(span[span > 0])) if np.any(span > 0) else 0.0

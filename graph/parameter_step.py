@@ -80,15 +80,22 @@ def imu_bias_jacobians(
         yield index, gtsam.Symbol(keys[4]).index(), root @ plain
 
 
+def interval_spans(problem: Problem) -> np.ndarray:
+    """(K-1,) the IMU time (s) each keyframe interval integrates (zero for an empty one)."""
+    segments = problem.segments
+    span = np.add.reduceat(segments.dt, segments.bounds[:-1])
+    span[segments.bounds[1:] == segments.bounds[:-1]] = 0.0
+    return span
+
+
 def interval_mean(problem: Problem, samples: np.ndarray) -> np.ndarray:
     """(K-1, n) the time-weighted mean of the IMU's ``samples`` (N, n) over each keyframe
     interval (zero over an empty one)."""
     segments = problem.segments
     weighted = samples[segments.sample] * segments.dt[:, None]
     sums = np.add.reduceat(weighted, segments.bounds[:-1], axis=0)
-    span = np.add.reduceat(segments.dt, segments.bounds[:-1])
-    empty = segments.bounds[1:] == segments.bounds[:-1]
-    sums[empty] = 0.0
+    sums[segments.bounds[1:] == segments.bounds[:-1]] = 0.0
+    span = interval_spans(problem)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(span[:, None] > 0, sums / span[:, None], 0.0)
 
