@@ -111,11 +111,13 @@ class _Epoch:
         "gga_no_satellites",
         "gsa_prns",
         "gsa_sats",
+        "latest",
         "motion_by_talker",
         "num_sats",
         "positions",
         "repeat_distance",
         "repeat_talker",
+        "repeats",
         "resolution_ms",
         "said_fix",
         "said_no_fix",
@@ -139,6 +141,8 @@ class _Epoch:
         # one talker, one sentence type, two positions far apart (the first is kept)
         self.repeat_distance = 0.0
         self.repeat_talker = ""
+        self.repeats = 0  # a talker's later fixes of one sentence type at this time (left out)
+        self.latest: dict[tuple[str, str], _Position] = {}  # (talker, type) -> its last repeat
         self.date: tuple[int, int, int] | None = None
         # the date of an RMC with status V: the receiver's guess (its start-up default)
         self.untrusted_date: tuple[int, int, int] | None = None
@@ -375,7 +379,7 @@ class _Reader:
         self.current = epoch
         return epoch
 
-    def _set_position(self, epoch: _Epoch, source: str, position: _Position) -> None:
+    def _set_position(self, epoch: _Epoch, source: str, position: _Position) -> bool:
         """Store one sentence's position, per talker too. A talker repeating a sentence type
         at one time with a position far from its first is a second receiver: first kept.
 
@@ -383,9 +387,12 @@ class _Reader:
         new positions under the old times), any sentence type counts: the epoch's GLL came
         from the first pass, its GGA from the second, and preferring GGA made a zigzag of
         both passes. Otherwise types are not compared with each other: some receivers stamp
-        RMC a second late (CH-4701), GGA's position is the one of its time."""
+        RMC a second late (CH-4701), GGA's position is the one of its time. False when the
+        position was left out."""
         own = epoch.by_talker.setdefault(self.talker, {})
-        earlier = own.values() if self.stamped_back else [own.get(source)]
+        # (a faster receiver's fixes of one second are compared each with the one before it)
+        previous = epoch.latest.get((self.talker, source), own.get(source))
+        earlier = own.values() if self.stamped_back else [previous]
         if position[5]:
             distance = max(
                 (_distance_m(first, position) for first in earlier if first and first[5]),
@@ -394,9 +401,20 @@ class _Reader:
             if distance > CONFLICT_DISTANCE_M:
                 epoch.repeat_distance = max(epoch.repeat_distance, distance)
                 epoch.repeat_talker = self.talker
-                return
+                return False
+            first = own.get(source)
+            if first is not None and first[5]:
+                # The talker's second fix of this type at this time: a receiver faster than
+                # its time field (5-10 Hz printing whole seconds, whose fixes of one second
+                # all say its start). The first is the one of that time; the last had been
+                # kept, 0.8-0.9 s late, the loss unsaid and blamed on receiver latency
+                # (outside tester). A byte-identical repeat is a duplicated line.
+                epoch.repeats += position[:5] != first[:5]
+                epoch.latest[(self.talker, source)] = position
+                return False
         own[source] = position
         epoch.positions[source] = position
+        return True
 
     def _set_motion(self, epoch: _Epoch, speed: float, course: float) -> None:
         old_speed, old_course = epoch.motion_by_talker.get(self.talker, (math.nan, math.nan))
@@ -475,8 +493,8 @@ class _Reader:
         valid = f[1] == "A" and mode != 0 and math.isfinite(lat) and math.isfinite(lon)
         quality = mode if mode > 0 else 1
         epoch.said_fix |= valid
-        self._set_position(epoch, "RMC", (lat, lon, math.nan, math.nan, quality, valid))
-        self._set_motion(epoch, _num(_field(f, 6)) * KNOT_M_S, _num(_field(f, 7)))
+        if self._set_position(epoch, "RMC", (lat, lon, math.nan, math.nan, quality, valid)):
+            self._set_motion(epoch, _num(_field(f, 6)) * KNOT_M_S, _num(_field(f, 7)))
 
     def _on_gll(self, f: list[str]) -> None:
         if len(f) < 6 or not f[4]:
@@ -758,6 +776,18 @@ def _assemble(path: Path, reader: _Reader, time_offset_s: float) -> NmeaResult:
     if reader.untimed_before_first:
         warnings.append(
             f"{reader.untimed_before_first} GSA/VTG sentences before the first timed sentence"
+        )
+    if repeats := sum(epoch.repeats for epoch in reader.epochs.values()):
+        coarse = sum(bool(e.repeats) and e.resolution_ms >= 1000 for e in reader.epochs.values())
+        why = (
+            " (a receiver faster than 1 Hz printing whole-second times: each time is its "
+            "second's start)"
+            if coarse > 0.5 * sum(bool(e.repeats) for e in reader.epochs.values())
+            else ""
+        )
+        warnings.append(
+            f"{repeats} position sentence(s) repeat their talker's sentence type for one time "
+            f"with another position{why}: the first of each time kept, the others not used"
         )
     if reader.orphan_vtg or reader.orphan_gsa:
         found = [f"{n} {kind} sentence(s)" for n, kind in ((reader.orphan_vtg, "VTG"), (reader.orphan_gsa, "GSA")) if n]

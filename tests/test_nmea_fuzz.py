@@ -426,3 +426,43 @@ def test_gga_quality_with_zero_satellites_is_dropped_and_counted(tmp_path: Path)
         "but 0 satellites used" in w
         for w in result.warnings
     )
+
+
+@pytest.mark.parametrize("rate_hz", [5, 10])
+def test_a_fast_receiver_printing_whole_seconds_keeps_each_seconds_first_fix(
+    tmp_path: Path, rate_hz: int
+) -> None:
+    """A 5-10 Hz receiver whose time field has no decimals prints every fix of a second
+    under that second's start. The first is the fix of that time; the last had been kept
+    (each fix 0.8-0.9 s late, its speed too, the 80-90 % left out unsaid)."""
+    lines = []
+    seconds = 12
+    for k in range(seconds * rate_hz):
+        t = k / rate_hz
+        east, speed = 2.0 * t + 0.5 * t * t, 2.0 + t  # accelerating east at 1 m/s^2
+        lon = LON0 + east / (111_320.0 * math.cos(math.radians(LAT0)))
+        lat, lon_text, time = _ddmm(LAT0, 2), _ddmm(lon, 3), f"1200{int(t):02d}"
+        knots = speed / (1852.0 / 3600.0)
+        lines.append(_with_checksum(f"GPGGA,{time},{lat},N,{lon_text},E,1,08,0.9,545.4,M,46.9,M,,"))
+        lines.append(_with_checksum(f"GPRMC,{time},A,{lat},N,{lon_text},E,{knots:.3f},90.0,010524,,,A"))
+    path = tmp_path / "fast.nmea"
+    path.write_text("\n".join(lines) + "\n")
+    result = read_nmea(path)
+    whole = np.arange(seconds, dtype=float)
+    assert len(result.gnss) == seconds
+    np.testing.assert_allclose(_east_m(result), 2.0 * whole + 0.5 * whole**2, atol=0.05)
+    np.testing.assert_allclose(result.gnss.speed, 2.0 + whole, atol=0.01)
+    said = [w for w in result.warnings if "repeat their talker's sentence type" in w]
+    left_out = 2 * seconds * (rate_hz - 1)  # GGA and RMC
+    assert len(said) == 1 and said[0].startswith(f"{left_out} position sentence(s)"), result.warnings
+    assert "whole-second times" in said[0] and "first of each time kept" in said[0]
+    assert not any("two positions" in w for w in result.warnings), result.warnings
+
+
+def test_a_duplicated_line_is_not_counted_as_another_fix(tmp_path: Path) -> None:
+    lines = [line for s in range(5) for line in _fix_lines("GP", s, 0.0) * 2]
+    path = tmp_path / "duplicated.nmea"
+    path.write_text("\n".join(lines) + "\n")
+    result = read_nmea(path)
+    assert len(result.gnss) == 5
+    assert not any("repeat their talker's" in w for w in result.warnings), result.warnings
