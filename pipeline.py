@@ -466,7 +466,12 @@ def add_slow_fix_error_uncertainty(
     leave in it (:mod:`fgins.correlated_fixes`: residuals about the solution correlated from
     one used fix to the next), said in ``info["gnss_correlation"]``."""
     from fgins.baseline.measurements import select_gnss
-    from fgins.correlated_fixes import residual_correlation, slow_error_variance
+    from fgins.correlated_fixes import (
+        BLOCK_S,
+        residual_correlation,
+        slow_error_variance,
+        variance_ratio,
+    )
 
     if trajectory.position_cov is None or len(trajectory) < 2:
         return
@@ -478,10 +483,11 @@ def add_slow_fix_error_uncertainty(
         return
     nearest, whitened = _whitened_fix_residuals(epochs, config, trajectory)
     rho_h, rho_v = residual_correlation(epochs.t, whitened)
+    ratio_h, ratio_v = variance_ratio(epochs.t, whitened)
     variance = np.einsum("nii->ni", np.asarray(trajectory.position_cov, dtype=float))[nearest]
     fix_variance = np.asarray(epochs.position_sigma, dtype=float) ** 2
     added = []
-    for rho, columns in ((rho_h, [0, 1]), (rho_v, [2])):
+    for rho, ratio, columns in ((rho_h, ratio_h, [0, 1]), (rho_v, ratio_v, [2])):
         residuals = whitened[:, columns][np.all(np.isfinite(whitened[:, columns]), axis=1)]
         scatter = robust_scale(residuals) if residuals.size else float("nan")
         added.append(
@@ -490,6 +496,7 @@ def add_slow_fix_error_uncertainty(
                 scatter,
                 float(np.median(np.mean(variance[:, columns], axis=1))),
                 float(np.median(np.mean(fix_variance[:, columns], axis=1))),
+                ratio,
             )
         )
     if not any(added):
@@ -497,12 +504,20 @@ def add_slow_fix_error_uncertainty(
     trajectory.position_cov = trajectory.position_cov + np.diag([added[0], added[0], added[1]])
     sigma_h, sigma_v = (float(np.sqrt(x)) for x in added)
     trajectory.info["gnss_residual_correlation"] = [rho_h, rho_v]
+    trajectory.info["gnss_residual_variance_ratio"] = [ratio_h, ratio_v]
     trajectory.info["gnss_slow_error_sigma_m"] = [sigma_h, sigma_v]
     interval = float(np.median(np.diff(epochs.t)))
+    blocks = (
+        f"; their means over {BLOCK_S:g} s vary {ratio_h:.1f} / {ratio_v:.1f} times as much "
+        "as independent errors' would"
+        if np.isfinite(ratio_h) and np.isfinite(ratio_v)
+        else ""
+    )
     trajectory.info["gnss_correlation"] = (
         f"GNSS slow errors: the fixes' residuals about the solution keep their sign from one "
         f"fix to the next (lag-1 correlation {rho_h:.2f} horizontally, {rho_v:.2f} vertically "
-        f"at {interval:.3g} s; about 0 for independent errors): the receiver's errors change "
+        f"at {interval:.3g} s, about 0 for independent errors{blocks}): the receiver's "
+        "errors change "
         "slowly and the solution follows them, which averaging over fixes does not remove; "
         f"the output's sigmas include {sigma_h:.2f} m horizontally and {sigma_v:.2f} m "
         "vertically for them"
