@@ -109,6 +109,7 @@ def run_method(
     check_method_fits_imu(dataset, method)
     check_imu_gaps(dataset, config, gnss_mask)
     dataset = integration_samples(dataset, config)
+    dataset, delay_note = baro_on_fixes_clock(dataset, gnss_mask)
     dataset, baro_note = baro_scaled_to_fixes(dataset, gnss_mask)
     trajectory = _corrected_solution(dataset, config, method, gnss_mask, progress)
     # The fixes' stamps were off: every step before the clock's correction judged the drive
@@ -124,6 +125,8 @@ def run_method(
         retimed = replace(
             dataset,
             gnss=replace(dataset.gnss, t=dataset.gnss.t + sum(found) + moved),
+            # a barometer put onto the fixes' time goes with them
+            baro=replace(dataset.baro, t=dataset.baro.t + sum(found) + moved) if delay_note else dataset.baro,
             metadata={**dataset.metadata, GNSS_STAMPS_MOVED_KEY: sum(found) + moved},
         )
         try:
@@ -135,8 +138,9 @@ def run_method(
     trajectory = _passes_said(trajectory, mover, found) if found else trajectory
     trajectory = _with_imu_clock_step_closed(dataset, config, method, gnss_mask, progress, trajectory)
     trajectory = _on_receiver_time(dataset, trajectory)
-    if baro_note:
-        trajectory.info["fit_warnings"] = [baro_note, *trajectory.info.get("fit_warnings", [])]
+    for note in (baro_note, delay_note):
+        if note:
+            trajectory.info["fit_warnings"] = [note, *trajectory.info.get("fit_warnings", [])]
     _add_baro_scale_uncertainty(dataset, gnss_mask, trajectory)
     _check_finite(method, trajectory)
     return trajectory
@@ -232,6 +236,18 @@ def _add_baro_scale_uncertainty(dataset: Dataset, gnss_mask: np.ndarray | None, 
             f"and the barometer climbs up to {largest / BARO_SCALE_UNKNOWN:.0f} m from where they "
             f"are: the output's vertical sigmas include that share of it (up to {largest:.1f} m)"
         )
+
+
+def baro_on_fixes_clock(dataset: Dataset, gnss_mask: np.ndarray | None) -> tuple[Dataset, str | None]:
+    """``dataset`` with its barometer's samples moved onto the fixes' time where its heights
+    come late or early against the fixes this run uses (fgins.io.baro_checks.baro_delay),
+    and the line saying so."""
+    from fgins.io.baro_checks import baro_on_fixes_time
+
+    if dataset.baro is None or not len(dataset.baro.t):
+        return dataset, None
+    baro, note = baro_on_fixes_time(dataset.baro, _unwithheld(dataset, gnss_mask))
+    return (dataset, None) if note is None else (replace(dataset, baro=baro), note)
 
 
 def baro_scaled_to_fixes(dataset: Dataset, gnss_mask: np.ndarray | None) -> tuple[Dataset, str | None]:

@@ -356,3 +356,87 @@ def check_baro_clock(baro, gnss: GnssData) -> None:
             f"moved by {-lag:+.0f} s (correlation {peak:.2f}, {at_zero:.2f} as stamped): the "
             "barometer is on another clock; give its times on the IMU's and the fixes' clock"
         )
+
+
+# A barometer whose heights come late against the fixes' by less than BARO_LAG_MIN_S (its
+# own filter, a slow static port: a first-order lag of tau is a delay of tau on a steady
+# climb): in a climb its heights are tau times the climb rate off, which its slow bias walk
+# cannot follow. (Outside tester: an aircraft's barometer lagging 0.5-1.5 s, climbs at 7-12
+# m/s: heights 2-9 m off inside outages at z 6-19, nothing or the antenna blamed.) The
+# fixes' altitude less the barometer's height is regressed on an offset, a drift, the
+# barometer's height (its scale) and its climb rate, whose coefficient is the delay; taken
+# beyond BARO_DELAY_SIGMAS of its sigma and BARO_DELAY_MIN_S.
+BARO_DELAY_MIN_S = 0.1
+BARO_DELAY_SIGMAS = 5.0
+BARO_RATE_WINDOW_S = 1.0  # the barometer's climb rate: its mean heights +-this apart
+BARO_DELAY_OUTLIER_SIGMAS = 4.0
+
+
+def baro_delay(baro, gnss: GnssData) -> tuple[float, float] | None:
+    """(delay, its sigma) in s of the barometer's heights against the fixes' altitude
+    (positive: the barometer's come late), None where the fixes and the barometer cannot
+    show one (too few fixes with heights inside its span, a design that cannot be solved).
+    The sigma counts the residuals' lag-one correlation, as the scale's does; fixes beyond
+    BARO_DELAY_OUTLIER_SIGMAS robust sigmas of a first fit are left out."""
+    if baro is None or len(baro.t) < 10 or not len(gnss.t):
+        return None
+    height = _isa_height(baro)
+    finite = np.isfinite(height)
+    bt, bh = baro.t[finite], height[finite]
+    if len(bt) < 10 or not np.all(np.diff(bt) > 0):
+        return None
+    # The climb rate: the mean height over the window after less that over the window
+    # before, on a uniform grid at the barometer's spacing (noise averaged, no lag).
+    step = float(np.median(np.diff(bt)))
+    grid = np.arange(bt[0], bt[-1], step)
+    width = max(1, round(BARO_RATE_WINDOW_S / step))
+    if len(grid) < 2 * width + 10:
+        return None
+    cumulative = np.concatenate([[0.0], np.cumsum(np.interp(grid, bt, bh))])
+    means = (cumulative[width:] - cumulative[:-width]) / width  # means[i]: grid[i : i + width]
+    rate = (means[width:] - means[:-width]) / (width * step)  # about grid[i + width]
+    rate_t = grid[width : width + len(rate)] - 0.5 * step
+    alt = gnss.lla[:, 2]
+    use = np.isfinite(alt) & (gnss.t >= rate_t[0]) & (gnss.t <= rate_t[-1])
+    if use.sum() < BARO_SCALE_MIN_FIXES:
+        return None
+    t = gnss.t[use]
+    at_fixes = np.interp(t, bt, bh)
+    weight = 1.0 / fix_sigma(gnss)[use]
+    design = np.column_stack(
+        [np.ones_like(t), t - t.mean(), at_fixes - at_fixes.mean(), np.interp(t, rate_t, rate)]
+    )
+    difference = alt[use] - at_fixes
+    keep = np.ones(len(t), dtype=bool)
+    for _ in range(2):  # a fit, then without its outliers (multipath, a jump)
+        a, b = design[keep] * weight[keep, None], difference[keep] * weight[keep]
+        normal = a.T @ a
+        if keep.sum() < BARO_SCALE_MIN_FIXES or np.linalg.cond(normal) > 1e12:
+            return None
+        coefficients = np.linalg.solve(normal, a.T @ b)
+        residual = (difference - design @ coefficients) * weight
+        scatter = 1.4826 * float(np.median(np.abs(residual[keep] - np.median(residual[keep]))))
+        keep = np.abs(residual - np.median(residual[keep])) <= BARO_DELAY_OUTLIER_SIGMAS * max(scatter, 1e-12)
+    kept = residual[keep] - residual[keep].mean()
+    lag_one = float(np.sum(kept[1:] * kept[:-1]) / max(float(np.sum(kept * kept)), 1e-300))
+    correlated = (1.0 + max(lag_one, 0.0)) / max(1.0 - max(lag_one, 0.0), 1e-3)
+    sigma = scatter * float(np.sqrt(np.linalg.inv(normal)[3, 3] * correlated))
+    return float(coefficients[3]), sigma
+
+
+def baro_on_fixes_time(baro, gnss: GnssData):
+    """(the barometer, its samples moved earlier by the delay :func:`baro_delay` finds
+    where it is taken, else as given; the line saying so or None)."""
+    found = baro_delay(baro, gnss)
+    if found is None:
+        return baro, None
+    delay, sigma = found
+    if abs(delay) < max(BARO_DELAY_MIN_S, BARO_DELAY_SIGMAS * sigma) or abs(delay) >= BARO_LAG_MIN_S:
+        return baro, None
+    note = (
+        f"baro: its heights come {abs(delay):.2f} s (+-{sigma:.2f}) "
+        f"{'late' if delay > 0 else 'early'} against the fixes' altitude over their climbs "
+        "(its own filter or port lag, or its clock): its samples moved by "
+        f"{-delay:+.2f} s onto the fixes' time"
+    )
+    return type(baro)(t=baro.t - delay, pressure=baro.pressure, height=baro.height), note
