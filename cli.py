@@ -621,7 +621,12 @@ def cmd_convert(args: argparse.Namespace) -> int:
     gnss = check_gnss_records(gnss, checks)
     warnings = [*warnings, *checks]
     if args.output.suffix.lower() == ".tum":
-        _write_gnss_tum(gnss, args.output, warnings)
+        # ENU about the origin ``fgins smooth`` takes: KITTI's own for demo:kitti (about the
+        # first fix, 13.7 m from it, evo read the README's recipe as 13.7 m of error)
+        from fgins.io.kitti import KITTI_ORIGIN
+
+        origin = KITTI_ORIGIN if str(args.input) == "demo:kitti" else None
+        _write_gnss_tum(gnss, args.output, warnings, origin)
     else:
         write_gnss(gnss, args.output)
     for warning in warnings:
@@ -630,9 +635,9 @@ def cmd_convert(args: argparse.Namespace) -> int:
     return 0
 
 
-def _write_gnss_tum(gnss, path: Path, warnings: list[str]) -> None:
-    """The fixes as a TUM reference: ENU at the first fix (the origin ``fgins smooth`` takes
-    for a log without one), identity orientation. Fixes without a height (2-D) get the one
+def _write_gnss_tum(gnss, path: Path, warnings: list[str], origin=None) -> None:
+    """The fixes as a TUM reference: ENU at ``origin``, else at the first fix (the origin
+    ``fgins smooth`` takes for a log without one), identity orientation. Fixes without a height (2-D) get the one
     ``fgins smooth`` gives them (said): a TUM row has no empty field, and a 2-D first fix
     made the origin's height NaN and every row NaN (12 of gpsd's 59 real logs, exit 0)."""
     from fgins.datatypes import InputError, Origin
@@ -644,7 +649,7 @@ def _write_gnss_tum(gnss, path: Path, warnings: list[str]) -> None:
     filled: list[str] = []
     gnss = fill_missing_heights(gnss, filled)
     warnings.extend(f"{line} (in the TUM reference as in fgins smooth)" for line in filled)
-    write_gnss_tum(gnss.t, gnss.lla, Origin(*map(float, gnss.lla[0])), path)
+    write_gnss_tum(gnss.t, gnss.lla, origin or Origin(*map(float, gnss.lla[0])), path)
 
 
 def _refuse_builtin_input(path: Path, command: str) -> None:
