@@ -129,7 +129,7 @@ def _add_sensor_options(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     parser.add_argument(
         "--robust", choices=["huber", "cauchy", "none"], action=_Once,
-        help="robust GNSS kernel against outliers: Huber (k=2 sigmas, or the config's "
+        help="robust GNSS kernel against outliers: Huber (k=4 sigmas, or the config's "
         "huber_k) or Cauchy (k=3, or the config's cauchy_k), or none (every fix at full "
         "weight, no fault exclusion); default Huber k=4",
     )  # fmt: skip

@@ -308,17 +308,21 @@ def test_a_misalignment_setting_without_its_state_is_refused(tmp_path, key):
 
 @pytest.mark.parametrize(
     ("file", "robust", "huber_k", "cauchy_k"),
-    [("", "huber", 2.0, None), ("", "cauchy", 4.0, 3.0), ("cauchy_k = 0.5", "cauchy", 4.0, 0.5),
+    [("", "huber", 4.0, None), ("", "cauchy", 4.0, 3.0), ("cauchy_k = 0.5", "cauchy", 4.0, 0.5),
      ("cauchy_k = 20.0", "cauchy", None, 20.0), ("huber_k = 1.0", "huber", 1.0, None),
-     ("huber_k = 1.0", "cauchy", 1.0, 3.0), ("cauchy_k = 0.5", "huber", 2.0, None),
-     ("huber_k = 0", "huber", 2.0, None), ("huber_k = 1.0", "none", None, None)],
+     ("huber_k = 1.0", "cauchy", 1.0, 3.0), ("cauchy_k = 0.5", "huber", 4.0, None),
+     ("huber_k = 0", "huber", 4.0, None), ("huber_k = 1.0", "none", None, None)],
 )  # fmt: skip
 def test_the_robust_flag_chooses_the_kernel_and_the_file_its_width(tmp_path, file, robust, huber_k, cauchy_k):
     """``--robust cauchy`` with ``cauchy_k = 0.5`` (or 20) in the file ran at k = 3, the
     same fit to the bit, unsaid (outside tester); ``--robust huber`` likewise dropped a
     file's ``huber_k``. The flag chooses the kernel, the file's key for that kernel its
-    width; without one the flag's own (Huber 2, Cauchy 3). Where Cauchy is chosen the Huber
-    width is not used (Cauchy takes precedence)."""
+    width; without one the flag's own (Huber 4, the default kernel's: it had been 2, so
+    naming the default kernel halved its width, outside tester; Cauchy 3). Where Cauchy is
+    chosen the Huber width is not used (Cauchy takes precedence)."""
+    from fgins.config import GnssConfig
+
+    assert GnssConfig().huber_k == 4.0  # --robust huber is the default kernel
     from fgins.api import configure
     from fgins.io.kitti import read_kitti
 
