@@ -80,6 +80,7 @@ from fgins.baseline.mechanization import (
 from fgins.baseline.vehicle_updates import VehicleAiding, vehicle_aiding
 from fgins.config import ImuNoise, RunConfig, constant_bias_noise
 from fgins.datatypes import Dataset, FginsError, InputError, Trajectory
+from fgins.factors.imu_samples import cut_sample_accel
 from fgins.geodesy import so3_exp
 from fgins.initial_guess import KeyframeGuess
 
@@ -313,7 +314,7 @@ def prepare_filter(
         state=state,
         cov=cov,
         gyro_at=imu.gyro[segments.sample],
-        accel_at=imu.accel[segments.sample],
+        accel_at=cut_sample_accel(imu.accel[segments.sample], imu.gyro[segments.sample], segments.lead),
         counts=counts,
         heading=HeadingGate(gravity=float(-frame.gravity[2]), accel_noise=noise.accel_noise),
         antenna=antenna,

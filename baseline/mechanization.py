@@ -143,7 +143,9 @@ class Segments:
     """The IMU stream cut at block boundaries (GNSS epochs, fill times).
 
     Segment j starts at ``start[j]``, lasts ``dt[j]`` and uses IMU sample ``sample[j]`` (held
-    constant); block b owns segments ``bounds[b]:bounds[b + 1]`` and ends at ``times[b + 1]``.
+    constant), ``lead[j]`` seconds after that sample's time (a block boundary cut its
+    interval; 0 otherwise); block b owns segments ``bounds[b]:bounds[b + 1]`` and ends at
+    ``times[b + 1]``.
     """
 
     times: np.ndarray
@@ -151,6 +153,7 @@ class Segments:
     dt: np.ndarray
     sample: np.ndarray
     bounds: np.ndarray
+    lead: np.ndarray
 
     def block(self, b: int) -> slice:
         return slice(int(self.bounds[b]), int(self.bounds[b + 1]))
@@ -187,7 +190,8 @@ def segment_imu(imu_t: np.ndarray, times: np.ndarray) -> Segments:
     sample = np.clip(np.searchsorted(imu_t, seg_start, side="right") - 1, 0, len(imu_t) - 1)
     bounds = np.searchsorted(seg_start, times, side="left")
     bounds[-1] = len(seg_start)
-    return Segments(times=times, start=seg_start, dt=np.diff(starts), sample=sample, bounds=bounds)
+    lead = np.maximum(seg_start - imu_t[sample], 0.0)
+    return Segments(times=times, start=seg_start, dt=np.diff(starts), sample=sample, bounds=bounds, lead=lead)
 
 
 def prefix_products(steps: np.ndarray) -> np.ndarray:

@@ -65,3 +65,20 @@ def for_integration(imu: ImuData, sample_timing: str) -> ImuData:
     if sample_timing not in SAMPLE_TIMINGS:
         raise ValueError(f"sample_timing {sample_timing!r}: one of {SAMPLE_TIMINGS}")
     return held_samples(imu) if sample_timing == "instant" else imu
+
+
+def cut_sample_accel(accel: np.ndarray, gyro: np.ndarray, lead: np.ndarray) -> np.ndarray:
+    """The held specific force of integration segments that start ``lead`` seconds (>= 0)
+    after their sample's time, in each segment's own start axes (rows of ``accel``/``gyro``,
+    the segments' samples; a copy). A held sample stands for a specific force fixed in the
+    axes at its interval's start; a keyframe cutting the interval starts the second piece in
+    axes turned by w * lead, where the sample's force was applied again as it was: a car
+    turning at 0.3 rad/s with a 2 Hz IMU and 10 Hz fixes was pushed 0.3 m/s^2 sideways,
+    outages 3.7x worse at z 5-7 (outside tester). Turned back here: exact for the held
+    model."""
+    out = np.array(accel, dtype=float, copy=True)
+    cut = np.flatnonzero(lead > 0.0)
+    if len(cut):
+        back = so3_exp(-np.asarray(gyro, dtype=float)[cut] * lead[cut, None])
+        out[cut] = np.einsum("kij,kj->ki", back, out[cut])
+    return out

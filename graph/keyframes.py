@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgins.datatypes import ImuData
+from fgins.factors.imu_samples import cut_sample_accel
 
 
 @dataclass
@@ -22,7 +23,8 @@ class Segments:
     """IMU integration segments grouped by keyframe interval.
 
     ``times`` are the keyframe times (K,). Segment j runs from ``start[j]`` for ``dt[j]``
-    seconds using IMU sample ``sample[j]``; interval i owns segments
+    seconds using IMU sample ``sample[j]``, ``lead[j]`` seconds after that sample's time (a
+    keyframe cut its interval; 0 otherwise); interval i owns segments
     ``bounds[i]:bounds[i + 1]``. ``suspect[i]`` marks intervals inside suspect IMU stretches.
     """
 
@@ -32,9 +34,16 @@ class Segments:
     sample: np.ndarray
     bounds: np.ndarray
     suspect: np.ndarray
+    lead: np.ndarray
 
     def interval(self, i: int) -> slice:
         return slice(int(self.bounds[i]), int(self.bounds[i + 1]))
+
+    def accel(self, imu_accel: np.ndarray, imu_gyro: np.ndarray, rows) -> np.ndarray:
+        """The held specific force of segments ``rows`` in their own start axes
+        (:func:`fgins.factors.imu_samples.cut_sample_accel`)."""
+        sample = self.sample[rows]
+        return cut_sample_accel(imu_accel[sample], imu_gyro[sample], self.lead[rows])
 
 
 # Largest rotation one preintegration interval may hold (see _split_by_turn). A quarter turn:
@@ -122,5 +131,6 @@ def build_segments(imu: ImuData, times: np.ndarray) -> Segments:
     for a, b in imu.suspect:
         suspect |= (mid > a) & (mid < b)
     return Segments(
-        times=times, start=seg_start, dt=dt, sample=sample, bounds=bounds, suspect=suspect
-    )
+        times=times, start=seg_start, dt=dt, sample=sample, bounds=bounds, suspect=suspect,
+        lead=np.maximum(seg_start - imu.t[sample], 0.0),
+    )  # fmt: skip

@@ -84,7 +84,7 @@ def densify(
         seg_pos[idx[active]] = d_pos[active]
         seg_t[idx[active]] = d_t[active]
         dt = np.where(active, segments.dt[idx], 0.0)
-        a = accel[segments.sample[idx]] - ba
+        a = segments.accel(accel, gyro, idx) - ba
         w = gyro[segments.sample[idx]] - bg
         rotated = np.einsum("nij,nj->ni", d_rot, a)
         d_pos += d_vel * dt[:, None] + 0.5 * rotated * dt[:, None] ** 2

@@ -872,7 +872,8 @@ def _preintegrate(
     span = segments.interval(i)
     samples = segments.sample[span]
     pim = gtsam.PreintegratedCombinedMeasurements(params, bias)
-    imu_model.integrate(pim, imu.accel[samples], imu.gyro[samples], segments.dt[span])
+    accel = segments.accel(imu.accel, imu.gyro, span)
+    imu_model.integrate(pim, accel, imu.gyro[samples], segments.dt[span])
     return pim
 
 
