@@ -394,6 +394,30 @@ def pressure_at(
     return out
 
 
+def pressure_before(baro: BaroData | None, times: np.ndarray, window_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """(mean barometric pressure (Pa) of the samples within ``[t - window_s, t]``, how long
+    before ``t`` their mean time lies (s)); NaN where none. What a causal filter can use at
+    ``t``: the mean's age is a lag it must take out (a 0.25 s mean is 0.1 s old, 1 m in a
+    10 m/s climb)."""
+    times = np.asarray(times, dtype=float)
+    pressure_out, age = np.full(len(times), np.nan), np.full(len(times), np.nan)
+    if baro is None or baro.pressure is None:
+        return pressure_out, age
+    valid = np.isfinite(baro.pressure) & (baro.pressure > 0.0)
+    if not np.any(valid):
+        return pressure_out, age
+    t, pressure = baro.t[valid], baro.pressure[valid]
+    lo = np.searchsorted(t, times - window_s)
+    hi = np.searchsorted(t, times, side="right")
+    filled = hi > lo
+    count = (hi - lo)[filled]
+    for values, out in ((pressure, pressure_out), (t, age)):
+        cumulative = np.concatenate([[0.0], np.cumsum(values)])
+        out[filled] = (cumulative[hi[filled]] - cumulative[lo[filled]]) / count
+    age[filled] = times[filled] - age[filled]
+    return pressure_out, age
+
+
 # International Standard Atmosphere, troposphere (ICAO; below 11 km): the model a real
 # barometer's pressure follows on a standard day, and the one fgins's simulator writes.
 ISA_SEA_LEVEL_PA = 101325.0
