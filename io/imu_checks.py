@@ -31,10 +31,12 @@ WEEK_S = 604800.0  # GPS seconds of the week roll over to 0 after this
 
 
 def find_gaps(t: np.ndarray, factor: float = GAP_FACTOR) -> list[tuple[float, float]]:
-    """Intervals between consecutive samples longer than ``factor`` nominal periods."""
+    """Intervals between consecutive samples longer than ``factor`` periods of the IMU
+    where it is (:func:`fgins.factors.imu_samples.local_periods`: a rate change is no gap)."""
+    from fgins.factors.imu_samples import local_periods
+
     dt = np.diff(t)
-    nominal = float(np.median(dt))
-    idx = np.flatnonzero(dt > factor * nominal)
+    idx = np.flatnonzero(dt > factor * local_periods(t))
     return [(float(t[i]), float(t[i + 1])) for i in idx]
 
 
@@ -536,6 +538,15 @@ def flag_suspect(imu: ImuData, warnings: list[str], *, label: str = "imu") -> Im
     (one line each)."""
     t = imu.t
     suspect: list[tuple[float, float]] = list(imu.suspect)
+    from fgins.factors.imu_samples import rate_changes
+
+    if changes := rate_changes(t):
+        warnings.append(
+            f"{label}: the IMU's rate changes {len(changes)} time(s) ("
+            + ", ".join(f"{a:.4g} -> {b:.4g} Hz at t-t_imu0 = {at - t[0]:.0f} s" for at, a, b in changes[:3])
+            + (", ..." if len(changes) > 3 else "")
+            + "): each part integrated at its own rate"
+        )
     gaps = find_gaps(t)
     if gaps:
         total = sum(b - a for a, b in gaps)
