@@ -297,7 +297,7 @@ IMU_KEYS = {
     "turn_on_bias_from_data",
 }
 
-IMU_SAMPLE_TIMINGS = ("instant", "held")  # fgins.factors.imu_samples.SAMPLE_TIMINGS
+IMU_SAMPLE_TIMINGS = ("instant", "held", "mean")  # fgins.factors.imu_samples.SAMPLE_TIMINGS
 # [imu] keys that describe the data, not the sensor's noise: kept under a user's preset.
 IMU_DATA_KEYS = ("sample_timing",)
 
@@ -331,7 +331,8 @@ IMU_SCHEMA: dict[str, Check] = {
     "integration_sigma_m_per_s2_per_sqrt_hz": NON_NEGATIVE,
     "rate_hz": POSITIVE,
     # What a sample stands for in time (fgins.factors.imu_samples): "instant" (a reading at
-    # its time stamp, the default) or "held" (the mean over the interval to the next one).
+    # its time stamp, the default), "held" (the interval's increments to the next one over its
+    # length, in the axes at its start) or "mean" (the plain mean of the readings over it).
     "sample_timing": Check("str", choices=IMU_SAMPLE_TIMINGS),
     # false: keep the configured white noise even where the data at rest show more
     # (fgins.noise_at_rest).
@@ -718,7 +719,7 @@ class RunConfig:
 
     @property
     def imu_sample_timing(self) -> str:
-        """"instant" or "held" (:mod:`fgins.factors.imu_samples`)."""
+        """"instant", "held" or "mean" (:mod:`fgins.factors.imu_samples`)."""
         return str(self.imu.get("sample_timing", "instant"))
 
     def checked(self) -> RunConfig:
