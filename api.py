@@ -1246,7 +1246,10 @@ def bench(
     # fit that does not hold): its row's numbers mean nothing without it (outside tester:
     # an EKF+RTS row at "100 % in 3 sigma" whose smooth run warned "not to be trusted").
     for result in case.results:
-        said.extend(f"bench: {result.method}: {line}" for line in result.warnings)
+        said.extend(  # once the method's name (a filter's own notes begin with it)
+            f"bench: {line if line.startswith(f'{result.method}: ') else f'{result.method}: {line}'}"
+            for line in result.warnings
+        )
     rows = {result.method for result in case.results}
     if baseline not in rows:
         said.append(

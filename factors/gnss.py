@@ -557,7 +557,7 @@ def no_usable_gnss_error(
         parts.append(f"{withheld} withheld by the outage windows")
     if counts["gated_pdop"]:
         parts.append(
-            f"{counts['gated_pdop']} gated by PDOP > {config.pdop_max} ([gnss] pdop_max)"
+            f"{counts['gated_pdop']} gated by PDOP > {config.pdop_max:g} ([gnss] pdop_max)"
         )
     if counts["gated_quality"]:
         quality = dataset.gnss.fix_quality

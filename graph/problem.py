@@ -734,7 +734,7 @@ def _gating_summary(counts: dict[str, int], used: int, decimated: int, config: R
     if counts["withheld"]:
         parts.append(f"{counts['withheld']} withheld by outage")
     pdop = config.gnss.pdop_max
-    parts.append(f"{counts['gated_pdop']} gated by PDOP > {pdop}" if pdop else "no PDOP gate")
+    parts.append(f"{counts['gated_pdop']} gated by PDOP > {pdop:g}" if pdop else "no PDOP gate")
     parts.append(f"{counts['gated_quality']} by fix quality")
     if counts["outside_imu_span"]:
         parts.append(f"{counts['outside_imu_span']} outside the IMU time span")
