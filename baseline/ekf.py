@@ -987,6 +987,22 @@ def trajectory_info(run: FilterRun, epochs: GnssEpochs) -> dict[str, object]:
                 "converge)"
             )
         turned = _largest_unaided_turn_deg(run, epochs)
+        anywhere = float(run.counts.get("rts_largest_turn_deg", 0.0))
+        if turned <= RTS_NONLINEAR_DEG and run.counts.get("relinearisation_abandoned") and (
+            anywhere > RTS_NONLINEAR_ANYWHERE_DEG
+        ):
+            # Beside fixes too, a turn this large is no linear correction: a multirotor
+            # hovering its first minute (heading unseen) was turned 99-139 deg there, and the
+            # heading stayed 1-3.5 deg off at sigmas of 0.2-0.35 deg, the track 6.5 m off
+            # inside the outage after it and 5.8 m at fixes it used (17 sigma), unsaid
+            # (outside tester).
+            info["fit_warnings"] = [
+                f"EKF+RTS: the smoother turns the filter's attitude by up to {anywhere:.0f} deg "
+                "(where its forward pass could not see it: a hover, a start at rest), far beyond "
+                "what its linear correction carries, and relinearising about the smoothed states "
+                "did not settle it: its track and sigmas are not to be trusted (compare --method "
+                "batch, which relinearises until it converges)"
+            ]
         if turned > RTS_NONLINEAR_DEG:
             # The RTS correction is linear about the forward pass: one this large where no
             # fix holds the track is no correction its covariance describes (an independent
@@ -1251,6 +1267,9 @@ MAX_RELINEARISED_PASSES = 3
 # Left beyond this after the relinearised passes (deg), the smoothed output is said to be
 # untrustworthy (the linear correction of a 10 deg attitude error misses by its square).
 RTS_NONLINEAR_DEG = 10.0
+# ... and anywhere, beside fixes too, where the relinearised passes did not settle it (a
+# loop's start heading turned 22-29 deg beside the fixes came out fine).
+RTS_NONLINEAR_ANYWHERE_DEG = 45.0
 RTS_UNAIDED_GAP_S = 5.0  # a boundary this far from any fix used: no fix holds the track there
 
 

@@ -149,3 +149,29 @@ def test_an_rts_correction_beyond_its_linear_range_is_said(tmp_path, monkeypatch
     assert len(said) == 1, said
     assert said[0].startswith("EKF+RTS: the smoother turns the filter's attitude by up to ")
     assert f"more than {ekf.RTS_UNAIDED_GAP_S:g} s from any fix" in said[0]
+
+
+@pytest.mark.parametrize(("turn_deg", "abandoned", "said"), [
+    (139.0, True, True), (64.0, True, True), (24.0, True, False), (139.0, False, False),
+])  # fmt: skip
+def test_a_smoother_turning_the_attitude_far_beside_fixes_says_so(monkeypatch, turn_deg, abandoned, said):
+    """The RTS correction is linear about the forward pass. Where it turns the attitude by
+    tens of degrees (a multirotor hovering its first minute, its heading unseen: 99-139 deg)
+    and the relinearised passes do not settle it, the track and sigmas are not trustworthy
+    beside the fixes too (outside tester: heading 1-3.5 deg off at sigmas of 0.2-0.35, the
+    track 5.8 m off at fixes it used, 17 sigma, unsaid). A loop's start heading turned 22-29
+    deg came out fine: not said."""
+    from types import SimpleNamespace
+
+    from fgins.baseline import ekf
+
+    monkeypatch.setattr(ekf, "_largest_unaided_turn_deg", lambda run, epochs: 0.0)
+    counts = {"forward_passes": 4, "relinearised_passes": 0, "rts_largest_turn_deg": turn_deg}
+    if abandoned:
+        counts["relinearisation_abandoned"] = 1
+    run = SimpleNamespace(counts=counts, rejected_times=[], zupt_times=[])
+    info = ekf.trajectory_info(run, SimpleNamespace(gating_summary=""))  # type: ignore[arg-type]
+    notes = [w for w in info.get("fit_warnings", []) if "not to be trusted" in w]
+    assert bool(notes) == said, info
+    if said:
+        assert f"up to {turn_deg:.0f} deg" in notes[0] and "--method batch" in notes[0]
