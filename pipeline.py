@@ -800,7 +800,11 @@ def _filter_fit_note(
     # A filter with the car constraints on a vehicle that is not a car (an aircraft's climbs
     # and banks) misses its fixes too; the batch's constraint fit names it, the filters'
     # notes blamed clocks, axes and units only (outside tester: 43 m vertically, rc 0).
-    car = ", the car constraints on a vehicle that is not a car (--vehicle)" if config.smoother.nhc else ""
+    causes = ", the car constraints on a vehicle that is not a car (--vehicle)" if config.smoother.nhc else ""
+    # A saturated sensor the reader said (a +-250 deg/s gyro in 300 deg/s rolls) is a cause
+    # too; the refusal had listed every other (outside tester).
+    if any("the sensor saturated at its measuring range" in str(w) for w in dataset.warnings):
+        causes += ", a saturated gyro or accelerometer (said above: set the IMU to a wider range)"
     if len(epochs.t) == 0 or len(trajectory) < 2:
         return []
     _, whitened = _whitened_fix_residuals(epochs, config, trajectory)
@@ -827,7 +831,7 @@ def _filter_fit_note(
             raise FginsError(
                 f"{method} diverged: its track does not fit the GNSS fixes it used (horizontal "
                 f"residuals chi2/dof {chi2:.3g}, about 1 or below expected); no output written. "
-                f"IMU gaps, axes or units{car}, noise too small for this IMU, or IMU and GNSS "
+                f"IMU gaps, axes or units{causes}, noise too small for this IMU, or IMU and GNSS "
                 "on different clocks (--time-offset): compare --method batch, which says more"
             )
         planar = (
@@ -841,7 +845,7 @@ def _filter_fit_note(
             f"{method}: its track does not fit the GNSS fixes it used: horizontal residuals "
             f"chi2/dof {chi2:.3g} (about 1 or below expected from their sigmas); {planar}the "
             f"{estimate} diverged (IMU gaps, axes or units, noise too small for this IMU, IMU "
-            f"and GNSS on different clocks: --time-offset{car.replace(' (--vehicle)', ': --vehicle')}), it "
+            f"and GNSS on different clocks: --time-offset{causes.replace(' (--vehicle)', ': --vehicle')}), it "
             "took a crawl for a stop, or the "
             "GNSS sigmas are too small: compare --method batch, which checks its own fit"
         ), *heights_only]
@@ -856,7 +860,7 @@ def _filter_fit_note(
             f"{method}: its IMU predictions miss the GNSS fixes far more often than its "
             f"covariance allows (the Huber kernel down-weighted {100 * downweighted:.0f} % of "
             "their components, under 1 % expected without multipath): IMU and GNSS on different "
-            f"clocks or the velocities late (--time-offset), wrong axes or units{car}, or IMU noise "
+            f"clocks or the velocities late (--time-offset), wrong axes or units{causes}, or IMU noise "
             "set far too small; its output and sigmas are not to be trusted: compare --method batch, "
             "which checks its own fit"
         ), *heights_only]
@@ -865,7 +869,7 @@ def _filter_fit_note(
         return [(
             f"{method}: its IMU predictions miss the GNSS fixes by far more than its covariance "
             f"says (median normalised innovation {nis:.3g} per dimension, ~0.8 expected): IMU "
-            f"and GNSS on different clocks (--time-offset), wrong axes or units{car}, or IMU "
+            f"and GNSS on different clocks (--time-offset), wrong axes or units{causes}, or IMU "
             "noise set far too small; its output and sigmas are not to be trusted: compare --method "
             "batch, which checks its own fit"
         ), *heights_only]

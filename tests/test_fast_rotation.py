@@ -149,3 +149,27 @@ def test_saturation_is_a_run_on_the_extreme_not_a_large_or_repeated_value():
     ramp = np.clip(t - 2.0, 0.0, 1.0) * np.clip(12.0 - t, 0.0, 1.0)
     noise_free = np.column_stack([3.0 * ramp, 0 * t, 0.5 * np.sin(t), 0 * t, 9.81 * np.sin(0.3 * ramp), 9.81 + 0 * t])
     assert find_saturation(noise_free) == []
+
+
+def test_a_filter_on_a_saturated_gyro_names_the_saturation_among_its_causes(tmp_path):
+    """The forward EKF on the pirouetting multirotor with a +-150 deg/s gyro misses its fixes:
+    its note listed clocks, axes, units and noise, never the saturation the reader had just
+    reported (outside tester: EKF+RTS refused as diverged so)."""
+    folder = write_flight(tmp_path / "flight", _spinning_multirotor(720.0, 2.0), 70.0, seed=11,
+                          vehicle="uav", gnss_rate=5.0)  # fmt: skip
+    imu = pd.read_csv(folder / "imu.csv")
+    limit = np.radians(150.0)
+    for axis in ("gyro_x", "gyro_y", "gyro_z"):
+        imu[axis] = imu[axis].clip(-limit, limit)
+    imu.to_csv(folder / "imu.csv", index=False, float_format="%.10e")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", fgins.FginsWarning)
+        dataset = fgins.load(folder, vehicle="uav")
+    try:
+        track = fgins.smooth(dataset, "ekf", gnss_outage=[OUTAGE])
+    except fgins.FginsError as refused:
+        notes = [str(refused)]
+    else:
+        notes = [w for w in track.info.get("fit_warnings", []) if "its IMU predictions miss" in w]
+    assert notes  # the case this test is about
+    assert all("saturated gyro or accelerometer" in note for note in notes), notes
