@@ -102,11 +102,11 @@ def variance_ratio(t: np.ndarray, whitened: np.ndarray) -> tuple[float, float]:
         scale = 1.4826 * float(np.median(np.abs(x[finite]))) or 1.0
         x = np.clip(np.where(finite[:, None], x, 0.0), -CLIP_SIGMAS * scale, CLIP_SIGMAS * scale)
         means = []
-        for r in np.unique(run[finite]):
-            members = np.flatnonzero((run == r) & finite)
-            whole = len(members) // size * size
+        members = np.flatnonzero(finite)  # in time order, so each run's are consecutive
+        for group in np.split(members, np.flatnonzero(np.diff(run[members])) + 1):
+            whole = len(group) // size * size
             if whole:
-                means.append(x[members[:whole]].reshape(-1, size, x.shape[1]).mean(axis=1))
+                means.append(x[group[:whole]].reshape(-1, size, x.shape[1]).mean(axis=1))
         blocks = np.concatenate(means) if means else np.zeros((0, x.shape[1]))
         if len(blocks) < MIN_BLOCKS:
             out.append(float("nan"))
