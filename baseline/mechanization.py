@@ -32,6 +32,7 @@ import numpy as np
 
 from fgins.config import ImuNoise
 from fgins.datatypes import Origin
+from fgins.factors.imu_samples import segment_leads
 from fgins.geodesy import (
     earth_rate_enu,
     gravity_enu,
@@ -190,7 +191,7 @@ def segment_imu(imu_t: np.ndarray, times: np.ndarray) -> Segments:
     sample = np.clip(np.searchsorted(imu_t, seg_start, side="right") - 1, 0, len(imu_t) - 1)
     bounds = np.searchsorted(seg_start, times, side="left")
     bounds[-1] = len(seg_start)
-    lead = np.maximum(seg_start - imu_t[sample], 0.0)
+    lead = segment_leads(imu_t, seg_start, sample)
     return Segments(times=times, start=seg_start, dt=np.diff(starts), sample=sample, bounds=bounds, lead=lead)
 
 

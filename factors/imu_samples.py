@@ -134,6 +134,19 @@ def for_integration(imu: ImuData, sample_timing: str) -> ImuData:
     return held_from_means(imu) if sample_timing == "mean" else imu
 
 
+def segment_leads(imu_t: np.ndarray, start: np.ndarray, sample: np.ndarray) -> np.ndarray:
+    """How long after its sample's time each integration segment starts (s; 0 for the first
+    piece of an interval and inside a gap, where nothing is known and the sample is kept as
+    it is): the ``lead`` :func:`cut_sample_accel` turns back by."""
+    imu_t = np.asarray(imu_t, dtype=float)
+    lead = np.maximum(np.asarray(start, dtype=float) - imu_t[sample], 0.0)
+    if len(imu_t) < 2:
+        return lead
+    interval = np.diff(imu_t)
+    regular = np.append(interval <= GAP_PERIODS * local_periods(imu_t), False)  # the last: no next
+    return np.where(regular[sample], lead, 0.0)
+
+
 def cut_sample_accel(accel: np.ndarray, gyro: np.ndarray, lead: np.ndarray) -> np.ndarray:
     """The held specific force of integration segments that start ``lead`` seconds (>= 0)
     after their sample's time, in each segment's own start axes (rows of ``accel``/``gyro``,

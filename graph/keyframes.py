@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgins.datatypes import ImuData
-from fgins.factors.imu_samples import cut_sample_accel
+from fgins.factors.imu_samples import cut_sample_accel, segment_leads
 
 
 @dataclass
@@ -132,5 +132,5 @@ def build_segments(imu: ImuData, times: np.ndarray) -> Segments:
         suspect |= (mid > a) & (mid < b)
     return Segments(
         times=times, start=seg_start, dt=dt, sample=sample, bounds=bounds, suspect=suspect,
-        lead=np.maximum(seg_start - imu.t[sample], 0.0),
+        lead=segment_leads(imu.t, seg_start, sample),
     )  # fmt: skip
