@@ -411,10 +411,11 @@ def pressure_before(baro: BaroData | None, times: np.ndarray, window_s: float) -
     hi = np.searchsorted(t, times, side="right")
     filled = hi > lo
     count = (hi - lo)[filled]
-    for values, out in ((pressure, pressure_out), (t, age)):
+    # (times about the first sample: sums of POSIX times would keep ~0.01 s of a mean)
+    for values, out in ((pressure, pressure_out), (t - t[0], age)):
         cumulative = np.concatenate([[0.0], np.cumsum(values)])
         out[filled] = (cumulative[hi[filled]] - cumulative[lo[filled]]) / count
-    age[filled] = times[filled] - age[filled]
+    age[filled] = (times[filled] - t[0]) - age[filled]
     return pressure_out, age
 
 

@@ -412,3 +412,16 @@ def test_the_kalman_baselines_apply_the_nhc_lever_arm_as_the_graph_does(urban, l
         assert results["wrong", method] > 1.3 * results["right", method], results
     ratio = results["wrong", "ekf-rts"] / results["wrong", "batch"]
     assert 0.75 < ratio < 1.33, results
+
+
+@pytest.mark.parametrize("t0", [0.0, 1.7e9])
+def test_the_barometer_means_age_is_exact_at_posix_times(t0):
+    """The filters take out the age of the barometer's window mean with the climb rate: at
+    POSIX times a sum of stamps would keep ~0.01 s of it (0.1 m at 10 m/s)."""
+    from fgins.datatypes import BaroData
+
+    t = t0 + np.arange(0.0, 10000.0, 0.1)
+    baro = BaroData(t=t, pressure=np.full(len(t), 9.0e4), height=None)
+    pressure, age = stationary.pressure_before(baro, t0 + np.array([50.07, 5000.07, 9999.97]), 0.25)
+    np.testing.assert_allclose(pressure, 9.0e4)
+    np.testing.assert_allclose(age, 0.12, atol=1e-6)  # the samples 0.07 and 0.17 s before
