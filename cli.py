@@ -788,7 +788,12 @@ def _summarize_folder(path: Path) -> str:
             f"MCAP, ROS bag, a CSV), a ROS 2 bag folder or a folder written by fgins sim (none "
             f"of {', '.join(SIM_FOLDER_FILES)} here); give a file in it"
         )
-    return "\n".join([f"fgins sim folder {path}", *(_summarize_csv(f) for f in files)])
+    # Written by fgins sim where its config.toml has a [scenario] table; any folder of the
+    # canonical CSVs is read the same way, but was headed "fgins sim folder" too (outside tester).
+    config = path / "config.toml"
+    written_by_sim = config.is_file() and "[scenario]" in config.read_text(errors="replace")
+    heading = f"fgins sim folder {path}" if written_by_sim else f"input folder {path}"
+    return "\n".join([heading, *(_summarize_csv(f) for f in files)])
 
 
 def _rate(t: np.ndarray) -> float:

@@ -93,9 +93,13 @@ def test_inspect_of_a_sim_folder_summarises_its_csvs(tmp_path: Path, capsys) -> 
     capsys.readouterr()
     assert main(["inspect", str(folder)]) == 0
     out = capsys.readouterr().out
-    assert f"fgins sim folder {folder}" in out
+    # not written by fgins sim (no config.toml with a [scenario]): not called one
+    assert f"input folder {folder}" in out and "fgins sim" not in out
     assert "imu.csv: IMU, 200 samples" in out and "gnss.csv: GNSS, 2 fixes" in out
     assert "NMEA" not in out
+    (folder / "config.toml").write_text('[scenario]\nname = "car-urban"\n')
+    assert main(["inspect", str(folder)]) == 0
+    assert f"fgins sim folder {folder}" in capsys.readouterr().out
 
 
 def test_inspect_of_another_folder_says_it_is_no_log(tmp_path: Path, capsys) -> None:
