@@ -302,7 +302,8 @@ def load(
     items = [os.fspath(item) for item in inputs]
     dataset = load_dataset(
         items, time_offset_s=float(time_offset), imu_topic=imu_topic, gnss_topic=gnss_topic,
-        progress=progress, vehicle=vehicle or _configured_vehicle(config),
+        progress=progress, vehicle=vehicle or _configured(config, "smoother", "vehicle"),
+        sample_timing=_configured(config, "imu", "sample_timing"),
     )  # fmt: skip
     dataset.metadata["inputs"] = items
     dataset.metadata["run_config"] = configure(
@@ -321,22 +322,27 @@ def load(
     return dataset
 
 
-def _configured_vehicle(config: str | os.PathLike[str] | RunConfig | None) -> str | None:
-    """The ``[smoother] vehicle`` of ``config`` (the input checks need it before the run
-    configuration is resolved: a multirotor need not yaw with its track), or None. A file
-    that cannot be read gives None here; :func:`configure` then reports it properly."""
+def _configured(
+    config: str | os.PathLike[str] | RunConfig | None, table: str, key: str
+) -> str | None:
+    """``config``'s ``[table] key`` when it is text (the input checks need the vehicle, a
+    multirotor need not yaw with its track, and the IMU's sample timing before the run
+    configuration is resolved), or None. A file that cannot be read gives None here;
+    :func:`configure` then reports it properly."""
     from fgins.config import RunConfig, read_config_table
 
     if config is None:
         return None
     if isinstance(config, RunConfig):
-        return config.smoother.vehicle
+        resolved = {("smoother", "vehicle"): config.smoother.vehicle,
+                    ("imu", "sample_timing"): config.imu_sample_timing}  # fmt: skip
+        return resolved[table, key]
     try:
-        table = read_config_table(config)
+        read = read_config_table(config)
     except ConfigError:
         return None
-    vehicle = (table.get("smoother") or {}).get("vehicle")
-    return vehicle if isinstance(vehicle, str) else None
+    value = (read.get(table) or {}).get(key)
+    return value if isinstance(value, str) else None
 
 
 def _simulate(
@@ -536,7 +542,7 @@ def smooth(
         run_config = configure(dataset, config, **choices)  # type: ignore[arg-type]
     # A RunConfig is mutable: one changed in code since it was made is checked again here.
     run_config = run_config.checked()
-    dataset = _checked_input(dataset, run_config.smoother.vehicle)
+    dataset = _checked_input(dataset, run_config.smoother.vehicle, run_config.imu_sample_timing)
     run_method_name = "isam2-online" if online else method
     mask = outage_mask(dataset, windows)
     started = time.perf_counter()
@@ -568,7 +574,7 @@ def smooth(
     return trajectory
 
 
-def _checked_input(dataset: Dataset, vehicle: str) -> Dataset:
+def _checked_input(dataset: Dataset, vehicle: str, sample_timing: str) -> Dataset:
     """``dataset`` through the input checks every reader's goes through (fgins.io.validate),
     unless it already was: a Dataset made in code from arrays had skipped them, and an
     accelerometer in g was smoothed 45 m off without a word. Their findings are warned."""
@@ -576,7 +582,7 @@ def _checked_input(dataset: Dataset, vehicle: str) -> Dataset:
         return dataset
     from fgins.io.validate import validate_dataset
 
-    checked = validate_dataset(dataset, vehicle=vehicle)
+    checked = validate_dataset(dataset, vehicle=vehicle, sample_timing=sample_timing)
     for message in checked.warnings[len(dataset.warnings) :]:
         warnings.warn(message, FginsWarning, stacklevel=3)
     return checked
@@ -1148,7 +1154,7 @@ def bench(
     else:  # as smooth(): load's explicit choices over a file
         run_config = configure(dataset, config, **(dataset.metadata.get("run_choices") or {}))
     run_config = run_config.checked()  # a RunConfig changed in code is checked again
-    dataset = _checked_input(dataset, run_config.smoother.vehicle)
+    dataset = _checked_input(dataset, run_config.smoother.vehicle, run_config.imu_sample_timing)
     array_only = [m for m in methods if m.startswith("ekf18")]
     if array_only and dataset.accel_array is None:
         # Known before any solve: not a run of the others and a row of nothing.

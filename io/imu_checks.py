@@ -12,7 +12,7 @@ Two halves, one policy for every format:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -38,6 +38,21 @@ def find_gaps(t: np.ndarray, factor: float = GAP_FACTOR) -> list[tuple[float, fl
     dt = np.diff(t)
     idx = np.flatnonzero(dt > factor * local_periods(t))
     return [(float(t[i]), float(t[i + 1])) for i in idx]
+
+
+def imu_at_instants(imu: ImuData, sample_timing: str) -> ImuData:
+    """``imu`` stamped at the instants its samples stand for, for checks that line its
+    rotation up with the fixes in time: an "instant" sample at its stamp, a "held" or "mean"
+    one (over the interval to the next sample) at the middle of that interval; the last
+    sample, and one before a gap, by the IMU's local period. The readings are not changed."""
+    from fgins.factors.imu_samples import local_periods
+
+    if sample_timing == "instant" or len(imu.t) < 2:
+        return imu
+    period = local_periods(imu.t)
+    step = np.minimum(np.diff(imu.t), period)
+    middle = imu.t + 0.5 * np.concatenate([step, period[-1:]])
+    return replace(imu, t=middle)
 
 
 def true_runs(mask: np.ndarray) -> list[tuple[int, int]]:

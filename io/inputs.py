@@ -90,12 +90,14 @@ def _piece_of_split_bag(path: Path) -> tuple[Path, str] | None:
     )
 
 
-def validated(dataset: Dataset, vehicle: str | None = None) -> Dataset:
+def validated(
+    dataset: Dataset, vehicle: str | None = None, sample_timing: str | None = None
+) -> Dataset:
     """The one call of the input-validation layer (checks, repairs, counted warnings)."""
     from fgins.io.validate import validate_dataset
 
     # The vehicle the data carry (a sim folder's config.toml) when no other is given.
-    return validate_dataset(dataset, vehicle=vehicle or dataset.vehicle)
+    return validate_dataset(dataset, vehicle=vehicle or dataset.vehicle, sample_timing=sample_timing)
 
 
 #: Largest ``--time-offset`` magnitude taken (s, about 317 years; GNSS in seconds of the day
@@ -124,10 +126,12 @@ def load_dataset(
     gnss_topic: str | None = None,
     progress: bool = True,
     vehicle: str | None = None,
+    sample_timing: str | None = None,
 ) -> Dataset:
     """Read ``inputs`` with the reader for their format and check the result (see module).
     ``vehicle``: the vehicle type when known (some checks assume a body that yaws with its
-    track, which a multirotor need not).
+    track, which a multirotor need not); ``sample_timing``: the ``[imu] sample_timing`` when
+    given (else the data's own, e.g. a sim folder's config.toml).
     ``time_offset_s`` is added to the GNSS times, whatever the format (a receiver logging
     GPS time against an IMU in UTC: -18)."""
     check_time_offset(time_offset_s)
@@ -145,7 +149,7 @@ def load_dataset(
             dataset.metadata["gnss_first_epoch_t"] = first + time_offset_s
     if time_offset_s:
         dataset.metadata["gnss_time_offset_s"] = time_offset_s
-    return validated(dataset, vehicle)
+    return validated(dataset, vehicle, sample_timing)
 
 
 def _parse(

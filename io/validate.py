@@ -60,7 +60,7 @@ from fgins.io.baro_checks import (
     given_as_height,
 )
 from fgins.io.gnss_checks import check_gnss, check_time_bases, report_gnss_time_gaps
-from fgins.io.imu_checks import drop_out_of_range, flag_suspect, repair_spikes
+from fgins.io.imu_checks import drop_out_of_range, flag_suspect, imu_at_instants, repair_spikes
 from fgins.io.motion_checks import (
     FREE_BODY_VEHICLES,
     SHORT_IMU_S,
@@ -81,15 +81,20 @@ from fgins.io.motion_checks import (
 )
 
 
-def validate_dataset(dataset: Dataset, vehicle: str | None = None) -> Dataset:
+def validate_dataset(
+    dataset: Dataset, vehicle: str | None = None, sample_timing: str | None = None
+) -> Dataset:
     """Check and repair ``dataset`` (see the module docstring); returns the checked dataset.
+    ``sample_timing``: what an IMU sample stands for (``[imu] sample_timing``: "instant",
+    "held", "mean"; by default the dataset's own ``imu_config``'s, else "instant").
 
     Idempotent: a dataset already checked is returned unchanged.
     """
     if dataset.metadata.get("input_checks") is not None:
         return dataset
     try:
-        return _validated(dataset, vehicle)
+        timing = sample_timing or dataset.imu_config.get("sample_timing") or "instant"
+        return _validated(dataset, vehicle, str(timing))
     except InputError as exc:
         # An IMU that fails a check in a file with several IMU topics: another topic may be
         # the right one (the reader picked the one with most messages, or the first by name).
@@ -103,7 +108,7 @@ def validate_dataset(dataset: Dataset, vehicle: str | None = None) -> Dataset:
         ) from None
 
 
-def _validated(dataset: Dataset, vehicle: str | None) -> Dataset:
+def _validated(dataset: Dataset, vehicle: str | None, sample_timing: str) -> Dataset:
     checks: list[str] = []
     check_imu_time_unit(dataset.imu.t)
     imu = flag_suspect(repair_spikes(drop_out_of_range(dataset.imu, checks), checks), checks)
@@ -132,30 +137,34 @@ def _validated(dataset: Dataset, vehicle: str | None) -> Dataset:
     if vehicle not in FREE_BODY_VEHICLES:  # after the time bases: a time unit shrinks speeds too
         check_track_scale_by_turns(gnss, enu, imu, up)
     given_offset = dataset.metadata.get("gnss_time_offset_s")
+    # The checks that line the gyro's turns up with the track's in time read each sample at
+    # the instant it stands for: a held or mean sample, the middle of its interval (a 2 Hz
+    # IMU of means read at its stamps was "fixes stamped 0.28 s late", outside tester).
+    at_instants = imu_at_instants(imu, sample_timing)
     try:
         check_units(
-            imu, gnss, origin, checks, has_accel_array=dataset.accel_array is not None,
+            at_instants, gnss, origin, checks, has_accel_array=dataset.accel_array is not None,
             body_follows_track=vehicle not in FREE_BODY_VEHICLES,
         )  # fmt: skip
     except TurnsDisagree:
         # Turns that line up at another time are offset clocks, and the offset is the fix
         # (GPS time against UTC: "the gyro does not see the turns", its ratio 0.05).
         clock_offset_explains_turns(
-            imu, gnss, enu, up, origin, given_offset, banks=vehicle == "aircraft"
+            at_instants, gnss, enu, up, origin, given_offset, banks=vehicle == "aircraft"
         )  # fmt: skip
         raise
     if vehicle not in FREE_BODY_VEHICLES and dataset.accel_array is None:
         check_clock_offset(
-            imu, gnss, enu, up, origin, checks, given_offset, banks=vehicle == "aircraft"
+            at_instants, gnss, enu, up, origin, checks, given_offset, banks=vehicle == "aircraft"
         )  # fmt: skip
-        check_accel_handedness(imu, gnss, enu)
+        check_accel_handedness(at_instants, gnss, enu)
     if vehicle != "car" and dataset.accel_array is None:
         # Aircraft (banked turns put no force across the body), vehicles that need not
         # follow their track, and any vehicle not known to be a car, which the track test
         # may not judge: the 3-D fit, said as a warning (~0.1 s on a 10 min flight).
         from fgins.geodesy import normal_gravity
 
-        note = handedness_note_3d(imu, gnss, enu, normal_gravity(origin.lat, origin.alt))
+        note = handedness_note_3d(at_instants, gnss, enu, normal_gravity(origin.lat, origin.alt))
         if note:
             checks.append(note)
     check_gnss_velocity(gnss, origin)
