@@ -1,7 +1,8 @@
 """18-state error-state EKF for a gyro-free IMU (accelerometer array + GNSS), numpy only.
 
 Error states: position (3), velocity (3), attitude ``phi`` (3, ENU, ``R_true = Exp(phi) R``),
-angular rate (3, body, ``w_true = w + dw``) and the biases of the six accelerometers (6).
+angular rate (3, body, ``w_true = w + dw``) and the biases of the N accelerometers (N): 18
+for the study's cube of six, 12 + N for any array of N >= 6 the front end solves.
 The filter propagates from the *raw array readings*, not from the front end's integrated rate:
 with readings A (bias-corrected by the estimate), P the least-squares solver of the geometry
 and G = P Q its centripetal coupling (:mod:`fgins.factors.accel_array`),
@@ -27,7 +28,7 @@ Land-vehicle pseudo-measurements at every block boundary, switched and weighted 
 ``config.smoother`` settings as the graph's factors (:mod:`fgins.factors.vehicle`): at a stop
 (quiet array and predicted speed below ``zupt_max_speed_m_per_s``) ZUPT plus a zero-angular-
 rate update (rate = Earth rate), which observes the rate state and through it the alpha-bias
-combinations of the six biases; otherwise the non-holonomic constraint. Why: the array's rate
+combinations of the biases; otherwise the non-holonomic constraint. Why: the array's rate
 is a random walk (0.8 deg/s/sqrt(s) for the tactical 0.1 m cube) driven further by residual
 biases; 1 Hz GNSS positions alone observe it too weakly and the filter lost the attitude.
 """
@@ -65,13 +66,20 @@ from fgins.geodesy import so3_exp, so3_log
 from fgins.initial_guess import KeyframeGuess
 from fgins.mounting import mounting_rotation
 
-STATE_DIM = 18
+NAV_RATE_DIM = 12  # position, velocity, attitude, rate; the N biases follow
 POS = slice(0, 3)
 VEL = slice(3, 6)
 ATT = slice(6, 9)
 RATE = slice(9, 12)
-BIAS = slice(12, 18)
-# Random walk of the six accelerometer biases (m/s^2/sqrt(s)): constants in the model, but a
+BIAS = slice(NAV_RATE_DIM, None)  # one per accelerometer
+
+
+def state_dim(n_sensors: int) -> int:
+    """Error states of the filter for an array of ``n_sensors`` accelerometers."""
+    return NAV_RATE_DIM + n_sensors
+
+
+# Random walk of the accelerometer biases (m/s^2/sqrt(s)): constants in the model, but a
 # tiny walk keeps the covariance from collapsing over long drives.
 BIAS_RANDOM_WALK = 1e-6
 INITIAL_RATE_SIGMA = 1e-3  # rad/s: the front end's w0 (zero) misses the Earth rate and more
@@ -102,6 +110,7 @@ class _ArrayModel:
         coupling = solver @ array.centripetal_matrix()
         self.coupling_f, self.coupling_alpha = coupling[:3], coupling[3:]
         self.n_sensors = len(array)
+        self.dim = state_dim(self.n_sensors)
         self.noise_density = data.noise_density
 
     def alpha(self, readings: np.ndarray, rate: np.ndarray) -> np.ndarray:
@@ -141,7 +150,7 @@ def _segment_transitions(
     dt: np.ndarray,
     frame: NavFrame,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Per-segment error-state transitions and process noise, each (n, 18, 18)."""
+    """Per-segment error-state transitions and process noise, each (n, 12 + N, 12 + N)."""
     n = len(dt)
     eye = np.eye(3)
     d1 = dt[:, None, None]
@@ -151,11 +160,11 @@ def _segment_transitions(
     m_jac = _rate_jacobian(rate)
     df_dw = -np.einsum("ij,njk->nik", model.coupling_f, m_jac)  # (n, 3, 3)
     dalpha_dw = -np.einsum("ij,njk->nik", model.coupling_alpha, m_jac)
-    r_pf = -rotation @ model.solver_f  # (n, 3, 6): d(R f)/db
-    pa = -model.solver_alpha  # (3, 6): d alpha/db
+    r_pf = -rotation @ model.solver_f  # (n, 3, N): d(R f)/db
+    pa = -model.solver_alpha  # (3, N): d alpha/db
     r_df_dw = rotation @ df_dw
 
-    phi = np.tile(np.eye(STATE_DIM), (n, 1, 1))
+    phi = np.tile(np.eye(model.dim), (n, 1, 1))
     phi[:, POS, VEL] = eye * d1 - w_x * d2
     phi[:, POS, ATT] = -0.5 * f_x * d2
     phi[:, POS, RATE] = 0.5 * r_df_dw * d2
@@ -170,8 +179,8 @@ def _segment_transitions(
     phi[:, RATE, RATE] += dalpha_dw * d1
     phi[:, RATE, BIAS] = pa * d1
 
-    # Sensor white noise n (6,) held over dt (variance sigma^2 / dt) enters like a bias.
-    noise_in = np.zeros((n, STATE_DIM, model.n_sensors))
+    # Sensor white noise n (N,) held over dt (variance sigma^2 / dt) enters like a bias.
+    noise_in = np.zeros((n, model.dim, model.n_sensors))
     noise_in[:, POS] = 0.5 * r_pf * d2
     noise_in[:, VEL] = r_pf * d1
     noise_in[:, ATT] = 0.5 * rotation @ pa * d2
@@ -230,13 +239,14 @@ def quiet_array(model: _ArrayModel, data: AccelArrayData, times: np.ndarray) -> 
 
 
 def standstill_measurement(
-    nav: NominalState, rate: np.ndarray, frame: NavFrame, smoother: SmootherConfig
+    nav: NominalState, rate: np.ndarray, frame: NavFrame, smoother: SmootherConfig, dim: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """ZUPT + ZARU at a stop: velocity zero and inertial body rate = the Earth rate.
+    """ZUPT + ZARU at a stop: velocity zero and inertial body rate = the Earth rate
+    (``dim``: the filter's error states).
 
     The rate is the ekf18 state that the angular-acceleration biases drive, so a stop observes
-    the alpha-bias combinations of the six accelerometer biases directly."""
-    h = np.zeros((6, STATE_DIM))
+    the alpha-bias combinations of the accelerometer biases directly."""
+    h = np.zeros((6, dim))
     h[0:3, VEL] = np.eye(3)
     h[3:6, RATE] = np.eye(3)
     residual = np.concatenate([-nav.velocity, nav.rotation.T @ frame.earth_rate - rate])
@@ -245,15 +255,16 @@ def standstill_measurement(
 
 
 def nhc_measurement(
-    nav: NominalState, mounting: np.ndarray, smoother: SmootherConfig
+    nav: NominalState, mounting: np.ndarray, smoother: SmootherConfig, dim: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Non-holonomic constraint: vehicle-frame lateral and vertical velocity are zero.
+    """Non-holonomic constraint: vehicle-frame lateral and vertical velocity are zero
+    (``dim``: the filter's error states).
 
     Same model as :func:`fgins.factors.vehicle.nhc_factor`, in this filter's left (ENU)
     attitude error R_true = Exp(phi) R: v_b = R^T v + R^T dv + R^T [v]x phi."""
     select = mounting[1:3]  # R_vi rows: the vehicle's y and z axes in IMU axes
     rotation_t = nav.rotation.T
-    h = np.zeros((2, STATE_DIM))
+    h = np.zeros((2, dim))
     h[:, VEL] = select @ rotation_t
     h[:, ATT] = select @ rotation_t @ skew_batch(nav.velocity)
     residual = -(select @ rotation_t @ nav.velocity)
@@ -272,6 +283,7 @@ class _NodeStore:
         n_nodes: int,
         n_boundaries: int,
         keep: np.ndarray | None,
+        dim: int,
         rate_error: tuple[np.ndarray, np.ndarray, IntervalSums] | None = None,
     ) -> None:
         # (node of every sample, front-end rate per sample, sums at the interval bounds):
@@ -285,15 +297,16 @@ class _NodeStore:
         self.position = np.empty((m, 3))
         self.rate = np.empty((m, 3))
         full = n_boundaries if self.keep is None else 0
-        shape = (full, STATE_DIM, STATE_DIM)
+        self.dim = dim
+        shape = (full, dim, dim)
         self.cov_prior = np.empty(shape)
         self.cov_post = np.empty(shape)
         # For the RTS smoother (full output only): each block's transition and the states at
         # every boundary before and after its updates (rotation, velocity, position, rate,
-        # the six biases), O(boundaries) memory.
-        self.transition = np.empty((max(full - 1, 0), STATE_DIM, STATE_DIM))
-        self.boundary_prior = _BoundaryStates(full)
-        self.boundary_post = _BoundaryStates(full)
+        # the N biases), O(boundaries) memory.
+        self.transition = np.empty((max(full - 1, 0), dim, dim))
+        self.boundary_prior = _BoundaryStates(full, dim)
+        self.boundary_post = _BoundaryStates(full, dim)
 
     def _add_rate_error(self, first: int, stop: int, rates: np.ndarray) -> None:
         if self.rate_error is None:
@@ -341,19 +354,20 @@ class _NodeStore:
             self.transition[b] = phi
 
 
-# (navigation state, angular rate, the six accelerometer biases) at a block boundary
+# (navigation state, angular rate, the N accelerometer biases) at a block boundary
 _State = tuple[NominalState, np.ndarray, np.ndarray]
 
 
 class _BoundaryStates:
     """The filter's states at every block boundary, as arrays."""
 
-    def __init__(self, n: int) -> None:
+    def __init__(self, n: int, dim: int) -> None:
+        self.dim = dim
         self.rotation = np.empty((n, 3, 3))
         self.velocity = np.empty((n, 3))
         self.position = np.empty((n, 3))
         self.rate = np.empty((n, 3))
-        self.bias = np.empty((n, STATE_DIM - BIAS.start))
+        self.bias = np.empty((n, dim - NAV_RATE_DIM))
 
     def put(self, k: int, state: _State) -> None:
         nav, rate, bias = state
@@ -363,7 +377,7 @@ class _BoundaryStates:
     def from_other(self, other: _BoundaryStates, k: int, dx: np.ndarray) -> np.ndarray:
         """The error state taking boundary k's state here to ``other``'s corrected by ``dx``
         (the attitude error ``R_true = Exp(phi) R``; the rest additive)."""
-        out = np.empty(STATE_DIM)
+        out = np.empty(self.dim)
         rotation = so3_exp(dx[ATT]) @ other.rotation[k]
         out[ATT] = so3_log(rotation @ self.rotation[k].T)
         out[VEL] = other.velocity[k] + dx[VEL] - self.velocity[k]
@@ -487,8 +501,8 @@ def _rts_smooth(store: _NodeStore) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     smoothed covariance (as :func:`fgins.baseline.ekf.rts_smooth` for 15 states)."""
     post, prior = store.boundary_post, store.boundary_prior
     n = len(store.cov_post)
-    from_post = np.zeros((n, STATE_DIM))
-    from_prior = np.zeros((n, STATE_DIM))
+    from_post = np.zeros((n, store.dim))
+    from_prior = np.zeros((n, store.dim))
     cov_smoothed = np.empty_like(store.cov_post)
     cov_smoothed[-1] = store.cov_post[-1]
     from_prior[-1] = prior.from_other(post, n - 1, from_post[-1])
@@ -557,9 +571,9 @@ def _ekf18_pass(
     if rate_error_at is not None:
         sample_node = np.clip(np.searchsorted(node_t, data.t), 0, len(node_t) - 1)
         rate_error = (sample_node, dataset.imu.gyro, IntervalSums(rate_error_at, 3))
-    store = _NodeStore(len(node_t), len(times), keep, rate_error)
+    store = _NodeStore(len(node_t), len(times), keep, model.dim, rate_error)
 
-    # Nominal state: navigation + rate + six biases.
+    # Nominal state: navigation + rate + the N biases.
     nav = NominalState(
         rotation=np.asarray(align.rotation, dtype=float),
         velocity=np.asarray(align.velocity, dtype=float),
@@ -570,7 +584,8 @@ def _ekf18_pass(
     rate = data.initial_rate.copy()
     bias = np.zeros(data.n_sensors)
     bias_sigma = data.bias_sigma if data.bias_sigma is not None else 1e-3 * 9.80665
-    cov = np.zeros((STATE_DIM, STATE_DIM))
+    dim = model.dim
+    cov = np.zeros((dim, dim))
     cov[POS, POS] = np.eye(3) * align.position_sigma**2
     cov[VEL, VEL] = np.eye(3) * align.velocity_sigma**2
     att_sigma = np.asarray(align.attitude_sigma_rad)
@@ -584,14 +599,14 @@ def _ekf18_pass(
     quiet = quiet_array(model, data, times) if smoother.zupt else np.zeros(len(times), bool)
 
     def correct(h: np.ndarray, residual: np.ndarray, variance: np.ndarray) -> None:
-        """Closed-loop linear update of the 18 error states (Joseph form, attitude reset)."""
+        """Closed-loop linear update of the error states (Joseph form, attitude reset)."""
         nonlocal nav, rate, bias, cov
         s = h @ cov @ h.T + np.diag(variance)
         gain = np.linalg.solve(s, h @ cov).T
         dx = gain @ residual
-        i_kh = np.eye(STATE_DIM) - gain @ h
+        i_kh = np.eye(dim) - gain @ h
         cov = i_kh @ cov @ i_kh.T + (gain * variance) @ gain.T  # Joseph form
-        reset = np.eye(STATE_DIM)
+        reset = np.eye(dim)
         reset[ATT, ATT] -= 0.5 * skew_batch(dx[ATT])
         cov = reset @ cov @ reset.T
         cov = 0.5 * (cov + cov.T)
@@ -604,7 +619,7 @@ def _ekf18_pass(
     def gnss_update(k: int) -> None:
         body_rate = rate - nav.rotation.T @ frame.earth_rate
         lin = linearize_gnss(epochs, int(gnss_at[k]), nav, body_rate, lever_arm)
-        h = np.zeros((len(lin.residual), STATE_DIM))
+        h = np.zeros((len(lin.residual), dim))
         h[:, :9] = lin.jacobian[:, :9]
         h[:, RATE] = -lin.jacobian[:, 12:15]  # w_true = w + dw, the gyro bias enters as -dw
         correct(h, lin.residual, lin.variance)
@@ -621,11 +636,11 @@ def _ekf18_pass(
                 zupt_max_speed,
             )
         ):
-            h, residual, variance = standstill_measurement(nav, rate, frame, smoother)
+            h, residual, variance = standstill_measurement(nav, rate, frame, smoother, dim)
             correct(h, residual, variance)
             counts["zupt_updates"] += 1
         elif smoother.nhc:
-            h, residual, variance = nhc_measurement(nav, mounting, smoother)
+            h, residual, variance = nhc_measurement(nav, mounting, smoother, dim)
             correct(h, residual, variance)
             counts["nhc_updates"] += 1
 
@@ -695,7 +710,7 @@ def ekf18_states_at(
     end's samples are not the array's), averaged over each keyframe interval like
     sampling the filter's IMU-rate output (``biases="interval"``; the front end's rate error is
     noisy sample to sample) or at the first sample (``"nearest"``); ``accel_bias`` is zero
-    (this filter estimates the six sensors' biases, not a three-axis one).
+    (this filter estimates each sensor's bias, not a three-axis one).
     """
     from fgins.baseline.ekf import _guess_samples, interval_bounds
 

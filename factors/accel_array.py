@@ -122,11 +122,19 @@ class AccelArray:
             )
 
     @classmethod
-    def cube(cls, half_edge_m: float) -> AccelArray:
-        """Six accelerometers at the face centres of a cube of half-edge L, face-diagonal axes."""
+    def cube(cls, half_edge_m: float, per_face: int = 1) -> AccelArray:
+        """Six accelerometers at the face centres of a cube of half-edge L, face-diagonal axes;
+        ``per_face = 2``: twelve, each face's second along its other diagonal (a redundant
+        array: every reading is tangential, so alpha stays independent of the rate)."""
         if not (math.isfinite(half_edge_m) and half_edge_m > 0):
             raise InputError(f"cube accelerometer array: half-edge {half_edge_m} m must be > 0")
-        return cls(positions=CUBE_UNIT_POSITIONS * half_edge_m, axes=CUBE_AXES.copy())
+        if per_face not in (1, 2):
+            raise InputError(f"cube accelerometer array: {per_face} accelerometers per face; 1 or 2")
+        positions, axes = CUBE_UNIT_POSITIONS * half_edge_m, CUBE_AXES.copy()
+        if per_face == 2:
+            other = np.cross(CUBE_UNIT_POSITIONS, CUBE_AXES)  # in the face, across the first
+            positions, axes = np.vstack([positions, positions]), np.vstack([axes, other])
+        return cls(positions=positions, axes=axes)
 
     def __len__(self) -> int:
         return int(self.positions.shape[0])

@@ -629,14 +629,19 @@ def gyrofree_cube(seed: int = 0, **options: Any) -> SimRun:
     readings and geometry, ``dataset.imu_config`` the equivalent IMU noise. Options:
     ``grade`` (navigation | tactical | automotive, fgins.sim.accel_array.GRADES),
     ``gnss_rate_hz`` (1 or 0.2), ``half_edge_m`` (cube half-edge, default 0.1 m),
-    ``rate_hz`` (array sample rate, default 100), ``duration_s``, ``start_time_s``.
+    ``rate_hz`` (array sample rate, default 100), ``accelerometers`` (6, the study's cube, or
+    12: two per face, :meth:`fgins.factors.accel_array.AccelArray.cube`), ``duration_s``,
+    ``start_time_s``.
     """
     from fgins.factors.accel_array import AccelArray
     from fgins.io.accel_array_csv import accel_array_table, derive_imu, rest_calibration
     from fgins.sim.accel_array import GRADES as ARRAY_GRADES
     from fgins.sim.accel_array import array_readings, draw_array_errors, resolve_grade
 
-    allowed = {"duration_s", "start_time_s", "grade", "gnss_rate_hz", "half_edge_m", "rate_hz"}
+    allowed = {
+        "duration_s", "start_time_s", "grade", "gnss_rate_hz", "half_edge_m", "rate_hz",
+        "accelerometers",
+    }  # fmt: skip
     _check_options("gyrofree-cube", options, allowed)
     grade_name = str(options.get("grade", "tactical"))
     if grade_name not in ARRAY_GRADES:
@@ -653,7 +658,13 @@ def gyrofree_cube(seed: int = 0, **options: Any) -> SimRun:
     if rate_hz not in (50.0, 100.0, 200.0):
         raise InputError(f"scenario gyrofree-cube: rate_hz must be 50, 100 or 200, got {rate_hz}")
     start_time = _start_time(options)
-    array = AccelArray.cube(_option_float("half_edge_m", options.get("half_edge_m", 0.1), 0.01, 10.0))
+    count = _option_float("accelerometers", options.get("accelerometers", 6), 6.0, 12.0)
+    if count not in (6.0, 12.0):
+        raise InputError(f"scenario gyrofree-cube: accelerometers must be 6 or 12, got {count:g}")
+    array = AccelArray.cube(
+        _option_float("half_edge_m", options.get("half_edge_m", 0.1), 0.01, 10.0),
+        per_face=1 if count == 6.0 else 2,
+    )
 
     rng = np.random.default_rng(seed)
     origin = Origin(48.1372, 11.5755, 520.0)
@@ -712,7 +723,7 @@ def gyrofree_cube(seed: int = 0, **options: Any) -> SimRun:
         truth=truth,
         config=config,
         description=(
-            f"Urban car with a gyro-free IMU: six {grade.name}-grade accelerometers on the faces "
+            f"Urban car with a gyro-free IMU: {len(array)} {grade.name}-grade accelerometers on the faces "
             f"of a cube (half-edge {array.positions.max():g} m, face-diagonal axes) at "
             f"{rate_hz:g} Hz; GNSS {gnss_rate:g} Hz, UERE 2 m x DOP, position only. The IMU is "
             "the front-end output (rate = integral of the solved angular acceleration, its bias "
@@ -755,7 +766,7 @@ def scenario_list() -> str:
         "  e.g. fgins sim car-urban -o DIR --set body_frame=frd --set mounting_rpy_deg=[20,-10,35]"
     )
     lines.append(
-        "Other options: gyrofree-cube grade, gnss_rate_hz, half_edge_m, rate_hz; uav-loop-baro "
+        "Other options: gyrofree-cube grade, gnss_rate_hz, half_edge_m, rate_hz, accelerometers; uav-loop-baro "
         "gnss_rate_hz; mems-car-pdop bias_start_s, bias_offset_m; aircraft-ekf outage_start_s."
     )
     return "\n".join(lines)
