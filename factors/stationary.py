@@ -131,6 +131,91 @@ def crawl_refuses_stop(crawling: bool, speed: float | None) -> bool:
     return bool(crawling) and speed is not None and speed >= STOP_SPEED_FLOOR_M_PER_S
 
 
+# Stops the whole log shows moving: a car creeping in a jam at 0.1-0.3 m/s, its engine
+# idling, reads like rest to the IMU, its solved speed sits under the floor above, and 4-12 s
+# chords of metre-level fixes cannot see it; over the minute it creeps the fixes can (an
+# outside tester's 140 s creep at 0.13-0.24 m/s was frozen: 8 m off with every fix used,
+# 14.5 m inside an outage, good fixes "faults", the blame on the receiver). The creep's stops
+# come in short runs (a keyframe here and there whose fixes moved), so they are judged over
+# the slow stretch around them: the keyframes where the solution without stops is slower than
+# SLOW_STRETCH_M_PER_S (a stop-and-go's moves between stops are faster and split it).
+# Between the medians of its fixes' first and last thirds, a distance beyond what their noise
+# (CREEP_SIGMAS) and a stopped receiver's slow wander (CREEP_MIN_DISPLACEMENT_M) give, at a
+# mean speed above CREEP_MIN_SPEED_M_PER_S, is no stop; nor are stops where the wheel reads a
+# mean speed beyond its noise. A stretch without fixes (a stop in a tunnel) keeps its stops.
+SLOW_STRETCH_M_PER_S = 0.5
+CREEP_MIN_DISPLACEMENT_M = 2.5
+CREEP_MIN_SPEED_M_PER_S = 0.03
+CREEP_SIGMAS = 5.0
+CREEP_MIN_FIXES = 6  # two in each third
+WHEEL_CREEP_MIN_SPEED_M_PER_S = 0.05
+MEDIAN_EFFICIENCY = 1.2533  # a median's sigma over a mean's (sqrt(pi / 2))
+
+
+def true_run_bounds(mask: np.ndarray) -> list[tuple[int, int]]:
+    """(first, one past the last) index of each run of True in ``mask``."""
+    edges = np.diff(np.concatenate([[0], np.asarray(mask, dtype=np.int8), [0]]))
+    return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True))
+
+
+def moving_stops(
+    times: np.ndarray,
+    stops: np.ndarray,
+    speed: np.ndarray,
+    fix_keyframe: np.ndarray,
+    fix_en: np.ndarray,
+    fix_sigma_en: np.ndarray,
+    wheel_speed: np.ndarray | None = None,
+    wheel_sigma: float = 0.1,
+) -> tuple[np.ndarray, list[tuple[float, float, str]]]:
+    """The ``stops`` (K,) of slow stretches that moved (see SLOW_STRETCH_M_PER_S and
+    CREEP_*), and for each such stretch (its first and last keyframe's time, what showed the
+    motion). ``speed`` (K,): the solution's without stops; ``fix_keyframe`` (M,): the
+    keyframe of each used fix; ``fix_en`` (M, 2), ``fix_sigma_en`` (M, 2): its east/north
+    position and sigmas; ``wheel_speed`` (K,): the wheel's speed, NaN where none."""
+    moving = np.zeros(len(times), dtype=bool)
+    said: list[tuple[float, float, str]] = []
+    for a, b in true_run_bounds(stops | (speed < SLOW_STRETCH_M_PER_S)):
+        if not stops[a:b].any():
+            continue
+        how = _fixes_moved(times, fix_keyframe, fix_en, fix_sigma_en, a, b)
+        if not how and wheel_speed is not None:
+            wheel = wheel_speed[a:b][stops[a:b]]
+            wheel = wheel[np.isfinite(wheel)]
+            mean = float(np.mean(wheel)) if len(wheel) >= 3 else 0.0
+            if abs(mean) > max(WHEEL_CREEP_MIN_SPEED_M_PER_S, CREEP_SIGMAS * wheel_sigma / np.sqrt(max(len(wheel), 1))):
+                how = f"the wheel read {mean:+.2f} m/s on average at them"
+        if how:
+            moving[a:b] = stops[a:b]
+            said.append((float(times[a]), float(times[b - 1]), how))
+    return moving, said
+
+
+def _fixes_moved(
+    times: np.ndarray, fix_keyframe: np.ndarray, fix_en: np.ndarray, fix_sigma_en: np.ndarray,
+    a: int, b: int,
+) -> str:
+    """What the fixes of keyframes a..b-1 show of a motion beyond their noise ("" if none)."""
+    fixes = np.flatnonzero((fix_keyframe >= a) & (fix_keyframe < b))
+    if len(fixes) < CREEP_MIN_FIXES:
+        return ""
+    third = len(fixes) // 3
+    first, last = fixes[:third], fixes[-third:]
+    shift = np.median(fix_en[last], axis=0) - np.median(fix_en[first], axis=0)
+    spread = MEDIAN_EFFICIENCY * np.sqrt(
+        (np.mean(fix_sigma_en[first] ** 2, axis=0) + np.mean(fix_sigma_en[last] ** 2, axis=0)) / third
+    )
+    distance = float(np.hypot(*shift))
+    apart = float(np.median(times[fix_keyframe[last]]) - np.median(times[fix_keyframe[first]]))
+    if (
+        distance > max(CREEP_MIN_DISPLACEMENT_M, CREEP_SIGMAS * float(np.hypot(*spread)))
+        and apart > 0
+        and distance / apart > CREEP_MIN_SPEED_M_PER_S
+    ):
+        return f"the fixes moved {distance:.1f} m ({distance / apart:.2f} m/s)"
+    return ""
+
+
 # A causal estimate takes a stop only after a slow-down it saw: a speed below half its peak
 # over this many seconds before, or below a known stop's floor (see slowed_to_a_stop).
 SLOWDOWN_WINDOW_S = 10.0

@@ -425,7 +425,32 @@ def stop_speeds(
         sigma = stationary.speed_sigma(marginal(V(k)))
         if problem.speed_confirms_stop(float(speeds[k]), sigma):
             out[k] = speeds[k]
-    return out
+    return _without_moving_stops(problem, out, speeds)
+
+
+def _without_moving_stops(problem: Problem, stop_speed: np.ndarray, speeds: np.ndarray) -> np.ndarray:
+    """``stop_speed`` (finite at stops) with the stops of slow stretches the fixes or the
+    wheel show moving set to inf (:func:`fgins.factors.stationary.moving_stops`: a crawl
+    under the speed floor; ``speeds``: the solution's without stops), said in
+    ``problem.info["stops_moving"]``."""
+    keyframes = problem.position_keyframes
+    fixes = problem.gnss_at[keyframes]
+    moving, said = stationary.moving_stops(
+        problem.segments.times, np.isfinite(stop_speed), speeds, keyframes, problem.gnss_enu[fixes, :2],
+        problem.gnss_sigma[fixes, :2],
+        problem.odometer_speed if problem.has_odometer else None,
+        problem.config.smoother.odometer_sigma_m_per_s,
+    )  # fmt: skip
+    problem.info.pop("stops_moving", None)
+    if not moving.any():
+        return stop_speed
+    t0 = problem.dataset.t0
+    runs = "; ".join(f"t - t0 = {a - t0:.0f}-{b - t0:.0f} s: {how}" for a, b, how in said)
+    problem.info["stops_moving"] = (
+        f"stops: {int(moving.sum())} keyframe(s) of a quiet IMU at a low solved speed not taken "
+        f"as stops: the vehicle crawled ({runs}), which reads like rest to an IMU"
+    )
+    return np.where(moving, np.inf, stop_speed)
 
 
 def callback_factors(graph: gtsam.NonlinearFactorGraph) -> int:
