@@ -722,16 +722,11 @@ FILTER_NIS_MAX = 5.0
 FILTER_DOWNWEIGHTED_MAX = 0.05
 
 
-# Forward filters: their output before a fix is their prediction of it. After a stretch of
-# GAP_RETURN_S without fixes used, the first fix is the test of everything the filter
-# carried across: a miss beyond GAP_RETURN_CHI2 (chi-square, 2 dof: 1e-11 for a filter that
-# holds) and GAP_RETURN_MIN_M is said. The fit check sees only the fixes the filter already
-# snapped to: planar-kf on a 10 % spiral ramp ran 98 m off (max 290 m) inside a 50 s outage
-# at sigmas of 1-10 m without a word (outside tester).
+# Forward filters: their output before a fix is their prediction of it, tested at the first
+# fix after each gap (fgins.baseline.measurements.gap_return_miss). The fit check sees only
+# the fixes the filter already snapped to: planar-kf on a 10 % spiral ramp ran 98 m off (max
+# 290 m) inside a 50 s outage at sigmas of 1-10 m without a word (outside tester).
 FORWARD_FILTERS = ("ekf", "ukf", "planar-kf", "ekf18")
-GAP_RETURN_S = 10.0
-GAP_RETURN_CHI2 = 50.0
-GAP_RETURN_MIN_M = 2.0
 
 
 def _gap_return_note(
@@ -743,36 +738,24 @@ def _gap_return_note(
 ) -> list[str]:
     """A warning when a forward filter's prediction misses the first fix after a gap in the
     fixes it used by far more than its covariance and the fix's sigma allow."""
-    from fgins.baseline.measurements import select_gnss
+    from fgins.baseline.measurements import gap_return_miss, select_gnss
 
     if trajectory.position_cov is None or len(trajectory) < 2:
         return []
+
+    def before(times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        rows = np.searchsorted(trajectory.t, times, side="left") - 1
+        position = np.where((rows >= 0)[:, None], trajectory.position[np.maximum(rows, 0)], np.nan)
+        return position, trajectory.rotation[np.maximum(rows, 0)], trajectory.position_cov[np.maximum(rows, 0)]
+
     epochs = select_gnss(dataset, config, gnss_mask)
-    t = np.asarray(epochs.t, dtype=float)
-    after = np.flatnonzero(np.diff(t) > GAP_RETURN_S) + 1
-    rows = np.searchsorted(trajectory.t, t[after], side="left") - 1
-    keep = rows >= 0
-    after, rows = after[keep], rows[keep]
-    if not after.size:
+    miss = gap_return_miss(epochs, before, np.asarray(config.gnss.lever_arm_m, dtype=float))
+    if miss is None:
         return []
-    lever = np.asarray(config.gnss.lever_arm_m, dtype=float)
-    antenna = trajectory.position[rows] + trajectory.rotation[rows] @ lever
-    miss = (epochs.position[after] - antenna)[:, :2]
-    covariance = trajectory.position_cov[rows][:, :2, :2] + np.stack(
-        [np.diag(sigma[:2] ** 2) for sigma in epochs.position_sigma[after]]
-    )
-    with np.errstate(invalid="ignore"):
-        chi2 = np.einsum("ni,ni->n", miss, np.linalg.solve(covariance, miss[..., None])[..., 0])
-    distance = np.linalg.norm(miss, axis=1)
-    bad = np.flatnonzero(np.isfinite(chi2) & (chi2 > GAP_RETURN_CHI2) & (distance > GAP_RETURN_MIN_M))
-    if not bad.size:
-        return []
-    worst = bad[np.argmax(chi2[bad])]
-    gap = t[after[worst]] - t[after[worst] - 1]
     return [
-        f"{method}: its prediction missed the first fix after {gap:.0f} s without fixes by "
-        f"{distance[worst]:.1f} m, {np.sqrt(chi2[worst]):.0f} sigmas of its own uncertainty "
-        f"(t - t0 = {t[after[worst]] - dataset.t0:.1f} s; {bad.size} of {after.size} such "
+        f"{method}: its prediction missed the first fix after {miss.gap_s:.0f} s without fixes "
+        f"by {miss.distance_m:.1f} m, {miss.sigmas:.0f} sigmas of its own uncertainty "
+        f"(t - t0 = {miss.t - dataset.t0:.1f} s; {miss.count} of {miss.gaps} such "
         "gap(s)): inside such gaps its track and sigmas are not to be trusted (compare "
         "--method batch or ekf-rts, which use the fixes on both sides)"
     ]

@@ -50,9 +50,11 @@ from fgins.antenna_verdict import (
 from fgins.baseline.heading_consider import HeadingGate
 from fgins.baseline.measurements import (
     AntennaStates,
+    GapReturnMiss,
     GnssEpochs,
     Linearized,
     chi2_quantile,
+    gap_return_miss,
     huber_variances,
     kalman_update,
     linearize_gnss,
@@ -144,6 +146,9 @@ class FilterRun:
     zupt_times: list[float] = field(default_factory=list)  # boundaries taken as stops
     # rts_smooth's result, kept: iterated_forward's check of the last pass is the output's.
     smoothed: tuple[np.ndarray, np.ndarray, np.ndarray] | None = field(default=None, repr=False)
+    # EKF+RTS: its last plain forward pass's worst miss of the first fix after a gap
+    # (gap_return_miss; relinearised passes predict about the smoothed states, not causally).
+    forward_gap_miss: GapReturnMiss | None = None
 
 
 def initial_covariance(
@@ -1003,6 +1008,19 @@ def trajectory_info(run: FilterRun, epochs: GnssEpochs) -> dict[str, object]:
                 "did not settle it: its track and sigmas are not to be trusted (compare --method "
                 "batch, which relinearises until it converges)"
             ]
+        miss = run.forward_gap_miss
+        if miss is not None:
+            # A forward pass that missed the fix after a gap by tens of sigmas carried a
+            # wrong model across it (a stop-and-go jam in an outage: stops it did not take),
+            # which a linear smoother cannot mend: 3.7-41 m off inside the outages at z
+            # 10-79, unsaid, where the forward EKF said its miss (outside tester).
+            info["fit_warnings"] = [*info.get("fit_warnings", []), (  # type: ignore[list-item]
+                f"EKF+RTS: its forward pass missed the first fix after {miss.gap_s:.0f} s "
+                f"without fixes by {miss.distance_m:.1f} m, {miss.sigmas:.0f} sigmas of its own "
+                f"uncertainty ({miss.count} of {miss.gaps} such gap(s)): the smoother corrects "
+                "that pass linearly, so inside such gaps its track and sigmas are not to be "
+                "trusted (compare --method batch, which relinearises until it converges)"
+            )]
         if turned > RTS_NONLINEAR_DEG:
             # The RTS correction is linear about the forward pass: one this large where no
             # fix holds the track is no correction its covariance describes (an independent
@@ -1010,13 +1028,13 @@ def trajectory_info(run: FilterRun, epochs: GnssEpochs) -> dict[str, object]:
             # 71 deg, the relinearised pass did not converge; 1.5-3.3 m off inside the outage
             # with sigmas for 0.17 m, NEES 9-14). Beside the fixes they hold the track (a
             # loop's start heading turned 22-29 deg: 0.5-0.8 m, fine).
-            info["fit_warnings"] = [
+            info["fit_warnings"] = [*info.get("fit_warnings", []), (  # type: ignore[list-item]
                 f"EKF+RTS: the smoother turns the filter's attitude by up to {turned:.0f} deg "
                 f"more than {RTS_UNAIDED_GAP_S:g} s from any fix, far beyond what its linear "
                 "correction carries, and relinearising about the smoothed states did not settle "
                 "it: its track and sigmas are not to be trusted there (compare --method batch, "
                 "which relinearises until it converges)"
-            ]
+            )]
     return info
 
 
@@ -1254,10 +1272,28 @@ def iterated_forward(
         start = run.posterior[0].boxplus(moved)
         run, epochs = run_filter(dataset, config, gnss_mask, options, progress, start)
         count += 1
+    gap_miss = forward_gap_miss(run, epochs, config)
     run, relinearised = relinearised_passes(dataset, config, gnss_mask, options, progress, run, start)
+    run.forward_gap_miss = gap_miss
     run.counts["forward_passes"] = count
     run.counts["relinearised_passes"] = relinearised
     return run, epochs
+
+
+def forward_gap_miss(run: FilterRun, epochs: GnssEpochs, config: RunConfig) -> GapReturnMiss | None:
+    """A forward pass's worst miss of the first fix after a gap (its state before the fix's
+    update: its prediction), as :func:`fgins.baseline.measurements.gap_return_miss`."""
+    times = run.segments.times
+
+    def prior_at(fix_t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        k = np.clip(np.searchsorted(times, fix_t), 0, len(times) - 1)
+        on = np.isclose(times[k], fix_t, rtol=0.0, atol=1e-9)
+        position = np.array([run.prior[i].position for i in k], dtype=float)
+        position[~on] = np.nan
+        rotation = np.array([run.prior[i].rotation for i in k], dtype=float)
+        return position, rotation, run.cov_prior[k][:, POS, POS]
+
+    return gap_return_miss(epochs, prior_at, np.asarray(config.gnss.lever_arm_m, dtype=float))
 
 
 # The RTS corrections are linear about the forward pass. Where they turn its attitude by

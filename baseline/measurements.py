@@ -8,6 +8,7 @@ the baselines goes through.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from statistics import NormalDist
 
@@ -181,6 +182,66 @@ def linearize_gnss(
         n_position=3,
         n_velocity=n_velocity,
     )
+
+
+# A forward filter's state before a fix is its prediction of it. After a stretch of
+# GAP_RETURN_S without fixes used, the first fix is the test of everything the filter
+# carried across: a miss beyond GAP_RETURN_CHI2 (chi-square, 2 dof: 1e-11 for a filter that
+# holds) and GAP_RETURN_MIN_M is said (fgins.pipeline; for EKF+RTS, of its forward pass).
+GAP_RETURN_S = 10.0
+GAP_RETURN_CHI2 = 50.0
+GAP_RETURN_MIN_M = 2.0
+
+
+@dataclass
+class GapReturnMiss:
+    """The worst miss of a filter's prediction at the first fix after a gap in its fixes."""
+
+    t: float  # the fix's time
+    gap_s: float  # the gap before it
+    distance_m: float  # horizontal miss
+    sigmas: float  # in sigmas of the prediction's and the fix's horizontal uncertainty
+    count: int  # gaps whose return was missed this badly
+    gaps: int  # gaps of GAP_RETURN_S or more
+
+
+def gap_return_miss(
+    epochs: GnssEpochs,
+    predicted_at: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray] | None],
+    lever_arm: np.ndarray,
+) -> GapReturnMiss | None:
+    """The worst miss beyond GAP_RETURN_CHI2 and GAP_RETURN_MIN_M, or None.
+    ``predicted_at(times)``: the filter's (position (n, 3), rotation (n, 3, 3), position
+    covariance (n, 3, 3)) just before the fixes at ``times`` (None: none known)."""
+    t = np.asarray(epochs.t, dtype=float)
+    after = np.flatnonzero(np.diff(t) > GAP_RETURN_S) + 1
+    if not after.size:
+        return None
+    predicted = predicted_at(t[after])
+    if predicted is None:
+        return None
+    position, rotation, cov = predicted
+    known = np.all(np.isfinite(position), axis=1)
+    after, position, rotation, cov = after[known], position[known], rotation[known], cov[known]
+    if not after.size:
+        return None
+    antenna = position + rotation @ np.asarray(lever_arm, dtype=float)
+    miss = (epochs.position[after] - antenna)[:, :2]
+    covariance = cov[:, :2, :2] + np.stack(
+        [np.diag(sigma[:2] ** 2) for sigma in epochs.position_sigma[after]]
+    )
+    with np.errstate(invalid="ignore"):
+        chi2 = np.einsum("ni,ni->n", miss, np.linalg.solve(covariance, miss[..., None])[..., 0])
+    distance = np.linalg.norm(miss, axis=1)
+    bad = np.flatnonzero(np.isfinite(chi2) & (chi2 > GAP_RETURN_CHI2) & (distance > GAP_RETURN_MIN_M))
+    if not bad.size:
+        return None
+    worst = bad[np.argmax(chi2[bad])]
+    return GapReturnMiss(
+        t=float(t[after[worst]]), gap_s=float(t[after[worst]] - t[after[worst] - 1]),
+        distance_m=float(distance[worst]), sigmas=float(np.sqrt(chi2[worst])),
+        count=int(bad.size), gaps=int(after.size),
+    )  # fmt: skip
 
 
 def chi2_quantile(probability: float, dof: int) -> float:
