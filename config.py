@@ -555,6 +555,10 @@ def check_fields(instance: object, schema: dict[str, Check], section: str) -> di
     }
 
 
+# The non-holonomic point lies within this of the IMU (m, each axis): no vehicle is longer.
+NHC_LEVER_MAX_M = 20.0
+
+
 @dataclass
 class SmootherConfig:
     """Keyframing and solver settings shared by batch and iSAM2."""
@@ -689,7 +693,7 @@ SMOOTHER_SCHEMA = _schema_from_fields(
         "nhc_misalignment_walk_deg_per_sqrt_s": NON_NEGATIVE,
         "nhc_misalignment_vertical_walk_deg_per_sqrt_s": NON_NEGATIVE,
         "nhc_misalignment_correlation_s": NON_NEGATIVE,
-        "nhc_lever_arm_m": Check("vec3", abs_max=20.0, hint="metres, vehicle axes"),
+        "nhc_lever_arm_m": Check("vec3", abs_max=NHC_LEVER_MAX_M, hint="metres, vehicle axes"),
         "imu_to_vehicle_rpy_deg": Check("vec3", abs_max=360.0, hint="degrees", axes="[roll, pitch, yaw]"),
         "zupt_sigma_m_per_s": replace(POSITIVE, hint=SIGMA_HINT),
         "zupt_max_speed_m_per_s": NON_NEGATIVE,

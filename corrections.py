@@ -25,7 +25,7 @@ from fgins.antenna_verdict import (
     held_directions,
     typical_speed,
 )
-from fgins.config import STANDARD_GRAVITY, RunConfig
+from fgins.config import NHC_LEVER_MAX_M, STANDARD_GRAVITY, RunConfig
 from fgins.datatypes import (
     AccelArrayData,
     BaroData,
@@ -1196,6 +1196,8 @@ def nhc_lever_from_turns(
     if found is None:
         return config, None
     ahead, sigma = found
+    if abs(ahead) > NHC_LEVER_MAX_M:
+        return config, _no_vehicle_has_that_lever(ahead, sigma)
     lever = (-ahead, 0.0, 0.0)
     if given and method in ("batch", "isam2"):
         return config, None  # their own lever check moves it (with_nhc_lever_corrected)
@@ -1231,6 +1233,19 @@ def nhc_lever_from_turns(
     )
 
 
+def _no_vehicle_has_that_lever(ahead: float, sigma: float) -> str:
+    """What the turns say when they put the IMU further from the non-holonomic point than
+    any vehicle allows (beyond the config's range: a highway drive with its fixes 10-18 s
+    off was refused with a config error on nhc_lever_arm_m, a key nobody had set, as the
+    estimate was written into the config; outside tester)."""
+    return (
+        f"vehicle: the turns show the IMU {ahead:+.1f} +- {sigma:.1f} m ahead of the "
+        f"non-holonomic point (the rear axle's centre), beyond any vehicle ({NHC_LEVER_MAX_M:g} "
+        "m): not used; the fixes' times off the IMU's (a clock offset: --time-offset) or "
+        "a vehicle that is no car (--vehicle) read that way"
+    )
+
+
 # The non-holonomic point's forward offset, where the drive's turns put it this many of its
 # sigmas and this many metres from the configured one, is taken from them (the GNSS arm's
 # floor). A car's IMU sits anywhere from the rear axle (the point) to the engine bay, 0-3 m
@@ -1262,6 +1277,8 @@ def with_nhc_lever_corrected(
         return trajectory, config, None
     configured = [float(x) for x in config.smoother.nhc_lever_arm_m]
     lever = [configured[0] + shift, *configured[1:]]
+    if abs(lever[0]) > NHC_LEVER_MAX_M:
+        return trajectory, config, _no_vehicle_has_that_lever(-lever[0], sigma)
     shown = ", ".join(f"{x:.2f}" for x in lever)
     finding = (
         f"vehicle: the non-holonomic point (the rear axle's centre, [smoother] nhc_lever_arm_m "

@@ -177,3 +177,25 @@ def test_a_roundabout_with_the_imu_ahead_and_fixes_at_0_2_hz_keeps_the_right_mou
     _, rms = _smooth(tmp_path, (0.0, 0.0, 0.0))
     _, right_rms = _smooth(tmp_path, (-ahead, 0.0, 0.0))
     assert rms < 1.15 * right_rms + 0.05, (rms, right_rms)
+
+
+@pytest.mark.parametrize("ahead", [49.2, -70.0])
+def test_a_lever_no_vehicle_has_is_said_not_written_into_the_config(monkeypatch, ahead):
+    """A highway drive with its fixes 10-18 s off the IMU's clock: the turns, read on the
+    late track, put the IMU 37-70 m from the non-holonomic point; that estimate was written
+    into the run's config and refused by its range check, "[smoother].nhc_lever_arm_m =
+    [49.2, 0.0, 0.0]: must be within +-20", a key the user never set (outside tester). Beyond
+    any vehicle it is not used and the clocks are named instead."""
+    import fgins.mounting
+    from fgins.config import NHC_LEVER_MAX_M, config_for_dataset
+    from fgins.corrections import nhc_lever_from_turns
+    from fgins.sim.scenarios import SCENARIOS
+
+    run = SCENARIOS["car-urban"](seed=1, duration_s=60.0)
+    config = config_for_dataset(run.dataset)
+    monkeypatch.setattr(fgins.mounting, "imu_lever_from_turns", lambda dataset: (ahead, 2.0))
+    for method in ("batch", "ekf-rts"):
+        kept, said = nhc_lever_from_turns(run.dataset, config, method)
+        assert kept.smoother.nhc_lever_arm_m == config.smoother.nhc_lever_arm_m
+        assert said is not None and "beyond any vehicle" in said and "--time-offset" in said
+        assert abs(ahead) > NHC_LEVER_MAX_M
