@@ -875,6 +875,45 @@ def carry_unconfirmed_time_offset(trajectory: Trajectory, time_from_data: bool =
     )
 
 
+# The drive tells the fixes' time stamps only to a sigma that moves the track this far
+# along itself at its typical speed, and this many times the output's own horizontal sigma:
+# said (see time_unresolved_note).
+TIME_BLIND_MIN_M = 1.0
+TIME_BLIND_SIGMAS = 3.0
+
+
+def time_unresolved_note(trajectory: Trajectory) -> str | None:
+    """Where the drive cannot check the fixes' time stamps: its check's sigma for their
+    offset, at the drive's typical speed, beyond TIME_BLIND_MIN_M and TIME_BLIND_SIGMAS of
+    the output's median horizontal sigma, with nothing read, corrected or carried. At one
+    steady speed on a straight road a latency moves the fixes along the track exactly as the
+    car's place there does, and nothing else in the data tells them apart (fixes 0.1-0.2 s
+    late on a 10-min highway stretch at 28 m/s: 2.9-6.2 m off at sigmas of 0.16 m, nothing
+    said; the check read 0.07 +- 0.06 s; outside tester). The output takes the stamps as
+    right: its sigmas cannot include a latency the data do not show without being ~10x too
+    wide wherever the stamps are right, so the line says what they leave out."""
+    info = trajectory.info
+    if TIME_UNRESOLVED_KEY in info or "gnss_time_offset_corrected_s" in info:
+        return None
+    reading, sigma = info.get("gnss_time_offset_fit_s"), info.get("gnss_time_offset_fit_sigma_s")
+    if not (isinstance(reading, float) and isinstance(sigma, float) and sigma > 0.0):
+        return None
+    if abs(reading) >= UNCONFIRMED_TIME_SIGMAS * sigma or trajectory.position_cov is None:
+        return None  # read: corrected, carried or declined elsewhere
+    typical = typical_speed(np.linalg.norm(np.asarray(trajectory.velocity)[:, :2], axis=1))
+    along = sigma * typical
+    horizontal = np.sqrt(np.trace(np.asarray(trajectory.position_cov)[:, :2, :2], axis1=1, axis2=2) / 2.0)
+    if along < max(TIME_BLIND_MIN_M, TIME_BLIND_SIGMAS * float(np.median(horizontal))):
+        return None
+    return (
+        f"GNSS time: the drive tells the fixes' time stamps only to +-{sigma:.3f} s (too few "
+        "turns and speed changes to tell a latency from the car's place along its track): "
+        f"the output takes them as stamped, and a latency that size moves it {along:.1f} m "
+        f"along the track at {typical:.0f} m/s, which its sigmas leave out; fixes that may "
+        "be late (NMEA over a serial line, a logger's stamps): measure it and give --time-offset"
+    )
+
+
 def add_time_offset_uncertainty(trajectory: Trajectory) -> None:
     """Add the uncertainty of the fixes' time offset taken from the data to ``trajectory``'s
     position covariance (in place). The solve holds the moved stamps fixed, so its

@@ -34,6 +34,7 @@ from fgins.corrections import (
     moved_phrase,
     nhc_lever_from_turns,
     noise_from_data,
+    time_unresolved_note,
     with_antenna_corrected,
     with_gnss_sigmas_scaled,
     with_nhc_lever_corrected,
@@ -437,6 +438,7 @@ def _corrected_solution(
     add_mounting_uncertainty(trajectory, mounting_sigma_deg)
     add_time_offset_uncertainty(trajectory)
     unconfirmed_note = carry_unconfirmed_time_offset(trajectory, config.gnss.time_offset_from_data)
+    blind_note = time_unresolved_note(trajectory) if config.gnss.time_offset_from_data else None
     add_unresolved_time_uncertainty(trajectory)
     add_slow_fix_error_uncertainty(dataset, config, gnss_mask, trajectory)
     held_note = None
@@ -455,7 +457,7 @@ def _corrected_solution(
         )
     notes = [
         noise_note, bias_note, mounting_note, point_note, held_note, lever_note, unknown_height(dataset, trajectory),
-        nose_off_track(config, trajectory), unconfirmed_note, arm_note,
+        nose_off_track(config, trajectory), unconfirmed_note, blind_note, arm_note,
     ]  # fmt: skip
     if config.smoother.initial_heading_deg is None:  # else the configured heading is known
         notes.append(unobservable_heading(dataset, trajectory) or heading_unseen_in_motion(dataset, gnss_mask, trajectory))
