@@ -695,10 +695,17 @@ class Problem:
         """Divide the gyro's samples by ``scale`` (per axis: read over true rate) and
         re-preintegrate every interval about its bias in ``values``
         (:mod:`fgins.graph.gyro_scale`)."""
+        self.remap_gyro(np.diag(1.0 / np.asarray(scale, dtype=float)), values)
+
+    def remap_gyro(self, matrix: np.ndarray, values: gtsam.Values) -> None:
+        """Replace the gyro's samples w by ``matrix`` @ w (a rescale, an axis negated or two
+        swapped) and re-preintegrate every interval about its bias in ``values``, mapped
+        alike."""
+        matrix = np.asarray(matrix, dtype=float)
         imu = self.dataset.imu
-        corrected = replace(imu, gyro=imu.gyro / np.asarray(scale, dtype=float)[None, :])
-        self.dataset = replace(self.dataset, imu=corrected)
+        self.dataset = replace(self.dataset, imu=replace(imu, gyro=imu.gyro @ matrix.T))
         estimate = bias_estimates(values, self.n_keyframes)[:-1]
+        estimate[:, 3:] = estimate[:, 3:] @ matrix.T
         for i in range(self.n_keyframes - 1):
             self.preintegrate(i, gtsam.imuBias.ConstantBias(estimate[i, :3], estimate[i, 3:]))
 
