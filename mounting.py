@@ -83,6 +83,14 @@ class ForwardAxis:
     evidence: str
     sigma_deg: float | None = None
     lever: tuple[float, float] | None = None  # the turns' lever terms: (m ahead, sigma)
+    way_known: bool = True  # False: forward or backward along ``forward``, the data cannot tell
+
+    def facing(self, rpy_deg) -> np.ndarray:
+        """``forward``, or its opposite where the data cannot tell the way and that lies
+        nearer the forward axis of the mounting ``rpy_deg``."""
+        if self.way_known or mounting_rotation(rpy_deg)[0] @ self.forward >= 0.0:
+            return self.forward
+        return -self.forward
 
 
 # One run asks up to three times (check, adopt, the adopted check) for the same drive: the
@@ -116,7 +124,7 @@ def _forward_axis(dataset) -> ForwardAxis | None:
 def _heading_answer(dataset) -> ForwardAxis | None:
     heading = forward_axis_from_heading(dataset)
     return None if heading is None else ForwardAxis(
-        heading[0], heading[1], "travel against the IMU's heading", heading[2]
+        heading[0], heading[1], "travel against the IMU's heading", heading[2], way_known=heading[3]
     )  # fmt: skip
 
 
@@ -392,9 +400,10 @@ HEADING_HALVES_SIGMAS = 3.0
 HEADING_ERROR_SIGMAS = 5.0
 
 
-def forward_axis_from_heading(dataset) -> tuple[np.ndarray, int, float] | None:
+def forward_axis_from_heading(dataset) -> tuple[np.ndarray, int, float, bool] | None:
     """The vehicle's forward axis in IMU axes from the IMU's heading (see HEADING_BOX_S),
-    the seconds of travel it is taken over and the heading's standard error (deg); None when
+    the seconds of travel it is taken over, the heading's standard error (deg) and whether
+    the data tell which way along that axis is forward (:data:`WAY_DECISIVE_SHARE`); None when
     the drive's accelerations do not fix the heading to HEADING_MAX_SIGMA_DEG. Accelerations
     are taken over windows of 1, 2 and 4 times HEADING_BOX_S, the one that fixes the heading
     best kept: metre-level fixes' second differences need long windows, sharp turns short."""
@@ -406,7 +415,7 @@ def forward_axis_from_heading(dataset) -> tuple[np.ndarray, int, float] | None:
     return best if best[2] <= HEADING_MAX_SIGMA_DEG else None
 
 
-def _forward_from_heading(dataset, box_s: float) -> tuple[np.ndarray, int, float] | None:
+def _forward_from_heading(dataset, box_s: float) -> tuple[np.ndarray, int, float, bool] | None:
     imu, gnss = dataset.imu, dataset.gnss
     t, enu = gnss.t, dataset.gnss_enu()
     if len(t) < HEADING_MIN_WINDOWS or len(imu.t) < 10:
@@ -483,14 +492,49 @@ def _forward_from_heading(dataset, box_s: float) -> tuple[np.ndarray, int, float
     heading = np.angle(w) + np.interp(travel_t[moving], imu.t, yaw)
     along = travel[moving] / speed[moving] * np.exp(-1j * heading)
     # One axis, either way along it (reversing): the doubled angles' mean, then its median
-    # refinement; the way it points is the one most of the distance goes.
+    # refinement; the way it points is the one most of the distance goes, where most does
+    # (WAY_DECISIVE_SHARE), or the one a signed wheel speed reads positive.
     axis = np.angle(np.sum(speed[moving] * along**2)) / 2.0
     axis += float(np.median(np.angle(along**2 * np.exp(-2j * axis)))) / 2.0
-    if np.sum(speed[moving] * np.real(along * np.exp(-1j * axis))) < 0.0:
-        axis += np.pi
+    way = np.sign(np.real(along * np.exp(-1j * axis)))
+    ahead = float(np.sum(speed[moving] * (way > 0))) / max(float(np.sum(speed[moving])), 1e-12)
+    if ahead < 0.5:
+        axis, way, ahead = axis + np.pi, -way, 1.0 - ahead
+    way_known = ahead >= WAY_DECISIVE_SHARE
+    wheel = _wheel_way(dataset, travel_t[moving], way, speed[moving])
+    if wheel is not None:
+        way_known = True
+        if wheel < 0:
+            axis += np.pi
     forward = np.cos(axis) * first + np.sin(axis) * second
     seconds = round(float(np.sum(moving)) * float(np.median(np.diff(travel_t))))
-    return forward / np.linalg.norm(forward), seconds, sigma_deg
+    return forward / np.linalg.norm(forward), seconds, sigma_deg, way_known
+
+
+# The forward way along the fitted axis is the one this share of the distance goes; below
+# it (a car reversing 182 s of a 267 s drive, out of bays and round bends: the right
+# mounting was refused as "+179 deg" off, and without one the car was turned round and its
+# right wheel read as -202 %; outside tester) the data cannot tell, and the configured
+# mounting's way stands.
+WAY_DECISIVE_SHARE = 0.8
+WHEEL_WAY_SHARE = 0.8  # of the distance where the wheel's sign agrees with one way
+
+
+def _wheel_way(dataset, t: np.ndarray, way: np.ndarray, speed: np.ndarray) -> int | None:
+    """+1 where a signed wheel speed (some of it negative: reversing) is positive along
+    ``way`` (+-1 at times ``t``) over WHEEL_WAY_SHARE of the distance, -1 where against it,
+    None where there is no such wheel or it does not tell."""
+    odometer = getattr(dataset, "odometer", None)
+    if odometer is None or len(odometer.t) < 2 or not np.any(odometer.speed < 0):
+        return None
+    inside = (t >= odometer.t[0]) & (t <= odometer.t[-1])
+    if inside.sum() < HEADING_MIN_WINDOWS:
+        return None
+    wheel = np.sign(np.interp(t[inside], odometer.t, odometer.speed))
+    agree = float(np.sum(speed[inside] * (wheel == way[inside]))) / max(float(np.sum(speed[inside])), 1e-12)
+    if agree >= WHEEL_WAY_SHARE:
+        return 1
+    return -1 if agree <= 1.0 - WHEEL_WAY_SHARE else None
 
 
 def _heading_fit(design: np.ndarray, fixes: np.ndarray, use: np.ndarray, half: float) -> tuple[complex, float] | None:
@@ -668,7 +712,7 @@ def check_mounting(dataset, rpy_deg) -> str | None:
     found = _forward_axis(dataset)
     if found is None:
         return None
-    forward = found.forward
+    forward = found.facing(rpy_deg)
     up = _gravity_axis(dataset, forward)
     _check_forward_level(rpy_deg, forward, up)
     angle = _yaw_error_deg(forward, up, rpy_deg)
@@ -745,7 +789,7 @@ def adopted_mounting(
     found = _forward_axis(dataset)
     if found is None:
         return None
-    forward = found.forward
+    forward = found.facing(rpy_deg)
     up = _gravity_axis(dataset, forward)
     try:
         finding = check_mounting(dataset, rpy_deg)

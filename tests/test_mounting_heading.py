@@ -15,6 +15,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 import fgins
@@ -195,3 +196,40 @@ def test_an_imu_turned_90_deg_with_fixes_at_0_2_hz_and_no_mounting_given_bridges
             said = [w for w in track.info.get("fit_warnings", []) if "no IMU mounting was given" in w]
             assert bool(said) == (turn is not None), track.info.get("fit_warnings")
         assert errors["rfu"] < 1.2 * errors[None] + 0.1, errors
+
+
+# Out of a bay backwards round a bend, a stop, forward, a stop, three times: 2.3 m/s reversing
+# for ~55 s each time, 2.5 m/s forward for ~25 s (most of the distance goes backwards).
+REVERSING = CarProfile(
+    steps=[step for start in (10.0, 110.0, 210.0) for step in
+           ((start, 3, -2.3), (start + 55, 3, 2.3), (start + 65, 3, 2.5), (start + 90, 3, -2.5))],
+    turns=[(start + 15, start + 35, 2, rate) for start, rate in ((10.0, 0.12), (110.0, -0.12), (210.0, 0.1))]
+    + [(start + 70, start + 80, 2, rate) for start, rate in ((10.0, -0.1), (110.0, 0.1), (210.0, -0.1))],
+    gamma=lambda t: 0.0 * t,
+)  # fmt: skip
+
+
+@pytest.mark.parametrize(("turn", "seed"), [(None, 1), ("backward", 2)])
+def test_a_car_that_reverses_further_than_it_drives_keeps_its_mounting(tmp_path, turn, seed):
+    """The heading match finds the forward axis either way along it, and took the way most
+    of the distance goes: a car reversing out of bays round bends for most of its drive had
+    its right mounting refused as "+179 deg" off, and with none given was turned round, its
+    right wheel then read as "-202 %: a wrong tyre radius" (outside tester). Where neither
+    way has 80 % of the distance the configured (or default) mounting's way stands, and a
+    signed wheel speed tells the way where given."""
+    from fgins.mounting import _forward_axis, check_mounting
+
+    _drive(tmp_path, REVERSING, turn, seed)
+    dataset = fgins.load(tmp_path, config=tmp_path / "cfg.toml", vehicle="car")
+    found = _forward_axis(dataset)
+    assert found is not None and not found.way_known
+    assert check_mounting(dataset, MOUNTED[turn]) is None  # the right one, either way
+    # With a signed wheel the way is known: forward is where it reads positive.
+    truth = pd.read_csv(tmp_path / "truth.csv")
+    speed = np.hypot(truth["vel_east"], truth["vel_north"]) * np.sign(REVERSING.speed(truth["time"].to_numpy()))
+    pd.DataFrame({"time": truth["time"][::10], "wheel_speed": speed[::10]}).to_csv(tmp_path / "wheel.csv", index=False)
+    with_wheel = fgins.load(tmp_path, config=tmp_path / "cfg.toml", vehicle="car")
+    assert _forward_axis(with_wheel).way_known
+    assert check_mounting(with_wheel, MOUNTED[turn]) is None
+    track = fgins.smooth(with_wheel, "batch", gnss_outage=[(130.0, 160.0)])
+    assert abs(track.info["odometer_scale_error"]) < 0.01  # the wheel is right
