@@ -18,7 +18,7 @@ import numpy as np
 
 from fgins.datatypes import GnssData, InputError
 from fgins.io.atomic import atomic_path
-from fgins.io.trajectory_geo import KML_HEIGHTS
+from fgins.io.trajectory_geo import KML_HEIGHTS, kml_lines, line_geometry, split_at_antimeridian
 
 GNSS_CSV_COLUMNS = (
     "time",
@@ -107,10 +107,7 @@ def _write_geojson(gnss: GnssData, path: Path) -> None:
     features: list[dict[str, object]] = [
         {
             "type": "Feature",
-            "geometry": {
-                "type": "LineString",
-                "coordinates": [_position(gnss, i) for i in range(len(gnss))],
-            },
+            "geometry": line_geometry([_position(gnss, i) for i in range(len(gnss))]),
             "properties": {"name": "GNSS track", "fixes": len(gnss)},
         }
     ]
@@ -140,13 +137,15 @@ def _kml_altitude_mode(heights: np.ndarray) -> str:
 
 def _write_kml(gnss: GnssData, path: Path) -> None:
     columns = gnss_columns(gnss)
-    track = " ".join(_kml_coordinates(gnss, i) for i in range(len(gnss)))
+    # Split where the track crosses the antimeridian (the pieces' ends at +-180 are points
+    # of the line, not fixes: they are written like the fixes' own coordinates).
+    pieces = split_at_antimeridian([_position(gnss, i) for i in range(len(gnss))])
+    track = [" ".join(",".join(repr(float(v)) for v in point) for point in piece) for piece in pieces]
     parts = [
         '<?xml version="1.0" encoding="UTF-8"?>',
         '<kml xmlns="http://www.opengis.net/kml/2.2"><Document><name>GNSS fixes</name>',
         f"<Placemark><name>GNSS track</name><description>{KML_HEIGHTS}</description>"
-        f"<LineString><altitudeMode>{_kml_altitude_mode(gnss.lla[:, 2])}</altitudeMode>",
-        f"<coordinates>{track}</coordinates></LineString></Placemark>",
+        f"{kml_lines(track, _kml_altitude_mode(gnss.lla[:, 2]))}</Placemark>",
     ]
     for i in range(len(gnss)):
         data = "".join(

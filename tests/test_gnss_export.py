@@ -4,6 +4,7 @@ xml.etree; the reader side is independent of the writer."""
 from __future__ import annotations
 
 import csv
+import itertools
 import json
 import math
 import xml.etree.ElementTree as ET
@@ -140,3 +141,34 @@ def test_real_logs_whose_first_fix_is_2d_export_every_fix(shared, tmp_path: Path
             values = point.find("k:coordinates", KML_NS).text.split(",")
             mode = point.find("k:altitudeMode", KML_NS).text
             assert (len(values), mode) == ((2, "clampToGround") if flat[i] else (3, "absolute"))
+
+
+@pytest.mark.parametrize("east", [True, False])
+def test_a_track_across_the_antimeridian_is_split_there(tmp_path: Path, east: bool) -> None:
+    """A track from 179.99 E to 179.99 W was one LineString whose segment jumps 360 deg:
+    map viewers drew it round the world (outside tester). RFC 7946 (3.1.9) splits it at the
+    antimeridian: a MultiLineString whose pieces end and begin at +-180 at the latitude the
+    track crosses it; KML likewise (a MultiGeometry). Fixes stay where they are."""
+    from dataclasses import replace
+
+    gnss = _sample_gnss()
+    lon = np.array([179.998, 179.999, -179.9995, -179.999, -179.998, -179.997])
+    lat = 10.0 + 0.001 * np.arange(6)
+    if not east:
+        lon, lat = -lon[::-1], lat
+    lla = np.column_stack([lat, lon, np.full(6, 50.0)])
+    crossed = replace(gnss, lla=lla)
+    document = json.loads(write_gnss(crossed, tmp_path / "fixes.geojson").read_text())
+    line, *points = document["features"]
+    assert line["geometry"]["type"] == "MultiLineString"
+    first, second = line["geometry"]["coordinates"]
+    edge = 180.0 if lon[0] > 0 else -180.0
+    assert first[-1][0] == edge and second[0][0] == -edge
+    k = len(first) - 1  # fixes before the crossing
+    assert first[-1][1] == second[0][1] and lat[k - 1] < first[-1][1] < lat[k]
+    assert all(abs(b[0] - a[0]) < 1.0 for piece in (first, second) for a, b in itertools.pairwise(piece))
+    assert [p["geometry"]["coordinates"][0] for p in points] == lon.tolist()
+    root = ET.parse(write_gnss(crossed, tmp_path / "fixes.kml")).getroot()
+    assert len(root.findall(".//k:MultiGeometry/k:LineString", KML_NS)) == 2
+    # A track that stays on one side is one LineString, as before.
+    assert json.loads(write_gnss(gnss, tmp_path / "plain.geojson").read_text())["features"][0]["geometry"]["type"] == "LineString"
