@@ -255,6 +255,7 @@ def derive_imu(data: AccelArrayData, *, calibrate: bool = True) -> tuple[ImuData
         alpha_bias=None if calibration is None else calibration.alpha_bias,
     )
     imu = to_imu_data(solution)
+    _check_rates(imu, calibration is not None, calibrate)
     bias = DEFAULT_BIAS_SIGMA if data.bias_sigma is None else data.bias_sigma
     noise = equivalent_imu_noise(
         array,
@@ -262,7 +263,49 @@ def derive_imu(data: AccelArrayData, *, calibrate: bool = True) -> tuple[ImuData
         bias,
         alpha_bias_sigma=None if calibration is None else calibration.alpha_bias_sigma,
     )
+    walk = noise.get("gyro_bias_rw_rad_per_s_per_sqrt_s", 0.0)
+    if walk > ARRAY_RATE_WALK_MAX:
+        # Derived, not given: it had been refused as a config value "[imu].gyro_bias_rw...
+        # = 1.08: must be <= 1", a key the user never wrote (outside tester).
+        raise InputError(
+            f"accel_array: its rates, integrated from the angular acceleration, would drift at "
+            f"{walk:.3g} rad/s/sqrt(s) (from the accelerometers' bias sigma {bias:g} m/s^2"
+            + (", with no standstill at the start to calibrate it" if calibration is None else "")
+            + f"; fgins takes at most {ARRAY_RATE_WALK_MAX:g}): no estimator holds an attitude "
+            "on that; start the log at rest (10 s or more) for the rest calibration, or give "
+            "the calibrated array's [accel_array] bias_sigma_m_per_s2"
+        )
     return imu, {"preset": "tactical", **noise, "rate_hz": imu.rate_hz}
+
+
+# Rates the front end integrates beyond this (rad/s; a MEMS gyro's top range is ~35) are no
+# vehicle's: the readings do not fit the geometry or their biases ran the rate away.
+ARRAY_RATE_MAX_RAD_S = 35.0
+ARRAY_RATE_WALK_MAX = 1.0  # rad/s/sqrt(s): the [imu] bound of gyro_bias_rw_rad_per_s_per_sqrt_s
+
+
+def _check_rates(imu: ImuData, calibrated: bool, calibrate: bool) -> None:
+    """An error naming the array when its integrated rates run beyond any vehicle's: they
+    were refused as "a unit mistake; give gyro_x..z in rad/s" of an input that has no gyro
+    columns (columns swapped, one sensing axis negated, a dead or 5-20 mg biased
+    accelerometer on a drive that does not start at rest; outside tester)."""
+    rate = np.linalg.norm(imu.gyro, axis=1)
+    beyond = np.flatnonzero(~(rate <= ARRAY_RATE_MAX_RAD_S))
+    if not beyond.size:
+        return
+    when = float(imu.t[beyond[0]] - imu.t[0])
+    rest = (
+        "" if calibrated or not calibrate
+        else "; the log does not start at rest, so no angular-acceleration bias was calibrated"
+    )
+    raise InputError(
+        f"accel_array: the angular rate integrated from the accelerometers runs to "
+        f"{float(np.nanmax(rate)) if np.any(np.isfinite(rate)) else float('inf'):.3g} rad/s "
+        f"(beyond {ARRAY_RATE_MAX_RAD_S:g} from t-t0 = {when:.1f} s on): the columns a1..aN "
+        "do not match the [accel_array] geometry (order, positions, sensing axes and their "
+        "signs), an accelerometer is dead, or one is biased far beyond bias_sigma_m_per_s2 "
+        f"(the geometry makes a bias an angular acceleration){rest}"
+    )
 
 
 def rest_calibration(data: AccelArrayData) -> RestCalibration | None:

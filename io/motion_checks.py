@@ -174,6 +174,9 @@ def check_accel_units(imu, *, has_accel_array: bool) -> None:
         )
 
 
+ARRAY_TURN_RATIO_MIN = 0.2  # see check_units
+
+
 def check_units(
     imu,
     gnss: GnssData,
@@ -187,7 +190,19 @@ def check_units(
         _note_constant_channels(imu, checks)
     if has_accel_array:
         # Rates derived from an accelerometer array carry a large, ramping bias by nature;
-        # their unit follows from the accelerometers' (check_accel_units, run before).
+        # their unit follows from the accelerometers' (check_accel_units, run before). Their
+        # scale follows from the positions, whose unit does not: given in cm the rates are
+        # 100x small, and a run went on to 103 m off at z 16 blaming a 62 m antenna arm and
+        # two clocks (outside tester). A ramp adds turn, it does not take it away: derived
+        # rates turn 2.4-125x the track on right arrays, 0.09-0.13x with positions in cm.
+        ratio, turns, _ = _gyro_turn_ratio(imu, gnss, origin)
+        if turns >= TURN_MIN_WINDOWS and ratio < ARRAY_TURN_RATIO_MIN:
+            raise InputError(
+                f"accel_array: the rates derived from the accelerometers integrate to "
+                f"{ratio:.2g} times the turn the fixes show over {turns} "
+                f"{turn_window_s(gnss.t):g}-s windows: the [accel_array] positions_m are not "
+                "in metres (cm give 0.01x, mm 0.001x) or the geometry does not fit the columns"
+            )
         return
     gyro_norm = np.linalg.norm(imu.gyro, axis=1)
     routine = float(np.percentile(gyro_norm, 90))

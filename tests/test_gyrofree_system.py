@@ -509,3 +509,65 @@ def test_an_array_of_twelve_accelerometers_runs_every_method(seed: int) -> None:
     assert _horizontal_rms(batch, run.truth) < _horizontal_rms(ekf18, run.truth)
     assert _horizontal_rms(batch, run.truth) < 1.5 * _horizontal_rms(batch_six, six.truth)
     assert _horizontal_rms(batch, run.truth) < 2.0
+
+
+def _cube_folder(tmp_path: Path, **options: str) -> Path:
+    from fgins.cli import main
+
+    folder = tmp_path / "cube"
+    sets = [arg for key, value in options.items() for arg in ("--set", f"{key}={value}")]
+    assert main(["sim", "gyrofree-cube", "-o", str(folder), "--duration", "120", "--seed", "1", *sets]) == 0
+    return folder
+
+
+def _start_moving(folder: Path, skip_s: float) -> None:
+    """The folder's log cut to start ``skip_s`` in (after its standstill: moving)."""
+    import pandas as pd
+
+    for name in ("accel_array.csv", "gnss.csv"):
+        table = pd.read_csv(folder / name)
+        table[table["time"] >= table["time"].iloc[0] + skip_s].to_csv(folder / name, index=False, float_format="%.10g")
+
+
+def test_array_positions_in_centimetres_are_named(tmp_path):
+    """The README cube's positions given in cm: its derived rates 100x small, and a run went
+    on at exit 0 to 103 m off inside an outage at z 16, blaming a 62 m antenna arm, two
+    clocks and the fixes' sigmas (outside tester). The rates' turns against the track's
+    name the positions' unit."""
+    import json
+    import re
+
+    from fgins.io.inputs import load_dataset
+
+    folder = _cube_folder(tmp_path)
+    config = (folder / "config.toml").read_text()
+    line = re.search(r"positions_m = (\[.*?\]\])", config, re.S)
+    assert line is not None
+    metres = np.array(json.loads(line.group(1)))
+    (folder / "config.toml").write_text(config.replace(line.group(1), str((100 * metres).tolist())))
+    with pytest.raises(InputError, match=r"positions_m are not in metres"):
+        load_dataset([str(folder)], progress=False)
+
+
+@pytest.mark.parametrize(("change", "match"), [
+    ("a3 biased 20 mg", r"runs to .* rad/s .*biased far beyond.*does not start at rest"),
+    ("automotive grade", r"would drift at .* rad/s/sqrt\(s\) .*no standstill at the start"),
+])  # fmt: skip
+def test_an_array_log_without_a_standstill_that_cannot_hold_its_rates_is_named(tmp_path, change, match):
+    """A log that starts moving leaves the angular-acceleration bias uncalibrated: one
+    accelerometer biased 5-20 mg ran the derived rates to 43-176 rad/s, refused as "a unit
+    mistake; give gyro_x..z in rad/s" (the input has no gyro); an automotive array's bias
+    sigma made a rate walk of 1.07 rad/s/sqrt(s), refused as a config value
+    "[imu].gyro_bias_rw_rad_per_s_per_sqrt_s", a key nobody wrote (outside tester)."""
+    import pandas as pd
+
+    from fgins.io.inputs import load_dataset
+
+    folder = _cube_folder(tmp_path, **({"grade": "automotive"} if change == "automotive grade" else {}))
+    _start_moving(folder, 15.0)
+    if change == "a3 biased 20 mg":
+        readings = pd.read_csv(folder / "accel_array.csv")
+        readings["a3"] += 0.02 * 9.80665
+        readings.to_csv(folder / "accel_array.csv", index=False, float_format="%.9e")
+    with pytest.raises(InputError, match=match):
+        load_dataset([str(folder)], progress=False)
