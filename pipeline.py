@@ -767,6 +767,11 @@ def _gap_return_note(
 FILTER_FIT_TRIMMED = 0.05
 
 
+# The horizontal fixes' robust whitened scatter about a filter's track beyond which its
+# heights' scatter is not judged (see _filter_fit_note).
+HEIGHTS_UNJUDGED = 5.0
+
+
 def _filter_fit_note(
     dataset: Dataset,
     config: RunConfig,
@@ -797,6 +802,13 @@ def _filter_fit_note(
     trajectory.info.update({k: v for k, v in scatter.items() if k != "fit_warnings"})
     scatter_notes: list[str] = scatter.get("fit_warnings", [])  # type: ignore[assignment]
     heights_only = [note for note in scatter_notes if "heights scatter" in note]
+    horizontal = scatter.get("gnss_whitened_scale_horizontal")
+    if isinstance(horizontal, float) and horizontal > HEIGHTS_UNJUDGED:
+        # Beside horizontal fixes that far off the track, the heights' scatter is the same
+        # failure, not a datum or a unit of their own: a diverged gyro-free filter 209 m off
+        # (horizontally 28x) had "an altitude in feet, two datums mixed" said beside its
+        # divergence (outside tester). Feet read 3.3x with the horizontal ~1x.
+        heights_only = []
     z2 = whitened[:, :2] ** 2
     if config.gnss.huber_k is not None or config.gnss.cauchy_k is not None:
         # With a robust kernel a few gross fixes are the kernel's to bear, not a divergence:

@@ -29,6 +29,13 @@ REPREINTEGRATE_ACCEL_M_S2 = 0.2
 # An outer round that changes the error by less than this (relative) has settled, whatever
 # small bias or attitude moves remain (they are then below what the data can resolve).
 SETTLED_RELATIVE_ERROR = 1e-5
+# Out of rounds or iterations with the error's last FLAT_ROUNDS changes each under this share
+# of it, the solve has settled as far as its data say (iSAM2's own test, 1e-3): a gyro-free
+# car at 0.2 Hz GNSS through a 40 s outage, re-preintegration and LM trading the last 0.1 %
+# along directions the data leave loose, was refused after 600 iterations where iSAM2 wrote
+# the same fit (error 52.8, chi2/dof 0.09) with honest sigmas (outside tester).
+FLAT_RELATIVE_ERROR = 1e-3
+FLAT_ROUNDS = 3
 # The linearised vehicle constraints are rebuilt until no attitude moves more than this.
 RELINEARIZE_ATTITUDE_RAD = 1e-3
 RELINEARIZE_VELOCITY_M_S = 0.05
@@ -241,7 +248,7 @@ def solve_in_rounds(
     settled = False
     previous_error = math.inf
     damping = 1e-5  # carried across rounds: LM's trust region survives the rebuilds
-    steady_rounds = 0
+    steady_rounds = flat_rounds = 0
     for _ in range(MAX_OUTER_ROUNDS):
         graph = full_graph(problem, nonlinear, values)
         # One iteration per rebuild while the linearisation moves; a slow, poorly observable
@@ -267,20 +274,22 @@ def solve_in_rounds(
         values = result
         for i in redone_intervals:  # only their IMU factors change
             nonlinear.replace(imu_index[i], problem.imu_factor(int(i)))
-        steady = abs(previous_error - end_error) <= SETTLED_RELATIVE_ERROR * end_error
+        change = abs(previous_error - end_error)
+        steady = change <= SETTLED_RELATIVE_ERROR * end_error
         steady_rounds = steady_rounds + 1 if steady else 0
+        flat_rounds = flat_rounds + 1 if change <= FLAT_RELATIVE_ERROR * end_error else 0
         previous_error = end_error
         # Done when LM converged on a linearisation that no longer moves, or when rebuilds
         # stopped changing the error at all (twice in a row).
         if (converged and (steady or (not redone and not moved))) or steady_rounds >= 2:
             break
         if budget_left <= 0:
-            report.converged = False
+            report.converged = flat_rounds >= FLAT_ROUNDS
             break
         if not redone and not moved:
             settled = True  # only iterations are missing: give LM its full budget
     else:
-        report.converged = False
+        report.converged = flat_rounds >= FLAT_ROUNDS
     graph = full_graph(problem, nonlinear, values)
     return values, graph
 
