@@ -604,6 +604,10 @@ def report_gnss_time_gaps(t: np.ndarray, checks: list[str]) -> None:
 # --------------------------------------------------------------------------------------------
 
 
+# The GPS week number's 10-bit rollover (1024 weeks, s): a receiver past it dates its fixes
+# that much early (named where the clocks' offset is a multiple of it, within a day).
+GPS_ROLLOVER_S = 1024 * 604800.0
+DAY_S = 86400.0
 # No navigation receiver reports fixes this far apart (the gyro-free study's slowest is 5 s).
 GNSS_MAX_EPOCH_INTERVAL_S = 100.0
 
@@ -628,11 +632,18 @@ def check_time_bases(
             "covers the drive"
         )
     if not inside.any():
+        weeks = (a - c) / GPS_ROLLOVER_S
+        rollover = (
+            f" ({round(weeks)} x 1024 GPS weeks: a receiver whose week number rolled over, "
+            "dating its fixes 19.6 years early)"
+            if round(weeks) != 0 and abs(a - c - round(weeks) * GPS_ROLLOVER_S) < DAY_S
+            else ""
+        )
         raise InputError(
             f"the IMU ({a:.3f} .. {b:.3f} s) and the GNSS ({c:.3f} .. {d:.3f} s) time spans do "
             f"not overlap (the GNSS starts {c - a:+.3f} s from the IMU): the files use different "
             f"time bases; give --time-offset SECONDS (added to the GNSS times: about "
-            f"--time-offset {a - c:+.3f} if both start together) or convert one clock"
+            f"--time-offset {a - c:+.3f} if both start together{rollover}) or convert one clock"
         )
     if inside.sum() < 2:
         # One fix cannot anchor a trajectory; say why there is only one, not "alignment

@@ -28,6 +28,7 @@ MAX_REORDER_PERIODS = 5.0
 # transport delivered a burst after newer ones) where their stamps, sorted, are one series.
 MAX_LATE_DELIVERY_S = 1.0
 WEEK_S = 604800.0  # GPS seconds of the week roll over to 0 after this
+DAY_S = 86400.0  # seconds of the day roll over to 0 at midnight
 
 
 def find_gaps(t: np.ndarray, factor: float = GAP_FACTOR) -> list[tuple[float, float]]:
@@ -460,13 +461,22 @@ def imu_from_samples(
         # or a week's rollover put a whole stretch after a later one
         row = worst + 1
         rollover = WEEK_S - 3600.0 < t[row - 1] <= WEEK_S + 1.0 and t[row] < 3600.0
+        # Seconds of the day (a logger stamping UTC time of day, as NMEA does) wrap at midnight:
+        # "sort or split it" had been the advice (outside tester).
+        midnight = DAY_S - 3600.0 < t[row - 1] <= DAY_S + 1.0 and t[row] < 3600.0
         late = -dt[worst] <= MAX_LATE_DELIVERY_S
-        if far and (rollover or not (late or _few_out_of_place(t)) or not _one_series_out_of_order(sorted_dt)):
+        if far and (rollover or midnight or not (late or _few_out_of_place(t)) or not _one_series_out_of_order(sorted_dt)):
             if rollover:
                 raise InputError(
                     f"{source}: IMU time goes from {t[row - 1]:.6f} back to {t[row]:.6f} at "
                     f"sample {row}: GPS seconds of the week rolling over into a new week; add "
                     f"{WEEK_S:.0f} s to the times from there on (or give GPS or POSIX seconds)"
+                )
+            if midnight:
+                raise InputError(
+                    f"{source}: IMU time goes from {t[row - 1]:.6f} back to {t[row]:.6f} at "
+                    f"sample {row}: seconds of the day wrapping at midnight; add {DAY_S:.0f} s "
+                    "to the times from there on (or give POSIX seconds)"
                 )
             raise InputError(
                 f"{source}: IMU time goes backwards at sample {row} "

@@ -127,6 +127,11 @@ def test_corrupted_stamps_are_dropped_and_counted_not_a_refused_log(rate_hz):
     week = 604800.0 - 5.0 + np.arange(6000) / rate_hz  # seconds of the week, rolling over
     with pytest.raises(InputError, match="GPS seconds of the week rolling over into a new week; add 604800 s"):
         imu_from_samples(np.where(week >= 604800.0, week - 604800.0, week), gyro, accel, source="imu", warnings=[])
+    # seconds of the day wrapping at midnight (a logger stamping UTC time of day): named, not
+    # "the log mixes clocks or files - sort or split it" (outside tester)
+    day = 86400.0 - 5.0 + np.arange(6000) / rate_hz
+    with pytest.raises(InputError, match="seconds of the day wrapping at midnight; add 86400 s"):
+        imu_from_samples(np.where(day >= 86400.0, day - 86400.0, day), gyro, accel, source="imu", warnings=[])
     # one message whose log time was corrupted: first in the file, its own stamp right
     first = np.concatenate([[2963], np.delete(np.arange(6000), 2963)])
     moved: list[str] = []

@@ -479,6 +479,11 @@ def test_imu_and_gnss_time_bases_apart_is_an_error(tmp_path, urban):
     assert advised == pytest.approx(-1.7e9, abs=5.0)
     loaded = load_dataset(_pair(tmp_path, data), time_offset_s=advised)
     assert len(loaded.gnss) == len(urban.dataset.gnss)
+    assert "1024 GPS weeks" not in str(info.value)
+    # Fixes dated 1024 GPS weeks early (a receiver past its week-number rollover) are named.
+    early = replace(urban.dataset, gnss=replace(urban.dataset.gnss, t=urban.dataset.gnss.t - 1024 * 604800.0))
+    with pytest.raises(InputError, match=r"1 x 1024 GPS weeks: a receiver whose week number rolled over"):
+        load_dataset(_pair(tmp_path / "rollover", early))
 
 
 def test_gnss_epochs_outside_the_imu_span_are_counted(tmp_path, urban):
