@@ -341,7 +341,8 @@ def _configured(
         read = read_config_table(config)
     except ConfigError:
         return None
-    value = (read.get(table) or {}).get(key)
+    section = read.get(table)
+    value = section.get(key) if isinstance(section, dict) else None  # not a table: configure says so
     return value if isinstance(value, str) else None
 
 

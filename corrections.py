@@ -880,6 +880,9 @@ def carry_unconfirmed_time_offset(trajectory: Trajectory, time_from_data: bool =
 # said (see time_unresolved_note).
 TIME_BLIND_MIN_M = 1.0
 TIME_BLIND_SIGMAS = 3.0
+# ... and only a sigma this large (s): a check to 20 ms (an aircraft at 60 m/s: 1.2 m) has
+# checked the stamps against the latencies that matter (0.05-0.3 s over a serial line).
+TIME_BLIND_MIN_S = 0.04
 
 
 def time_unresolved_note(trajectory: Trajectory) -> str | None:
@@ -900,6 +903,8 @@ def time_unresolved_note(trajectory: Trajectory) -> str | None:
         return None
     if abs(reading) >= UNCONFIRMED_TIME_SIGMAS * sigma or trajectory.position_cov is None:
         return None  # read: corrected, carried or declined elsewhere
+    if sigma < TIME_BLIND_MIN_S:
+        return None
     typical = typical_speed(np.linalg.norm(np.asarray(trajectory.velocity)[:, :2], axis=1))
     along = sigma * typical
     horizontal = np.sqrt(np.trace(np.asarray(trajectory.position_cov)[:, :2, :2], axis1=1, axis2=2) / 2.0)

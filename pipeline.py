@@ -439,6 +439,8 @@ def _corrected_solution(
     add_time_offset_uncertainty(trajectory)
     unconfirmed_note = carry_unconfirmed_time_offset(trajectory, config.gnss.time_offset_from_data)
     blind_note = time_unresolved_note(trajectory) if config.gnss.time_offset_from_data else None
+    if blind_note:  # what the data cannot check, not a fault found: a summary line
+        trajectory.info["gnss_time_unresolved"] = blind_note
     add_unresolved_time_uncertainty(trajectory)
     add_slow_fix_error_uncertainty(dataset, config, gnss_mask, trajectory)
     held_note = None
@@ -457,7 +459,7 @@ def _corrected_solution(
         )
     notes = [
         noise_note, bias_note, mounting_note, point_note, held_note, lever_note, unknown_height(dataset, trajectory),
-        nose_off_track(config, trajectory), unconfirmed_note, blind_note, arm_note,
+        nose_off_track(config, trajectory), unconfirmed_note, arm_note,
     ]  # fmt: skip
     if config.smoother.initial_heading_deg is None:  # else the configured heading is known
         notes.append(unobservable_heading(dataset, trajectory) or heading_unseen_in_motion(dataset, gnss_mask, trajectory))

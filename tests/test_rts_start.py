@@ -169,7 +169,7 @@ def test_a_smoother_turning_the_attitude_far_beside_fixes_says_so(monkeypatch, t
     counts = {"forward_passes": 4, "relinearised_passes": 0, "rts_largest_turn_deg": turn_deg}
     if abandoned:
         counts["relinearisation_abandoned"] = 1
-    run = SimpleNamespace(counts=counts, rejected_times=[], zupt_times=[])
+    run = SimpleNamespace(counts=counts, rejected_times=[], zupt_times=[], forward_gap_miss=None)
     info = ekf.trajectory_info(run, SimpleNamespace(gating_summary=""))  # type: ignore[arg-type]
     notes = [w for w in info.get("fit_warnings", []) if "not to be trusted" in w]
     assert bool(notes) == said, info
