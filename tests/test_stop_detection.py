@@ -41,6 +41,16 @@ def _crawl(folder: Path, seed: int) -> Path:
     return folder
 
 
+def _with_and_without_stops(folder: Path, method: str, outage: tuple[float, float]):
+    """(stop detection on, its track), then (off, its track), of the drive in ``folder``."""
+    dataset = fgins.load(folder / "imu.csv", folder / "gnss.csv", config=folder / "cfg.toml",
+                         vehicle="car")  # fmt: skip
+    for zupt in (True, False):
+        config = fgins.configure(dataset, folder / "cfg.toml", vehicle="car")
+        config.smoother.use_zupt = zupt
+        yield zupt, fgins.smooth(dataset, method, config=config, gnss_outage=[outage])
+
+
 def _outage_rms(track, folder: Path) -> float:
     truth = pd.read_csv(folder / "truth.csv")
     rows = np.clip(np.searchsorted(truth["time"].to_numpy(), track.t - 1e-9), 0, len(truth) - 1)
@@ -57,13 +67,8 @@ def test_a_steady_crawl_in_an_outage_is_not_a_stop(tmp_path, method, seed):
     online pass can still take a false stop where its dead-reckoned speed drifts toward
     zero; its final estimate re-decides the stops on the smoothed solution.)"""
     folder = _crawl(tmp_path / "crawl", seed)
-    dataset = fgins.load(folder / "imu.csv", folder / "gnss.csv", config=folder / "cfg.toml",
-                         vehicle="car")  # fmt: skip
     rms = {}
-    for zupt in (True, False):
-        config = fgins.configure(dataset, folder / "cfg.toml", vehicle="car")
-        config.smoother.use_zupt = zupt
-        track = fgins.smooth(dataset, method, config=config, gnss_outage=[OUTAGE])
+    for zupt, track in _with_and_without_stops(folder, method, OUTAGE):
         rms[zupt] = _outage_rms(track, folder)
         if zupt:
             assert track.info["zupt_keyframes"] >= 10  # the real stop at the end
@@ -232,13 +237,8 @@ def test_a_creep_under_the_stop_speed_floor_is_not_a_stop(tmp_path, seed, creep_
     its lever arm and clock). The slow stretch's fixes show the motion; the real stop at the
     end keeps its factors. Against the same run without stop detection."""
     folder = _creep(tmp_path / "creep", seed, creep_speed)
-    dataset = fgins.load(folder / "imu.csv", folder / "gnss.csv", config=folder / "cfg.toml",
-                         vehicle="car")  # fmt: skip
     rms = {}
-    for zupt in (True, False):
-        config = fgins.configure(dataset, folder / "cfg.toml", vehicle="car")
-        config.smoother.use_zupt = zupt
-        track = fgins.smooth(dataset, "batch", config=config, gnss_outage=[CREEP_OUTAGE])
+    for zupt, track in _with_and_without_stops(folder, "batch", CREEP_OUTAGE):
         t, error = horizontal_errors(track, folder)
         inside = (t >= CREEP_OUTAGE[0]) & (t < CREEP_OUTAGE[1])
         rms[zupt] = (float(np.sqrt(np.mean(error[inside] ** 2))), float(np.sqrt(np.mean(error[~inside] ** 2))))
