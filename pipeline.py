@@ -749,8 +749,9 @@ def _gap_return_note(
 
     def before(times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         rows = np.searchsorted(trajectory.t, times, side="left") - 1
-        position = np.where((rows >= 0)[:, None], trajectory.position[np.maximum(rows, 0)], np.nan)
-        return position, trajectory.rotation[np.maximum(rows, 0)], trajectory.position_cov[np.maximum(rows, 0)]
+        row = np.maximum(rows, 0)  # none before the first: NaN, left out
+        position = np.where((rows >= 0)[:, None], trajectory.position[row], np.nan)
+        return position, trajectory.rotation[row], trajectory.position_cov[row]
 
     epochs = select_gnss(dataset, config, gnss_mask)
     miss = gap_return_miss(epochs, before, np.asarray(config.gnss.lever_arm_m, dtype=float))

@@ -152,10 +152,11 @@ WHEEL_CREEP_MIN_SPEED_M_PER_S = 0.05
 MEDIAN_EFFICIENCY = 1.2533  # a median's sigma over a mean's (sqrt(pi / 2))
 
 
-def true_run_bounds(mask: np.ndarray) -> list[tuple[int, int]]:
+def true_runs(mask: np.ndarray) -> list[tuple[int, int]]:
     """(first, one past the last) index of each run of True in ``mask``."""
     edges = np.diff(np.concatenate([[0], np.asarray(mask, dtype=np.int8), [0]]))
-    return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True))
+    starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    return [(int(a), int(b)) for a, b in zip(starts, stops, strict=True)]
 
 
 def moving_stops(
@@ -175,7 +176,7 @@ def moving_stops(
     position and sigmas; ``wheel_speed`` (K,): the wheel's speed, NaN where none."""
     moving = np.zeros(len(times), dtype=bool)
     said: list[tuple[float, float, str]] = []
-    for a, b in true_run_bounds(stops | (speed < SLOW_STRETCH_M_PER_S)):
+    for a, b in true_runs(stops | (speed < SLOW_STRETCH_M_PER_S)):
         if not stops[a:b].any():
             continue
         how = _fixes_moved(times, fix_keyframe, fix_en, fix_sigma_en, a, b)

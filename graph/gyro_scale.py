@@ -261,23 +261,20 @@ def _an_axis_mistake_fits_better(
     better (MISTAKE_FIT_GAIN)? Each is solved from ``result``; the problem is left as it
     was. Only where the scale reads gross: a few extra solves on a drive about to be
     refused."""
-    before = (problem.dataset, list(problem.pims), problem.pim_bias.copy(), set(problem.zupt_keyframes))
-    try:
-        for _, matrix in axis_mistakes(gross):
-            problem.remap_gyro(matrix, result)
-            try:
-                trial = solve_with_stops(problem, *solve_from(problem, result))[0]
-            except (FginsError, RuntimeError):  # a trial that breaks down fits no better
-                trial = None
-            finally:
-                problem.dataset, problem.pims, problem.pim_bias, problem.zupt_keyframes = (
-                    before[0], list(before[1]), before[2].copy(), set(before[3]),
-                )  # fmt: skip
-            if trial is not None and trial.converged and trial.chi2_per_dof <= MISTAKE_FIT_GAIN * report.chi2_per_dof:
-                return True
-        return False
-    finally:
-        problem.dataset, problem.pims, problem.pim_bias, problem.zupt_keyframes = before
+    dataset, pims, pim_bias, stops = problem.dataset, problem.pims, problem.pim_bias, problem.zupt_keyframes
+    for _, matrix in axis_mistakes(gross):
+        # Each trial works on copies (remap_gyro re-preintegrates in place), then lets go.
+        problem.pims, problem.pim_bias, problem.zupt_keyframes = list(pims), pim_bias.copy(), set(stops)
+        problem.remap_gyro(matrix, result)
+        try:
+            trial = solve_with_stops(problem, *solve_from(problem, result))[0]
+        except (FginsError, RuntimeError):  # a trial that breaks down fits no better
+            trial = None
+        finally:
+            problem.dataset, problem.pims, problem.pim_bias, problem.zupt_keyframes = dataset, pims, pim_bias, stops
+        if trial is not None and trial.converged and trial.chi2_per_dof <= MISTAKE_FIT_GAIN * report.chi2_per_dof:
+            return True
+    return False
 
 
 def _kept_scale_said(problem: Problem, graph: gtsam.NonlinearFactorGraph, result: gtsam.Values) -> dict[str, object]:

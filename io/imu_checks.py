@@ -18,6 +18,7 @@ import numpy as np
 
 from fgins.config import STANDARD_GRAVITY
 from fgins.datatypes import ImuData, InputError
+from fgins.factors.stationary import true_runs
 
 GAP_FACTOR = 3.0  # a gap is a sample interval longer than this many nominal periods
 MIN_FILL_DURATION_S = 0.3  # shorter straight-line runs happen naturally at rest
@@ -54,13 +55,6 @@ def imu_at_instants(imu: ImuData, sample_timing: str) -> ImuData:
     step = np.minimum(np.diff(imu.t), period)
     middle = imu.t + 0.5 * np.concatenate([step, period[-1:]])
     return replace(imu, t=middle)
-
-
-def true_runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    """(first, one past the last) index of each run of True in ``mask``."""
-    edges = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
-    starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
-    return [(int(a), int(b)) for a, b in zip(starts, stops, strict=True)]
 
 
 def second_means(

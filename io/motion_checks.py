@@ -12,8 +12,9 @@ from statistics import NormalDist
 import numpy as np
 
 from fgins.datatypes import GnssData, InputError, Origin, median_interval
+from fgins.factors.stationary import true_runs
 from fgins.io.gnss_checks import VELOCITY_SPEED_RATIO_RANGE, fix_sigma, horizontal_fix_sigma
-from fgins.io.imu_checks import second_means, true_runs
+from fgins.io.imu_checks import second_means
 
 # Units. In rad/s no vehicle's rate is routinely (10 % of the time) above 10 rad/s; integrated
 # over a turn the GNSS track shows, a rad/s gyro gives ~1x the turn, a deg/s one 57x.
