@@ -1154,6 +1154,12 @@ def _heading_from_straightened_track(
     return float(np.mod(heading, 360.0)), float(np.clip(np.degrees(line_sigma), 2.0, 180.0))
 
 
+def travels_along_nose(smoother: SmootherConfig | None) -> bool:
+    """Does the vehicle's velocity follow its forward axis (ahead, or for a land vehicle
+    ahead or reversing)? Not a multirotor's or a pedestrian's."""
+    return _travel(smoother) != ANY_DIRECTION
+
+
 def _travel(smoother: SmootherConfig | None) -> str:
     """How the vehicle moves relative to its forward axis: a land vehicle (the NHC holds)
     ahead or reversing; a multirotor or a pedestrian in any direction (a drone flies

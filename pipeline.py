@@ -459,7 +459,7 @@ def _corrected_solution(
         )
     notes = [
         noise_note, bias_note, mounting_note, point_note, held_note, lever_note, unknown_height(dataset, trajectory),
-        nose_off_track(config, trajectory), unconfirmed_note, arm_note,
+        nose_off_track(config, trajectory, dataset), unconfirmed_note, arm_note,
     ]  # fmt: skip
     if config.smoother.initial_heading_deg is None:  # else the configured heading is known
         notes.append(unobservable_heading(dataset, trajectory) or heading_unseen_in_motion(dataset, gnss_mask, trajectory))
@@ -900,13 +900,14 @@ def filter_initial_guess(
     def guesses(times: np.ndarray) -> list[KeyframeGuess]:
         # The filter reports its states at the keyframes only (the same numbers as sampling
         # its IMU-rate output there, without making that output: issue 9).
+        from fgins.alignment import travels_along_nose
         from fgins.baseline.guess import filter_guess
         from fgins.track_guess import track_guess
 
         candidates: list[KeyframeGuess] = []
         failures: list[FginsError] = []
         makers = [lambda: filter_guess(dataset, config, times, gnss_mask=gnss_mask)]
-        if config.smoother.nhc:  # the vehicle's nose follows its track
+        if travels_along_nose(config.smoother):  # the vehicle's nose follows its track
             makers.append(lambda: track_guess(dataset, config, times, gnss_mask=gnss_mask))
         for make in makers:
             try:

@@ -93,7 +93,7 @@ NOSE_OFF_TRACK_DEG = 45.0
 NOSE_MIN_SPEED_M_S = 10.0
 
 
-def nose_off_track(config: RunConfig, trajectory: Trajectory) -> str | None:
+def nose_off_track(config: RunConfig, trajectory: Trajectory, dataset: Dataset | None = None) -> str | None:
     """A warning when an aircraft's forward axis (IMU x, turned by the mounting) lies more
     than NOSE_OFF_TRACK_DEG from its solved velocity (median over the flight above
     NOSE_MIN_SPEED_M_S). The in-motion alignment takes that axis for the direction of
@@ -102,12 +102,19 @@ def nose_off_track(config: RunConfig, trajectory: Trajectory) -> str | None:
     filter."""
     if config.smoother.vehicle != "aircraft" or len(trajectory.t) < 10:
         return None
+    if trajectory.info.get("filter_fit_failed"):
+        return None  # its attitude is already said not to be trusted: no mounting to blame
     from fgins.mounting import mounting_rotation
 
     forward = mounting_rotation(config.smoother.imu_to_vehicle_rpy_deg)[0]  # IMU axes
     velocity = trajectory.velocity
     speed = np.linalg.norm(velocity, axis=1)
-    flying = np.isfinite(speed) & (speed > NOSE_MIN_SPEED_M_S)
+    # Where the solution does not know its own heading (a gyro-free array in straight
+    # flight: 40-60 deg sigmas) it cannot tell where the nose points: an aircraft whose
+    # IMU x was its nose had been told its axes were turned.
+    heading_std = trajectory.attitude_std_deg[:, 2]
+    unknown = heading_std > NOSE_OFF_TRACK_DEG / 3
+    flying = np.isfinite(speed) & (speed > NOSE_MIN_SPEED_M_S) & ~unknown
     if flying.sum() < 10:
         return None
     nose = trajectory.rotation[flying] @ forward  # ENU
@@ -115,6 +122,19 @@ def nose_off_track(config: RunConfig, trajectory: Trajectory) -> str | None:
     angle = float(np.degrees(np.arccos(np.clip(np.median(cosine), -1.0, 1.0))))
     if angle <= NOSE_OFF_TRACK_DEG:
         return None
+    if dataset is not None and dataset.accel_array is not None:
+        # A gyro-free array's attitude is held by nothing but the fixes on an aircraft (no
+        # vehicle constraint; in coordinated flight the specific force lies along the lift
+        # axis whatever the heading): the solution's heading, not the array, is suspect.
+        return (
+            f"accel_array: the solution's forward axis (array x, turned by "
+            f"imu_to_vehicle_rpy_deg = {list(config.smoother.imu_to_vehicle_rpy_deg)}) lies "
+            f"{angle:.0f} deg from its velocity over the flight (an aircraft flies along its nose "
+            "to within 15-20 deg): a gyro-free IMU keeps its heading here only through the fixes "
+            "(no vehicle constraint holds it), so the solution's attitude and its sigmas are not "
+            "to be trusted, or the array's axes are turned in the airframe ([accel_array] axes, "
+            "[smoother] imu_to_vehicle_rpy_deg); --method batch keeps the heading's sigma honest"
+        )
     return (
         f"imu: the aircraft's forward axis (IMU x, turned by imu_to_vehicle_rpy_deg = "
         f"{list(config.smoother.imu_to_vehicle_rpy_deg)}) lies {angle:.0f} deg from its "

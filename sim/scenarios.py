@@ -619,6 +619,8 @@ def highway(seed: int = 0, **options: Any) -> SimRun:
 
 
 GYROFREE_GNSS_RATES = (1.0, 0.2)
+GYROFREE_MOTIONS = ("car", "aircraft")
+AIRCRAFT_GYROFREE_CRUISE_M_S = 60.0
 
 
 def gyrofree_cube(seed: int = 0, **options: Any) -> SimRun:
@@ -630,8 +632,9 @@ def gyrofree_cube(seed: int = 0, **options: Any) -> SimRun:
     ``grade`` (navigation | tactical | automotive, fgins.sim.accel_array.GRADES),
     ``gnss_rate_hz`` (1 or 0.2), ``half_edge_m`` (cube half-edge, default 0.1 m),
     ``rate_hz`` (array sample rate, default 100), ``accelerometers`` (6, the study's cube, or
-    12: two per face, :meth:`fgins.factors.accel_array.AccelArray.cube`), ``duration_s``,
-    ``start_time_s``.
+    12: two per face, :meth:`fgins.factors.accel_array.AccelArray.cube`), ``motion`` (``car``,
+    the study's urban drive, or ``aircraft``: :func:`fgins.sim.motion.aircraft`'s take-off,
+    climb and coordinated turns at 60 m/s), ``duration_s``, ``start_time_s``.
     """
     from fgins.factors.accel_array import AccelArray
     from fgins.io.accel_array_csv import accel_array_table, derive_imu, rest_calibration
@@ -640,7 +643,7 @@ def gyrofree_cube(seed: int = 0, **options: Any) -> SimRun:
 
     allowed = {
         "duration_s", "start_time_s", "grade", "gnss_rate_hz", "half_edge_m", "rate_hz",
-        "accelerometers",
+        "accelerometers", "motion",
     }  # fmt: skip
     _check_options("gyrofree-cube", options, allowed)
     grade_name = str(options.get("grade", "tactical"))
@@ -666,9 +669,20 @@ def gyrofree_cube(seed: int = 0, **options: Any) -> SimRun:
         per_face=1 if count == 6.0 else 2,
     )
 
+    motion_name = str(options.get("motion", "car"))
+    if motion_name not in GYROFREE_MOTIONS:
+        raise InputError(
+            f"scenario gyrofree-cube: motion must be one of {', '.join(GYROFREE_MOTIONS)}, "
+            f"got {motion_name!r}"
+        )
+
     rng = np.random.default_rng(seed)
     origin = Origin(48.1372, 11.5755, 520.0)
-    profile = motion.urban_car(rate_hz, duration)
+    profile = (
+        motion.urban_car(rate_hz, duration)
+        if motion_name == "car"
+        else motion.aircraft(rate_hz, duration, cruise_m_per_s=AIRCRAFT_GYROFREE_CRUISE_M_S)
+    )
     nav = NavModel.at(origin)
     exact = exact_motion(profile, nav)
     t = exact.t + start_time
@@ -723,7 +737,7 @@ def gyrofree_cube(seed: int = 0, **options: Any) -> SimRun:
         truth=truth,
         config=config,
         description=(
-            f"Urban car with a gyro-free IMU: {len(array)} {grade.name}-grade accelerometers on the faces "
+            f"{'Urban car' if motion_name == 'car' else 'Aircraft'} with a gyro-free IMU: {len(array)} {grade.name}-grade accelerometers on the faces "
             f"of a cube (half-edge {array.positions.max():g} m, face-diagonal axes) at "
             f"{rate_hz:g} Hz; GNSS {gnss_rate:g} Hz, UERE 2 m x DOP, position only. The IMU is "
             "the front-end output (rate = integral of the solved angular acceleration, its bias "
@@ -766,7 +780,7 @@ def scenario_list() -> str:
         "  e.g. fgins sim car-urban -o DIR --set body_frame=frd --set mounting_rpy_deg=[20,-10,35]"
     )
     lines.append(
-        "Other options: gyrofree-cube grade, gnss_rate_hz, half_edge_m, rate_hz, accelerometers; uav-loop-baro "
+        "Other options: gyrofree-cube grade, gnss_rate_hz, half_edge_m, rate_hz, accelerometers, motion; uav-loop-baro "
         "gnss_rate_hz; mems-car-pdop bias_start_s, bias_offset_m; aircraft-ekf outage_start_s."
     )
     return "\n".join(lines)
