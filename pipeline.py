@@ -20,6 +20,8 @@ from fgins.corrections import (
     CORRECTIONS_SAID,
     FILTER_FIT_FAILED,
     GNSS_STAMPS_MOVED_KEY,
+    GNSS_STAMPS_SEARCHED_KEY,
+    SEARCH_SIGMA_KEY,
     TIME_UNRESOLVED_KEY,
     Rerun,
     add_arm_uncertainty,
@@ -128,7 +130,12 @@ def run_method(
             gnss=replace(dataset.gnss, t=dataset.gnss.t + sum(found) + moved),
             # a barometer put onto the fixes' time goes with them
             baro=replace(dataset.baro, t=dataset.baro.t + sum(found) + moved) if delay_note else dataset.baro,
-            metadata={**dataset.metadata, GNSS_STAMPS_MOVED_KEY: sum(found) + moved},
+            metadata={
+                **dataset.metadata,
+                GNSS_STAMPS_MOVED_KEY: sum(found) + moved,
+                GNSS_STAMPS_SEARCHED_KEY: bool(dataset.metadata.get(GNSS_STAMPS_SEARCHED_KEY))
+                or SEARCH_SIGMA_KEY in trajectory.info,
+            },
         )
         try:
             again = _corrected_solution(retimed, config, method, gnss_mask, progress)
@@ -347,6 +354,9 @@ def _passes_said(last: Trajectory, mover: Trajectory, found: list[float]) -> Tra
     info["gnss_time_offset_corrected_s"] = total
     info["gnss_time_offset_passes_s"] = steps
     if not own:  # the last pass moved nothing: its output has no offset uncertainty yet
+        searched = mover.info.get(SEARCH_SIGMA_KEY)
+        if searched is not None and SEARCH_SIGMA_KEY not in info:
+            info[SEARCH_SIGMA_KEY] = searched  # the pass that moved the stamps measured it
         add_time_offset_uncertainty(last)
     in_all = (
         f"the fixes' times moved by {total:+.3f} s in all (as --time-offset {total:+.3f}; "
@@ -438,7 +448,10 @@ def _corrected_solution(
     add_mounting_uncertainty(trajectory, mounting_sigma_deg)
     add_time_offset_uncertainty(trajectory)
     unconfirmed_note = carry_unconfirmed_time_offset(trajectory, config.gnss.time_offset_from_data)
-    blind_note = time_unresolved_note(trajectory) if config.gnss.time_offset_from_data else None
+    # A pass on stamps an earlier pass moved has its offset read and carried already (its
+    # "taken as stamped" contradicted the correction said beside it).
+    stamps_moved = bool(dataset.metadata.get(GNSS_STAMPS_MOVED_KEY))
+    blind_note = time_unresolved_note(trajectory) if config.gnss.time_offset_from_data and not stamps_moved else None
     if blind_note:  # what the data cannot check, not a fault found: a summary line
         trajectory.info["gnss_time_unresolved"] = blind_note
     add_unresolved_time_uncertainty(trajectory)
