@@ -487,9 +487,21 @@ class Trajectory:
         try:
             if t is None:
                 raise TypeError
-            t = np.asarray(t, dtype=float)
+            given = np.asarray(t)
+            if given.dtype.kind in "Mm":
+                # datetime64 converted to float is nanoseconds: all NaN, unsaid (outside tester)
+                raise InputError(
+                    "Trajectory.at(): times must be seconds on the trajectory's own clock (its "
+                    "time column), not datetime64; convert them, e.g. "
+                    "(times - numpy.datetime64(0, 's')) / numpy.timedelta64(1, 's')"
+                )
+            t = np.asarray(given, dtype=float)
         except (TypeError, ValueError):
             raise InputError(f"Trajectory.at(): times must be numbers (seconds), not {t!r:.60}") from None
+        if t.ndim == 2 and 1 in t.shape:  # a column or a row (a one-column DataFrame)
+            t = t.ravel()
+        if t.ndim > 1:
+            raise InputError(f"Trajectory.at(): times must be one-dimensional, got shape {t.shape}")
         out = np.column_stack([np.interp(t, self.t, self.position[:, i]) for i in range(3)])
         if not hold_ends and len(self.t):
             # A microsecond's round-off at an end (times re-based, or stored as nanoseconds) is

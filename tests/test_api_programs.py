@@ -289,6 +289,15 @@ def test_a_trajectory_is_not_extrapolated(tmp_path):
     for wrong in ("abc", None, ["1", "x"]):
         with pytest.raises(fgins.InputError, match=r"Trajectory.at\(\): times must be numbers"):
             track.at(wrong)
+    # A column or a row of times (a one-column DataFrame) is a list of times; a table is not
+    # (a raw numpy IndexError: outside tester), nor are datetime64 times (read as
+    # nanoseconds: all NaN, unsaid).
+    for shaped in (np.array([[10.0], [11.5]]), np.array([[10.0, 11.5]])):
+        assert np.allclose(track.at(shaped)[:, 0], [0.0, 1.5])
+    with pytest.raises(fgins.InputError, match="one-dimensional"):
+        track.at(np.full((2, 3), 11.0))
+    with pytest.raises(fgins.InputError, match="not datetime64"):
+        track.at(np.array(["2026-01-01T00:00:10"], dtype="datetime64[ns]"))
 
 
 def test_float32_posix_times_are_named_as_the_cause(tmp_path):
