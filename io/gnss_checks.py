@@ -472,6 +472,8 @@ STEP_MIN_M = 20.0
 # A receiver's speed over the speed its fixes show outside this range is another unit (km/h
 # 3.6, knots 1.94; io/motion_checks.check_gnss_velocity names it).
 VELOCITY_SPEED_RATIO_RANGE = (0.7, 1.4)
+# ... or pointing this far from them (median): another axis order (io/motion_checks names it).
+VELOCITY_TURNED_DEG = 25.0
 STEP_SIGMAS = 5.0
 STEP_MAX_DT_S = 2.0
 STEP_HOLD_S = 60.0
@@ -487,6 +489,12 @@ def _in_another_unit(moved: np.ndarray, predicted: np.ndarray, noise: np.ndarray
     if clear.sum() < 10:
         return False
     ratio = float(np.median(along[clear] / travel[clear]))
+    # Or turned: east and north swapped (a NED or NEU velocity) moved the fixes "22 m where
+    # the velocities move them 11 m" and was refused as two sources of positions (outside
+    # testers); the velocity check names the columns.
+    turned = np.abs(np.angle((predicted[clear, 0] + 1j * predicted[clear, 1]) / (moved[clear, 0] + 1j * moved[clear, 1])))
+    if float(np.degrees(np.median(turned))) > VELOCITY_TURNED_DEG:
+        return True
     return not VELOCITY_SPEED_RATIO_RANGE[0] <= ratio <= VELOCITY_SPEED_RATIO_RANGE[1]
 
 

@@ -605,9 +605,11 @@ def check_gnss_velocity(gnss: GnssData, origin: Origin) -> None:
     given_climb = given[:, 2]
     usable = np.isfinite(given_climb)
     if usable.sum() < VELOCITY_MIN_EPOCHS or np.std(given_climb[usable]) < CLIMB_MIN_STD_M_S:
+        _check_climb_sign_over_windows(gnss, enu)
         return
     bounds = _climb_ratio_bounds(climb[usable], given_climb[usable])
     if bounds is None:  # the two do not follow each other: noise, not a unit
+        _check_climb_sign_over_windows(gnss, enu)
         return
     low, high = bounds
     if high < CLIMB_RATIO_RANGE[0] or low > CLIMB_RATIO_RANGE[1]:
@@ -635,6 +637,62 @@ def _speed_ratio(given: np.ndarray, chord: np.ndarray, noise: np.ndarray) -> flo
             return math.nan
         corrected = np.sqrt(np.maximum(chord[chosen] ** 2 - noise[chosen] ** 2, 0.0))
         return float(np.median(given[chosen] / corrected))
+
+
+# A car's grades climb a few tenths of a m/s, lost in a 4-s chord of fixes 2 m apart
+# vertically, so the epoch-by-epoch comparison cannot judge vel_up there, and a down velocity
+# given as up sent the solution 2-2.6x further off vertically at z_up 3.7-4.8, unsaid (outside
+# tester). Over CLIMB_WINDOW_S the height changes add up: the sign is judged there (the unit
+# needs the steeper climbs above), as which of vel_up and -vel_up the height changes fit in
+# the fixes' own vertical sigmas.
+CLIMB_WINDOW_S = 15.0
+CLIMB_WINDOW_MAX_GAP_S = 2.5  # fixes this far apart end a dense stretch
+CLIMB_WINDOW_MIN = 5  # windows needed
+CLIMB_SIGN_CHI2 = 25.0  # how much better -vel_up must fit (5 sigma)
+CLIMB_SIGN_FIT = 4.0  # and fit at all (chi2 per window): else it is not a sign
+
+
+def _check_climb_sign_over_windows(gnss: GnssData, enu: np.ndarray) -> None:
+    """vel_up integrated over windows of CLIMB_WINDOW_S of dense fixes against the fixes'
+    height change over each: an InputError where -vel_up fits those changes better by
+    CLIMB_SIGN_CHI2 (in their vertical sigmas) and fits them (CLIMB_SIGN_FIT per window)."""
+    if gnss.velocity is None:
+        return
+    vertical = np.asarray(gnss.std[:, 2], dtype=float) if gnss.std is not None else np.full(len(gnss.t), np.nan)
+    vertical = np.where(np.isfinite(vertical) & (vertical > 0), vertical, 1.5 * fix_sigma(gnss))
+    climb = np.asarray(gnss.velocity[:, 2], dtype=float)
+    finite = np.isfinite(enu[:, 2]) & np.isfinite(climb)
+    t, up, climb, vertical = gnss.t[finite], enu[finite, 2], climb[finite], vertical[finite]
+    if len(t) < 3:
+        return
+    steps = np.diff(t)
+    integral = np.concatenate([[0.0], np.cumsum(0.5 * (climb[1:] + climb[:-1]) * steps)])
+    gap_count = np.concatenate([[0], np.cumsum(steps > CLIMB_WINDOW_MAX_GAP_S)])
+    windows, i = [], 0
+    while i < len(t):
+        j = int(np.searchsorted(t, t[i] + CLIMB_WINDOW_S))
+        if j >= len(t):
+            break
+        if gap_count[j] == gap_count[i]:
+            windows.append((i, j))
+            i = j
+        else:
+            i += 1
+    if len(windows) < CLIMB_WINDOW_MIN:
+        return
+    first, last = np.array(windows).T
+    rise, given = up[last] - up[first], integral[last] - integral[first]
+    variance = vertical[first] ** 2 + vertical[last] ** 2
+    as_given = float(np.sum((rise - given) ** 2 / variance))
+    flipped = float(np.sum((rise + given) ** 2 / variance))
+    if as_given - flipped < CLIMB_SIGN_CHI2 or flipped > CLIMB_SIGN_FIT * len(windows):
+        return
+    ratio = float(np.sum(rise * given) / np.sum(given**2))
+    raise InputError(
+        f"gnss: over {len(windows)} stretches of {CLIMB_WINDOW_S:g} s the altitude changes "
+        f"{ratio:.2g} times as much as vel_up integrates to (~1 expected; -1 for a down "
+        "velocity, NED's third axis): give vel_up positive up"
+    )
 
 
 def _climb_ratio_bounds(climb: np.ndarray, given: np.ndarray) -> tuple[float, float] | None:

@@ -153,6 +153,11 @@ def _validated(dataset: Dataset, vehicle: str | None, sample_timing: str) -> Dat
             at_instants, gnss, enu, up, origin, given_offset, banks=vehicle == "aircraft"
         )  # fmt: skip
         raise
+    # The receiver's velocity once the gyro's turns have judged the fixes' track (swapped
+    # latitude and longitude turn it against both), before the checks that compare the IMU
+    # with the velocity: swapped east and north made the accelerometer "a mirror image of the
+    # gyro's" (outside tester).
+    check_gnss_velocity(gnss, origin)
     if vehicle not in FREE_BODY_VEHICLES and dataset.accel_array is None:
         check_clock_offset(
             at_instants, gnss, enu, up, origin, checks, given_offset, banks=vehicle == "aircraft"
@@ -167,7 +172,6 @@ def _validated(dataset: Dataset, vehicle: str | None, sample_timing: str) -> Dat
         note = handedness_note_3d(at_instants, gnss, enu, normal_gravity(origin.lat, origin.alt))
         if note:
             checks.append(note)
-    check_gnss_velocity(gnss, origin)
     gnss = velocities_without_bias(gnss, origin, checks)
     if dataset.odometer is not None and len(dataset.odometer.t):
         check_wheel_time_base(dataset.odometer, imu.t, checks)
