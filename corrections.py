@@ -387,6 +387,7 @@ def with_antenna_corrected(
     tried = clocks_declined = False
     declined: tuple[object, object] | None = None  # (fit before, fit with the correction)
     declined_time = 0.0  # the time offset (s) of a declined correction
+    implausible: list[str] = []  # readings no vehicle or clock can have: not taken
     for _ in range(ANTENNA_ROUNDS):
         info = best.info
         offset = info.get("gnss_time_offset_s") if config.gnss.time_offset_from_data else None
@@ -414,6 +415,15 @@ def with_antenna_corrected(
             if isinstance(rest, float) and isinstance(rest_sigma, float) and abs(rest) > 2.0 * rest_sigma:
                 offset, offset_refined = rest, True
         drift = float(info.get("gnss_time_drift_s", 0.0))  # type: ignore[arg-type]
+        half_span = float(info.get("gnss_time_half_span_s", 0.0) or 0.0)  # type: ignore[arg-type]
+        if drift and half_span > 0 and abs(drift) / half_span > MAX_CLOCK_RATE:
+            # No oscillator is that far off: the "drift" is a misfit of something else (a
+            # multirotor given --vehicle car: a 4.5 % rate taken, the output's times rewritten).
+            implausible.append(f"two clocks {100 * abs(drift) / half_span:.1f} % apart in rate (oscillators: 0.002-0.5 %)")
+            offset, drift = None, 0.0
+        if arm is not None and config.smoother.nhc and float(np.linalg.norm(arm)) > NHC_LEVER_MAX_M:  # type: ignore[arg-type]
+            implausible.append(f"an antenna {float(np.linalg.norm(arm)):.0f} m from the IMU (a car is under {NHC_LEVER_MAX_M:g} m)")  # type: ignore[arg-type]
+            arm = None
         if drifting and offset is None and _still_drifting(info):
             # Two clocks found: what is left of the drift is taken at 2 sigma. The biases
             # absorb part of it, so each round finds the same part of what remains (a
@@ -533,6 +543,12 @@ def with_antenna_corrected(
         if searched is not None:
             best, dataset, extra = searched
             fixes_moved -= extra
+    if implausible:
+        best.info.setdefault("fit_warnings", []).append(
+            f"GNSS antenna: the fixes fit {' and '.join(dict.fromkeys(implausible))}: not "
+            "taken, as no car or clock is so; the vehicle constraints fit poorly (the vehicle "
+            "may not be a car: --vehicle) or the inputs' axes or clocks are wrong"
+        )
     filter_failed = best is first and tried and bool(first.info.get(FILTER_FIT_FAILED))
     if filter_failed:
         # Corrected, it fit no better: what the check found is the divergence's (said in the
@@ -725,6 +741,11 @@ def _refined_arm(info: dict[str, object], taken: list[float]) -> list[float] | N
 
 
 REFINE_ARM_SIGMAS = 0.5
+
+
+# Two clocks further apart in rate than this are not two clocks: crystal oscillators are off
+# by 20-5000 ppm.
+MAX_CLOCK_RATE = 0.01
 
 
 # What a correction must gain in total fit (chi-square, or a filter's NIS summed over its GNSS

@@ -745,3 +745,42 @@ def test_whole_seconds_late_on_a_highway_are_found_where_the_fit_is_best(tmp_pat
     _, errors = horizontal_errors(track, tmp_path)
     variance = (frame["std_east"] ** 2 + frame["std_north"] ** 2).to_numpy() / 2.0
     assert np.sqrt(np.mean(errors**2 / variance)) < 3.0 * np.sqrt(2.0)
+
+
+def test_an_arm_or_clock_rate_no_car_or_oscillator_has_is_not_taken():
+    """A multirotor given --vehicle car: its misfit read as an antenna 72 m from the IMU and
+    two clocks 4.5 % apart in rate, both "corrected", the output's times rewritten to a
+    4.77 ms step for a 200 Hz IMU (outside tester). Such readings are said, not taken."""
+    from fgins.config import RunConfig, SmootherConfig
+    from fgins.corrections import Rerun, with_antenna_corrected
+    from fgins.datatypes import Dataset, GnssData, ImuData, Origin, Trajectory
+
+    t = np.arange(0.0, 290.0, 1.0)
+    imu = ImuData(t=np.arange(0.0, 290.0, 0.005), gyro=np.zeros((58000, 3)), accel=np.zeros((58000, 3)))
+    dataset = Dataset(imu=imu, gnss=GnssData(t=t, lla=np.tile([47.0, 8.0, 400.0], (len(t), 1))),
+                      origin=Origin(47.0, 8.0, 400.0))  # fmt: skip
+
+    def solution(info: dict) -> Trajectory:
+        n = len(t)
+        return Trajectory(t=t, position=np.zeros((n, 3)), velocity=np.zeros((n, 3)),
+                          rotation=np.tile(np.eye(3), (n, 1, 1)), origin=dataset.origin, info=info)  # fmt: skip
+
+    solves = []
+
+    def solver(data: Dataset, config: RunConfig, method: str) -> Trajectory:
+        solves.append(method)  # whatever was taken "fits" far better
+        return solution({"chi2_per_dof": 1.0, "dof": 1335})
+
+    first = solution({
+        "chi2_per_dof": 28.7, "dof": 1335, "gnss_lever_arm_m": [4.79, -72.15, -30.18],
+        "gnss_time_offset_s": -3.4, "gnss_time_drift_s": -6.6, "gnss_time_middle_s": 145.0,
+        "gnss_time_half_span_s": 145.0,
+        "antenna_findings": ["GNSS lever arm: the fixes fit an antenna at [4.79, -72.15, -30.18] m"],
+    })  # fmt: skip
+    config = RunConfig(smoother=SmootherConfig(vehicle="car"))
+    assert config.smoother.nhc
+    best, data, _ = with_antenna_corrected(dataset, config, Rerun("batch", None, solver), first)
+    assert best is first and not solves
+    assert np.array_equal(data.imu.t, imu.t) and "gnss_lever_arm_corrected_m" not in best.info
+    said = [w for w in best.info["fit_warnings"] if "not taken" in w]
+    assert len(said) == 1 and "78 m from the IMU" in said[0] and "4.6 % apart in rate" in said[0], said
