@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgins.datatypes import Dataset
-from fgins.factors.stationary import gnss_chord, gnss_moving, steady_imu
+from fgins.factors.stationary import gnss_chord, gnss_moving, steady_imu, window_stats
 
 # Averaging time (the triangle spans twice it): the keyframe intervals' scale, which the
 # preintegration integrates over, well above a vehicle's vibration periods, far below the
@@ -42,6 +42,11 @@ MIN_DIFFERENCES = 6  # independent second differences (9 s at rest): the density
 # typical, and the estimate scatters: only a clear excess counts (drives simulated with the
 # configured noise measure 0.86-1.12; 10 s at rest, 240 seeds, 0.70-1.59).
 NOISE_EXCESS = 2.5
+# The IMU's scatter about its mean over a rest window beyond which it is not at rest (a gait's
+# swing: 4 m/s^2 and 0.66 rad/s RMS; a car idling: 0.04-0.2 m/s^2, 0.002 rad/s).
+REST_MAX_ACCEL_RMS_M_S2 = 1.0
+REST_MAX_GYRO_RMS_RAD_S = 0.3
+SWING_AVERAGE_S = 0.25
 # Median of a chi-square with one degree of freedom: median(d^2) / this estimates E[d^2].
 CHI2_1_MEDIAN = 0.4549364231195724
 
@@ -77,6 +82,22 @@ def rest_mask(dataset: Dataset, gnss_mask: np.ndarray | None = None) -> np.ndarr
     if len(centres) == 0:
         return mask
     steady = steady_imu(imu.t, [imu.accel, imu.gyro], centres, half, half)
+    # A walker's or a handheld device's gait has no trend either (a periodic swing), and
+    # 1.3 m/s with 2-2.5 m fixes is still to them: its 2 Hz steps (+-2-4 m/s^2, 40-90 deg/s)
+    # were read as 23-32 times the configured white noise and used, outages 4-8x worse
+    # (outside tester). No vehicle at rest swings that much: an idling engine's vibration
+    # is a few tenths of a m/s^2.
+    # Over SWING_AVERAGE_S running means, which keep a 1-3 Hz gait and average out an
+    # engine's 8-50 Hz vibration (2 m/s^2 of it at rest is vibration, not motion).
+    lo = np.searchsorted(imu.t, centres - half)
+    hi = np.searchsorted(imu.t, centres + half)
+    _, accel_var = window_stats(_running_mean(imu.t, imu.accel, SWING_AVERAGE_S), lo, hi, 1)
+    _, gyro_var = window_stats(_running_mean(imu.t, imu.gyro, SWING_AVERAGE_S), lo, hi, 1)
+    with np.errstate(invalid="ignore"):
+        swinging = (np.sqrt(np.sum(accel_var, axis=1)) > REST_MAX_ACCEL_RMS_M_S2) | (
+            np.sqrt(np.sum(gyro_var, axis=1)) > REST_MAX_GYRO_RMS_RAD_S
+        )
+    steady &= ~swinging
     # The fixes of the 4 s up to the window's end moved no more than their noise, and they
     # cover the window (gnss_moving says "not moving" where it cannot tell).
     window = 2 * WINDOW_S
@@ -91,6 +112,15 @@ def rest_mask(dataset: Dataset, gnss_mask: np.ndarray | None = None) -> np.ndarr
     np.add.at(marks, lo, 1)
     np.add.at(marks, hi, -1)
     return np.cumsum(marks[:-1]) > 0
+
+
+def _running_mean(t: np.ndarray, samples: np.ndarray, width_s: float) -> np.ndarray:
+    """Each sample's mean over the samples within +-width_s / 2 (cumulative sums about the
+    first sample, so that a long drive loses no digits to gravity's offset)."""
+    lo = np.searchsorted(t, t - width_s / 2)
+    hi = np.searchsorted(t, t + width_s / 2, side="right")
+    total = np.vstack([np.zeros((1, samples.shape[1])), np.cumsum(samples - samples[0], axis=0)])
+    return (total[hi] - total[lo]) / np.maximum(hi - lo, 1)[:, None] + samples[0]
 
 
 def _density(samples: np.ndarray, t: np.ndarray, at_rest: np.ndarray, m: int,

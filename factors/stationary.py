@@ -290,7 +290,7 @@ def speed_sigma(velocity_cov: np.ndarray) -> float:
 STEADY_T_LIMIT = 4.0  # two-sample t statistic above which a window's halves differ
 
 
-def _window_stats(
+def window_stats(
     signal: np.ndarray, lo: np.ndarray, hi: np.ndarray, ddof: int
 ) -> tuple[np.ndarray, np.ndarray]:
     """Mean and variance (K, 3) of ``signal`` (N, 3) over the sample windows ``[lo, hi)``
@@ -354,8 +354,8 @@ def steady_imu(
     trending = np.zeros(len(times), dtype=bool)
     with np.errstate(invalid="ignore", divide="ignore"):
         for signal in signals:
-            first_mean, first_var = _window_stats(signal, lo, lo + half, 1)
-            second_mean, second_var = _window_stats(signal, hi - half, hi, 1)
+            first_mean, first_var = window_stats(signal, lo, lo + half, 1)
+            second_mean, second_var = window_stats(signal, hi - half, hi, 1)
             spread = np.sqrt((first_var + second_var) / half[:, None])
             difference = np.abs(second_mean - first_mean)
             # Exactly constant signals (synthetic, noise-free data) have zero spread: steady.
@@ -394,8 +394,8 @@ def quiet_imu(
     hi = np.searchsorted(imu.t, times + after_s)
     if len(times) == 0 or len(imu.t) == 0:
         return np.zeros(len(times), dtype=bool)
-    gyro_mean, gyro_var = _window_stats(imu.gyro, lo, hi, 0)
-    _, accel_var = _window_stats(imu.accel, lo, hi, 0)
+    gyro_mean, gyro_var = window_stats(imu.gyro, lo, hi, 0)
+    _, accel_var = window_stats(imu.accel, lo, hi, 0)
     with np.errstate(invalid="ignore"):
         # A steady turn is smooth too: the mean rate must be no more than a bias could give.
         quiet = (hi - lo >= MIN_QUIET_SAMPLES) & (np.sqrt(accel_var).max(axis=1) < accel_threshold)
