@@ -41,11 +41,14 @@ _EXPORTS = {
     "Trajectory": "fgins.datatypes",
     "ImuData": "fgins.datatypes",
     "GnssData": "fgins.datatypes",
+    "BaroData": "fgins.datatypes",
+    "OdometerData": "fgins.datatypes",
     "Origin": "fgins.datatypes",
     "RunConfig": "fgins.config",
 }
 
 __all__ = [
+    "BaroData",
     "ConfigError",
     "Dataset",
     "FginsError",
@@ -53,6 +56,7 @@ __all__ = [
     "GnssData",
     "ImuData",
     "InputError",
+    "OdometerData",
     "Origin",
     "OutputError",
     "RunConfig",
@@ -82,12 +86,14 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time __getattr__ does th
     )
     from fgins.config import RunConfig
     from fgins.datatypes import (
+        BaroData,
         ConfigError,
         Dataset,
         FginsError,
         GnssData,
         ImuData,
         InputError,
+        OdometerData,
         Origin,
         OutputError,
         Trajectory,

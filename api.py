@@ -20,6 +20,7 @@ imported by the functions that need them.
 
 from __future__ import annotations
 
+import copy
 import math
 import numbers
 import os
@@ -534,6 +535,12 @@ def smooth(
     if online and method != "isam2":
         raise ConfigError(f"online=True (--online) needs method isam2, not {method!r}")
     windows = _windows(gnss_outage)
+    # configure() notes what it guessed in the dataset's warnings: on a copy of the list (the
+    # caller's dataset is not changed), and said here (a Dataset made in code never heard
+    # "using the consumer-mems preset": outside tester).
+    dataset = copy.copy(dataset)
+    dataset.warnings = list(dataset.warnings)
+    told = len(dataset.warnings)
     if config is None:
         run_config = dataset.metadata.get("run_config") or configure(dataset)
     elif isinstance(config, RunConfig):
@@ -541,6 +548,8 @@ def smooth(
     else:
         choices = dataset.metadata.get("run_choices") or {}
         run_config = configure(dataset, config, **choices)  # type: ignore[arg-type]
+    for message in dataset.warnings[told:]:
+        warnings.warn(message, FginsWarning, stacklevel=2)
     # A RunConfig is mutable: one changed in code since it was made is checked again here.
     run_config = run_config.checked()
     dataset = _checked_input(dataset, run_config.smoother.vehicle, run_config.imu_sample_timing)

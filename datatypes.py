@@ -68,7 +68,7 @@ def _optional(name: str, value: object, n: int, tail: tuple[int, ...] = ()) -> n
     return array
 
 
-@dataclass
+@dataclass(eq=False)  # identity: array fields have no truth value (== raised)
 class ImuData:
     """Strapdown IMU samples in the IMU's own axes.
 
@@ -111,7 +111,7 @@ def median_interval(t: np.ndarray) -> float:
     return float(np.median(np.diff(t))) if len(t) > 1 else 0.0
 
 
-@dataclass
+@dataclass(eq=False)
 class GnssData:
     """GNSS fixes. Positions geodetic (deg, deg, ellipsoidal m); optional columns are NaN.
 
@@ -173,7 +173,7 @@ class GnssData:
         )
 
 
-@dataclass
+@dataclass(eq=False)
 class BaroData:
     """Barometer: pressure (Pa) or, where the source already converted it, height (m)."""
 
@@ -189,7 +189,7 @@ class BaroData:
         self.height = _optional("baro.height", self.height, n)
 
 
-@dataclass
+@dataclass(eq=False)
 class OdometerData:
     """Wheel speed / odometer: forward speed over ground (m/s), before any scale correction."""
 
@@ -204,7 +204,7 @@ class OdometerData:
             raise InputError("odometer: t and speed must have the same number of rows")
 
 
-@dataclass
+@dataclass(eq=False)
 class AccelArrayData:
     """Raw readings of a gyro-free IMU: N single-axis accelerometers (m/s^2) at times t (s).
 
@@ -314,7 +314,7 @@ NHC_FIT_POOR_KEY = "nhc_fit_poor"
 FROZEN_DROPPED_KEY = "gnss_frozen_repeats_dropped"
 
 
-@dataclass
+@dataclass(eq=False)
 class Dataset:
     """Everything one run consumes: sensors, the local frame origin and metadata.
 
@@ -402,7 +402,7 @@ def level_axes(rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 END_TOLERANCE_S = 1e-6  # Trajectory.at(): this close to an end is at it
 
 
-@dataclass
+@dataclass(eq=False)
 class Trajectory:
     """An estimated (or true) trajectory in the local ENU frame.
 

@@ -14,7 +14,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from fgins.datatypes import InputError
+from fgins.datatypes import InputError, OutputError
 from fgins.io.accel_array_csv import (
     ACCEL_ARRAY_FILE,
     accel_array_table,
@@ -88,12 +88,11 @@ def check_out_dir(folder: str | Path) -> None:
     folder can be made at all, not under a file, is fgins.api's output check: the caller's.)"""
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
-        raise InputError(f"{folder}: exists and is not a folder; choose another output path")
+        raise OutputError(f"{folder}: exists and is not a folder; choose another output path")
     # An output the user wrote beside a simulated drive (a track.csv) is never removed.
     check_command_folder(
-        folder, "sim", set(SIM_FILES), folder.is_dir() and _is_sim_folder(folder), "drive",
-        InputError,
-    )  # fmt: skip
+        folder, "sim", set(SIM_FILES), folder.is_dir() and _is_sim_folder(folder), "drive"
+    )  # where to write: an OutputError, as bench's and fleet's (it was an InputError)
 
 
 def write_sim_dir(run: SimRun, out_dir: str | Path) -> None:

@@ -347,3 +347,32 @@ def test_a_run_with_its_own_imu_table_does_not_report_loads_preset_guess(drive, 
         configured = fgins.smooth(bare, "ekf", config=tmp_path / "imu.toml")
     assert any(w.startswith("imu: the data say nothing") for w in guessed.summary()["warnings"])
     assert not any(w.startswith("imu: the data say nothing") for w in configured.summary()["warnings"])
+
+
+def test_every_data_class_a_dataset_takes_is_public_and_compares_by_identity():
+    """A Dataset takes a barometer and a wheel (the error message named fgins.BaroData),
+    but fgins exported neither class; and == on two datasets or two ImuData raised
+    numpy's "truth value of an array is ambiguous" (outside tester)."""
+    t = np.arange(5) * 0.1
+    baro = fgins.BaroData(t=t, pressure=np.full(5, 95000.0))
+    wheel = fgins.OdometerData(t=t, speed=np.ones(5))
+    assert isinstance(baro, fgins.BaroData) and isinstance(wheel, fgins.OdometerData)
+    assert {"BaroData", "OdometerData"} <= set(fgins.__all__)
+    imu = fgins.ImuData(t, np.zeros((5, 3)), np.zeros((5, 3)))
+    twin = fgins.ImuData(t, np.zeros((5, 3)), np.zeros((5, 3)))
+    assert imu == imu and imu != twin  # identity, never an exception
+    assert baro == baro and wheel != fgins.OdometerData(t=t, speed=np.ones(5))
+
+
+def test_a_dataset_made_in_code_hears_what_its_configuration_guessed(dataset):
+    """Smoothed without a configuration, a Dataset made in code ran on the consumer-mems
+    preset guessed for it, said only in summary() (load() of the same files warns; outside
+    tester). It arrives through warnings, and the caller's dataset keeps its own list."""
+    made = _from_arrays(dataset)
+    before = list(made.warnings)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", fgins.FginsWarning)
+        fgins.smooth(made, "ekf")
+    said = [str(w.message) for w in caught if issubclass(w.category, fgins.FginsWarning)]
+    assert any("using the consumer-mems preset" in line for line in said), said
+    assert made.warnings == before

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from fgins.config import GnssConfig, imu_noise_from_config
-from fgins.datatypes import InputError, Origin
+from fgins.datatypes import InputError, Origin, OutputError
 from fgins.factors.imu import with_gravity
 from fgins.geodesy import lla_to_enu, so3_log
 from fgins.io.csv_pair import read_csv_dataset
@@ -583,7 +583,7 @@ def test_sim_never_writes_over_a_folder_it_did_not_write(tmp_path: Path) -> None
     own.mkdir()
     (own / "imu.csv").write_text("my data\n")
     (own / "notes.txt").write_text("keep\n")
-    with pytest.raises(InputError, match=r"not empty .* not written by fgins sim"):
+    with pytest.raises(OutputError, match=r"not empty .* not written by fgins sim"):
         write_sim_dir(SCENARIOS["car-urban"](seed=1, duration_s=20), own)
     assert (own / "imu.csv").read_text() == "my data\n"
     assert sorted(p.name for p in own.iterdir()) == ["imu.csv", "notes.txt"]
