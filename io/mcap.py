@@ -147,7 +147,7 @@ def _choose(
                 f"({counts.get(best.channel_id, 0)} messages), not {others}"
                 + (
                     f" ({', '.join(derived)}: by {'its' if len(derived) == 1 else 'their'} "
-                    "name a fused or filtered output, not a receiver's)"
+                    "name a fused, filtered or INS output, not a receiver's)"
                     if derived
                     else ""
                 )
@@ -176,6 +176,11 @@ def _choose(
 # fusion node's, a filter's), not a receiver's measurement.
 DERIVED_TOPIC_WORDS = ("filtered", "fused", "fusion", "odom", "ekf", "ukf", "smoothed",
                        "estimate", "localization", "navsat_transform")  # fmt: skip
+# Whole name parts (between "/" and "_") that mark an INS's output: an INS driver publishes its
+# fused solution as a NavSatFix under its own or the IMU's name (SBG's /imu/nav_sat_fix at 50
+# Hz, Xsens' /xsens/gnss_pose_fix at 20 Hz), read before a 1 Hz /ublox/fix for its count: 1-1.5
+# m off at z 3-7, a lever arm and a gyro scale "corrected" from its errors (outside tester).
+INS_TOPIC_PARTS = frozenset(("ins", "imu", "xsens", "sbg", "vectornav", "inspva", "pose"))
 
 
 def _derived(candidate: _Candidate, role: str) -> bool:
@@ -183,7 +188,8 @@ def _derived(candidate: _Candidate, role: str) -> bool:
     if role not in (ROLE_GNSS, ROLE_VELOCITY):
         return False
     name = candidate.topic.lower()
-    return any(word in name for word in DERIVED_TOPIC_WORDS)
+    parts = set(name.replace("_", "/").split("/"))
+    return any(word in name for word in DERIVED_TOPIC_WORDS) or bool(parts & INS_TOPIC_PARTS)
 
 
 _ROLES = (ROLE_IMU, ROLE_GNSS, ROLE_VELOCITY, ROLE_BARO)

@@ -96,6 +96,12 @@ def test_no_tie_warning_when_one_imu_topic_has_more_messages(tmp_path: Path) -> 
         ({"/gps/fix": 996, "/gps/filtered": 3980}, "/gps/fix", "/gps/filtered"),
         ({"/odometry/gps": 2000, "/ublox/fix": 1000, "/novatel/fix": 990}, "/ublox/fix", "/odometry/gps"),
         ({"/gnss/left": 1000, "/gnss/right": 990}, "/gnss/left", None),
+        # an INS's fused fixes under its own or the IMU's name (outside tester: 1-1.5 m, z 3-7)
+        ({"/imu/nav_sat_fix": 15000, "/ublox/fix": 301}, "/ublox/fix", "/imu/nav_sat_fix"),
+        ({"/xsens/gnss_pose_fix": 6000, "/ublox/fix": 301}, "/ublox/fix", "/xsens/gnss_pose_fix"),
+        ({"/sbg/ins_fix": 6000, "/gps/fix": 301}, "/gps/fix", "/sbg/ins_fix"),
+        # "ins" only as a whole part: a receiver's topic that merely contains the letters stays
+        ({"/instrument/fix": 1000, "/gps/fix": 990}, "/instrument/fix", None),
     ],
 )
 def test_a_gnss_topic_is_chosen_said_and_never_a_fusion_node_s_output(topics, read, derived) -> None:
@@ -112,7 +118,7 @@ def test_a_gnss_topic_is_chosen_said_and_never_a_fusion_node_s_output(topics, re
     assert _choose(ROLE_GNSS, candidates, counts, None, report, warnings).topic == read
     (said,) = warnings
     assert said.startswith(f"gnss: {len(topics)} GNSS topics; read {read}") and "--gnss-topic" in said
-    assert (derived is not None) == ("fused or filtered output" in said)
+    assert (derived is not None) == ("fused, filtered or INS output" in said)
     if derived is not None:
         assert f"({derived}: by its name" in said
     # IMU topics keep their rule (most messages), without a warning unless tied.
