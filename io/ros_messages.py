@@ -156,14 +156,14 @@ def _ros1_decoder(type_name: str, definition: str) -> Callable[[bytes], Any]:
     return lambda data: store.deserialize_ros1(data, name)
 
 
-def _imu_ros1_reader(data: bytes) -> tuple[int, tuple[float, ...]]:
+def _imu_ros1_reader(data: bytes) -> tuple[int, tuple[float, ...], bytes]:
     """sensor_msgs/Imu from ROS 1 serialization (little endian, packed): header (seq,
     stamp secs/nsecs, frame_id), orientation (4 doubles) and its covariance (9), then
     angular velocity (3), its covariance (9), linear acceleration (3)."""
     sec, nanosec, frame_len = struct.unpack_from("<IIII", data, 0)[1:]
     gyro_at = 16 + frame_len + 13 * 8
     values = struct.unpack_from("<3d9d3d", data, gyro_at)
-    return sec * 1_000_000_000 + nanosec, values[:3] + values[12:15]
+    return sec * 1_000_000_000 + nanosec, values[:3] + values[12:15], data[16 : 16 + frame_len]
 
 
 def _imu_ros1_covariance_diagonals(data: bytes) -> tuple[tuple[float, ...], tuple[float, ...]]:
@@ -175,11 +175,11 @@ def _imu_ros1_covariance_diagonals(data: bytes) -> tuple[tuple[float, ...], tupl
     return gyro_cov[0::4], accel_cov[0::4]
 
 
-def _imu_cdr_reader(data: bytes) -> tuple[int, tuple[float, ...]]:
+def _imu_cdr_reader(data: bytes) -> tuple[int, tuple[float, ...], bytes]:
     """sensor_msgs/msg/Imu from CDR without generic decoding (the high-rate stream).
 
-    Returns (header stamp ns, (gx, gy, gz, ax, ay, az)). CDR aligns 8-byte fields to 8 relative
-    to the byte after the 4-byte encapsulation header.
+    Returns (header stamp ns, (gx, gy, gz, ax, ay, az), the frame_id's bytes). CDR aligns
+    8-byte fields to 8 relative to the byte after the 4-byte encapsulation header.
     """
     little = data[1] == 1
     prefix = "<" if little else ">"
@@ -191,7 +191,7 @@ def _imu_cdr_reader(data: bytes) -> tuple[int, tuple[float, ...]]:
     accel_at = gyro_at + 12 * 8  # angular_velocity (3) + its covariance (9)
     gyro = struct.unpack_from(prefix + "3d", data, gyro_at)
     accel = struct.unpack_from(prefix + "3d", data, accel_at)
-    return sec * 1_000_000_000 + nanosec, gyro + accel
+    return sec * 1_000_000_000 + nanosec, gyro + accel, data[16 : 16 + frame_len]
 
 
 def _imu_cdr_covariance_diagonals(data: bytes) -> tuple[tuple[float, ...], tuple[float, ...]]:
@@ -311,6 +311,54 @@ class Accumulator:
         self.log_ns = array("q")  # each row's log time: the order a recording is read in
         self.stamp_fallbacks = 0  # header stamp zero -> log time used
         self.decode_errors = 0
+        # Each row's frame_id (an index into frame_names): two sensors on one topic (a ROS 1
+        # topic with two publishers, one ROS 2 channel) differ in it.
+        self.frames = array("q")
+        self.frame_names: list[str] = []
+        self._frame_of: dict[str | bytes, int] = {}  # name (or its raw bytes) -> index
+
+    def frame_named(self, name: str | bytes) -> int:
+        """The index of frame_id ``name`` (a str, or the raw bytes of a serialized string)."""
+        index = self._frame_of.get(name)
+        if index is None:
+            text = name.decode("utf-8", "replace").rstrip("\x00") if isinstance(name, bytes) else name
+            index = self._frame_of.get(text)
+            if index is None:
+                index = len(self.frame_names)
+                self.frame_names.append(text)
+                self._frame_of[text] = index
+            self._frame_of[name] = index
+        return index
+
+    def one_source(self, role: str, sensors: str, warnings: list[str]) -> np.ndarray:
+        """Mask of the rows of one sensor: where rows of two or more frame_ids interleave in
+        time (two ``sensors`` publishing on one topic), those of the frame_id with most rows,
+        said; frame_ids one after another (a driver restarted under another name) are one
+        stream."""
+        frames = np.frombuffer(self.frames, dtype=np.int64)
+        keep = np.ones(frames.size, dtype=bool)
+        if len(self.frame_names) < 2 or frames.size != len(self.t):
+            return keep
+        t = np.frombuffer(self.t, dtype=float)
+        counts = np.bincount(frames, minlength=len(self.frame_names))
+        main = int(min(np.flatnonzero(counts == counts.max()), key=lambda i: self.frame_names[i]))
+        first, last = t[frames == main].min(), t[frames == main].max()
+        others = [
+            i for i in np.flatnonzero(counts)
+            if i != main and np.any((t[frames == i] > first) & (t[frames == i] < last))
+        ]  # fmt: skip
+        if not others:
+            return keep
+        keep = ~np.isin(frames, others)
+        listed = ", ".join(
+            f"{self.frame_names[i] or '(empty)'}: {counts[i]}" for i in [main, *others]
+        )
+        warnings.append(
+            f"{role} {self.topic}: messages of {len(others) + 1} frame_ids interleave ({listed}): "
+            f"two {sensors} on one topic; read frame_id {self.frame_names[main] or '(empty)'} "
+            f"only (the most messages), {int((~keep).sum())} of the others left out"
+        )
+        return keep
 
     def __len__(self) -> int:
         return len(self.t)
@@ -363,10 +411,11 @@ class ImuAccumulator(Accumulator):
             self.read_covariances = _imu_ros1_covariance_diagonals
 
     def add_raw(self, data: bytes, log_time: int, use_header_stamp: bool) -> None:
-        stamp, values = self.read_values(data)
+        stamp, values, frame = self.read_values(data)
         self.t.append(self.time(stamp, log_time, use_header_stamp))
         self.log_ns.append(log_time)
         self.values.extend(values)
+        self.frames.append(self.frame_named(frame))
         if len(self.t) <= self.COVARIANCE_SAMPLES:
             gyro_diag, accel_diag = self.read_covariances(data)
             self.gyro_var.append(_known_variance(gyro_diag))
@@ -374,6 +423,7 @@ class ImuAccumulator(Accumulator):
 
     def _permute(self, order: np.ndarray) -> bool:
         self.values = _reordered(self.values, order, "d", width=6)
+        self.frames = _reordered(self.frames, order, "q")
         return True
 
     def noise_config(self, rate_hz: float) -> dict[str, float]:
@@ -414,19 +464,12 @@ class FixAccumulator(Accumulator):
         self.correlated_covariance = 0  # with correlated axes: their diagonal is used, counted
         self.largest_correlation = 0.0
         self.first_t = math.inf  # of any message, with a fix or not (the t0 of outages)
-        # Each row's frame_id (an index into frame_names): two receivers on one topic (a
-        # ROS 1 topic with two publishers, one ROS 2 channel) differ in it.
-        self.frames = array("q")
-        self.frame_names: list[str] = []
-        self._frame_of: dict[str, int] = {}  # name -> index into frame_names
 
     def _frame_index(self, msg: Any) -> int:
         header = _get(msg, "header")
-        name = str(_get(header, "frame_id", "") if header is not None else _get(msg, "frame_id", "") or "")
-        if name not in self._frame_of:
-            self._frame_of[name] = len(self.frame_names)
-            self.frame_names.append(name)
-        return self._frame_of[name]
+        return self.frame_named(
+            str(_get(header, "frame_id", "") if header is not None else _get(msg, "frame_id", "") or "")
+        )
 
     def add(self, msg: Any, log_time: int, use_header_stamp: bool) -> None:
         nan = math.nan
@@ -485,36 +528,10 @@ class FixAccumulator(Accumulator):
         return True
 
     def one_receiver(self, warnings: list[str]) -> np.ndarray:
-        """Mask of the rows of one receiver: where fixes of two or more frame_ids interleave
-        in time (two receivers publishing on one topic), those of the frame_id with most
-        fixes, said; frame_ids one after another (a driver restarted under another name)
-        are one stream. Merged, two antennas 3 m apart read as one receiver jumping between
-        them: 1.4 m off at 14 times the sigmas, blamed on a lever arm and multipath (outside
-        tester)."""
-        frames = np.frombuffer(self.frames, dtype=np.int64)
-        keep = np.ones(frames.size, dtype=bool)
-        if len(self.frame_names) < 2 or frames.size != len(self.t):
-            return keep
-        t = np.frombuffer(self.t, dtype=float)
-        counts = np.bincount(frames, minlength=len(self.frame_names))
-        main = int(min(np.flatnonzero(counts == counts.max()), key=lambda i: self.frame_names[i]))
-        first, last = t[frames == main].min(), t[frames == main].max()
-        others = [
-            i for i in np.flatnonzero(counts)
-            if i != main and np.any((t[frames == i] > first) & (t[frames == i] < last))
-        ]  # fmt: skip
-        if not others:
-            return keep
-        keep = ~np.isin(frames, others)
-        listed = ", ".join(
-            f"{self.frame_names[i] or '(empty)'}: {counts[i]}" for i in [main, *others]
-        )
-        warnings.append(
-            f"gnss {self.topic}: fixes of {len(others) + 1} frame_ids interleave ({listed}): "
-            f"two receivers on one topic; read frame_id {self.frame_names[main] or '(empty)'} "
-            f"only (the most fixes), {int((~keep).sum())} fixes of the others left out"
-        )
-        return keep
+        """Mask of the fixes of one receiver (:meth:`Accumulator.one_source`). Merged, two
+        antennas 3 m apart read as one receiver jumping between them: 1.4 m off at 14 times
+        the sigmas, blamed on a lever arm and multipath (outside tester)."""
+        return self.one_source("gnss", "receivers", warnings)
 
 
 class VelocityAccumulator(Accumulator):
@@ -640,8 +657,11 @@ def sorted_unique(t: np.ndarray, label: str, warnings: list[str]) -> np.ndarray 
 
 
 def build_imu(acc: ImuAccumulator, warnings: list[str]) -> ImuData:
-    t = np.frombuffer(acc.t, dtype=float)
-    values = np.frombuffer(acc.values, dtype=float).reshape(-1, 6)
+    # Two IMUs on one topic (two frame_ids interleaving) were read as one at twice the rate,
+    # one turned 180 deg "diverged ... check imu_to_vehicle_rpy_deg" (outside tester).
+    one = acc.one_source("imu", "IMUs", warnings)
+    t = np.frombuffer(acc.t, dtype=float)[one]
+    values = np.frombuffer(acc.values, dtype=float).reshape(-1, 6)[one]
     if t.size < 2:
         raise InputError(f"imu topic {acc.topic}: fewer than 2 usable samples; check the recording")
     # the one row policy of every reader (NaN rows, reordering, repeated stamps)

@@ -159,6 +159,7 @@ def write_bag(
     compression: str = "",
     position_correlation: float = 0.0,
     second_receiver_m: float = 0.0,
+    second_imu_frame: bool = False,
     receiver_renamed: bool = False,
 ) -> Path:
     """The drive through rosbags' serializers: ``kind`` "ros2-mcap" / "ros2-sqlite" (a bag
@@ -172,6 +173,8 @@ def write_bag(
     ``second_imu_every`` > 0 adds ``/imu/raw`` carrying every n-th IMU sample (a second,
     sparser IMU candidate).
 
+    ``second_imu_frame``: a second IMU (frame_id ``imu2``, turned 180 deg about z, 5 ms
+    later, at half the rate) publishing on the IMU topic too.
     ``second_receiver_m`` > 0: a second receiver (frame_id ``gps2``) ``second_receiver_m``
     north of the first publishes on /gps/fix too, 0.1 s after each fix; ``receiver_renamed``:
     the fixes of the drive's second half carry frame_id ``gps_b`` (a driver restarted under
@@ -206,19 +209,25 @@ def write_bag(
             imu_conns = [(imu_conn, 1)]
             if second_imu_every:
                 imu_conns.append((add("/imu/raw", "sensor_msgs/msg/Imu"), second_imu_every))
+            sensors = [("imu_link_with_a_longer_name", 0, np.ones(3))]
+            if second_imu_frame:
+                sensors.append(("imu2", 5_000_000, np.array([-1.0, -1.0, 1.0])))
             for conn, every in imu_conns:
                 for i in range(0, drive.imu_ns.size, every):
-                    ns = int(drive.imu_ns[i])
-                    msg = t["sensor_msgs/msg/Imu"](
-                        header=_header(store, ns, "imu_link_with_a_longer_name"),
-                        orientation=quat(x=0.0, y=0.0, z=0.0, w=1.0),
-                        orientation_covariance=np.full(9, -1.0),
-                        angular_velocity=vec3(*map(float, drive.gyro[i])),
-                        angular_velocity_covariance=gyro_cov,
-                        linear_acceleration=vec3(*map(float, drive.accel[i])),
-                        linear_acceleration_covariance=accel_cov,
-                    )
-                    records.append((ns, conn, msg, "sensor_msgs/msg/Imu"))
+                    for frame, later_ns, turn in sensors if conn is imu_conn else sensors[:1]:
+                        if later_ns and i % 2:
+                            continue
+                        ns = int(drive.imu_ns[i]) + later_ns
+                        msg = t["sensor_msgs/msg/Imu"](
+                            header=_header(store, ns, frame),
+                            orientation=quat(x=0.0, y=0.0, z=0.0, w=1.0),
+                            orientation_covariance=np.full(9, -1.0),
+                            angular_velocity=vec3(*map(float, drive.gyro[i] * turn)),
+                            angular_velocity_covariance=gyro_cov,
+                            linear_acceleration=vec3(*map(float, drive.accel[i] * turn)),
+                            linear_acceleration_covariance=accel_cov,
+                        )
+                        records.append((ns, conn, msg, "sensor_msgs/msg/Imu"))
         if gpsfix:
             gpsfix_conn = add("/gps/gpsfix", f"{gps}/msg/GPSFix")
             for i, ns in enumerate(map(int, drive.gnss_ns)):

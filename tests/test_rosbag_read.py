@@ -237,6 +237,21 @@ def test_two_receivers_on_one_topic_are_not_read_as_one(tmp_path, kind, publishe
     assert not any("frame_ids" in w for w in dataset.warnings), dataset.warnings
 
 
+@pytest.mark.parametrize("kind", ["ros1-bag", "ros2-sqlite", "ros1-mcap"])
+def test_two_imus_on_one_topic_are_not_read_as_one(tmp_path, kind):
+    """Two IMUs publishing on one topic (frame_ids imu_link and imu2, the second turned 180
+    deg): read as one IMU at twice the rate, a rate warning only, and the batch "diverged ...
+    check imu_to_vehicle_rpy_deg" (outside tester). The frame_id with most samples is read,
+    said, as two receivers' fixes are."""
+    drive = make_drive()
+    path = write_bag(tmp_path / KINDS[kind], drive, kind, second_imu_frame=True)
+    dataset = load_dataset([str(path)], progress=False)
+    np.testing.assert_array_equal(dataset.imu.t, drive.imu_ns / 1e9)
+    np.testing.assert_array_equal(dataset.imu.gyro, drive.gyro)
+    said = [w for w in dataset.warnings if "frame_ids interleave" in w]
+    assert len(said) == 1 and "two IMUs on one topic" in said[0] and "imu2: 1000" in said[0], dataset.warnings
+
+
 def _edit_metadata(folder: Path, old: str, new: str) -> None:
     meta = folder / "metadata.yaml"
     text = meta.read_text()
