@@ -585,22 +585,25 @@ def _up_axis(imu) -> np.ndarray:
     return up / np.linalg.norm(up)
 
 
-def _gravity_axis(dataset, forward: np.ndarray) -> np.ndarray:
+def _gravity_axis(dataset, forward: np.ndarray, accel_bias: np.ndarray | None = None) -> np.ndarray:
     """Up in IMU axes from gravity alone: the mean accelerometer reading less the vehicle's
     own acceleration (centripetal ``w x v`` and along-track ``dv/dt``, with the velocity
     ``speed * forward``; ``forward`` in IMU axes). A drive that turns mostly one way leans
     the plain mean: the last 100 s of the KITTI drive read 3.3-3.6 deg of roll, 1.8 deg
-    without its turns' centripetal acceleration (its crossfall)."""
+    without its turns' centripetal acceleration (its crossfall). ``accel_bias`` (IMU axes, a
+    solution's) is taken off the readings first."""
     imu, gnss = dataset.imu, dataset.gnss
+    bias = np.zeros(3) if accel_bias is None else np.asarray(accel_bias, dtype=float)
     speed = _speed(gnss.t, dataset.gnss_enu(), gnss.velocity)
     known = np.isfinite(speed)
     if known.sum() < 2:
-        return _up_axis(imu)
+        up = np.mean(imu.accel, axis=0) - bias
+        return up / np.linalg.norm(up)
     t, speed = gnss.t[known], speed[known]
     speed_at = np.interp(imu.t, t, speed)
     change_at = np.interp(imu.t, t, np.gradient(speed, t))
     motion = np.cross(imu.gyro, np.outer(speed_at, forward)) + np.outer(change_at, forward)
-    up = np.mean(imu.accel - motion, axis=0)
+    up = np.mean(imu.accel - motion, axis=0) - bias
     return up / np.linalg.norm(up)
 
 
@@ -855,6 +858,21 @@ def default_axes_note(dataset, rpy_deg) -> str | None:
 CONVENTION_TILT_DEG = 30.0
 
 
+TILT_NOTE_START = "imu: the vehicle's up axis, from gravity's mean direction"
+
+
+def tilt_note_without_bias(dataset, rpy_deg, accel_bias: np.ndarray) -> str | None:
+    """The tilt warning (:func:`_tilt_note`) again with a solution's accelerometer bias (IMU
+    axes) taken off the readings: a bias of 90-100 mg leans their mean by 5-7 deg, which had
+    been said as the mounting's roll or pitch, with a wrong mounting to set (outside tester;
+    the same run solved the bias to 0.1 mg)."""
+    found = _forward_axis(dataset)
+    if found is None:
+        return None
+    forward = found.facing(rpy_deg)
+    return _tilt_note(dataset, rpy_deg, forward, _gravity_axis(dataset, forward, accel_bias))
+
+
 def _tilt_note(
     dataset, rpy_deg, forward: np.ndarray, up: np.ndarray, warn_deg: float = TILT_WARN_DEG
 ) -> str | None:
@@ -877,7 +895,7 @@ def _tilt_note(
         "nhc_lever_arm_m, does)"
     )
     return (
-        f"imu: the vehicle's up axis, from gravity's mean direction over the drive (mean grade "
+        f"{TILT_NOTE_START} over the drive (mean grade "
         f"{mean_grade:+.1f} deg), lies {tilt:.1f} deg from the configured mounting's "
         f"(imu_to_vehicle_rpy_deg = {_angles(rpy_deg, 2)}): {effect}; a mounting that fits "
         f"the data: imu_to_vehicle_rpy_deg = {_angles(_mounting_rpy_deg(forward, up), 1)}"

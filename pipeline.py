@@ -53,6 +53,7 @@ from fgins.datatypes import (
 from fgins.gnss_scatter import gnss_scatter, robust_scale
 from fgins.graph.gyro_scale import GROSS_SCALE_KEY
 from fgins.initial_guess import KeyframeGuess
+from fgins.mounting import TILT_NOTE_START, tilt_note_without_bias
 from fgins.solution_checks import (
     heading_unseen_in_motion,
     nose_off_track,
@@ -470,6 +471,12 @@ def _corrected_solution(
             "elsewhere would, or a gyro scale error, so the findings about them may be the mounting's (set the "
             "mounting, or mounting_from_data = true, first)"
         )
+    if mounting_note and mounting_note.startswith(TILT_NOTE_START) and trajectory.accel_bias is not None:
+        # Said before the solve from the raw readings: with the solved accelerometer bias off
+        # them, a tilt that was the bias's is no mounting's.
+        bias = np.nanmedian(np.asarray(trajectory.accel_bias, dtype=float), axis=0)
+        if np.all(np.isfinite(bias)):
+            mounting_note = tilt_note_without_bias(dataset, config.smoother.imu_to_vehicle_rpy_deg, bias)
     notes = [
         noise_note, bias_note, mounting_note, point_note, held_note, lever_note, unknown_height(dataset, trajectory),
         nose_off_track(config, trajectory, dataset), unconfirmed_note, arm_note,
