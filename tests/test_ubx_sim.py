@@ -119,6 +119,21 @@ def test_sim_drive_as_ubx_smooths_like_csv(tmp_path, seed):
 
 
 
+def _rms_at_receiver_times(out, folder) -> float:
+    """Horizontal RMS (m) of a run's output against the independent simulator's truth at the
+    output's own times (the receiver's), after its first 10 s."""
+    import pandas as pd
+    import pymap3d
+
+    truth = pd.read_csv(folder / "truth.csv")
+    frame = out.to_dataframe()
+    east, north, _ = pymap3d.geodetic2enu(frame["lat"], frame["lon"], frame["alt"], 45.0, 10.0, 100.0)
+    t = frame["time"].to_numpy() - START
+    error = np.hypot(east - np.interp(t, truth["time"], truth["east"]),
+                     north - np.interp(t, truth["time"], truth["north"]))[t > 10.0]  # fmt: skip
+    return float(np.sqrt(np.mean(error**2)))
+
+
 def _write_nav_first(folder, path, batch_s=0.1, s_acc=0.1):
     """An independent simulator's drive in ``folder`` (imu.csv, gnss.csv, truth.csv; times
     from 0, put at START) as UBX from a receiver that sends an epoch's NAV-PVT before the
@@ -155,8 +170,6 @@ def test_imu_mapped_late_by_the_anchors_is_put_on_the_receivers_clock(tmp_path):
     the IMU, and that offset is the mapping's: the output must be on the receiver's clock
     (the fixes' times), not on the derived IMU clock. (Outside tester: the output lay 0.1 s
     off the receiver's UTC, 1.2 m from the truth at its times at z 8.9, heading z 25.)"""
-    import pandas as pd
-    import pymap3d
     from independent_sim import FIVE_TURNS, INDUSTRIAL, CarProfile, write_drive
 
     from fgins.io.inputs import load_dataset as load
@@ -170,15 +183,8 @@ def test_imu_mapped_late_by_the_anchors_is_put_on_the_receivers_clock(tmp_path):
     out = run_method(data, config_for_dataset(data), "batch", progress=False)
     said = " ".join(out.info.get("fit_warnings", []))
     assert "the IMU's times moved by -0." in said and "onto the receiver's clock" in said, said
-    # Against the truth at the output's own times (the receiver's).
-    truth = pd.read_csv(tmp_path / "truth.csv")
-    frame = out.to_dataframe()
-    east, north, _ = pymap3d.geodetic2enu(frame["lat"], frame["lon"], frame["alt"], 45.0, 10.0, 100.0)
-    t = frame["time"].to_numpy() - START
-    error = np.hypot(east - np.interp(t, truth["time"], truth["east"]),
-                     north - np.interp(t, truth["time"], truth["north"]))[t > 10.0]  # fmt: skip
     # 0.1 s at 12 m/s is the old code's error along the track.
-    assert np.sqrt(np.mean(error**2)) < 0.3, f"RMS {np.sqrt(np.mean(error**2)):.3f} m"
+    assert (rms := _rms_at_receiver_times(out, tmp_path)) < 0.3, f"RMS {rms:.3f} m"
 
 
 def test_imu_mapped_a_whole_epoch_late_follows_the_clock_advice_onto_the_receivers_clock(tmp_path):
@@ -189,8 +195,6 @@ def test_imu_mapped_a_whole_epoch_late_follows_the_clock_advice_onto_the_receive
     is put on the receiver's clock, and said."""
     import re
 
-    import pandas as pd
-    import pymap3d
     from independent_sim import FIVE_TURNS, INDUSTRIAL, CarProfile, write_drive
 
     from fgins.datatypes import InputError
@@ -208,10 +212,4 @@ def test_imu_mapped_a_whole_epoch_late_follows_the_clock_advice_onto_the_receive
     out = run_method(data, config_for_dataset(data), "batch", progress=False)
     said = " ".join(out.info.get("fit_warnings", []))
     assert "the output is put on the receiver's clock" in said, said
-    truth = pd.read_csv(tmp_path / "truth.csv")
-    frame = out.to_dataframe()
-    east, north, _ = pymap3d.geodetic2enu(frame["lat"], frame["lon"], frame["alt"], 45.0, 10.0, 100.0)
-    t = frame["time"].to_numpy() - START
-    error = np.hypot(east - np.interp(t, truth["time"], truth["east"]),
-                     north - np.interp(t, truth["time"], truth["north"]))[t > 10.0]  # fmt: skip
-    assert np.sqrt(np.mean(error**2)) < 0.5, f"RMS {np.sqrt(np.mean(error**2)):.3f} m"  # 1 s: 12 m
+    assert (rms := _rms_at_receiver_times(out, tmp_path)) < 0.5, f"RMS {rms:.3f} m"  # 1 s: 12 m
