@@ -327,8 +327,8 @@ def _report_input(dataset: Dataset) -> None:
 def _report(dataset: Dataset, trajectory: Trajectory) -> None:
     _report_input(dataset)
     summary = trajectory.summary()
-    for key in ("gnss_gating", "gnss_rejected", "gnss_excluded", "gnss_correlation", "gnss_time_unresolved",
-                "stops_moving", "imu_bias_model", "solver"):  # fmt: skip
+    for key in ("vehicle_model", "gnss_gating", "gnss_rejected", "gnss_excluded", "gnss_correlation",
+                "gnss_time_unresolved", "stops_moving", "imu_bias_model", "solver"):  # fmt: skip
         if key in summary:
             print(summary[key], file=sys.stderr)
     for warning in summary.get("fit_warnings", []):

@@ -471,6 +471,13 @@ def _corrected_solution(
     blind_note = time_unresolved_note(trajectory) if config.gnss.time_offset_from_data and not stamps_moved else None
     if blind_note:  # what the data cannot check, not a fault found: a summary line
         trajectory.info["gnss_time_unresolved"] = blind_note
+    if config.smoother.vehicle == "other":
+        # The default where neither --vehicle, the configuration nor the input names one: a
+        # car's drive ran without its constraints, unsaid (outside tester).
+        trajectory.info["vehicle_model"] = (
+            "vehicle: other (no vehicle constraints); a car is not held to its track without "
+            "--vehicle car or [smoother] vehicle = \"car\""
+        )
     add_unresolved_time_uncertainty(trajectory)
     add_slow_fix_error_uncertainty(dataset, config, gnss_mask, trajectory)
     held_note = None

@@ -376,3 +376,12 @@ def test_a_dataset_made_in_code_hears_what_its_configuration_guessed(dataset):
     said = [str(w.message) for w in caught if issubclass(w.category, fgins.FginsWarning)]
     assert any("using the consumer-mems preset" in line for line in said), said
     assert made.warnings == before
+
+
+def test_the_default_vehicle_model_is_said(dataset):
+    """Without --vehicle, a configuration or an input naming one, a CSV drive runs as
+    "other", without a car's constraints, and nothing said so (outside tester)."""
+    other = _quiet_smooth(_from_arrays(dataset), "ekf")
+    assert "vehicle: other (no vehicle constraints)" in other.summary().get("vehicle_model", "")
+    car = _quiet_smooth(dataset, "ekf")  # fgins sim's folder names its car
+    assert "vehicle_model" not in car.summary()
