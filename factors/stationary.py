@@ -38,12 +38,6 @@ STOP_SPEED_SIGMAS = 3.0
 # vs 1.32 m, after: 1.34 m). A steady crawl is still refused where its speed is known:
 # 1.2 +- 0.1 m/s is 12 sigmas (tests/test_stop_detection.py).
 SOLUTION_STOP_SIGMAS = 5.0
-# Below this the estimate's speed confirms a stop whatever its sigma: a real stop's few cm/s.
-# At 0.25 m/s (the crawl floor below) a car pulling away from a stop at 0.17 +- 0.014 m/s (12
-# sigmas) was stopped, and the ZUPT's pull on the track read as a GNSS antenna 2.1 m to the
-# side, taken, the track 2.1 m off everywhere at z 3.6-3.9 (outside tester).
-KNOWN_STOP_SPEED_FLOOR_M_PER_S = 0.12
-# The speed under which a crawl, a chord of fixes or a slow-down cannot refuse a stop.
 STOP_SPEED_FLOOR_M_PER_S = 0.25
 
 
@@ -51,7 +45,7 @@ def speed_confirms_stop(speed: float | None, sigma: float | None, max_speed: flo
     """Does an estimate's speed (m/s) at a quiet IMU window confirm a stop?
 
     Below ``max_speed`` (``zupt_max_speed_m_per_s``) and, when its sigma is known, within
-    ``SOLUTION_STOP_SIGMAS`` sigmas of zero (at least ``KNOWN_STOP_SPEED_FLOOR_M_PER_S``). Why the
+    ``SOLUTION_STOP_SIGMAS`` sigmas of zero (at least ``STOP_SPEED_FLOOR_M_PER_S``). Why the
     sigma: an IMU moving at constant velocity reads like one at rest (a smooth crawl, the peak
     of a gentle start; simulated data without vibration), so a quiet IMU alone cannot tell;
     a speed the estimate knows to be 1.2 +- 0.1 m/s can. The cap alone let such a crawl in an
@@ -63,7 +57,7 @@ def speed_confirms_stop(speed: float | None, sigma: float | None, max_speed: flo
         return False
     if sigma is None or not np.isfinite(sigma):
         return True
-    return speed < max(KNOWN_STOP_SPEED_FLOOR_M_PER_S, SOLUTION_STOP_SIGMAS * sigma)
+    return speed < max(STOP_SPEED_FLOOR_M_PER_S, SOLUTION_STOP_SIGMAS * sigma)
 
 
 GNSS_MOTION_WINDOW_S = 4.0  # fixes this far back from a keyframe show whether it moves

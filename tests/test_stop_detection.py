@@ -81,8 +81,7 @@ def test_a_steady_crawl_in_an_outage_is_not_a_stop(tmp_path, method, seed):
 def test_the_stop_rule_uses_the_cap_and_the_sigma():
     cap = 1.5
     assert speed_confirms_stop(0.05, 0.01, cap)  # a real stop, well known
-    assert speed_confirms_stop(0.1, 0.01, cap)  # below the floor: whatever the sigma
-    assert not speed_confirms_stop(0.17, 0.014, cap)  # pulling away from a stop: 12 sigmas
+    assert speed_confirms_stop(0.2, 0.01, cap)  # below the floor: whatever the sigma
     assert not speed_confirms_stop(1.2, 0.1, cap)  # a crawl the estimate knows
     assert speed_confirms_stop(1.2, 0.5, cap)  # a speed it does not know (dead reckoning)
     assert speed_confirms_stop(1.2, None, cap)  # no sigma: the cap alone
@@ -245,11 +244,9 @@ def test_a_creep_under_the_stop_speed_floor_is_not_a_stop(tmp_path, seed, creep_
         rms[zupt] = (float(np.sqrt(np.mean(error[inside] ** 2))), float(np.sqrt(np.mean(error[~inside] ** 2))))
         if zupt:
             assert track.info["zupt_keyframes"] >= 20  # the real stop at the end
-            # Refused by its solved speed (above the floor of a real stop's few cm/s and
-            # known to many sigmas), or said as a crawl where the speed could not refuse it.
+            assert "the vehicle crawled" in track.info.get("stops_moving", ""), track.info.get("stops_moving")
             speed = np.linalg.norm(track.velocity, axis=1)
             creeping = (track.t > 70.0) & (track.t < 165.0)
             assert np.median(speed[creeping]) > 0.5 * creep_speed
     assert rms[True][0] <= 1.1 * rms[False][0] + 0.1, rms
     assert rms[True][1] <= 1.1 * rms[False][1] + 0.05, rms
-
