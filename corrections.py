@@ -539,9 +539,9 @@ def with_antenna_corrected(
     first_pass = not dataset.metadata.get(GNSS_STAMPS_MOVED_KEY)
     if (best is not first and abs(moved_here) >= LINE_SEARCH_MIN_OFFSET_S and on_imu_clock
             and first_pass and arm_taken is None and config.gnss.time_offset_from_data):  # fmt: skip
-        searched = _offset_line_search(run, dataset, config, best, fit_key)
-        if searched is not None:
-            best, dataset, extra = searched
+        found = _offset_line_search(run, dataset, config, best, fit_key)
+        if found is not None:
+            best, dataset, extra = found
             fixes_moved -= extra
     if implausible:
         best.info.setdefault("fit_warnings", []).append(

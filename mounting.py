@@ -578,10 +578,12 @@ def _residual_variance(residual: np.ndarray, parameters: int) -> float:
     return float(np.sum(residual**2)) / dof * (MOTION_WINDOW_S / MOTION_STEP_S)
 
 
-def _up_axis(imu) -> np.ndarray:
+def _up_axis(imu, accel_bias: np.ndarray | None = None) -> np.ndarray:
     """Up in IMU axes: the mean accelerometer reading (gravity's reaction; roads are level
-    on average)."""
+    on average), less ``accel_bias`` where given."""
     up = np.mean(imu.accel, axis=0)
+    if accel_bias is not None:
+        up = up - np.asarray(accel_bias, dtype=float)
     return up / np.linalg.norm(up)
 
 
@@ -593,17 +595,17 @@ def _gravity_axis(dataset, forward: np.ndarray, accel_bias: np.ndarray | None = 
     without its turns' centripetal acceleration (its crossfall). ``accel_bias`` (IMU axes, a
     solution's) is taken off the readings first."""
     imu, gnss = dataset.imu, dataset.gnss
-    bias = np.zeros(3) if accel_bias is None else np.asarray(accel_bias, dtype=float)
     speed = _speed(gnss.t, dataset.gnss_enu(), gnss.velocity)
     known = np.isfinite(speed)
     if known.sum() < 2:
-        up = np.mean(imu.accel, axis=0) - bias
-        return up / np.linalg.norm(up)
+        return _up_axis(imu, accel_bias)
     t, speed = gnss.t[known], speed[known]
     speed_at = np.interp(imu.t, t, speed)
     change_at = np.interp(imu.t, t, np.gradient(speed, t))
     motion = np.cross(imu.gyro, np.outer(speed_at, forward)) + np.outer(change_at, forward)
-    up = np.mean(imu.accel - motion, axis=0) - bias
+    up = np.mean(imu.accel - motion, axis=0)
+    if accel_bias is not None:
+        up = up - np.asarray(accel_bias, dtype=float)
     return up / np.linalg.norm(up)
 
 

@@ -30,7 +30,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgins.datatypes import Dataset
-from fgins.factors.stationary import gnss_chord, gnss_moving, steady_imu, window_stats
+from fgins.factors.stationary import (
+    gnss_chord,
+    gnss_moving,
+    mean_accel,
+    mean_gyro,
+    steady_imu,
+    window_stats,
+)
 
 # Averaging time (the triangle spans twice it): the keyframe intervals' scale, which the
 # preintegration integrates over, well above a vehicle's vibration periods, far below the
@@ -91,8 +98,9 @@ def rest_mask(dataset: Dataset, gnss_mask: np.ndarray | None = None) -> np.ndarr
     # engine's 8-50 Hz vibration (2 m/s^2 of it at rest is vibration, not motion).
     lo = np.searchsorted(imu.t, centres - half)
     hi = np.searchsorted(imu.t, centres + half)
-    _, accel_var = window_stats(_running_mean(imu.t, imu.accel, SWING_AVERAGE_S), lo, hi, 1)
-    _, gyro_var = window_stats(_running_mean(imu.t, imu.gyro, SWING_AVERAGE_S), lo, hi, 1)
+    swing = SWING_AVERAGE_S / 2
+    _, accel_var = window_stats(mean_accel(imu, imu.t, before_s=swing, after_s=swing)[0], lo, hi, 1)
+    _, gyro_var = window_stats(mean_gyro(imu, imu.t, before_s=swing, after_s=swing)[0], lo, hi, 1)
     with np.errstate(invalid="ignore"):
         swinging = (np.sqrt(np.sum(accel_var, axis=1)) > REST_MAX_ACCEL_RMS_M_S2) | (
             np.sqrt(np.sum(gyro_var, axis=1)) > REST_MAX_GYRO_RMS_RAD_S
@@ -112,15 +120,6 @@ def rest_mask(dataset: Dataset, gnss_mask: np.ndarray | None = None) -> np.ndarr
     np.add.at(marks, lo, 1)
     np.add.at(marks, hi, -1)
     return np.cumsum(marks[:-1]) > 0
-
-
-def _running_mean(t: np.ndarray, samples: np.ndarray, width_s: float) -> np.ndarray:
-    """Each sample's mean over the samples within +-width_s / 2 (cumulative sums about the
-    first sample, so that a long drive loses no digits to gravity's offset)."""
-    lo = np.searchsorted(t, t - width_s / 2)
-    hi = np.searchsorted(t, t + width_s / 2, side="right")
-    total = np.vstack([np.zeros((1, samples.shape[1])), np.cumsum(samples - samples[0], axis=0)])
-    return (total[hi] - total[lo]) / np.maximum(hi - lo, 1)[:, None] + samples[0]
 
 
 def _density(samples: np.ndarray, t: np.ndarray, at_rest: np.ndarray, m: int,

@@ -531,6 +531,7 @@ def add_slow_fix_error_uncertainty(
     from fgins.baseline.measurements import select_gnss
     from fgins.correlated_fixes import (
         BLOCK_S,
+        CORRELATED_RHO,
         residual_correlation,
         slow_error_variance,
         variance_ratio,
@@ -582,12 +583,8 @@ def add_slow_fix_error_uncertainty(
         if np.isfinite(ratio_h) and np.isfinite(ratio_v)
         else ""
     )
-    from fgins.correlated_fixes import CORRELATED_RHO
-
     keeps_sign = max(rho_h, rho_v) > CORRELATED_RHO
-    shown = (
-        "keep their sign from one fix to the next" if keeps_sign else "wander slowly"
-    )
+    shown = "keep their sign from one fix to the next" if keeps_sign else "wander slowly"
     trajectory.info["gnss_correlation"] = (
         f"GNSS slow errors: the fixes' residuals about the solution {shown} "
         f"(lag-1 correlation {rho_h:.2f} horizontally, {rho_v:.2f} vertically "

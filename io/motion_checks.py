@@ -604,11 +604,10 @@ def check_gnss_velocity(gnss: GnssData, origin: Origin) -> None:
     climb = track[:, 2]
     given_climb = given[:, 2]
     usable = np.isfinite(given_climb)
-    if usable.sum() < VELOCITY_MIN_EPOCHS or np.std(given_climb[usable]) < CLIMB_MIN_STD_M_S:
-        _check_climb_sign_over_windows(gnss, enu)
-        return
-    bounds = _climb_ratio_bounds(climb[usable], given_climb[usable])
-    if bounds is None:  # the two do not follow each other: noise, not a unit
+    bounds = None
+    if usable.sum() >= VELOCITY_MIN_EPOCHS and np.std(given_climb[usable]) >= CLIMB_MIN_STD_M_S:
+        bounds = _climb_ratio_bounds(climb[usable], given_climb[usable])
+    if bounds is None:  # too little climb, or noise, not a unit: the sign over longer stretches
         _check_climb_sign_over_windows(gnss, enu)
         return
     low, high = bounds
