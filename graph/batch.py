@@ -13,7 +13,7 @@ import numpy as np
 
 from fgins.datatypes import FginsError, Trajectory
 from fgins.graph.gnss_faults import exclude_gnss_faults, with_every_fix
-from fgins.graph.gyro_scale import correct_gyro_scale
+from fgins.graph.gyro_scale import add_scale_spread, correct_gyro_scale
 from fgins.graph.isam2 import run_isam2
 from fgins.graph.problem import Problem
 from fgins.graph.reports import (
@@ -146,9 +146,10 @@ def smooth_batch(
     report.start = source  # a restart says so in report.fallback
     report, result, graph = solve_with_stops(problem, report, result, graph)
     scale_info: dict[str, object] = {}
+    spread = None
     if report.converged:  # a fit that is poor may be poor for the scale (chi2/dof 10 on an
         # aircraft with a gyro 1 % large and 0.1 m/s velocities; 0.56 corrected)
-        result, graph, scale_info = correct_gyro_scale(problem, report, result, graph)
+        result, graph, scale_info, spread = correct_gyro_scale(problem, report, result, graph)
     # Faults last: a model error the steps above correct (a gyro scale) is no fault of the
     # fixes (a 3 % scale put one fix beyond 4 sigma before its correction); the stops found
     # stay (fgins.graph.gnss_faults).
@@ -165,6 +166,7 @@ def smooth_batch(
     solved = time.perf_counter()
     marginal = marginal_function(graph, result)
     covariances = marginal_covariances(problem, marginal, marginal, result, progress)
+    add_scale_spread(covariances, spread)
     states = states_from_values(problem, result, covariances)
     trajectory = to_trajectory(problem, states, "batch", smoothed=True)
     trajectory.timings.update(

@@ -20,7 +20,7 @@ from fgins.factors import odometer as odometer_model
 from fgins.factors import stationary
 from fgins.factors.values import put_bias, put_double, put_pose, put_vector
 from fgins.graph.gnss_faults import FaultExclusion, exclude_gnss_faults, with_every_fix
-from fgins.graph.gyro_scale import correct_gyro_scale
+from fgins.graph.gyro_scale import add_scale_spread, correct_gyro_scale
 from fgins.graph.output import KeyframeStates
 from fgins.graph.problem import Problem
 from fgins.graph.reports import (
@@ -600,10 +600,11 @@ def smooth_isam2(
         isam, result, online_states, online, report, update_s = run
         refined = _refined(problem, report, result, initial_guess, progress) if is_suspect(report) else None
     scale_info: dict[str, object] = {}
+    spread = None
     final_graph = None if refined is not None else compact_graph(isam.getFactorsUnsafe())
     if report.converged:  # a poor fit may be poor for the scale (as in the batch)
         solution, graph = refined if refined is not None else (result, final_graph)
-        scaled, scaled_graph, scale_info = correct_gyro_scale(problem, report, solution, graph)
+        scaled, scaled_graph, scale_info, spread = correct_gyro_scale(problem, report, solution, graph)
         if scaled is not solution:  # a scale corrected: LM from the iSAM2 estimate solved again
             refined = (scaled, scaled_graph)
             _say(report, "gyro scale corrected: solved again by Levenberg-Marquardt from the "
@@ -635,6 +636,7 @@ def smooth_isam2(
     def make_final() -> Trajectory:
         marginal = marginal_function(factors, result)
         covariances = marginal_covariances(problem, marginal, marginal, result, progress)
+        add_scale_spread(covariances, spread)
         final = to_trajectory(
             problem, states_from_values(problem, result, covariances), "isam2", smoothed=True
         )

@@ -36,6 +36,10 @@ class ParameterStep:
     # The reduced normal equations the step solves (information @ step = rhs).
     information: np.ndarray
     rhs: np.ndarray
+    # Asked for (parameter_step's ``sensitive``): each state's move with the parameters,
+    # d(state)/d(parameters) (dim, p) per key, every other state free: what an error of the
+    # parameters does to the solution (:func:`fgins.graph.gyro_scale.scale_consider`).
+    sensitivity: dict[int, np.ndarray] | None = None
 
     @property
     def sigma(self) -> np.ndarray:
@@ -101,12 +105,17 @@ def interval_mean(problem: Problem, samples: np.ndarray) -> np.ndarray:
 
 
 def parameter_step(
-    linear: gtsam.GaussianFactorGraph, columns: dict[int, np.ndarray], prior_information: np.ndarray
+    linear: gtsam.GaussianFactorGraph,
+    columns: dict[int, np.ndarray],
+    prior_information: np.ndarray,
+    sensitive: list[int] | None = None,
 ) -> ParameterStep | None:
     """The step of p parameters whose whitened columns ``columns`` (factor index in
     ``linear`` -> (rows, p)) add to those factors' rows, every state of ``linear`` free (see
     the module docstring), with a zero-mean prior of information ``prior_information``
-    (p, p). None when the graph cannot be eliminated."""
+    (p, p). With ``sensitive`` (keys), also those states' sensitivity to the parameters:
+    ``-S U = -R^-1 (R^-T U)``, one more back-substitution per parameter. None when the graph
+    cannot be eliminated."""
     gradient = linear.gradientAtZero()  # -A'b, over every variable
     # keyVector, a list: iterating the KeySet that keys() returns read freed memory.
     all_keys = [int(key) for key in linear.keyVector()]
@@ -137,19 +146,31 @@ def parameter_step(
 
     zeros = {key: np.zeros(dims[key]) for key in all_keys}
 
-    def back_transposed(column: dict[int, np.ndarray]) -> np.ndarray:
+    def back_transposed(column: dict[int, np.ndarray]) -> gtsam.VectorValues:
         vector = gtsam.VectorValues()
         for key in all_keys:
             vector.insert(key, column.get(key, zeros[key]))
-        # Every result holds the same keys, so .vector() orders them alike (key order).
-        return bayes_net.backSubstituteTranspose(vector).vector()
+        return bayes_net.backSubstituteTranspose(vector)
 
-    w = np.column_stack([back_transposed({key: block[:, c] for key, block in u.items()}) for c in range(count)])
-    w_r = back_transposed({key: -gradient.at(key) for key in all_keys})
+    # Every result holds the same keys, so .vector() orders them alike (key order).
+    w_values = [back_transposed({key: block[:, c] for key, block in u.items()}) for c in range(count)]
+    w = np.column_stack([values.vector() for values in w_values])
+    w_r = back_transposed({key: -gradient.at(key) for key in all_keys}).vector()
     information -= w.T @ w
     rhs -= w.T @ w_r
     try:
         covariance = np.linalg.inv(information)
     except np.linalg.LinAlgError:
         return None
-    return ParameterStep(step=covariance @ rhs, covariance=covariance, information=information, rhs=rhs)
+    sensitivity = None
+    if sensitive is not None:
+        moves = -np.column_stack([bayes_net.backSubstitute(values).vector() for values in w_values])
+        ordered = sorted(all_keys)  # .vector()'s order
+        offsets = dict(zip(ordered, np.cumsum([0] + [dims[key] for key in ordered[:-1]]), strict=True))
+        sensitivity = {
+            key: moves[offsets[key] : offsets[key] + dims[key]] for key in sensitive if key in dims
+        }
+    return ParameterStep(
+        step=covariance @ rhs, covariance=covariance, information=information, rhs=rhs,
+        sensitivity=sensitivity,
+    )  # fmt: skip
