@@ -22,10 +22,14 @@ carrier solution and satellites from NAV-PVT/PVAT, NAV-SOL or NAV-STATUS. HNR-PV
 high-rate output of a sensor-fusion receiver: its IMU is already in it, and its errors are
 correlated from one message to the next) is counted, said, and not used as fixes.
 
-Time is POSIX UTC seconds: from NAV-PVT/PVAT (or NAV-TIMEUTC) date and time when the receiver
-flags both valid; otherwise GPS week + iTOW (+fTOW) from NAV-SOL/NAV-TIMEGPS minus the leap
-seconds NAV-TIMEGPS reports as valid (any valid value in the log, else the built-in table,
-counted). Epochs without a valid time or without a position fix are counted, not used.
+Time is POSIX UTC seconds on one clock for the whole log: GPS time (week + iTOW (+fTOW) from
+NAV-SOL/NAV-TIMEGPS, or iTOW with the week of the epoch's UTC) less one leap count, that of the
+first epoch whose UTC the receiver had fully resolved (else the first valid NAV-TIMEGPS leap
+count, else the built-in table, counted); where NAV-PVT/PVAT (or NAV-TIMEUTC) date and time are
+flagged valid their sub-second is kept. A leap second inside the log, or UTC not yet resolved
+after a cold start (1 s off), is a whole-second step of the receiver's UTC, not of the log:
+said, not followed. Epochs without a valid time or without a position fix are counted, not
+used.
 
 Sigmas are the receiver's own: std east = std north = hAcc (the horizontal accuracy, used per
 axis: conservative by up to sqrt(2), as the HDOP convention of :mod:`fgins.factors.gnss`),
@@ -74,6 +78,7 @@ import re
 import struct
 from collections import Counter
 from dataclasses import dataclass, field
+from datetime import UTC, datetime
 from itertools import accumulate
 from pathlib import Path
 
@@ -522,8 +527,12 @@ def _ecef_to_enu_velocity(v: np.ndarray, lat_deg: float, lon_deg: float) -> np.n
 class _EpochBuilder:
     def __init__(self, scanner: _Scanner) -> None:
         self.scanner = scanner
-        self.leap_default = scanner.valid_leaps[-1] if scanner.valid_leaps else None
+        self.leap: int | None = None  # GPS - UTC (s) all the log's times take (_time)
+        self.table_leap = False  # ... taken from the built-in table
         self.table_leaps = 0
+        # Leap counts other than self.leap in resolved UTC, with the UTC they first came at.
+        self.leap_changes: dict[int, float] = {}
+        self.unresolved = 0  # epochs whose unresolved UTC was off the log's clock
         self.without_time = 0
         self.without_fix = 0
         self.histogram: Counter[int] = Counter()
@@ -532,27 +541,72 @@ class _EpochBuilder:
         self.last_time: float | None = None
         self.first_time = math.inf  # of any timed epoch, with a fix or not (t0 of outages)
 
-    def _time(self, e: _Epoch) -> float | None:
+    def _utc(self, e: _Epoch) -> tuple[float, bool] | None:
+        """The epoch's UTC (POSIX) from its date and time fields where flagged valid, and
+        whether the receiver had fully resolved it (knew the leap seconds)."""
         m = e.msgs
         for name, sec in (("NAV-PVT", "second"), ("NAV-PVAT", "sec")):
             msg = m.get(name)
             if msg is not None and getattr(msg, "validDate", 0) and getattr(msg, "validTime", 0):
                 t = _utc_from_fields(msg, sec)
                 if t is not None:
-                    return t
+                    return t, bool(getattr(msg, "fullyResolved", 0))
         utc = m.get("NAV-TIMEUTC")
         if utc is not None and getattr(utc, "validUTC", 0):
             t = _utc_from_fields(utc, "sec")
             if t is not None:
-                return t
-        week = None
-        ftow = 0.0
-        sol = m.get("NAV-SOL")
-        tgps = m.get("NAV-TIMEGPS")
+                return t, True
+        return None
+
+    def _stated_week(self, e: _Epoch) -> tuple[int, float] | None:
+        """(GPS week, fTOW ns) from NAV-SOL or NAV-TIMEGPS where flagged valid."""
+        sol, tgps = e.msgs.get("NAV-SOL"), e.msgs.get("NAV-TIMEGPS")
         if sol is not None and getattr(sol, "wknSet", 0) and getattr(sol, "towSet", 0):
-            week, ftow = int(sol.week), _f(sol, "fTOW")
-        elif tgps is not None and getattr(tgps, "weekValid", 0) and getattr(tgps, "towValid", 0):
-            week, ftow = int(tgps.week), _f(tgps, "fTOW")
+            return int(sol.week), _f(sol, "fTOW")
+        if tgps is not None and getattr(tgps, "weekValid", 0) and getattr(tgps, "towValid", 0):
+            return int(tgps.week), _f(tgps, "fTOW")
+        return None
+
+    @staticmethod
+    def _gps_posix(week: int, itow_ms: int, ftow_ns: float) -> float:
+        return GPS_EPOCH_POSIX + week * WEEK_S + itow_ms * 1e-3 + (ftow_ns if math.isfinite(ftow_ns) else 0.0) * 1e-9
+
+    @staticmethod
+    def _week_from_utc(e: _Epoch, utc: float) -> int:
+        """The GPS week of the epoch's iTOW, from its UTC (a leap count off by a few seconds
+        cannot change it)."""
+        guess = utc - GPS_EPOCH_POSIX + _leap_from_table(utc - GPS_EPOCH_POSIX)
+        return round((guess - e.itow * 1e-3) / WEEK_S)
+
+    def reference_leap(self, epochs: list[_Epoch]) -> int | None:
+        """GPS - UTC (s) of the log's first epoch whose UTC the receiver had resolved, else
+        of its first valid NAV-TIMEGPS leap count: the one offset the whole log's times take
+        (see :meth:`_time`). None where the log says neither."""
+        for e in epochs:
+            utc = self._utc(e)
+            if utc is None or not utc[1]:
+                continue
+            stated = self._stated_week(e)
+            week = stated[0] if stated else self._week_from_utc(e, utc[0])
+            return round(self._gps_posix(week, e.itow, 0.0) - utc[0])
+        return self.scanner.valid_leaps[0] if self.scanner.valid_leaps else None
+
+    def _time(self, e: _Epoch) -> float | None:
+        """The epoch's time on one clock for the whole log: GPS time less the log's one leap
+        count (:meth:`reference_leap`), to the sub-millisecond of the UTC fields where
+        valid. The receiver's own UTC steps by a whole second at a leap second, and when it
+        learns the leap count after a cold start (an epoch's UTC valid but not fully
+        resolved runs 1 s off): such a step read as the IMU's sensor tags jumping and the
+        log refused (outside tester, a real 2016-12-31 leap second and an unresolved start).
+        So the times stay UTC as at the log's start; each step is counted and said."""
+        utc = self._utc(e)
+        stated = self._stated_week(e)
+        week: int | None = None
+        ftow = 0.0
+        if stated is not None:
+            week, ftow = stated
+        elif utc is not None:
+            week = self._week_from_utc(e, utc[0])
         elif self.last_week is not None:
             week = self.last_week  # iTOW of a later epoch of the same week ...
             if self.last_itow is not None and e.itow < self.last_itow - WEEK_S * 500:
@@ -563,15 +617,22 @@ class _EpochBuilder:
         if week is None or week <= 0:
             return None
         self.last_week, self.last_itow = week, e.itow
-        gps = week * WEEK_S + e.itow * 1e-3 + (ftow if math.isfinite(ftow) else 0.0) * 1e-9
-        if tgps is not None and getattr(tgps, "leapSValid", 0):
-            leap = int(tgps.leapS)
-        elif self.leap_default is not None:
-            leap = self.leap_default
-        else:
-            leap = _leap_from_table(gps)
+        gps = self._gps_posix(week, e.itow, ftow)
+        if self.leap is None:
+            self.leap = _leap_from_table(gps - GPS_EPOCH_POSIX)
+            self.table_leap = True
+        if self.table_leap:
             self.table_leaps += 1
-        return GPS_EPOCH_POSIX + gps - leap
+        if utc is None:
+            return gps - self.leap
+        own = round(gps - utc[0])
+        if own != self.leap:
+            if utc[1]:
+                self.leap_changes.setdefault(own, utc[0])
+            else:
+                self.unresolved += 1
+        # The UTC fields' fraction of a second, moved by the whole seconds of leap count.
+        return utc[0] + (own - self.leap)
 
     def _status(self, e: _Epoch) -> tuple[int, int] | None:
         """(NMEA fix quality, u-blox fix type) or None when the epoch has no position fix."""
@@ -996,6 +1057,7 @@ def read_ubx(path: str | Path) -> UbxResult:
         )
     warnings: list[str] = []
     builder = _EpochBuilder(scanner)
+    builder.leap = builder.reference_leap(scanner.epochs)
     rows: list[tuple[float, list[float]]] = []
     epoch_times: list[tuple[int, float]] = []
     for epoch in scanner.epochs:
@@ -1049,6 +1111,7 @@ def read_ubx(path: str | Path) -> UbxResult:
             "high-rate sensor-fused output (it already holds the IMU and its errors run on "
             "from one message to the next); the fixes come from the NAV messages"
         )
+    warnings.extend(_leap_warnings(builder))
     if builder.table_leaps:
         warnings.append(
             f"{builder.table_leaps} epoch(s) in GPS time without valid leap seconds in the log: "
@@ -1069,6 +1132,25 @@ def read_ubx(path: str | Path) -> UbxResult:
     result.first_epoch_time = float(builder.first_time)
     _attach_imu(result, scanner, fix_anchor or epoch_times)
     return result
+
+
+def _leap_warnings(builder: _EpochBuilder) -> list[str]:
+    """What the receiver's UTC did that the log's one clock does not follow (_time)."""
+    out = []
+    for leap, utc in sorted(builder.leap_changes.items(), key=lambda item: item[1]):
+        when = datetime.fromtimestamp(utc, tz=UTC).strftime("%Y-%m-%d %H:%M:%S")
+        out.append(
+            f"the receiver's UTC steps by a leap second at {when} (GPS - UTC {builder.leap} -> "
+            f"{leap} s): the times stay on one clock, UTC as at the log's start, so from there "
+            f"on they run {abs(leap - builder.leap)} s {'ahead of' if leap > builder.leap else 'behind'} UTC"
+        )
+    if builder.unresolved:
+        out.append(
+            f"{builder.unresolved} epoch(s) whose UTC the receiver had not resolved yet (leap "
+            f"seconds not known; 1 s or more off its later UTC): timed from GPS time less "
+            f"{builder.leap} s as the rest"
+        )
+    return out
 
 
 def _repeat_warning(epochs: list[_Epoch]) -> str:

@@ -655,3 +655,62 @@ def test_a_log_concatenated_with_itself_counts_the_identical_epochs(tmp_path):
     assert message.startswith("10 repeated navigation epoch(s) identical to earlier ones dropped")
     assert not _repeat_warnings(result)  # no differing copy: no "repeated time" distances
     assert not [w for w in single.warnings if "identical" in w]
+
+
+# -- Leap seconds: one clock for the whole log ---------------------------------------------------
+
+_NEW_YEAR_2017 = calendar.timegm((2017, 1, 1, 0, 0, 0))
+
+
+def _leap_log(gps_times: np.ndarray, pvt_for) -> bytes:
+    """ESF-RAW at 100 Hz (a steady sensor clock) with a NAV-PVT from ``pvt_for(G)`` after
+    every 20th sample, G its GPS time (POSIX seconds, no leap seconds)."""
+    rng = np.random.default_rng(8)
+    out = bytearray()
+    n = 20 * len(gps_times)
+    gyro, accel = rng.normal(0, 0.1, (n, 3)), rng.normal(0, 0.5, (n, 3)) + np.array([0, 0, 9.8])
+    for k in range(n):
+        out += esf_raw([(256 * k, imu_raw_values(gyro[k], accel[k]))])
+        if k % 20 == 0:
+            out += pvt_for(float(gps_times[k // 20]))
+    return bytes(out)
+
+
+def test_a_leap_second_inside_the_log_keeps_one_clock(tmp_path):
+    """A log across the 2016-12-31 leap second, every flag valid, the UTC fields showing
+    23:59:60.x: read as the sensor tags jumping 1 s against GNSS time and its IMU refused,
+    and the inserted second's five fixes dropped as repeats (outside tester). The log stays
+    on one clock (UTC as at its start), the step said, no fix lost."""
+    start = _NEW_YEAR_2017 - 30.0 + 17  # GPS time of 23:59:30 UTC (GPS - UTC 17 s then)
+    gps = start + 0.2 * np.arange(300)  # 60 s at 5 Hz
+
+    def pvt(g: float) -> bytes:
+        before = g - 17 < _NEW_YEAR_2017
+        inserted = not before and g - 18 < _NEW_YEAR_2017
+        return nav_pvt(0.0, LAT, LON, H, gps_posix=g, leap=17 if before else 18, inserted_second=inserted)
+
+    result = read_ubx(_write(tmp_path, _leap_log(gps, pvt)))
+    np.testing.assert_allclose(result.gnss.t, gps - 17, atol=1e-6)  # all 300, one clock
+    assert result.imu is not None and len(result.imu) == 20 * len(gps)
+    said = [w for w in result.warnings if "leap second" in w]
+    assert len(said) == 1 and "2017-01-01 00:00:00" in said[0] and "17 -> 18" in said[0], result.warnings
+    assert not any("repeat" in w for w in result.warnings), result.warnings
+
+
+def test_utc_not_yet_resolved_is_timed_from_gps_time(tmp_path):
+    """After a cold start a receiver flags its UTC date and time valid before it knows the
+    leap seconds (fullyResolved clear): 1 s off its later UTC. The step when it learns them
+    had the IMU refused (sensor tags "jump forward by about 1.0 s") and, with an imu.csv,
+    42 good fixes left out as faults (outside tester). Every epoch is timed from GPS time
+    less the resolved count, the unresolved ones counted."""
+    gps = calendar.timegm((2024, 3, 9, 23, 58, 0)) + 18 + 0.5 * np.arange(100)  # 50 s at 2 Hz
+
+    def pvt(g: float) -> bytes:
+        early = g < gps[40]  # the first 20 s: a provisional 17 s
+        return nav_pvt(0.0, LAT, LON, H, gps_posix=g, leap=17 if early else 18, fully_resolved=0 if early else 1)
+
+    result = read_ubx(_write(tmp_path, _leap_log(gps, pvt)))
+    np.testing.assert_allclose(result.gnss.t, gps - 18, atol=1e-6)
+    assert result.imu is not None and len(result.imu) == 20 * len(gps)
+    said = [w for w in result.warnings if "not resolved" in w]
+    assert len(said) == 1 and said[0].startswith("40 epoch(s)"), result.warnings

@@ -46,14 +46,29 @@ def nav_pvt(
     h_acc_m: float = 1.5, v_acc_m: float = 2.5, s_acc_m_s: float = 0.2, fix_type: int = 3,
     fix_ok: int = 1, carr_soln: int = 0, diff_soln: int = 0, num_sv: int = 12,
     pdop: float = 1.5, valid_date: int = 1, valid_time: int = 1, itow_t: float | None = None,
+    fully_resolved: int = 1, gps_posix: float | None = None, leap: int = LEAP_S,
+    inserted_second: bool = False,
 ) -> bytes:  # fmt: skip
-    utc = _utc_fields(t)
+    """``t`` POSIX UTC; with ``gps_posix`` (GPS time as POSIX seconds, no leap seconds) the
+    iTOW is that time's and the UTC fields ``gps_posix - leap`` (``t`` unused), shown as
+    23:59:60.x with ``inserted_second`` (``leap`` then the count after it), as a receiver
+    shows the second a leap second inserts."""
+    if gps_posix is None:
+        utc = _utc_fields(t)
+        _, itow, _ = gps_week_itow(t if itow_t is None else itow_t)
+    else:
+        itow = round(((gps_posix - GPS_EPOCH_POSIX) % 604800) * 1000)
+        if inserted_second:
+            whole = math.floor(gps_posix - leap)
+            utc = _utc_fields(whole)  # 23:59:59, shown as its 60th second
+            utc.update(_sec=60, nano=round((gps_posix - leap - whole) * 1e9))
+        else:
+            utc = _utc_fields(gps_posix - leap)
     second = utc.pop("_sec")
-    _, itow, _ = gps_week_itow(t if itow_t is None else itow_t)
     ve, vn, vu = vel_enu
     return UBXMessage(
         "NAV", "NAV-PVT", GET, iTOW=itow, second=second, validDate=valid_date,
-        validTime=valid_time, fullyResolved=1, tAcc=20, fixType=fix_type, gnssFixOk=fix_ok,
+        validTime=valid_time, fullyResolved=fully_resolved, tAcc=20, fixType=fix_type, gnssFixOk=fix_ok,
         diffSoln=diff_soln, carrSoln=carr_soln, numSV=num_sv, lat=round(lat, 7),
         lon=round(lon, 7), height=round(height_m * 1000),
         hMSL=round(height_m * 1000) - 47000, hAcc=round(h_acc_m * 1000),
