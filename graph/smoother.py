@@ -68,6 +68,8 @@ def smooth(
             trajectory.info["online"] = other
             if method == "isam2-online":
                 _antenna_readings_of(other, trajectory)
+            else:  # the online estimate it carries says what it would alone
+                _antenna_readings_of(trajectory, other)
     else:
         raise FginsError(f"unknown factor-graph method {method!r}")
     trajectory.timings["build"] = built - started
