@@ -233,3 +233,25 @@ def test_a_protocol_number_given_asks_for_the_protocol_over_the_datas_own_outage
         )
     assert table.attrs["outages_from"] == "protocol"
     assert table.attrs["protocol"] == (20.0, 50.0, start + 10.0)
+
+
+def test_protocol_windows_that_would_touch_are_refused_as_the_protocols_mistake():
+    """duration == period passed "0 < duration <= period" and was then refused as explicit
+    windows that "touch", which the user never gave (outside tester)."""
+    from fgins.datatypes import ConfigError
+    from fgins.outages import periodic_windows
+
+    with pytest.raises(ConfigError, match=r"need 0 < duration < period .*touch are one outage"):
+        periodic_windows(30.0, 30.0, 0.0, 300.0)
+    assert periodic_windows(30.0, 30.5, 0.0, 90.0) == [(0.0, 30.0), (30.5, 60.5)]
+
+
+@pytest.mark.parametrize("t0", [0.0, 1000.0, 1_700_000_000.0])
+def test_a_fix_stamped_at_a_windows_end_is_not_withheld(t0):
+    """5 Hz fixes at POSIX times: 1.4 s after t0 read 1.39999999999998 and was withheld by
+    a window ending at 1.4 (outside tester): [start, end) to the microsecond."""
+    from fgins.outages import in_windows
+
+    t = t0 + np.round(np.arange(0, 3, 0.2), 1)
+    inside = in_windows(t, t0, [(0.6, 1.4)])
+    assert np.flatnonzero(inside).tolist() == [3, 4, 5, 6]  # 0.6, 0.8, 1.0, 1.2
