@@ -246,6 +246,7 @@ class TimeMap:
     # The anchors' GNSS time minus their tag at the nominal scale (s): steady but for the
     # sensor clock's drift; a step in it is the clock jumping.
     nominal_lag: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    gnss_t: np.ndarray = field(default_factory=lambda: np.zeros(0))  # the anchors' GNSS times
 
     @property
     def spread_s(self) -> float:
@@ -850,11 +851,17 @@ def _nmea_rows(
 
 
 def _unwrap(tags: np.ndarray, modulus: int) -> np.ndarray:
+    """Counter values unwrapped: each step taken as the shorter way round, so a counter that
+    wraps goes on, and one that goes back past zero (a restart, a log concatenated with
+    itself) goes back, not forward by most of the counter's period (a 200 s step back read
+    as "forward by 0.0 s, 240 times", a log given twice as "forward by 655.4 s"; outside
+    tester)."""
     tags = tags.astype(np.int64)
     if tags.size < 2:
         return tags
     steps = np.diff(tags)
-    wraps = np.concatenate([[0], np.cumsum(steps < -modulus // 2)])
+    turns = (steps < -modulus // 2).astype(np.int64) - (steps > modulus // 2).astype(np.int64)
+    wraps = np.concatenate([[0], np.cumsum(turns)])
     return tags + wraps * modulus
 
 
@@ -888,7 +895,7 @@ def _time_map(
         fitted = True
     offset = float(np.median(t - scale * tag))
     residuals = t - (offset + scale * tag)
-    return TimeMap(stream, scale, offset, nominal, len(tag), fitted, residuals, t - nominal * tag)
+    return TimeMap(stream, scale, offset, nominal, len(tag), fitted, residuals, t - nominal * tag, t)
 
 
 @dataclass
@@ -1208,6 +1215,20 @@ def _median_interval(tags: np.ndarray) -> float:
     return float(np.median(steps)) if steps.size else 0.0
 
 
+def _anchor_steps(mapping: TimeMap) -> np.ndarray:
+    """Per pair of consecutive anchors, the GNSS time elapsed less the tags' (s) at the
+    median scale of such pairs: ~0 on one clock, the jump where the sensor clock jumped
+    (positive: its tags went back)."""
+    lag = mapping.nominal_lag  # t - nominal * tag
+    if lag.size < 2:
+        return np.zeros(0)
+    gnss = np.diff(mapping.gnss_t)
+    ticks = gnss - np.diff(lag)  # nominal * d(tag)
+    forward = ticks > 0
+    rate = float(np.median(gnss[forward] / ticks[forward])) if forward.any() else 1.0
+    return gnss - rate * ticks
+
+
 def _attach_imu(result: UbxResult, scanner: _Scanner, anchors: list[tuple[int, float]]) -> None:
     from fgins.io.imu_checks import imu_from_samples
 
@@ -1229,7 +1250,10 @@ def _attach_imu(result: UbxResult, scanner: _Scanner, anchors: list[tuple[int, f
                 result.warnings.append(f"{stream}: {r.dropped} time tag(s) with only part of the "
                                        "six IMU axes and no partner: dropped (no sample "
                                        "interpolated)")  # fmt: skip
-            if r.repeated:  # two samples under one tag: which time the second has is unknown
+            tick_s = ESF_RAW_TICK_S if stream == "ESF-RAW" else ESF_MEAS_TICK_S
+            restarted = bool(np.any(np.diff(r.msg_last_tag) * tick_s < -RESTART_BACKWARDS_S))
+            if r.repeated and not restarted:  # two samples under one tag: which time the
+                # second has is unknown (after a restart the tags repeat too: that is said)
                 result.warnings.append(
                     f"{stream}: {r.repeated} IMU value(s) repeat the time tag of an earlier "
                     f"one (about {r.repeated // 6} sample(s)): dropped, the first kept; the "
@@ -1262,11 +1286,13 @@ def _attach_imu(result: UbxResult, scanner: _Scanner, anchors: list[tuple[int, f
             "time tags onto GNSS time: IMU not used"
         )
         return
-    # Found on the fitted map's residuals (a clock's steady drift is fitted away), sized on
-    # the nominal scale's (the fit took part of the jump into its scale).
-    jumps = np.flatnonzero(np.abs(np.diff(mapping.residuals)) > CLOCK_JUMP_S)
+    # Found between consecutive anchors against the median tick scale between them (a
+    # clock's steady drift is in that scale; one fitted over a jump takes the jump into its
+    # scale and moved every residual: "240 jumps of 0.0 s" for one of 200 s).
+    steps = _anchor_steps(mapping)
+    jumps = np.flatnonzero(np.abs(steps) > CLOCK_JUMP_S)
     if jumps.size:
-        step = float(np.diff(mapping.nominal_lag)[jumps[0]])
+        step = float(steps[jumps[0]])
         result.warnings.append(
             f"{source}: sensor time tags jump {'back' if step > 0 else 'forward'} by about "
             f"{abs(step):.1f} s against GNSS time {jumps.size} time(s) (first between navigation "

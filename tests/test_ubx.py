@@ -714,3 +714,35 @@ def test_utc_not_yet_resolved_is_timed_from_gps_time(tmp_path):
     assert result.imu is not None and len(result.imu) == 20 * len(gps)
     said = [w for w in result.warnings if "not resolved" in w]
     assert len(said) == 1 and said[0].startswith("40 epoch(s)"), result.warnings
+
+
+@pytest.mark.parametrize("back_s", [5.0, 200.0])
+def test_a_restart_back_past_the_counters_zero_is_one_jump_back(tmp_path, back_s):
+    """ESF-RAW tags (24 bits of 1/25600 s) stepping back 200 s near the counter's start
+    wrap to its top: read as "forward by about 0.0 s, 240 time(s), first between epochs 1
+    and 2" (outside tester), the fitted scale having taken the jump. One jump back, where
+    it is, and the tags' repeats it causes not blamed on the receiver."""
+    n = 3000  # 30 s at 100 Hz
+    start = 25600 * 10  # 10 s into the counter
+    tags = (start + 256 * np.arange(n) - np.where(np.arange(n) >= 1500, int(back_s * 25600), 0)) % (1 << 24)
+    gyro, accel = np.zeros((n, 3)), np.tile([0.0, 0.0, 9.8], (n, 1))
+    result = read_ubx(_write(tmp_path, _imu_log(tags, gyro, accel)))
+    assert result.imu is None
+    said = [w for w in result.warnings if "jump" in w]
+    assert said == ["ESF-RAW: sensor time tags jump back 1 time(s) (first after message 1500; a receiver "
+                    "restart?): IMU not used; split the log there"], result.warnings  # fmt: skip
+    assert not any("do not advance" in w for w in result.warnings), result.warnings
+
+
+def test_a_log_concatenated_with_itself_is_one_jump_back_of_its_imu(tmp_path):
+    """A log given twice (cat log log): its IMU read as jumping "forward by about 655.4 s,
+    481 time(s)" (the 24-bit period; outside tester). Its navigation repeats are dropped and
+    counted, its IMU's one jump back named."""
+    n = 3000
+    tags = ((1 << 24) - 25600 * 20 + 256 * np.arange(n)) % (1 << 24)  # wraps 20 s in
+    gyro, accel = np.zeros((n, 3)), np.tile([0.0, 0.0, 9.8], (n, 1))
+    once = _imu_log(tags, gyro, accel)
+    result = read_ubx(_write(tmp_path, once + once))
+    said = [w for w in result.warnings if "jump" in w]
+    assert len(said) == 1 and "jump back 1 time(s) (first after message 3000;" in said[0], result.warnings
+    assert any("the log concatenated with itself" in w for w in result.warnings), result.warnings
