@@ -212,7 +212,14 @@ def _determined_arm(configured: np.ndarray, shift: np.ndarray, cov: np.ndarray) 
     directions, _ = determined_directions(cov)
     if not directions.shape[1]:
         return None
-    arm = configured.astype(float) + directions @ (directions.T @ shift)
+    determined = directions @ (directions.T @ shift)
+    if float(np.linalg.norm(determined)) <= LEVER_ARM_MIN_M:
+        # What the drive determines is no arm that matters: the shift's size was in the
+        # directions it leaves open (an IMU mapped 30 ms early read as an arm 0.76 m off,
+        # 0.72 of it vertical at +-2 m: [-0.23, 0, 0] taken, the drive 4x worse at z 3.3;
+        # outside tester).
+        return None
+    arm = configured.astype(float) + determined
     return [float(x) for x in arm]
 
 

@@ -163,3 +163,24 @@ def test_a_correction_that_fits_no_better_is_not_taken(tmp_path, seed, method):
     for line in _said(track, "GNSS lever arm"):
         if "corrected" not in line:
             assert "measure and set it" not in line and "the fit is no better" in line, line
+
+
+@pytest.mark.parametrize(
+    ("shift", "taken"),
+    [([-0.23, 0.0, 0.72], None),  # the size is in the direction the drive leaves open
+     ([1.2, 0.0, 0.72], [1.2, 0.0, 0.0]),  # the determined part matters: taken, vertical held
+     ([0.3, 0.35, 0.0], None)],  # 0.46 m: under what an arm must be to count
+)  # fmt: skip
+def test_an_arm_is_taken_only_where_its_determined_part_matters(shift, taken):
+    """A UBX log's IMU mapped 30 ms early read as an antenna 0.76 m off, 0.72 m of it
+    vertical at +-1.4 m: its determined part, [-0.23, 0, 0], was taken as the arm and the
+    drive ran 0.24 m off beside its fixes at z 3.3 (0.08 m without; outside tester). The
+    arm's size that counts is that of what the drive determines."""
+    from fgins.antenna_verdict import _determined_arm
+
+    cov = np.diag([0.04, 0.02, 1.37]) ** 2
+    got = _determined_arm(np.zeros(3), np.array(shift), cov)
+    if taken is None:
+        assert got is None
+    else:
+        np.testing.assert_allclose(got, taken, atol=1e-12)
