@@ -26,6 +26,9 @@ DEG = math.pi / 180.0
 # Datasheet-unit IMU presets. Bias instability is turned into a bias random walk with a
 # correlation time (first-order Gauss-Markov approximated as a random walk over the span that
 # matters for outage bridging).
+# gyro_scale_sigma_percent: the 1-sigma scale-factor error of such a gyro (datasheets:
+# consumer MEMS +-1-3 %, industrial 0.1-0.5 %, tactical 100-500 ppm, navigation < 10 ppm):
+# what the smoother's sigmas take of the scale its data leave open (fgins.graph.gyro_scale).
 IMU_PRESETS: dict[str, dict[str, float]] = {
     "consumer-mems": {
         "gyro_arw_deg_per_sqrt_hr": 0.3,
@@ -34,6 +37,7 @@ IMU_PRESETS: dict[str, dict[str, float]] = {
         "accel_vrw_m_per_s_per_sqrt_hr": 0.1,
         "accel_bias_instability_mg": 0.1,
         "accel_turn_on_bias_mg": 10.0,
+        "gyro_scale_sigma_percent": 2.0,
     },
     "industrial-mems": {
         "gyro_arw_deg_per_sqrt_hr": 0.15,
@@ -42,6 +46,7 @@ IMU_PRESETS: dict[str, dict[str, float]] = {
         "accel_vrw_m_per_s_per_sqrt_hr": 0.05,
         "accel_bias_instability_mg": 0.03,
         "accel_turn_on_bias_mg": 3.0,
+        "gyro_scale_sigma_percent": 0.5,
     },
     "tactical": {
         "gyro_arw_deg_per_sqrt_hr": 0.05,
@@ -50,6 +55,7 @@ IMU_PRESETS: dict[str, dict[str, float]] = {
         "accel_vrw_m_per_s_per_sqrt_hr": 0.03,
         "accel_bias_instability_mg": 0.01,
         "accel_turn_on_bias_mg": 10.0,
+        "gyro_scale_sigma_percent": 0.05,
     },
     "navigation": {
         "gyro_arw_deg_per_sqrt_hr": 0.002,
@@ -58,6 +64,7 @@ IMU_PRESETS: dict[str, dict[str, float]] = {
         "accel_vrw_m_per_s_per_sqrt_hr": 0.002,
         "accel_bias_instability_mg": 0.005,
         "accel_turn_on_bias_mg": 0.025,
+        "gyro_scale_sigma_percent": 0.001,
     },
 }
 
@@ -295,6 +302,7 @@ IMU_KEYS = {
     "sample_timing",
     "noise_from_data",
     "turn_on_bias_from_data",
+    "gyro_scale_sigma_percent",
 }
 
 IMU_SAMPLE_TIMINGS = ("instant", "held", "mean")  # fgins.factors.imu_samples.SAMPLE_TIMINGS
@@ -329,6 +337,9 @@ IMU_SCHEMA: dict[str, Check] = {
     "accel_turn_on_bias_mg": _imu_bound(POSITIVE, 1e4, TURN_ON_HINT),
     "bias_correlation_time_s": POSITIVE,
     "integration_sigma_m_per_s2_per_sqrt_hz": NON_NEGATIVE,
+    "gyro_scale_sigma_percent": replace(
+        POSITIVE, abs_max=10.0, high_hint="beyond any gyro's scale error (MEMS datasheets: within 3 %)"
+    ),
     "rate_hz": POSITIVE,
     # What a sample stands for in time (fgins.factors.imu_samples): "instant" (a reading at
     # its time stamp, the default), "held" (the interval's increments to the next one over its
@@ -359,6 +370,7 @@ class ImuNoise:
     gyro_bias_prior: float
     accel_bias_prior: float
     integration_sigma: float = 1e-4
+    gyro_scale_sigma: float = 0.02  # the gyro's scale-factor error, 1-sigma (fraction)
 
     def scaled(self, factor: float) -> ImuNoise:
         """White noise inflated by ``factor`` (for stretches of filled-in samples)."""
@@ -467,6 +479,7 @@ def imu_noise_from_config(imu: dict[str, Any] | None = None, *, where: str = "")
         gyro_bias_prior=values["gyro_turn_on_bias_deg_per_s"] * DEG,
         accel_bias_prior=values["accel_turn_on_bias_mg"] * 1e-3 * STANDARD_GRAVITY,
         integration_sigma=values.get("integration_sigma_m_per_s2_per_sqrt_hz", 1e-4),
+        gyro_scale_sigma=values["gyro_scale_sigma_percent"] / 100.0,
     )
     # Each input was finite and in range; a product of huge ones could still overflow.
     derived = [getattr(noise, f.name) for f in fields(noise)]

@@ -34,7 +34,18 @@ def gnss_scatter(whitened: np.ndarray, method: str = "") -> dict[str, object]:
     out: dict[str, object] = {
         "gnss_whitened_scale_horizontal": horizontal, "gnss_whitened_scale_vertical": vertical,
     }  # fmt: skip
-    if vertical > SIGMA_TOO_SMALL and vertical > SIGMA_AXIS_RATIO * horizontal:
+    if vertical > SIGMA_TOO_SMALL and vertical > SIGMA_AXIS_RATIO * horizontal and method == "planar-kf":
+        # Its height is a random walk between fixes: a climbing vehicle's heights are not in
+        # its model (fgins's own simulated aircraft had "an altitude in feet, two datums
+        # mixed" said of its right heights; outside tester).
+        out["fit_warnings"] = [
+            f"{who}GNSS: the fixes' heights scatter {vertical:.1f}x their vertical sigma about its "
+            f"solution (horizontally {horizontal:.1f}x; robust whitened RMS, ~1 expected): the "
+            "planar filter holds its height between fixes, and the vehicle climbs or descends "
+            "faster than that model allows (or the heights are in feet, or of two datums); its "
+            "vertical uncertainty is that much too small: --method batch or ekf model the height"
+        ]
+    elif vertical > SIGMA_TOO_SMALL and vertical > SIGMA_AXIS_RATIO * horizontal:
         out["fit_warnings"] = [
             f"{who}GNSS: the fixes' heights scatter {vertical:.1f}x their vertical sigma about the "
             f"solution (horizontally {horizontal:.1f}x; robust whitened RMS, ~1 expected): an "

@@ -576,7 +576,8 @@ def grade_note(spread: float | None) -> str | None:
     if spread is None or spread <= GRADE_SPREAD_M_S2:
         return None
     return (
-        f"planar-kf: the road's grade changes along the drive: the levelled forward "
+        f"planar-kf: the vehicle's pitch (a road's grade, an aircraft's climb) changes along "
+        f"the drive: the levelled forward "
         f"acceleration departs from the fixes' change of speed by +-{spread:.2f} m/s^2 over "
         f"{GRADE_WINDOW_S:g}-s windows (RMS; gravity at a grade change of "
         f"~{100 * spread / 9.81:.1f} %): the planar model reads it as acceleration, so inside "

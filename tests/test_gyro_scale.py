@@ -343,6 +343,11 @@ def test_a_scale_error_too_loose_to_correct_is_in_the_sigmas(tmp_path, hills, pi
         folder = tmp_path / f"{pitch}_{yaw}"
         write_drive(folder, _gentle_hills(hills), 280.0, grade=TACTICAL, imu_rate=100.0,
                     jitter=0.0, gnss_rate=1.0, seed=seed)  # fmt: skip
+        # A low-noise gyro whose scale is known to 2 % only (the tactical preset's 0.05 %
+        # would say such errors cannot be).
+        config = folder / "cfg.toml"
+        config.write_text(config.read_text().replace('preset = "tactical"\n', 'preset = "tactical"\ngyro_scale_sigma_percent = 2.0\n'))
+        assert "gyro_scale_sigma_percent = 2.0" in config.read_text()
         if pitch:
             scale_gyro(folder, pitch, "y")
         if yaw:
