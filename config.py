@@ -305,6 +305,12 @@ IMU_KEYS = {
     "gyro_scale_sigma_percent",
 }
 
+MAX_BRIDGED_IMU_GAP_S = 60.0
+GAP_HINT = (
+    "no IMU factor carries attitude and velocity across a longer gap: split the log at the gap "
+    "and smooth each part"
+)
+
 IMU_SAMPLE_TIMINGS = ("instant", "held", "mean")  # fgins.factors.imu_samples.SAMPLE_TIMINGS
 # [imu] keys that describe the data, not the sensor's noise: kept under a user's preset.
 IMU_DATA_KEYS = ("sample_timing",)
@@ -696,8 +702,12 @@ SMOOTHER_SCHEMA = _schema_from_fields(
         "min_keyframe_interval_s": NON_NEGATIVE,
         "vehicle_constraint_interval_s": NON_NEGATIVE,
         "suspect_noise_factor": Check("number", low=1.0),
-        "max_imu_gap_s": POSITIVE,
-        "max_unaided_imu_gap_s": POSITIVE,
+        # Beyond a minute no IMU factor carries attitude and velocity across a gap (its
+        # inflated noise must cover any motion): raised to 3000 s to bridge an engine-off
+        # stop, the batch's checks re-solved a meaningless drive for minutes and EKF+RTS
+        # wrote a track 198 m off (outside tester).
+        "max_imu_gap_s": replace(POSITIVE, abs_max=MAX_BRIDGED_IMU_GAP_S, high_hint=GAP_HINT),
+        "max_unaided_imu_gap_s": replace(POSITIVE, abs_max=MAX_BRIDGED_IMU_GAP_S, high_hint=GAP_HINT),
         "initial_heading_deg": Check("number", abs_max=360.0),
         "vehicle": Check("str", choices=VEHICLES),
         "nhc_sigma_lateral_m_per_s": replace(POSITIVE, hint=SIGMA_HINT),

@@ -365,7 +365,7 @@ def test_a_kalman_baseline_that_diverged_says_so(method):
     dataset, imu = run.dataset, run.dataset.imu
     config = load_config(dataset_imu=dataset.imu_config, dataset_gnss=dataset.gnss_config)
     config.smoother.vehicle = "car"
-    config.smoother.max_imu_gap_s = config.smoother.max_unaided_imu_gap_s = 100.0
+    config.smoother.max_imu_gap_s = config.smoother.max_unaided_imu_gap_s = 60.0
     clean = run_method(dataset, config, method, progress=False)
     assert not [w for w in clean.info.get("fit_warnings", []) if "does not fit" in w]
     keep = (imu.t < imu.t[0] + 40.0) | (imu.t >= imu.t[0] + 65.0)
