@@ -569,9 +569,11 @@ def flag_suspect(imu: ImuData, warnings: list[str], *, label: str = "imu") -> Im
     gaps = find_gaps(t)
     if gaps:
         total = sum(b - a for a, b in gaps)
+        longest = max(b - a for a, b in gaps)
         warnings.append(
             f"{label}: {len(gaps)} IMU gap(s) longer than {GAP_FACTOR:g} sample periods "
-            f"({total:.2f} s in all); bridged with inflated noise"
+            f"({total:.2f} s in all, the longest {longest:.2f} s); bridged with inflated noise "
+            "up to [smoother] max_imu_gap_s"
         )
         suspect.extend(gaps)
     fills = find_linear_fills(t, np.column_stack([imu.gyro, imu.accel]))

@@ -355,6 +355,9 @@ def test_imu_gaps_no_method_can_bridge_are_refused_naming_the_gap(tmp_path, sim_
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].startswith("fgins: error: imu: the 12.0 s gap in the IMU data at t - t0 = 20.0")
     assert "max_imu_gap_s" in err[-1] and not out.exists()
+    # The reader's note before it does not claim a bridge the run then refuses (outside tester).
+    noted = [line for line in err if "IMU gap(s) longer than" in line]
+    assert noted and "the longest 12.00 s); bridged with inflated noise up to [smoother] max_imu_gap_s" in noted[0], err
 
     short_gap = _imu_without(sim_dir, tmp_path / "short", 20.0, 26.0)  # 6 s, GNSS inside
     args = ["smooth", str(short_gap), "--method", method, "-o", str(out), "--no-progress"]
