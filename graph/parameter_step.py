@@ -38,7 +38,7 @@ class ParameterStep:
     rhs: np.ndarray
     # Asked for (parameter_step's ``sensitive``): each state's move with the parameters,
     # d(state)/d(parameters) (dim, p) per key, every other state free: what an error of the
-    # parameters does to the solution (:func:`fgins.graph.gyro_scale.scale_consider`).
+    # parameters does to the solution (:func:`fgins.graph.gyro_scale.scale_spread`).
     sensitivity: dict[int, np.ndarray] | None = None
 
     @property
