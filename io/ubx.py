@@ -1534,6 +1534,16 @@ def load_ubx_dataset(
             imu, imu_from = read_imu_csv(other, warnings), str(other)
         else:
             raise InputError(f"{other}: not a file; beside a UBX log give an imu.csv or an MCAP")
+    if imu is not None:
+        # The receiver's own IMU is not used: what its reader said of it is no finding of
+        # this run ("IMU not used; split the log there" beside a good imu.csv; outside tester).
+        own = [w for w in result.warnings if w.startswith(("ESF-RAW", "ESF-MEAS"))]
+        warnings = [w for w in warnings if w not in own]
+        if own:
+            warnings.append(
+                f"{path}: its own IMU messages ({result.imu_source or 'ESF'}) not used: {imu_from} "
+                f"given beside it ({len(own)} note(s) on them left out; `fgins inspect` shows them)"
+            )
     if imu is None:
         imu = result.imu
     if imu is None:

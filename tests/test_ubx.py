@@ -477,6 +477,15 @@ def test_load_dataset_own_imu_or_csv_beside(tmp_path):
     again = load_dataset([str(tmp_path / "imu.csv"), str(path)], progress=False)
     assert again.metadata["imu_source"].endswith("imu.csv")
     np.testing.assert_allclose(again.imu.accel[:, 2], 9.8)
+    # Beside a log whose own IMU cannot be used (its tags jump back), a good imu.csv: that
+    # IMU's refusal ("split the log there") is no finding of this run (outside tester).
+    n = 3000
+    tags = 256 * np.arange(n) - np.where(np.arange(n) >= 1500, 25600 * 5, 0) + 25600 * 100
+    jumped = _write(tmp_path, _imu_log(tags, np.zeros((n, 3)), np.tile([0.0, 0.0, 9.8], (n, 1))), "jumped.ubx")
+    assert any("split the log there" in w for w in read_ubx(jumped).warnings)
+    beside = load_dataset([str(jumped), str(tmp_path / "imu.csv")], progress=False)
+    assert not any("split the log there" in w for w in beside.warnings), beside.warnings
+    assert any("its own IMU messages (ESF-RAW) not used" in w for w in beside.warnings), beside.warnings
     # Two IMUs beside it: which replaces the receiver's? Refused (the last one won, unsaid).
     write_imu_csv(dataset.imu, tmp_path / "imu2.csv")
     with pytest.raises(InputError, match=r"beside a UBX log give one IMU .* got 2"):
