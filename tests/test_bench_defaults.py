@@ -9,6 +9,7 @@ outage the scenario is about is now the default, scored against the folder's tru
 from __future__ import annotations
 
 import shutil
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -255,3 +256,19 @@ def test_a_fix_stamped_at_a_windows_end_is_not_withheld(t0):
     t = t0 + np.round(np.arange(0, 3, 0.2), 1)
     inside = in_windows(t, t0, [(0.6, 1.4)])
     assert np.flatnonzero(inside).tolist() == [3, 4, 5, 6]  # 0.6, 0.8, 1.0, 1.2
+
+
+def test_a_window_past_the_data_is_scored_over_its_part_and_said(aircraft):
+    """An explicit 280:400 on a 300 s drive was scored as 280:300 without a word (outside
+    tester): the window's row is the part the data have, and that is said."""
+    folder, _ = aircraft
+    dataset = fgins.load(folder)
+    last = float(dataset.gnss.t[-1] - dataset.t0)
+    with pytest.warns(fgins.FginsWarning, match=r"runs past the last GNSS epoch"):
+        table = fgins.bench(dataset, methods=["ekf"], outages=[(last - 20.0, last + 100.0)])
+    assert table.attrs["warnings"] and any("runs past" in w for w in table.attrs["warnings"])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        inside = fgins.bench(dataset, methods=["ekf"], outages=[(last - 20.0, last - 5.0)])
+    assert not [w for w in caught if "runs past" in str(w.message)]
+    assert not any("runs past" in w for w in inside.attrs["warnings"])
