@@ -912,11 +912,13 @@ class _ImuRows:
     msg_last_tag: np.ndarray
     max_pair_gap: float = 0.0
     repeated: int = 0  # IMU values at a tag and type already filled: dropped
+    identical: int = 0  # ... of them equal to the value kept (the stream logged twice)
 
 
-def _table(tags: np.ndarray, kinds: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+def _table(tags: np.ndarray, kinds: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, int]:
     """(unique tags, table of raw values by tag x ESF data type 0..63, NaN where absent, the
-    number of IMU values that repeat a tag's type already filled: dropped)."""
+    number of IMU values that repeat a tag's type already filled: dropped, and how many of
+    those equal the value kept)."""
     unique, inverse = np.unique(tags, return_inverse=True)
     table = np.full((len(unique), 64), np.nan)
     # The first value of a type at a tag counts (numpy leaves the winner of repeated indices
@@ -926,7 +928,11 @@ def _table(tags: np.ndarray, kinds: np.ndarray, values: np.ndarray) -> tuple[np.
     table[inverse[first], kinds[first]] = values[first]
     imu = np.isin(kinds, [*GYRO_TYPES, *ACCEL_TYPES])
     repeated = int(imu.sum() - np.isin(kinds[first], [*GYRO_TYPES, *ACCEL_TYPES]).sum())
-    return unique.astype(float), table, repeated
+    again = np.ones(len(cells), dtype=bool)
+    again[first] = False
+    again &= imu
+    identical = int(np.sum(table[inverse[again], kinds[again]] == values[again]))
+    return unique.astype(float), table, repeated, identical
 
 
 def _raw_rows(scanner: _Scanner) -> _ImuRows | None:
@@ -942,9 +948,9 @@ def _raw_rows(scanner: _Scanner) -> _ImuRows | None:
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
     msg_last = np.maximum.reduceat(tags, starts)
     msg_index = np.array([index for index, _ in scanner.esf_raw])
-    unique, table, repeated = _table(tags, kinds, values)
+    unique, table, repeated, identical = _table(tags, kinds, values)
     rows = _rows_from_table(unique, table, msg_index, msg_last, ESF_RAW_TICK_S)
-    rows.repeated = repeated
+    rows.repeated, rows.identical = repeated, identical
     return rows
 
 
@@ -956,9 +962,9 @@ def _meas_rows(scanner: _Scanner) -> _ImuRows | None:
     sizes = [len(values) for _, _, values in scanner.esf_meas]
     pairs = np.array([kv for _, _, values in scanner.esf_meas for kv in values], dtype=np.int64)
     tags = np.repeat(msg_tags, sizes)
-    unique, table, repeated = _table(tags, pairs[:, 0], pairs[:, 1])
+    unique, table, repeated, identical = _table(tags, pairs[:, 0], pairs[:, 1])
     rows = _rows_from_table(unique, table, msg_index, msg_tags.copy(), ESF_MEAS_TICK_S)
-    rows.repeated = repeated
+    rows.repeated, rows.identical = repeated, identical
     return rows
 
 
@@ -1252,7 +1258,14 @@ def _attach_imu(result: UbxResult, scanner: _Scanner, anchors: list[tuple[int, f
                                        "interpolated)")  # fmt: skip
             tick_s = ESF_RAW_TICK_S if stream == "ESF-RAW" else ESF_MEAS_TICK_S
             restarted = bool(np.any(np.diff(r.msg_last_tag) * tick_s < -RESTART_BACKWARDS_S))
-            if r.repeated and not restarted:  # two samples under one tag: which time the
+            if r.repeated and r.identical == r.repeated and not restarted:
+                # Every repeat the same value at the same tag: the stream logged twice (two
+                # ports into one file), as the navigation half says of its epochs.
+                result.warnings.append(
+                    f"{stream}: {r.repeated} IMU value(s) identical to earlier ones at the same "
+                    "time tag (the stream logged twice?): dropped"
+                )
+            elif r.repeated and not restarted:  # two samples under one tag: which time the
                 # second has is unknown (after a restart the tags repeat too: that is said)
                 result.warnings.append(
                     f"{stream}: {r.repeated} IMU value(s) repeat the time tag of an earlier "

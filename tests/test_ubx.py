@@ -274,6 +274,19 @@ def test_esf_raw_samples_sharing_a_tag_are_counted_not_silently_lost(tmp_path):
     # Distinct tags: nothing said.
     clean = read_ubx(_write(tmp_path, _imu_log(256 * np.arange(n), gyro, accel)))
     assert not [w for w in clean.warnings if "repeat the time tag" in w]
+    # Every ESF-RAW message logged twice (two ports into one file): the same values at the
+    # same tags, said as such, not as tags that "do not advance" (outside tester).
+    doubled = bytearray()
+    for k in range(n):
+        message = esf_raw([(256 * k, imu_raw_values(gyro[k], accel[k]))])
+        doubled += message + message
+        if k % 10 == 0:
+            doubled += nav_pvt(T0 + 0.01 * k, LAT, LON, H)
+    twice = read_ubx(_write(tmp_path, bytes(doubled)))
+    assert len(twice.imu) == n
+    said = [w for w in twice.warnings if "ESF-RAW" in w]
+    assert said == [f"ESF-RAW: {6 * n} IMU value(s) identical to earlier ones at the same time tag "
+                    "(the stream logged twice?): dropped"], twice.warnings  # fmt: skip
 
 
 @pytest.mark.parametrize(("jump_s", "said"), [(-1.0, "jump back by about 1.0 s"), (3.0, "jump forward by about 3.0 s")])
