@@ -246,3 +246,40 @@ def test_ekf_rts_says_where_its_forward_pass_missed_the_fix_after_a_gap():
     forward.counts.update(forward_passes=1, relinearised_passes=0)
     (said,) = [w for w in trajectory_info(forward, epochs)["fit_warnings"] if "forward pass" in w]
     assert said.startswith("EKF+RTS: its forward pass missed the first fix after 41 s")  # 59-100 s
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_a_forward_filter_s_miss_after_a_turning_outage_is_said_from_five_sigmas(tmp_path, seed):
+    """A consumer gyro reading turns 1 % small (independent simulator, a 180 deg and a 90 deg
+    turn inside a 60 s outage): the forward EKF's first fix after it 21-23 m off at 5 sigmas
+    of its own uncertainty, unsaid: the gap check spoke from chi-square 50 (7 sigmas; outside
+    tester: a 15.6 m miss at 5.5 sigmas, NEES 7-11 in the outage). From 25 (4e-6 for a filter
+    that holds); the same drive with a true gyro says nothing."""
+    import sys
+    import warnings
+
+    import fgins
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from independent_sim import CarProfile, scale_gyro, write_drive
+
+    consumer = dict(preset="consumer-mems", gyro_arw=0.3, gyro_bi=10.0, gyro_on=1800.0,
+                    accel_vrw=0.1, accel_bi=0.1, accel_on=10.0)  # fmt: skip
+    turns = [(40, 52, 3, 0.26), (100, 106, 2, 0.26), (185, 197, 3, 0.26), (210, 216, 2, -0.26)]
+    profile = CarProfile(steps=[(10, 8, 15.0)], turns=turns, gamma=lambda t: 0 * t)
+
+    def said(scale: float) -> list[str]:
+        folder = tmp_path / f"scale{scale}"
+        write_drive(folder, profile, 280.0, grade=consumer, imu_rate=100.0, jitter=0.0,
+                    gnss_rate=1.0, seed=seed)  # fmt: skip
+        if scale:
+            scale_gyro(folder, scale, "z")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", fgins.FginsWarning)
+            dataset = fgins.load(folder / "imu.csv", folder / "gnss.csv", config=folder / "cfg.toml", vehicle="car")
+            track = fgins.smooth(dataset, "ekf", gnss_outage=[(60.0, 120.0), (175.0, 235.0)])
+        return [w for w in track.info.get("fit_warnings", []) if "missed the first fix" in w]
+
+    scaled = said(-0.01)
+    assert len(scaled) == 1 and "after 61 s without fixes" in scaled[0], scaled
+    assert said(0.0) == []
