@@ -65,7 +65,6 @@ class ScaleEstimate:
 
     error: np.ndarray
     sigma: np.ndarray
-    covariance: np.ndarray | None = None
     # Each keyframe state's move with the scale (parameter_step's sensitivity), by key.
     sensitivity: dict[int, np.ndarray] | None = None
     # The reduced normal equations (under SCALE_PRIOR): information @ error = rhs.
@@ -162,8 +161,8 @@ def estimate_gyro_scale(
     if estimate is None:
         return None
     return ScaleEstimate(
-        error=estimate.step, sigma=estimate.sigma, covariance=estimate.covariance,
-        sensitivity=estimate.sensitivity, information=estimate.information, rhs=estimate.rhs,
+        error=estimate.step, sigma=estimate.sigma, sensitivity=estimate.sensitivity,
+        information=estimate.information, rhs=estimate.rhs,
     )  # fmt: skip
 
 

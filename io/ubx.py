@@ -913,6 +913,12 @@ class _ImuRows:
     max_pair_gap: float = 0.0
     repeated: int = 0  # IMU values at a tag and type already filled: dropped
     identical: int = 0  # ... of them equal to the value kept (the stream logged twice)
+    tick_s: float = ESF_RAW_TICK_S  # one tag tick (s)
+
+    def jumps_back(self) -> np.ndarray:
+        """The messages after which the tags go back by more than RESTART_BACKWARDS_S (a
+        receiver restart, not a wrap)."""
+        return np.flatnonzero(np.diff(self.msg_last_tag) * self.tick_s < -RESTART_BACKWARDS_S)
 
 
 def _table(tags: np.ndarray, kinds: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, int]:
@@ -1006,6 +1012,7 @@ def _rows_from_table(
         msg_index=np.asarray(msg_index),
         msg_last_tag=np.asarray(msg_last),
         max_pair_gap=max_gap,
+        tick_s=tick_s,
     )
 
 
@@ -1256,8 +1263,7 @@ def _attach_imu(result: UbxResult, scanner: _Scanner, anchors: list[tuple[int, f
                 result.warnings.append(f"{stream}: {r.dropped} time tag(s) with only part of the "
                                        "six IMU axes and no partner: dropped (no sample "
                                        "interpolated)")  # fmt: skip
-            tick_s = ESF_RAW_TICK_S if stream == "ESF-RAW" else ESF_MEAS_TICK_S
-            restarted = bool(np.any(np.diff(r.msg_last_tag) * tick_s < -RESTART_BACKWARDS_S))
+            restarted = r.jumps_back().size > 0
             if r.repeated and r.identical == r.repeated and not restarted:
                 # Every repeat the same value at the same tag: the stream logged twice (two
                 # ports into one file), as the navigation half says of its epochs.
@@ -1284,7 +1290,7 @@ def _attach_imu(result: UbxResult, scanner: _Scanner, anchors: list[tuple[int, f
             f"{source}: accelerometer and gyro sent with separate time tags, paired by nearest time "
             f"tag (largest tag difference {1e3 * rows.max_pair_gap:.0f} ms)"
         )
-    back = np.flatnonzero(np.diff(rows.msg_last_tag) * nominal < -RESTART_BACKWARDS_S)
+    back = rows.jumps_back()
     if back.size:
         # Sorting by tag would interleave two runs of the sensor clock: refuse, clearly.
         result.warnings.append(
